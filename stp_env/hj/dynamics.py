@@ -1,0 +1,170 @@
+"""Control- and disturbance-affine dynamics for the level-set solver.
+
+    dx/dt = f(x) + G_u(x) u + G_d(x) d,   u in U (control set),  d in D (disturbance set).
+
+States, inputs and co-states are passed *structure-of-arrays*: a tuple with one array per component. A single
+state is a tuple of scalars; a whole grid is :meth:`Grid.broadcast_states`, a tuple of broadcastable arrays.
+The same code therefore evaluates one state inside a controller and a million grid nodes inside the solver,
+and zero Jacobian entries (written as the Python float ``0.0``) cost nothing.
+
+Hamiltonian and player roles
+----------------------------
+Every problem in this package solves ``D_t V + H(x, D_x V) = 0`` with
+
+    H(x, p) = opt_u opt_d  p . f(x, u, d),
+
+where ``opt_u`` is ``min`` or ``max`` according to ``control_mode``, and likewise for the disturbance. Because
+``p . f`` is separable in ``u`` and ``d``, the order of the two optimisations does not matter and both are in
+closed form (:mod:`stp_env.hj.sets`). The role to choose follows the reachability literature (intruder paper,
+Section III-A): a player that tries to *reach* a target in a backward problem minimises (``"min"``), a player that
+tries to *avoid* it maximises (``"max"``); in a forward reachable set, a player whose every input is to be
+covered maximises.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+from collections.abc import Sequence
+
+import jax.numpy as jnp
+
+from stp_env.hj.sets import ProductSet
+
+_MODES = ("min", "max")
+
+
+def _is_zero(x) -> bool:
+    return isinstance(x, (int, float)) and x == 0
+
+
+def _dot(p: Sequence, column: Sequence):
+    """``sum_i p_i column_i`` skipping literal zeros."""
+    terms = [pi * ci for pi, ci in zip(p, column) if not _is_zero(ci)]
+    return sum(terms[1:], terms[0]) if terms else 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class ControlAffineDynamics(abc.ABC):
+    """Base class. Subclasses are frozen dataclasses (hashable: they are static jit arguments) and implement
+    :meth:`open_loop`, :meth:`control_jacobian`, :meth:`disturbance_jacobian` and :attr:`state_dim`.
+
+    Attributes:
+        control_mode: ``"min"`` or ``"max"``: how the control optimises ``p . f``.
+        disturbance_mode: ``"min"`` or ``"max"``: how the disturbance optimises ``p . f``.
+    """
+
+    control_mode: str = "min"
+    disturbance_mode: str = "max"
+
+    def __post_init__(self) -> None:
+        for name in ("control_mode", "disturbance_mode"):
+            mode = getattr(self, name)
+            if mode not in _MODES:
+                raise ValueError(f"{name} must be 'min' or 'max'; got {mode!r}.")
+
+    # ----------------------------------------------------------- to implement
+    @property
+    @abc.abstractmethod
+    def state_dim(self) -> int: ...
+
+    @property
+    @abc.abstractmethod
+    def control_space(self) -> ProductSet: ...
+
+    @property
+    @abc.abstractmethod
+    def disturbance_space(self) -> ProductSet: ...
+
+    @abc.abstractmethod
+    def open_loop(self, x: Sequence) -> tuple:
+        """``f(x)``: ``state_dim`` entries. Dynamics are time-invariant (time enters problems through
+        targets and obstacles), so the solver computes dissipation and the CFL step once."""
+
+    @abc.abstractmethod
+    def control_jacobian(self, x: Sequence) -> tuple:
+        """``G_u(x)``: ``state_dim`` rows of ``control_space.dim`` entries."""
+
+    @abc.abstractmethod
+    def disturbance_jacobian(self, x: Sequence) -> tuple:
+        """``G_d(x)``: ``state_dim`` rows of ``disturbance_space.dim`` entries."""
+
+    # ------------------------------------------------------------ derived
+    def with_modes(self, control_mode: str | None = None, disturbance_mode: str | None = None):
+        """A copy with other player roles."""
+        return dataclasses.replace(
+            self,
+            control_mode=self.control_mode if control_mode is None else control_mode,
+            disturbance_mode=self.disturbance_mode if disturbance_mode is None else disturbance_mode,
+        )
+
+    def __call__(self, x: Sequence, u: Sequence, d: Sequence | None = None) -> tuple:
+        """``dx/dt`` for given control ``u`` and disturbance ``d`` (zero disturbance if ``None``)."""
+        f0 = self.open_loop(x)
+        gu = self.control_jacobian(x)
+        out = [f0[i] + _dot(u, gu[i]) for i in range(self.state_dim)]
+        if d is not None and self.disturbance_space.dim:
+            gd = self.disturbance_jacobian(x)
+            out = [out[i] + _dot(d, gd[i]) for i in range(self.state_dim)]
+        return tuple(out)
+
+    def _input_directions(self, x, p):
+        gu = self.control_jacobian(x)
+        qu = tuple(_dot(p, [gu[i][j] for i in range(self.state_dim)]) for j in range(self.control_space.dim))
+        qd: tuple = ()
+        if self.disturbance_space.dim:
+            gd = self.disturbance_jacobian(x)
+            qd = tuple(_dot(p, [gd[i][j] for i in range(self.state_dim)])
+                       for j in range(self.disturbance_space.dim))
+        return qu, qd
+
+    def hamiltonian(self, x: Sequence, p: Sequence):
+        """``H(x, p) = p . f(x) + opt_u (p . G_u u) + opt_d (p . G_d d)`` in closed form."""
+        qu, qd = self._input_directions(x, p)
+        h = _dot(p, self.open_loop(x))
+        h = h + self.control_space.optimum(qu, self.control_mode)
+        if qd:
+            h = h + self.disturbance_space.optimum(qd, self.disturbance_mode)
+        return h
+
+    def optimal_control(self, x: Sequence, p: Sequence) -> tuple:
+        """``arg opt_u p . G_u(x) u`` (the control realising :meth:`hamiltonian`)."""
+        qu, _ = self._input_directions(x, p)
+        return self.control_space.extreme(qu, self.control_mode)
+
+    def optimal_disturbance(self, x: Sequence, p: Sequence) -> tuple:
+        """``arg opt_d p . G_d(x) d`` (the disturbance realising :meth:`hamiltonian`)."""
+        _, qd = self._input_directions(x, p)
+        if not qd:
+            return ()
+        return self.disturbance_space.extreme(qd, self.disturbance_mode)
+
+    def partial_bounds(self, x: Sequence) -> tuple:
+        """``alpha_i(x) >= max_{u, d} |f_i(x, u, d)| = |dH/dp_i|`` bound used for Lax-Friedrichs dissipation
+        and for the CFL condition.
+
+        Tight for products of boxes and balls: ``|f_i(x, c_u, c_d)| + sum_blocks max |G_i,block e|`` where
+        ``c`` are the set centres and ``e`` ranges over the centred block.
+        """
+        f0 = self.open_loop(x)
+        gu = self.control_jacobian(x)
+        gd = self.disturbance_jacobian(x) if self.disturbance_space.dim else None
+        cu = self.control_space.center()
+        cd = self.disturbance_space.center()
+        out = []
+        for i in range(self.state_dim):
+            centre = f0[i] + _dot(cu, gu[i])
+            if gd is not None:
+                centre = centre + _dot(cd, gd[i])
+            a = jnp.abs(centre) if not _is_zero(centre) else 0.0
+            k = 0
+            for b in self.control_space.blocks:
+                a = a + b.max_abs_linear(gu[i][k:k + b.dim])
+                k += b.dim
+            if gd is not None:
+                k = 0
+                for b in self.disturbance_space.blocks:
+                    a = a + b.max_abs_linear(gd[i][k:k + b.dim])
+                    k += b.dim
+            out.append(a)
+        return tuple(out)

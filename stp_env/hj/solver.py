@@ -1,0 +1,372 @@
+"""Level-set solver for Hamilton-Jacobi reachability.
+
+Sign conventions (stated once, used everywhere)
+-----------------------------------------------
+* Sets are sub-zero level sets: target ``L = {l <= 0}``, obstacle ``G(t) = {g(t, .) <= 0}``, reachable set
+  ``{V(t, .) <= 0}`` (intruder paper eq. 5; SPP paper eq. 9).
+* The PDE is always ``D_t V + H(x, D_x V) = 0`` with ``H = opt_u opt_d p . f`` and the players' roles
+  (``"min"``/``"max"``) carried by the dynamics (:mod:`stp_env.hj.dynamics`).
+* ``times`` is the list of times at which values are wanted; ``times[0]`` is where the boundary condition holds.
+  Decreasing times solve a **backward** problem (``V(times[0]) = l``, a BRS/BRT); increasing times solve a
+  **forward** problem (``W(times[0]) = l``, an FRS).
+* ``tube=True`` computes the set of states that reach the target at *some* time within the horizon (a tube):
+  ``V <- min(V, l)`` after every step (or the ``"freeze"`` variant, see :class:`SolverSettings`). ``tube=False``
+  gives the set at exactly the horizon.
+* ``obstacle`` adds the double-obstacle variational inequality of the intruder paper eq. (3) / SPP paper
+  eq. (7): ``V <- max(V, -g(t))`` after every step, and ``V(times[0]) = max(l, -g(times[0]))``. The same
+  constraint applied to a forward problem gives the states reachable while staying out of ``G`` (eq. 4).
+
+Numerics: Lax-Friedrichs numerical Hamiltonian
+``H^(x, p-, p+) = H(x, (p- + p+)/2) - sum_i alpha_i(x) (p+_i - p-_i) / 2`` with the dynamics' partial bounds
+``alpha``; upwind derivatives from :mod:`stp_env.hj.derivatives`; TVD Runge-Kutta of order 1-3 with a fixed
+CFL-limited step (the dynamics are time-invariant, so the bound is computed once). Each time interval between
+requested times runs as device loops of ``steps_per_chunk`` steps; values never leave the device inside a loop.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from stp_env.hj.derivatives import one_sided_derivatives
+from stp_env.hj.dynamics import ControlAffineDynamics
+from stp_env.hj.grid import Grid
+from stp_env.hj.settings import SolverSettings
+
+ObstacleFn = Callable[[Any, Any], jnp.ndarray]
+
+
+def static_obstacle(t, g):
+    """Obstacle function for a time-invariant obstacle array ``g`` (``obstacle_fn`` default)."""
+    del t
+    return g
+
+
+@dataclasses.dataclass(frozen=True)
+class ReachResult:
+    """Output of :func:`solve`.
+
+    Attributes:
+        values: value functions at the requested ``times``, shape ``(len(times), *grid.shape)``.
+        times: the requested times.
+        n_steps: number of time steps taken (each of ``integrator`` order stages).
+        dt: the CFL-limited time step used (the last step of each interval may be shorter).
+        time_to_reach: if requested, ``|t - times[0]|`` at which each node first entered ``{V <= 0}``
+            (linearly interpolated within a step; ``inf`` if never).
+    """
+
+    values: jnp.ndarray
+    times: np.ndarray
+    n_steps: int
+    dt: float
+    time_to_reach: jnp.ndarray | None = None
+
+
+# ------------------------------------------------------------------------------------------- kernels
+def _rate(settings: SolverSettings, dynamics: ControlAffineDynamics, grid: Grid, direction: float,
+          global_alpha, values):
+    """``dV/ds`` in solver time ``s`` (``s = t`` forward, ``s = -t`` backward)."""
+    states = grid.broadcast_states(values.dtype)
+    lefts, rights = [], []
+    for axis in range(grid.ndim):
+        left, right = one_sided_derivatives(values, axis, grid.spacing[axis], grid.is_periodic[axis],
+                                            settings.scheme, settings.boundary, settings.weno_eps)
+        lefts.append(left)
+        rights.append(right)
+    p_mean = tuple(0.5 * (a + b) for a, b in zip(lefts, rights))
+    ham = dynamics.hamiltonian(states, p_mean)
+    if settings.dissipation == "local":
+        alpha = dynamics.partial_bounds(states)
+    else:
+        alpha = tuple(global_alpha[i] for i in range(grid.ndim))
+    diss = sum(a * (r - l) for a, l, r in zip(alpha, lefts, rights)) * 0.5
+    # Solver-time PDE: V_s + (direction * H) = 0, Lax-Friedrichs flux.
+    rate = diss - direction * ham
+    return jnp.broadcast_to(rate, values.shape)
+
+
+def _rk_step(settings, dynamics, grid, direction, global_alpha, values, dt_abs):
+    rate = functools.partial(_rate, settings, dynamics, grid, direction, global_alpha)
+    v1 = values + dt_abs * rate(values)
+    if settings.integrator == "euler":
+        return v1
+    v2 = v1 + dt_abs * rate(v1)
+    if settings.integrator == "rk2":
+        return 0.5 * (values + v2)
+    v_half = 0.75 * values + 0.25 * v2
+    v3 = v_half + dt_abs * rate(v_half)
+    return values / 3.0 + (2.0 / 3.0) * v3
+
+
+def _freeze_step(settings, dynamics, grid, direction, global_alpha, values, dt_abs):
+    """RK step with the monotone ("freeze") tube: every stage rate is clipped to ``<= 0``."""
+    def rate(v):
+        return jnp.minimum(_rate(settings, dynamics, grid, direction, global_alpha, v), 0.0)
+    v1 = values + dt_abs * rate(values)
+    if settings.integrator == "euler":
+        return v1
+    v2 = v1 + dt_abs * rate(v1)
+    if settings.integrator == "rk2":
+        return 0.5 * (values + v2)
+    v_half = 0.75 * values + 0.25 * v2
+    v3 = v_half + dt_abs * rate(v_half)
+    return values / 3.0 + (2.0 / 3.0) * v3
+
+
+@functools.partial(jax.jit, static_argnames=("settings", "dynamics", "grid", "direction", "tube",
+                                             "obstacle_fn", "track_ttr"))
+def _advance(values, target, ttr, global_alpha, t_start, dt, n_steps, elapsed0, obstacle_params, *,
+             settings, dynamics, grid, direction, tube, obstacle_fn, track_ttr):
+    """``n_steps`` steps of (signed) size ``direction * dt`` from time ``t_start``."""
+    freeze = tube and settings.tube_mode == "freeze"
+    stepper = _freeze_step if freeze else _rk_step
+
+    def body(i, carry):
+        v, ttr = carry
+        v_new = stepper(settings, dynamics, grid, direction, global_alpha, v, dt)
+        t_new = t_start + direction * (i + 1) * dt
+        if tube and not freeze:
+            v_new = jnp.minimum(v_new, target)
+        if obstacle_fn is not None:
+            v_new = jnp.maximum(v_new, -obstacle_fn(t_new, obstacle_params))
+        if track_ttr:
+            e_old = elapsed0 + i * dt
+            frac = jnp.where(v > 0, v / jnp.maximum(v - v_new, 1e-30), 0.0)
+            crossing = e_old + jnp.clip(frac, 0.0, 1.0) * dt
+            ttr = jnp.where(jnp.isinf(ttr) & (v_new <= 0), crossing, ttr)
+        return v_new, ttr
+
+    return jax.lax.fori_loop(0, n_steps, body, (values, ttr))
+
+
+@functools.partial(jax.jit, static_argnames=("dynamics", "grid"))
+def _partial_bounds_max(dtype_probe, *, dynamics, grid):
+    states = grid.broadcast_states(dtype_probe.dtype)
+    alpha = dynamics.partial_bounds(states)
+    maxes = jnp.stack([jnp.max(jnp.broadcast_to(jnp.abs(a), grid.shape)) for a in alpha])
+    cfl_denominator = jnp.max(jnp.broadcast_to(
+        sum(jnp.abs(a) / dx for a, dx in zip(alpha, grid.spacing)), grid.shape))
+    return maxes, cfl_denominator
+
+
+def cfl_time_step(settings: SolverSettings, dynamics: ControlAffineDynamics, grid: Grid,
+                  dtype=jnp.float32) -> tuple[float, np.ndarray]:
+    """The CFL-limited time step and the per-dimension maximum dissipation coefficients.
+
+    ``dt = cfl / max_x sum_i alpha_i(x) / dx_i``, the same rule as ``hj_reachability``; with global dissipation
+    the bound uses the per-dimension maxima (``sum_i max_x alpha_i / dx_i``), which is what that scheme needs.
+    """
+    maxes, denom_local = _partial_bounds_max(jnp.zeros((), dtype), dynamics=dynamics, grid=grid)
+    maxes = np.asarray(maxes, dtype=np.float64)
+    if settings.dissipation == "global":
+        denom = float(np.sum(maxes / np.asarray(grid.spacing)))
+    else:
+        denom = float(denom_local)
+    if not denom > 0:
+        return math.inf, maxes
+    return settings.cfl / denom, maxes
+
+
+# ------------------------------------------------------------------------------------------- API
+def _check_inputs(grid: Grid, dynamics, target, times) -> np.ndarray:
+    if not isinstance(grid, Grid):
+        raise TypeError(f"grid must be a stp_env.hj.Grid; got {type(grid).__name__}.")
+    if not isinstance(dynamics, ControlAffineDynamics):
+        raise TypeError(f"dynamics must be a ControlAffineDynamics; got {type(dynamics).__name__}.")
+    if dynamics.state_dim != grid.ndim:
+        raise ValueError(f"dynamics has {dynamics.state_dim} states but the grid has {grid.ndim} dimensions.")
+    grid.check_values(target, "target")
+    times = np.asarray(times, dtype=np.float64)
+    if times.ndim != 1 or times.size < 2:
+        raise ValueError(f"times must be a 1-D sequence of at least 2 times; got shape {times.shape}.")
+    if not np.all(np.isfinite(times)):
+        raise ValueError(f"times must be finite; got {times}.")
+    steps = np.diff(times)
+    if not (np.all(steps < 0) or np.all(steps > 0)):
+        raise ValueError("times must be strictly decreasing (backward problem) or strictly increasing "
+                         f"(forward problem); got {times}.")
+    return times
+
+
+def solve(settings: SolverSettings, dynamics: ControlAffineDynamics, grid: Grid, times: Sequence[float],
+          target, *, tube: bool = False, obstacle=None, obstacle_fn: ObstacleFn | None = None,
+          initial_values=None, time_to_reach: bool = False, progress: bool = True,
+          dtype=jnp.float32) -> ReachResult:
+    """Solves a reachability problem and returns the value functions at ``times`` only.
+
+    Args:
+        settings: numerical settings (:meth:`SolverSettings.with_accuracy` for presets).
+        dynamics: control- and disturbance-affine dynamics, with the players' roles.
+        grid: the state grid.
+        times: requested times; ``times[0]`` carries the boundary condition (see the module docstring).
+        target: ``l(x)`` on the grid (target set ``{l <= 0}``).
+        initial_values: values at ``times[0]`` if not ``target`` (to continue an earlier solve).
+        tube: reach at *some* time within the horizon (BRT/FRT) instead of exactly at the horizon.
+        obstacle: obstacle data: an array ``g(x)`` on the grid (``{g <= 0}`` is forbidden) when ``obstacle_fn``
+            is ``None``, else any pytree of arrays passed to ``obstacle_fn``.
+        obstacle_fn: jittable ``(t, obstacle) -> g(t, x)`` for time-varying obstacles (hashable: a module-level
+            function, so that repeated solves reuse the compiled loop).
+        time_to_reach: also return the first time each node enters ``{V <= 0}``.
+        progress: show a tqdm progress bar (in simulated seconds).
+        dtype: ``jnp.float32`` (default) or ``jnp.float64`` (needs ``jax_enable_x64``).
+    """
+    if not isinstance(settings, SolverSettings):
+        raise TypeError(f"settings must be a SolverSettings; got {type(settings).__name__}.")
+    times = _check_inputs(grid, dynamics, target, times)
+    if jnp.dtype(dtype) not in (jnp.dtype(jnp.float32), jnp.dtype(jnp.float64)):
+        raise ValueError(f"dtype must be float32 or float64; got {dtype}.")
+    if jnp.dtype(dtype) == jnp.dtype(jnp.float64) and not jax.config.jax_enable_x64:
+        raise ValueError("dtype=float64 needs jax.config.update('jax_enable_x64', True) before any JAX work.")
+    direction = -1.0 if times[1] < times[0] else 1.0
+
+    target = jnp.asarray(target, dtype)
+    if obstacle is not None and obstacle_fn is None:
+        grid.check_values(obstacle, "obstacle")
+        obstacle = jnp.asarray(obstacle, dtype)
+        obstacle_fn = static_obstacle
+    elif obstacle_fn is not None:
+        probe = jax.eval_shape(lambda o: obstacle_fn(jnp.asarray(times[0], dtype), o), obstacle)
+        if tuple(probe.shape) != grid.shape:
+            raise ValueError(f"obstacle_fn returns shape {tuple(probe.shape)}, but the grid has shape "
+                             f"{grid.shape}.")
+        obstacle = jax.tree.map(lambda a: jnp.asarray(a), obstacle)
+
+    dt_max, alpha_max = cfl_time_step(settings, dynamics, grid, dtype)
+    global_alpha = jnp.asarray(alpha_max, dtype)
+
+    if initial_values is None:
+        values = target
+    else:
+        grid.check_values(initial_values, "initial_values")
+        values = jnp.asarray(initial_values, dtype)
+    if obstacle_fn is not None:
+        values = jnp.maximum(values, -obstacle_fn(jnp.asarray(times[0], dtype), obstacle))
+    ttr = None
+    if time_to_reach:
+        ttr = jnp.where(values <= 0, 0.0, jnp.inf).astype(dtype)
+    ttr_carry = ttr if ttr is not None else jnp.zeros((), dtype)
+
+    outputs = [values]
+    n_steps_total = 0
+    bar = _progress_bar(abs(times[-1] - times[0]), progress)
+    try:
+        t = float(times[0])
+        for t_next in times[1:]:
+            span = abs(float(t_next) - t)
+            if math.isinf(dt_max):
+                n_full, rem = 1, 0.0
+                step = span
+            else:
+                n_full = math.floor(span / dt_max * (1 + 1e-12))
+                rem = span - n_full * dt_max
+                step = dt_max
+                if rem <= 1e-9 * max(span, 1.0):
+                    rem = 0.0
+            plan = []
+            done = 0
+            while done < n_full:
+                n = min(settings.steps_per_chunk, n_full - done)
+                plan.append((n, step, done * step))
+                done += n
+            if rem > 0:
+                plan.append((1, rem, n_full * step))
+            for n, h, offset in plan:
+                elapsed = abs(t - times[0]) + offset
+                values, ttr_carry = _advance(
+                    values, target, ttr_carry, global_alpha,
+                    jnp.asarray(t + direction * offset, dtype), jnp.asarray(h, dtype),
+                    jnp.asarray(n, jnp.int32), jnp.asarray(elapsed, dtype), obstacle,
+                    settings=settings, dynamics=dynamics, grid=grid, direction=direction, tube=tube,
+                    obstacle_fn=obstacle_fn, track_ttr=time_to_reach)
+                n_steps_total += n
+                if bar is not None:
+                    values.block_until_ready()
+                    bar.update(n * h)
+            t = float(t_next)
+            outputs.append(values)
+    finally:
+        if bar is not None:
+            bar.close()
+
+    return ReachResult(values=jnp.stack(outputs), times=times, n_steps=n_steps_total,
+                       dt=float(dt_max), time_to_reach=ttr_carry if time_to_reach else None)
+
+
+@dataclasses.dataclass(frozen=True)
+class ConvergedResult:
+    """Output of :func:`solve_until_converged`.
+
+    Attributes:
+        values: the final value function.
+        converged: whether ``max |V(s + check) - V(s)| <= tol`` (over ``band``) was reached.
+        horizon: the (absolute) horizon at which the loop stopped.
+        n_steps: time steps taken.
+        changes: the max change after each check interval.
+    """
+
+    values: jnp.ndarray
+    converged: bool
+    horizon: float
+    n_steps: int
+    changes: tuple[float, ...]
+
+
+def solve_until_converged(settings: SolverSettings, dynamics: ControlAffineDynamics, grid: Grid, target, *,
+                          tube: bool = True, obstacle=None, check_interval: float = 1.0,
+                          max_horizon: float = 100.0, tol: float = 1e-3, band: float | None = None,
+                          progress: bool = True, dtype=jnp.float32) -> ConvergedResult:
+    """Backward solve until the value function stops changing: infinite-horizon sets such as the robust
+    controlled-invariant set of tracking-error dynamics (SPP paper eqs. 24-26).
+
+    Stops when ``max |V_new - V_old| <= tol`` over one ``check_interval`` of simulated time, restricted to nodes
+    with ``|V| <= band`` when ``band`` is given (the sets are what matters, not the far field), or at
+    ``max_horizon``.
+    """
+    if not (check_interval > 0 and max_horizon >= check_interval and tol > 0):
+        raise ValueError("Need check_interval > 0, max_horizon >= check_interval and tol > 0; got "
+                         f"{check_interval}, {max_horizon}, {tol}.")
+    values = jnp.asarray(target, dtype)
+    horizon, n_steps, changes = 0.0, 0, []
+    converged = False
+    n_checks = math.ceil(max_horizon / check_interval)
+    bar = _progress_bar(max_horizon, progress)
+    try:
+        for _ in range(n_checks):
+            # Autonomous dynamics and a static obstacle: each interval continues the previous one exactly.
+            res = solve(settings, dynamics, grid, [0.0, -check_interval], target, initial_values=values,
+                        tube=tube, obstacle=obstacle, progress=False, dtype=dtype)
+            new = res.values[-1]
+            diff = jnp.abs(new - values)
+            if band is not None:
+                diff = jnp.where((jnp.abs(new) <= band) | (jnp.abs(values) <= band), diff, 0.0)
+            change = float(jnp.max(diff))
+            changes.append(change)
+            values = new
+            horizon += check_interval
+            n_steps += res.n_steps
+            if bar is not None:
+                bar.update(check_interval)
+            if change <= tol:
+                converged = True
+                break
+    finally:
+        if bar is not None:
+            bar.close()
+    return ConvergedResult(values=values, converged=converged, horizon=horizon, n_steps=n_steps,
+                           changes=tuple(changes))
+
+
+def _progress_bar(total: float, enabled: bool):
+    if not enabled:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=float(total), unit="sim s", desc="HJ solve", leave=False,
+                bar_format="{l_bar}{bar}| {n:.3f}/{total:.3f} sim s [{elapsed}<{remaining}]")

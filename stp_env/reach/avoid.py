@@ -1,0 +1,214 @@
+"""Avoid region ``V^A(tau, t_IAT)`` of a vehicle against an intruder (intruder paper Section IV-A).
+
+``V^A(tau, t_IAT)`` (eq. 13) is the set of relative states ``x_Ii`` (intruder relative to vehicle ``i``, in the
+vehicle's body frame, eq. 44) from which the intruder, helped by both winds, can force the pair into the danger
+zone ``L^A = {||p_Ii|| <= R_c}`` within ``t_IAT - tau``, whatever vehicle ``i`` does. It is the backward reachable
+*tube* of ``L^A`` with Hamiltonian (14): the vehicle's control maximises, the intruder's control and both winds
+minimise (:class:`stp_env.dynamics.RelativeDubins` with its default roles).
+
+The minimum detection range ``d^A`` (eq. 16) is the largest distance of a relative state in
+``V^A(0, t_IAT)``.
+
+Numerics (NUMERICS.md): local Lax-Friedrichs and WENO5 by default; the box must contain the set with margin
+(checked: :attr:`AvoidRegion.boundary_margin` must be positive). The exact sanity check ``R_c + (v_I,max +
+wind_i + wind_I - v_i,max) t_IAT`` for the extent straight behind the vehicle at equal heading is available as
+:meth:`AvoidRegionConfig.behind_extent`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from stp_env import hj
+from stp_env.dynamics import DubinsWind, RelativeDubins
+
+
+@dataclasses.dataclass(frozen=True)
+class AvoidRegionConfig:
+    """Parameters of the avoid region. Defaults: the intruder paper's Section V (eq. 43 bounds, wind 6 m/s,
+    ``t_IAT = 10 s``, ``R_c = 100 m``).
+
+    Attributes:
+        vehicle: the STP vehicle's dynamics bounds (and its wind bound).
+        intruder: the intruder's dynamics bounds (and its wind bound).
+        collision_radius: ``R_c`` [m].
+        t_iat: ``t_IAT``, the longest time the intruder stays [s].
+        half_width: the relative-position box is ``[-half_width, half_width]^2`` [m].
+        grid_points: grid points in ``(p_x, p_y, theta)``.
+        n_slices: number of stored time slices ``tau_k`` evenly spaced in ``[0, t_IAT]``.
+        accuracy: solver preset (see :meth:`stp_env.hj.SolverSettings.with_accuracy`).
+    """
+
+    vehicle: DubinsWind = dataclasses.field(default_factory=DubinsWind)
+    intruder: DubinsWind = dataclasses.field(default_factory=DubinsWind)
+    collision_radius: float = 100.0
+    t_iat: float = 10.0
+    half_width: float = 320.0
+    grid_points: tuple[int, int, int] = (61, 61, 61)
+    n_slices: int = 11
+    accuracy: str = "very_high"
+
+    def __post_init__(self) -> None:
+        for name in ("collision_radius", "t_iat", "half_width"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive finite number; got {value!r}.")
+        if self.half_width <= self.collision_radius:
+            raise ValueError(f"half_width ({self.half_width} m) must exceed the collision radius "
+                             f"({self.collision_radius} m), or the danger zone does not fit in the grid.")
+        if len(self.grid_points) != 3 or min(self.grid_points) < 5:
+            raise ValueError(f"grid_points must be 3 counts >= 5; got {self.grid_points}.")
+        if self.n_slices < 2:
+            raise ValueError(f"n_slices must be >= 2; got {self.n_slices}.")
+        hj.SolverSettings.with_accuracy(self.accuracy)  # validates the preset name
+
+    @property
+    def relative_dynamics(self) -> RelativeDubins:
+        """Eq. (44) with the vehicle's control maximising and the intruder and winds minimising (eq. 14)."""
+        return RelativeDubins(
+            v_min=self.vehicle.v_min, v_max=self.vehicle.v_max, omega_max=self.vehicle.omega_max,
+            other_v_min=self.intruder.v_min, other_v_max=self.intruder.v_max,
+            other_omega_max=self.intruder.omega_max, wind=self.vehicle.wind + self.intruder.wind,
+            control_mode="max", disturbance_mode="min",
+        )
+
+    @property
+    def grid(self) -> hj.Grid:
+        w = self.half_width
+        return hj.Grid.from_bounds((-w, -w, -math.pi), (w, w, math.pi), self.grid_points, periodic=2)
+
+    def behind_extent(self) -> float:
+        """Exact extent of ``V^A(0, t_IAT)`` straight behind the vehicle at equal heading: the intruder closes
+        at ``v_I,max + wind_i + wind_I - v_i,max`` (if positive) for ``t_IAT`` (NUMERICS.md)."""
+        closing = self.intruder.v_max + self.vehicle.wind + self.intruder.wind - self.vehicle.v_max
+        return self.collision_radius + max(closing, 0.0) * self.t_iat
+
+
+@dataclasses.dataclass(frozen=True)
+class AvoidRegion:
+    """Computed avoid region.
+
+    Attributes:
+        config: the parameters that shaped it.
+        taus: ``tau_k`` ascending in ``[0, t_IAT]`` [s].
+        values: ``V^A(tau_k, t_IAT)`` on ``config.grid``, shape ``(n_slices, *grid.shape)``; the set is
+            ``{V <= 0}``.
+        n_steps: solver time steps.
+    """
+
+    config: AvoidRegionConfig
+    taus: np.ndarray
+    values: np.ndarray
+    n_steps: int
+
+    @property
+    def grid(self) -> hj.Grid:
+        return self.config.grid
+
+    @property
+    def boundary_margin(self) -> float:
+        """Minimum of ``V^A(0)`` on the non-periodic faces: positive when the set does not touch the box."""
+        return self.grid.boundary_faces_min(self.values[0])
+
+    def detection_range(self, n_rays: int = 720) -> float:
+        """``d^A`` (eq. 16): the largest ``||p||`` over ``V^A(0, t_IAT)``.
+
+        Evaluated on the projection ``min_theta V`` along ``n_rays`` rays from the origin, sampled every tenth
+        of a cell with bilinear interpolation, so the answer is resolved below one grid cell."""
+        grid = self.grid
+        proj = jnp.asarray(np.asarray(self.values[0]).min(axis=2))
+        plane = hj.Grid.from_bounds(grid.lo[:2], grid.hi[:2], grid.shape[:2])
+        step = 0.1 * min(plane.spacing)
+        radii = np.arange(0.0, grid.hi[0], step)
+        angles = np.linspace(-np.pi, np.pi, n_rays, endpoint=False)
+        pts = np.stack([np.outer(np.cos(angles), radii), np.outer(np.sin(angles), radii)], -1)
+        vals = np.asarray(jax.vmap(jax.vmap(lambda s: hj.interpolation.interpolate(plane, proj, s)))(
+            jnp.asarray(pts, proj.dtype)))
+        inside = vals <= 0
+        if not inside.any():
+            return 0.0
+        return float(np.max(np.where(inside, radii[None, :], 0.0)))
+
+    def value(self, tau: float, state) -> jnp.ndarray:
+        """``V^A(tau, t_IAT)`` at a relative state (linear in ``tau``, multilinear in the state)."""
+        slab = hj.interpolation.interpolate_in_time(self.taus, jnp.asarray(self.values), tau)
+        return hj.interpolation.interpolate(self.grid, slab, jnp.asarray(state))
+
+
+def compute_avoid_region(config: AvoidRegionConfig | None = None, *, progress: bool = True) -> AvoidRegion:
+    """Solves eq. (13)-(14): the backward reachable tube of the danger zone over ``[tau, t_IAT]``."""
+    config = AvoidRegionConfig() if config is None else config
+    grid = config.grid
+    target = hj.shapes.cylinder(grid, (0, 1), (0.0, 0.0), config.collision_radius)
+    settings = hj.SolverSettings.with_accuracy(config.accuracy)
+    taus_desc = np.linspace(config.t_iat, 0.0, config.n_slices)
+    result = hj.solve(settings, config.relative_dynamics, grid, taus_desc, target, tube=True,
+                      progress=progress)
+    values = np.asarray(result.values)[::-1]  # ascending tau: values[0] = V^A(0, t_IAT)
+    return AvoidRegion(config=config, taus=taus_desc[::-1].copy(), values=values, n_steps=result.n_steps)
+
+
+def plot_avoid_region(region: AvoidRegion, path: str, headings_deg=(0, 90, 180, -90)) -> str:
+    """Writes a PNG: slices of ``V^A(0, t_IAT)`` at several relative headings, and its projection on the
+    position plane with the danger zone and the detection range ``d^A``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cfg = region.config
+    grid = region.grid
+    xs, ys, ths = (grid.coordinate_vector(i) for i in range(3))
+    v0 = np.asarray(region.values[0])
+    d_a = region.detection_range()
+    fig, axes = plt.subplots(1, 2, figsize=(12, 6.4), constrained_layout=True)
+
+    ax = axes[0]
+    colors = plt.cm.viridis(np.linspace(0, 0.9, len(headings_deg)))
+    for deg, col in zip(headings_deg, colors):
+        k = int(np.argmin(np.abs(np.angle(np.exp(1j * (ths - np.deg2rad(deg)))))))
+        ax.contour(xs, ys, v0[:, :, k].T, levels=[0.0], colors=[col], linewidths=2)
+        ax.plot([], [], color=col, lw=2, label=f"relative heading {np.rad2deg(ths[k]):.0f} deg")
+    _danger_and_vehicle(ax, cfg.collision_radius)
+    ax.set_title(r"Avoid region $V^A(0, t_{IAT})$: slices by relative heading")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2, fontsize=8, frameon=False)
+
+    ax = axes[1]
+    proj = v0.min(axis=2)
+    ax.contourf(xs, ys, proj.T, levels=[proj.min() - 1, 0.0], colors=["tab:red"], alpha=0.35)
+    ax.contour(xs, ys, proj.T, levels=[0.0], colors=["tab:red"], linewidths=2)
+    ax.plot([], [], color="tab:red", lw=2, label="union over headings")
+    circle = plt.Circle((0, 0), d_a, fill=False, ls="--", color="k")
+    ax.add_patch(circle)
+    ax.plot([], [], "k--", label=f"detection range $d^A$ = {d_a:.0f} m")
+    _danger_and_vehicle(ax, cfg.collision_radius)
+    ax.set_title("Projection on the relative position plane")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2, fontsize=8, frameon=False)
+
+    for ax in axes:
+        ax.set_xlabel(r"$p_x$ of intruder in vehicle frame [m] (vehicle heads to +x)")
+        ax.set_ylabel(r"$p_y$ [m]")
+        ax.set_aspect("equal")
+        ax.set_xlim(xs[0], xs[-1])
+        ax.set_ylim(ys[0], ys[-1])
+        ax.grid(alpha=0.3)
+    fig.suptitle(
+        f"Intruder avoid region: v in [{cfg.vehicle.v_min:g}, {cfg.vehicle.v_max:g}] m/s, "
+        f"|omega| <= {cfg.vehicle.omega_max:g} rad/s, wind {cfg.vehicle.wind:g} + {cfg.intruder.wind:g} m/s, "
+        f"t_IAT = {cfg.t_iat:g} s, R_c = {cfg.collision_radius:g} m, grid {grid.shape}")
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _danger_and_vehicle(ax, radius: float) -> None:
+    import matplotlib.pyplot as plt
+
+    ax.add_patch(plt.Circle((0, 0), radius, color="0.6", alpha=0.5))
+    ax.plot([], [], "s", color="0.6", label=f"danger zone R_c = {radius:g} m")
+    ax.annotate("", xy=(0.6 * radius, 0), xytext=(0, 0), arrowprops={"arrowstyle": "->", "lw": 2})
