@@ -21,6 +21,7 @@ import dataclasses
 import math
 from collections.abc import Sequence
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -192,6 +193,8 @@ class Grid:
         shape = tuple(np.shape(values))
         if shape != self.shape:
             raise ValueError(f"{name} has shape {shape}, but the grid has shape {self.shape}.")
+        if isinstance(values, jax.core.Tracer):
+            return  # inside jit: only the (static) shape can be checked
         arr = np.asarray(values)
         if np.isnan(arr).any():
             raise ValueError(f"{name} contains NaN at {int(np.isnan(arr).sum())} grid point(s); "

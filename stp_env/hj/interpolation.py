@@ -98,8 +98,8 @@ def interpolate_in_time(times, values_stack, t):
 
 
 def time_to_reach_at(grid: Grid, time_to_reach, state):
-    """Time-to-reach at ``state``: multilinear where all surrounding nodes are finite, else ``inf`` (the state
-    is not reached within the horizon for certain)."""
+    """Time-to-reach at ``state``: multilinear where all surrounding nodes (of non-zero weight) are finite, else
+    ``inf`` (the state is not reached within the horizon for certain)."""
     i0, i1, w1 = _corners(grid, state)
     w0 = 1.0 - w1
     out, finite = 0.0, True
@@ -109,7 +109,7 @@ def time_to_reach_at(grid: Grid, time_to_reach, state):
         for d, c in enumerate(corner):
             w = w * (w1[d] if c else w0[d])
         node = time_to_reach[idx]
-        finite = finite & jnp.isfinite(node)
+        finite = finite & (jnp.isfinite(node) | (w == 0))  # a corner with zero weight does not matter
         out = out + w * jnp.where(jnp.isfinite(node), node, 0.0)
     return jnp.where(finite & grid.contains(state), out, jnp.inf)
 

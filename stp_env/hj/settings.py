@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 
 from stp_env.hj.derivatives import BOUNDARIES, SCHEMES
 
@@ -61,8 +62,10 @@ class SolverSettings:
             raise ValueError(f"Unknown boundary {self.boundary!r}; allowed: {BOUNDARIES}.")
         if self.tube_mode not in TUBE_MODES:
             raise ValueError(f"Unknown tube_mode {self.tube_mode!r}; allowed: {TUBE_MODES}.")
-        if not (isinstance(self.cfl, (int, float)) and math.isfinite(self.cfl) and 0 < self.cfl <= 1):
-            raise ValueError(f"cfl must lie in (0, 1]; got {self.cfl!r}.")
+        if (isinstance(self.cfl, bool) or not isinstance(self.cfl, numbers.Real)
+                or not (math.isfinite(self.cfl) and 0 < self.cfl <= 1)):
+            raise ValueError(f"cfl must be a number in (0, 1]; got {self.cfl!r}.")
+        object.__setattr__(self, "cfl", float(self.cfl))  # numpy scalars accepted, stored as float
         if not self.weno_eps > 0:
             raise ValueError(f"weno_eps must be positive; got {self.weno_eps!r}.")
         if int(self.steps_per_chunk) < 1:

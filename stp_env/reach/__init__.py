@@ -1,6 +1,7 @@
 """The papers' reachability sets around a single vehicle, each computed by the generic solver in
-:mod:`stp_env.hj`. One module per concept."""
+:mod:`stp_env.hj` and cached as a versioned artifact (:mod:`stp_env.artifacts`). One module per concept:
 
-from stp_env.reach.avoid import AvoidRegion, AvoidRegionConfig, compute_avoid_region, plot_avoid_region
-
-__all__ = ["AvoidRegion", "AvoidRegionConfig", "compute_avoid_region", "plot_avoid_region"]
+* :mod:`~stp_env.reach.avoid`: avoid region ``V^A``, avoidance and pursuit controls, detection range ``d^A``;
+* :mod:`~stp_env.reach.tracking`: robust-trajectory-tracking error bound and tracker;
+* :mod:`~stp_env.reach.buffer`: ``t_BRD``, relative buffer region ``V^B``, separation/buffer disk radii.
+"""

@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env import hj
+from stp_env.artifacts import ArtifactStore
 from stp_env.dynamics import DubinsWind, RelativeDubins
 
 
@@ -134,23 +135,87 @@ class AvoidRegion:
             return 0.0
         return float(np.max(np.where(inside, radii[None, :], 0.0)))
 
-    def value(self, tau: float, state) -> jnp.ndarray:
-        """``V^A(tau, t_IAT)`` at a relative state (linear in ``tau``, multilinear in the state)."""
-        slab = hj.interpolation.interpolate_in_time(self.taus, jnp.asarray(self.values), tau)
-        return hj.interpolation.interpolate(self.grid, slab, jnp.asarray(state))
 
 
-def compute_avoid_region(config: AvoidRegionConfig | None = None, *, progress: bool = True) -> AvoidRegion:
-    """Solves eq. (13)-(14): the backward reachable tube of the danger zone over ``[tau, t_IAT]``."""
+def compute_avoid_region(config: AvoidRegionConfig | None = None, *, store: ArtifactStore | None = None,
+                         progress: bool = True) -> AvoidRegion:
+    """Solves eqs. (13)-(14): the backward reachable tube of the danger zone over ``[tau, t_IAT]`` (cached in
+    ``store`` when given)."""
     config = AvoidRegionConfig() if config is None else config
-    grid = config.grid
-    target = hj.shapes.cylinder(grid, (0, 1), (0.0, 0.0), config.collision_radius)
-    settings = hj.SolverSettings.with_accuracy(config.accuracy)
-    taus_desc = np.linspace(config.t_iat, 0.0, config.n_slices)
-    result = hj.solve(settings, config.relative_dynamics, grid, taus_desc, target, tube=True,
-                      progress=progress)
-    values = np.asarray(result.values)[::-1]  # ascending tau: values[0] = V^A(0, t_IAT)
-    return AvoidRegion(config=config, taus=taus_desc[::-1].copy(), values=values, n_steps=result.n_steps)
+
+    def compute():
+        grid = config.grid
+        target = hj.shapes.cylinder(grid, (0, 1), (0.0, 0.0), config.collision_radius)
+        settings = hj.SolverSettings.with_accuracy(config.accuracy)
+        taus_desc = np.linspace(config.t_iat, 0.0, config.n_slices)
+        result = hj.solve(settings, config.relative_dynamics, grid, taus_desc, target, tube=True,
+                          progress=progress)
+        return {
+            "taus": taus_desc[::-1].copy(),
+            "values": np.asarray(result.values)[::-1].copy(),  # ascending tau: values[0] = V^A(0, t_IAT)
+            "n_steps": np.asarray(result.n_steps),
+        }
+
+    arrays = compute() if store is None else store.load_or_compute("avoid_region", config, compute).arrays
+    return AvoidRegion(config=config, taus=np.asarray(arrays["taus"]), values=np.asarray(arrays["values"]),
+                       n_steps=int(arrays["n_steps"]))
+
+
+def make_value_function(region: AvoidRegion):
+    """Jittable ``(tau, x_rel) -> V^A(tau, t_IAT)(x_rel)`` (linear in ``tau``, multilinear in the state)."""
+    grid = region.grid
+    taus = jnp.asarray(region.taus, jnp.float32)
+    stack = jnp.asarray(region.values, jnp.float32)
+
+    def value(tau, x_rel):
+        slab = hj.interpolation.interpolate_in_time(taus, stack, tau)
+        return hj.interpolation.interpolate(grid, slab, x_rel)
+
+    return value
+
+
+def _value_gradient(region: AvoidRegion):
+    grid = region.grid
+    taus = jnp.asarray(region.taus, jnp.float32)
+    stack = jnp.asarray(region.values, jnp.float32)
+    steps = np.eye(3) * np.asarray(grid.spacing)[:, None]
+
+    def grad(tau, x_rel):
+        slab = hj.interpolation.interpolate_in_time(taus, stack, tau)
+        f = lambda s: hj.interpolation.interpolate(grid, slab, s)  # noqa: E731
+        # Central differences of the interpolant, one cell wide (matches the nodes' central differences).
+        return jnp.stack([(f(x_rel + h) - f(x_rel - h)) / (2 * h[i]) for i, h in enumerate(steps)])
+
+    return grad
+
+
+def make_avoidance_controller(region: AvoidRegion):
+    """The avoidance control ``u^A`` (eq. 15) as a jittable ``(tau, x_rel) -> (v_i, omega_i)``, ``x_rel`` the
+    intruder's state in the vehicle's body frame (eq. 44), ``tau`` the time since the intruder appeared [s]."""
+    dyn = region.config.relative_dynamics
+    grad = _value_gradient(region)
+
+    def u_avoid(tau, x_rel):
+        p = grad(tau, x_rel)
+        x = (x_rel[0], x_rel[1], x_rel[2])
+        return jnp.stack(dyn.optimal_control(x, (p[0], p[1], p[2])))
+
+    return u_avoid
+
+
+def make_pursuit_controller(region: AvoidRegion):
+    """The intruder's optimal pursuit (the minimising player of eq. 14) as a jittable ``(tau, x_rel) ->
+    (v_I, omega_I, w_x, w_y)``: intruder speed and turn rate, and the worst combined wind in the vehicle's body
+    frame [m/s]."""
+    dyn = region.config.relative_dynamics
+    grad = _value_gradient(region)
+
+    def u_pursue(tau, x_rel):
+        p = grad(tau, x_rel)
+        x = (x_rel[0], x_rel[1], x_rel[2])
+        return jnp.stack(dyn.optimal_disturbance(x, (p[0], p[1], p[2])))
+
+    return u_pursue
 
 
 def plot_avoid_region(region: AvoidRegion, path: str, headings_deg=(0, 90, 180, -90)) -> str:

@@ -1,0 +1,146 @@
+"""Figures of the reachability sets, in the spirit of the intruder paper's Figs. 2 and 3.
+
+Sets are drawn as position footprints in the body frame of the (higher-priority) vehicle, which sits at the
+origin heading to +x: a footprint is ``{p : exists theta, V(p, theta) <= 0}``. Minkowski sums with disks (the
+base obstacle ``M``, a tracking-error bubble) are computed exactly on the plotting grid from distances.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from stp_env.reach.avoid import AvoidRegion
+from stp_env.reach.buffer import BufferRadii, RelativeBuffer
+
+
+def _footprint(grid, values):
+    return np.asarray(values).min(axis=2) <= 0
+
+
+def _resample_mask(grid, mask, xs, ys):
+    """Nearest-node lookup of a footprint mask on another plotting grid (False outside)."""
+    gx, gy = grid.coordinate_vector(0), grid.coordinate_vector(1)
+    ix = np.rint((xs - gx[0]) / (gx[1] - gx[0])).astype(int)
+    iy = np.rint((ys - gy[0]) / (gy[1] - gy[0])).astype(int)
+    okx = (ix >= 0) & (ix < len(gx))
+    oky = (iy >= 0) & (iy < len(gy))
+    out = np.zeros((len(xs), len(ys)), bool)
+    sub = mask[np.clip(ix, 0, len(gx) - 1)][:, np.clip(iy, 0, len(gy) - 1)]
+    out[np.ix_(okx, oky)] = sub[np.ix_(okx, oky)]
+    return out
+
+
+def _dilate(mask, xs, ys, radius):
+    """``mask`` grown by a disk of ``radius`` (Minkowski sum), from distances to the mask's nodes."""
+    if radius <= 0:
+        return mask.copy()
+    pts = np.stack(np.meshgrid(xs, ys, indexing="ij"), -1).reshape(-1, 2)
+    src = pts[mask.reshape(-1)]
+    # Only boundary nodes matter for the distance to the set.
+    inner = mask.copy()
+    inner[1:-1, 1:-1] = mask[1:-1, 1:-1] & mask[:-2, 1:-1] & mask[2:, 1:-1] & mask[1:-1, :-2] & mask[1:-1, 2:]
+    src = pts[(mask & ~inner).reshape(-1)] if (mask & ~inner).any() else src
+    out = mask.reshape(-1).copy()
+    for start in range(0, len(pts), 4096):
+        chunk = pts[start:start + 4096]
+        d2 = ((chunk[:, None, :] - src[None, :, :]) ** 2).sum(-1).min(axis=1)
+        out[start:start + 4096] |= d2 <= radius**2
+    return out.reshape(mask.shape)
+
+
+def _setup(ax, extent, title):
+    ax.set_aspect("equal")
+    ax.set_xlim(-extent, extent)
+    ax.set_ylim(-extent, extent)
+    ax.set_xlabel("p_x [m] (vehicle frame, heading +x)")
+    ax.set_ylabel("p_y [m]")
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
+
+
+def plot_sets(avoid: AvoidRegion, tracking_bound: float, buffer: RelativeBuffer, path: str) -> str:
+    """Four panels like Fig. 2: base obstacle ``M``, avoid region ``V^A(0, t_IAT)``, separation region
+    ``S = M + dV^A`` and relative buffer region ``V^B(0, t_BRD)``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    extent = float(buffer.config.grid.hi[0])
+    xs = np.linspace(-extent, extent, 301)
+    ys = xs
+    va = _resample_mask(avoid.grid, _footprint(avoid.grid, avoid.values[0]), xs, ys)
+    s_region = _dilate(va, xs, ys, tracking_bound)
+    vb = _resample_mask(buffer.config.grid, _footprint(buffer.config.grid, buffer.values), xs, ys)
+    fig, axes = plt.subplots(2, 2, figsize=(11, 11), constrained_layout=True)
+    panels = [
+        (None, f"Base obstacle M: tracking-error bubble, r = {tracking_bound:.1f} m"),
+        (va, r"Avoid region $V^A(0, t_{IAT})$ footprint"),
+        (s_region, r"Separation region $S = M + \partial V^A$ footprint"),
+        (vb, rf"Relative buffer region $V^B(0, t_{{BRD}})$, k̄ = {buffer.config.kbar}, "
+             rf"$t_{{BRD}}$ = {buffer.config.t_brd:.2f} s"),
+    ]
+    for ax, (mask, title) in zip(axes.flat, panels):
+        if mask is None:
+            zoom = max(4 * tracking_bound, 10.0)
+            ax.add_patch(plt.Circle((0, 0), tracking_bound, color="tab:blue", alpha=0.4))
+            _setup(ax, zoom, title)
+        else:
+            ax.contourf(xs, ys, mask.T.astype(float), levels=[0.5, 1.5], colors=["tab:red"], alpha=0.35)
+            ax.contour(xs, ys, mask.T.astype(float), levels=[0.5], colors=["tab:red"])
+            ax.add_patch(plt.Circle((0, 0), avoid.config.collision_radius, color="0.5", alpha=0.4))
+            _setup(ax, extent if mask is vb else float(avoid.grid.hi[0]), title)
+        ax.annotate("", xy=(0.3 * ax.get_xlim()[1], 0), xytext=(0, 0),
+                    arrowprops={"arrowstyle": "->", "lw": 2})
+    cfg = avoid.config
+    fig.suptitle(f"Sets around one vehicle (grey: danger zone R_c = {cfg.collision_radius:g} m); wind "
+                 f"{cfg.vehicle.wind:g} m/s, t_IAT = {cfg.t_iat:g} s")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_buffer_regions(avoid: AvoidRegion, tracking_bound: float, buffers: dict[int, RelativeBuffer],
+                        radii: dict[int, BufferRadii], path: str) -> str:
+    """Like Fig. 3: the buffer regions ``B = M + dV^A + V^B + M`` (footprints, filled) for several ``k̄``,
+    with the conservative disks the planner uses (dashed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    extent = max(r.buffer for r in radii.values()) * 1.08
+    xs = np.linspace(-extent, extent, 321)
+    ys = xs
+    va = _resample_mask(avoid.grid, _footprint(avoid.grid, avoid.values[0]), xs, ys)
+    fig, ax = plt.subplots(figsize=(8.5, 8.5), constrained_layout=True)
+    colors = plt.cm.viridis(np.linspace(0.15, 0.85, len(buffers)))
+    for (kbar, buf), col in sorted(zip(buffers.items(), colors), key=lambda kv: -kv[0][1].radius):
+        grown = _dilate(va, xs, ys, 2 * tracking_bound + buf.radius)
+        ax.contourf(xs, ys, grown.T.astype(float), levels=[0.5, 1.5], colors=[col], alpha=0.25)
+        ax.contour(xs, ys, grown.T.astype(float), levels=[0.5], colors=[col], linewidths=2)
+        r = radii[kbar].buffer
+        ax.add_patch(plt.Circle((0, 0), r, fill=False, ls="--", color=col, lw=1.5))
+        ax.plot([], [], color=col, lw=2, label=f"k̄ = {kbar}: t_BRD = {buf.config.t_brd:.2f} s, disk {r:.0f} m")
+    ax.contourf(xs, ys, va.T.astype(float), levels=[0.5, 1.5], colors=["tab:red"], alpha=0.4)
+    ax.plot([], [], color="tab:red", lw=6, alpha=0.4, label=r"$V^A(0, t_{IAT})$ footprint")
+    ax.add_patch(plt.Circle((0, 0), avoid.config.collision_radius, color="0.4", alpha=0.5))
+    ax.annotate("", xy=(0.15 * extent, 0), xytext=(0, 0), arrowprops={"arrowstyle": "->", "lw": 2})
+    _setup(ax, extent, "Buffer regions for several k̄ (filled: grid sets; dashed: planner disks)")
+    ax.legend(loc="upper right", fontsize=8)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def footprint_area_ratio(avoid: AvoidRegion, tracking_bound: float, buffer: RelativeBuffer,
+                         radius: float, resolution: int = 321) -> float:
+    """Disk area over the area of the buffer-region grid set ``M + dV^A + V^B + M`` footprint (>= 1)."""
+    extent = radius * 1.05
+    xs = np.linspace(-extent, extent, resolution)
+    va = _resample_mask(avoid.grid, _footprint(avoid.grid, avoid.values[0]), xs, xs)
+    grown = _dilate(va, xs, xs, 2 * tracking_bound + buffer.radius)
+    cell = (xs[1] - xs[0]) ** 2
+    return math.pi * radius**2 / (grown.sum() * cell)

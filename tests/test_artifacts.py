@@ -1,0 +1,117 @@
+"""Artifact store: bit-exact round trips; stale, tampered or corrupted files are recomputed with a warning."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from stp_env import artifacts
+from stp_env.artifacts import ArtifactStore, StaleArtifactWarning
+from stp_env.dynamics import DubinsWind
+
+
+@dataclasses.dataclass(frozen=True)
+class Params:
+    vehicle: DubinsWind = dataclasses.field(default_factory=DubinsWind)
+    n: int = 5
+
+
+def _compute_counter():
+    calls = []
+
+    def compute(seed=0):
+        calls.append(1)
+        rng = np.random.default_rng(seed)
+        return {"values": rng.normal(size=(7, 5, 3)).astype(np.float32), "n_steps": np.asarray(12)}
+
+    return calls, compute
+
+
+def test_round_trip_is_bit_exact_and_cached(tmp_path):
+    store = ArtifactStore(tmp_path)
+    calls, compute = _compute_counter()
+    first = store.load_or_compute("demo", Params(), compute)
+    assert not first.from_cache and len(calls) == 1
+    second = store.load_or_compute("demo", Params(), compute)
+    assert second.from_cache and len(calls) == 1
+    for name in first.arrays:
+        assert first.arrays[name].dtype == second.arrays[name].dtype
+        assert first.arrays[name].tobytes() == second.arrays[name].tobytes()
+    meta = json.loads(first.path.with_suffix(".json").read_text())
+    assert meta["format_version"] == artifacts.FORMAT_VERSION
+    assert meta["params"]["vehicle"]["wind"] == 6.0
+    assert set(meta["library_versions"]) >= {"jax", "numpy", "stp_env"}
+
+
+def test_changed_parameter_recomputes(tmp_path):
+    store = ArtifactStore(tmp_path)
+    calls, compute = _compute_counter()
+    store.load_or_compute("demo", Params(), compute)
+    store.load_or_compute("demo", Params(vehicle=DubinsWind(wind=11.0)), compute)
+    assert len(calls) == 2
+
+
+def test_tampered_array_file_recomputes_with_warning(tmp_path):
+    store = ArtifactStore(tmp_path)
+    calls, compute = _compute_counter()
+    art = store.load_or_compute("demo", Params(), compute)
+    data = bytearray(art.path.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    art.path.write_bytes(bytes(data))
+    with pytest.warns(StaleArtifactWarning, match="content hash"):
+        again = store.load_or_compute("demo", Params(), compute)
+    assert not again.from_cache and len(calls) == 2
+    assert store.load("demo", Params()) is not None  # rewritten cleanly
+
+
+def test_truncated_file_and_bad_json_recompute(tmp_path):
+    store = ArtifactStore(tmp_path)
+    calls, compute = _compute_counter()
+    art = store.load_or_compute("demo", Params(), compute)
+    art.path.write_bytes(art.path.read_bytes()[:50])
+    with pytest.warns(StaleArtifactWarning):
+        store.load_or_compute("demo", Params(), compute)
+    art.path.with_suffix(".json").write_text("{not json")
+    with pytest.warns(StaleArtifactWarning, match="unreadable"):
+        store.load_or_compute("demo", Params(), compute)
+    assert len(calls) == 3
+
+
+def test_format_version_mismatch_recomputes(tmp_path, monkeypatch):
+    store = ArtifactStore(tmp_path)
+    calls, compute = _compute_counter()
+    art = store.load_or_compute("demo", Params(), compute)
+    meta_path = art.path.with_suffix(".json")
+    meta = json.loads(meta_path.read_text())
+    meta["format_version"] = artifacts.FORMAT_VERSION + 1
+    meta_path.write_text(json.dumps(meta))
+    with pytest.warns(StaleArtifactWarning, match="format version"):
+        store.load_or_compute("demo", Params(), compute)
+    assert len(calls) == 2
+
+
+def test_edited_metadata_params_detected(tmp_path):
+    store = ArtifactStore(tmp_path)
+    calls, compute = _compute_counter()
+    art = store.load_or_compute("demo", Params(), compute)
+    meta_path = art.path.with_suffix(".json")
+    meta = json.loads(meta_path.read_text())
+    meta["params"]["n"] = 6
+    meta_path.write_text(json.dumps(meta))
+    with pytest.warns(StaleArtifactWarning, match="parameters changed"):
+        store.load_or_compute("demo", Params(), compute)
+    assert len(calls) == 2
+
+
+def test_cache_dir_environment_override(tmp_path, monkeypatch):
+    monkeypatch.setenv(artifacts.CACHE_ENV_VAR, str(tmp_path / "custom"))
+    assert ArtifactStore().root == tmp_path / "custom"
+
+
+def test_object_arrays_refused(tmp_path):
+    store = ArtifactStore(tmp_path)
+    with pytest.raises(TypeError, match="object"):
+        store.save("demo", Params(), {"bad": np.array([{"a": 1}], dtype=object)})
