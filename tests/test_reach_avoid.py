@@ -7,6 +7,7 @@ vehicles in the *world* frame (so eq. 44 is checked too) with the HJ controllers
 from __future__ import annotations
 
 import functools
+import itertools
 
 import jax
 import jax.numpy as jnp
@@ -66,7 +67,7 @@ def test_grows_with_t_iat(region):
 
 def test_slices_shrink_with_tau(region):
     sizes = [(v <= 0).sum() for v in region.values]
-    assert all(a >= b for a, b in zip(sizes, sizes[1:]))
+    assert all(a >= b for a, b in itertools.pairwise(sizes))
     assert region.taus[0] == 0.0 and region.taus[-1] == region.config.t_iat
 
 

@@ -50,7 +50,7 @@ def test_buffer_shrinks_as_kbar_grows(buffers):
 def test_buffer_radius_between_closed_form_bounds(avoid, buffers):
     # V^B contains V^A(t_BRD) (zero duration) and is reached at most at the closing speed (all players
     # cooperate): r_A(t_BRD) <= r_VB <= r_A(t_BRD) + closing * t_BRD, up to a cell.
-    for k, buf in buffers.items():
+    for buf in buffers.values():
         t_brd = buf.config.t_brd
         slab = avoid.values[int(np.argmin(np.abs(avoid.taus - t_brd)))]
         r_a = position_radius(avoid.grid, slab)
@@ -80,7 +80,7 @@ def test_radii_and_conservatism(avoid, buffers):
     rs = [buffer_radii(k, 0.1, d_a, buffers[k].radius, AVOID.t_iat) for k in (1, 2, 4)]
     assert rs[0].buffer > rs[1].buffer > rs[2].buffer
     assert all(r.separation == pytest.approx(0.1 + d_a) for r in rs)
-    for k, buf in buffers.items():
+    for buf in buffers.values():
         ratio = disk_conservatism(buf.config.grid, buf.values, buf.radius)
         assert ratio >= 0.97  # a disk through the farthest point covers the footprint (node-count area)
 
