@@ -3,5 +3,7 @@
 
 * :mod:`~stp_env.reach.avoid`: avoid region ``V^A``, avoidance and pursuit controls, detection range ``d^A``;
 * :mod:`~stp_env.reach.tracking`: robust-trajectory-tracking error bound and tracker;
-* :mod:`~stp_env.reach.buffer`: ``t_BRD``, relative buffer region ``V^B``, separation/buffer disk radii.
+* :mod:`~stp_env.reach.buffer`: ``t_BRD``, relative buffer region ``V^B``, separation/buffer disk radii;
+* :mod:`~stp_env.reach.obstacles`: induced obstacles while avoiding (lag profiles) and static augmentation ``V^S``;
+* :mod:`~stp_env.reach.defaults`: build all artifacts of a scenario; :mod:`~stp_env.reach.plots`: figures.
 """
