@@ -90,3 +90,19 @@ def test_bad_buffer_config():
         BufferConfig(avoid=AVOID, kbar=0)
     with pytest.raises(ValueError, match="Radii"):
         buffer_radii(2, -1.0, 1.0, 1.0, 2.0)
+
+
+def test_other_priority_frame_is_an_involution_with_the_same_radius(buffers):
+    from stp_env.reach.buffer import swap_relative_frame
+
+    buf = buffers[2]
+    grid = buf.config.grid
+    other = np.asarray(swap_relative_frame(grid, buf.values))
+    back = np.asarray(swap_relative_frame(grid, other))
+    inside = buf.values <= 0
+    # Interpolation smears by about a cell: compare the sets away from their boundary.
+    dx = grid.spacing[0]
+    assert np.all(back[buf.values <= -2 * dx] <= 0)
+    assert np.all(back[buf.values >= 2 * dx] > 0)
+    assert abs(position_radius(grid, other) - buf.radius) <= 1.5 * dx
+    assert inside.sum() > 0

@@ -121,6 +121,23 @@ def resample(src_grid: hj.Grid, values, dst_grid: hj.Grid) -> jnp.ndarray:
     return flat.reshape(dst_grid.shape)
 
 
+def swap_relative_frame(grid: hj.Grid, values) -> jnp.ndarray:
+    """Re-expresses a set of relative states ``x_Ij`` (intruder relative to vehicle ``j``, in ``j``'s frame) in
+    the other frame ``x_jI`` (vehicle relative to intruder, in the intruder's frame), by interpolation.
+
+    ``p_jI = -R(-theta_Ij) p_Ij`` and ``theta_jI = -theta_Ij``; the map is its own inverse. It turns ``V^B`` of
+    eq. (46) into the set of eq. (22), which the paper writes loosely with a minus sign."""
+    x = grid.states()
+    th = -x[..., 2]
+    c, s = jnp.cos(th), jnp.sin(th)
+    # Source state (in the x_Ij frame) of each destination node: p = -R(-theta') p', theta = -theta'.
+    px = -(c * x[..., 0] + s * x[..., 1])
+    py = -(-s * x[..., 0] + c * x[..., 1])
+    src = jnp.stack([px, py, th], -1).reshape(-1, 3)
+    flat = jax.jit(jax.vmap(lambda q: hj.interpolation.interpolate(grid, jnp.asarray(values), q)))(src)
+    return flat.reshape(grid.shape)
+
+
 def compute_relative_buffer(config: BufferConfig, avoid: AvoidRegion | None = None, *,
                             store: ArtifactStore | None = None, progress: bool = True) -> RelativeBuffer:
     """Solves eqs. (46)-(47): the tube of ``V^A(t_BRD, t_IAT)`` over ``t_BRD`` with every player minimising.
