@@ -4,6 +4,9 @@ Subcommands:
 
 * ``avoid-region``: compute the intruder avoid region ``V^A(0, t_IAT)`` of two Dubins vehicles in wind
   (intruder paper eqs. 13-16) and write a PNG.
+* ``precompute``: build (or load from the cache) every reachability artifact of the default scenario (avoid
+  region, tracking-error bound, relative buffer regions and disk radii for each k̄), print a JSON summary and
+  write the figures.
 
 Exit codes: 0 on success, 2 on bad options (with a message saying what is allowed).
 """
@@ -60,6 +63,16 @@ def _build_parser() -> argparse.ArgumentParser:
     av.add_argument("--accuracy", choices=["low", "medium", "high", "very_high"], default="very_high",
                     help="solver preset (scheme + time integrator)")
     av.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
+    pre = sub.add_parser("precompute", help="build the reachability artifacts of the default scenario (cached)",
+                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    pre.add_argument("--wind", type=_nonnegative, default=6.0, help="wind bound of vehicles and intruder [m/s]")
+    pre.add_argument("--kbar", type=_positive(int), nargs="+", default=[1, 2, 3, 4],
+                     help="values of k̄ (max vehicles the intruder may force to avoid), each >= 1")
+    pre.add_argument("--cache-dir", default=None,
+                     help="artifact cache directory (default: $STP_ENV_CACHE_DIR or the user cache directory)")
+    pre.add_argument("--figures", default="figures", help="directory for the PNG figures")
+    pre.add_argument("--no-progress", action="store_true", help="hide the progress bars")
     return parser
 
 
@@ -75,9 +88,6 @@ def _avoid_region(args) -> int:
     region = compute_avoid_region(config, progress=not args.no_progress)
     seconds = time.perf_counter() - start
     margin = region.boundary_margin
-    if margin <= 0:
-        print(f"warning: the avoid region touches the grid boundary (min boundary value {margin:.1f}); "
-              "increase --half-width", file=sys.stderr)
     path = plot_avoid_region(region, args.out)
     summary = {
         "png": path,
@@ -92,12 +102,43 @@ def _avoid_region(args) -> int:
     return 0
 
 
+def _precompute(args) -> int:
+    from pathlib import Path
+
+    from stp_env.artifacts import ArtifactStore
+    from stp_env.dynamics import DubinsWind
+    from stp_env.reach.defaults import build_reach_artifacts
+    from stp_env.reach.plots import plot_buffer_regions, plot_sets
+    from stp_env.reach.tracking import TrackingConfig
+
+    vehicle = DubinsWind(v_min=0.0, v_max=25.0, omega_max=2.0, wind=args.wind)
+    # The error box must hold the tracking bound: wider for strong wind.
+    tracking = TrackingConfig(vehicle=vehicle, half_width=10.0 if args.wind <= 6 else 30.0)
+    start = time.perf_counter()
+    arts = build_reach_artifacts(args.wind, tuple(sorted(set(args.kbar))), tracking_config=tracking,
+                                 store=ArtifactStore(args.cache_dir), progress=not args.no_progress)
+    summary = arts.summary()
+    summary["seconds"] = round(time.perf_counter() - start, 1)
+    out = Path(args.figures)
+    out.mkdir(parents=True, exist_ok=True)
+    k_show = 3 if 3 in arts.buffers else max(arts.buffers)
+    summary["figures"] = [
+        plot_sets(arts.avoid, arts.tracking.bound, arts.buffers[k_show], str(out / f"sets_wind{args.wind:g}.png")),
+        plot_buffer_regions(arts.avoid, arts.tracking.bound, arts.buffers, arts.radii,
+                            str(out / f"buffer_regions_wind{args.wind:g}.png")),
+    ]
+    print(json.dumps(summary))
+    return 0
+
+
 def main(argv=None) -> int:
     parser = _build_parser()
     args = parser.parse_args(argv)
     try:
         if args.command == "avoid-region":
             return _avoid_region(args)
+        if args.command == "precompute":
+            return _precompute(args)
     except ValueError as err:
         print(f"stp-env {args.command}: error: {err}", file=sys.stderr)
         return 2

@@ -157,8 +157,15 @@ def compute_avoid_region(config: AvoidRegionConfig | None = None, *, store: Arti
         }
 
     arrays = compute() if store is None else store.load_or_compute("avoid_region", config, compute).arrays
-    return AvoidRegion(config=config, taus=np.asarray(arrays["taus"]), values=np.asarray(arrays["values"]),
-                       n_steps=int(arrays["n_steps"]))
+    region = AvoidRegion(config=config, taus=np.asarray(arrays["taus"]), values=np.asarray(arrays["values"]),
+                         n_steps=int(arrays["n_steps"]))
+    if region.boundary_margin <= 0:
+        raise ValueError(
+            f"The avoid region touches the grid boundary (half_width={config.half_width} m); the set is cut off "
+            f"and cannot be trusted. Increase half_width (the set extends at least {config.behind_extent():.0f} m "
+            "behind the vehicle)."
+        )
+    return region
 
 
 def make_value_function(region: AvoidRegion):

@@ -20,6 +20,7 @@ from stp_env.reach.buffer import (
     compute_relative_buffer,
     disk_conservatism,
 )
+from stp_env.reach.plots import footprint_area_ratio
 from stp_env.reach.tracking import TrackingBound, TrackingConfig, compute_tracking_bound
 
 
@@ -52,6 +53,8 @@ class ReachArtifacts:
                     "vb_disk_over_footprint_area": round(
                         disk_conservatism(self.buffers[k].config.grid, self.buffers[k].values,
                                           self.buffers[k].radius), 3),
+                    "buffer_disk_over_grid_set_area": round(
+                        footprint_area_ratio(avoid, self.tracking.bound, self.buffers[k], self.radii[k].buffer), 3),
                 }
                 for k in sorted(self.buffers)
             },
@@ -64,7 +67,11 @@ def build_reach_artifacts(wind: float = 6.0, kbars=(1, 2, 3, 4), *, avoid_config
     """Computes or loads everything for one wind level. ``store=None`` uses the default cache directory."""
     store = ArtifactStore() if store is None else store
     vehicle = DubinsWind(v_min=0.0, v_max=25.0, omega_max=2.0, wind=wind)
-    avoid_config = avoid_config or AvoidRegionConfig(vehicle=vehicle, intruder=vehicle, n_slices=13)
+    if avoid_config is None:
+        probe = AvoidRegionConfig(vehicle=vehicle, intruder=vehicle)
+        # The box must hold the set with margin: 1.45 x its exact extent behind the vehicle (320 m at 6 m/s).
+        avoid_config = AvoidRegionConfig(vehicle=vehicle, intruder=vehicle, n_slices=13,
+                                         half_width=max(320.0, round(1.45 * probe.behind_extent(), -1)))
     tracking_config = tracking_config or TrackingConfig(vehicle=vehicle)
     avoid = compute_avoid_region(avoid_config, store=store, progress=progress)
     tracking = compute_tracking_bound(tracking_config, store=store, progress=progress)

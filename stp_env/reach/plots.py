@@ -16,20 +16,26 @@ from stp_env.reach.buffer import BufferRadii, RelativeBuffer
 
 
 def _footprint(grid, values):
-    return np.asarray(values).min(axis=2) <= 0
+    """``(grid, min_theta V)``: the position footprint's value (``<= 0`` inside) on the position plane."""
+    return np.asarray(values).min(axis=tuple(range(2, np.ndim(values))))
 
 
-def _resample_mask(grid, mask, xs, ys):
-    """Nearest-node lookup of a footprint mask on another plotting grid (False outside)."""
+def _resample_mask(grid, projected, xs, ys):
+    """Bilinear interpolation of a projected value on a plotting grid, thresholded at zero (False outside the
+    source grid)."""
     gx, gy = grid.coordinate_vector(0), grid.coordinate_vector(1)
-    ix = np.rint((xs - gx[0]) / (gx[1] - gx[0])).astype(int)
-    iy = np.rint((ys - gy[0]) / (gy[1] - gy[0])).astype(int)
-    okx = (ix >= 0) & (ix < len(gx))
-    oky = (iy >= 0) & (iy < len(gy))
-    out = np.zeros((len(xs), len(ys)), bool)
-    sub = mask[np.clip(ix, 0, len(gx) - 1)][:, np.clip(iy, 0, len(gy) - 1)]
-    out[np.ix_(okx, oky)] = sub[np.ix_(okx, oky)]
-    return out
+    fx = (xs - gx[0]) / (gx[1] - gx[0])
+    fy = (ys - gy[0]) / (gy[1] - gy[0])
+    okx = (fx >= 0) & (fx <= len(gx) - 1)
+    oky = (fy >= 0) & (fy <= len(gy) - 1)
+    i = np.clip(np.floor(fx).astype(int), 0, len(gx) - 2)
+    j = np.clip(np.floor(fy).astype(int), 0, len(gy) - 2)
+    a = np.clip(fx - i, 0, 1)[:, None]
+    b = np.clip(fy - j, 0, 1)[None, :]
+    v = projected
+    val = ((1 - a) * (1 - b) * v[np.ix_(i, j)] + a * (1 - b) * v[np.ix_(i + 1, j)]
+           + (1 - a) * b * v[np.ix_(i, j + 1)] + a * b * v[np.ix_(i + 1, j + 1)])
+    return (val <= 0) & okx[:, None] & oky[None, :]
 
 
 def _dilate(mask, xs, ys, radius):
@@ -68,30 +74,31 @@ def plot_sets(avoid: AvoidRegion, tracking_bound: float, buffer: RelativeBuffer,
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    extent = float(buffer.config.grid.hi[0])
-    xs = np.linspace(-extent, extent, 301)
-    ys = xs
-    va = _resample_mask(avoid.grid, _footprint(avoid.grid, avoid.values[0]), xs, ys)
-    s_region = _dilate(va, xs, ys, tracking_bound)
-    vb = _resample_mask(buffer.config.grid, _footprint(buffer.config.grid, buffer.values), xs, ys)
+    wa = float(avoid.grid.hi[0])
+    xa = np.linspace(-wa, wa, 401)
+    va = _resample_mask(avoid.grid, _footprint(avoid.grid, avoid.values[0]), xa, xa)
+    s_region = _dilate(va, xa, xa, tracking_bound)
+    wb = float(buffer.config.grid.hi[0])
+    xb = np.linspace(-wb, wb, 401)
+    vb = _resample_mask(buffer.config.grid, _footprint(buffer.config.grid, buffer.values), xb, xb)
     fig, axes = plt.subplots(2, 2, figsize=(11, 11), constrained_layout=True)
     panels = [
-        (None, f"Base obstacle M: tracking-error bubble, r = {tracking_bound:.1f} m"),
-        (va, r"Avoid region $V^A(0, t_{IAT})$ footprint"),
-        (s_region, r"Separation region $S = M + \partial V^A$ footprint"),
-        (vb, rf"Relative buffer region $V^B(0, t_{{BRD}})$, k̄ = {buffer.config.kbar}, "
-             rf"$t_{{BRD}}$ = {buffer.config.t_brd:.2f} s"),
+        (None, None, f"Base obstacle M: tracking-error bubble, r = {tracking_bound:.1f} m"),
+        (va, xa, r"Avoid region $V^A(0, t_{IAT})$ footprint"),
+        (s_region, xa, r"Separation region $S = M + \partial V^A$ footprint"),
+        (vb, xb, rf"Relative buffer region $V^B(0, t_{{BRD}})$, k̄ = {buffer.config.kbar}, "
+                 rf"$t_{{BRD}}$ = {buffer.config.t_brd:.2f} s"),
     ]
-    for ax, (mask, title) in zip(axes.flat, panels):
+    for ax, (mask, xs, title) in zip(axes.flat, panels):
         if mask is None:
             zoom = max(4 * tracking_bound, 10.0)
             ax.add_patch(plt.Circle((0, 0), tracking_bound, color="tab:blue", alpha=0.4))
             _setup(ax, zoom, title)
         else:
-            ax.contourf(xs, ys, mask.T.astype(float), levels=[0.5, 1.5], colors=["tab:red"], alpha=0.35)
-            ax.contour(xs, ys, mask.T.astype(float), levels=[0.5], colors=["tab:red"])
+            ax.contourf(xs, xs, mask.T.astype(float), levels=[0.5, 1.5], colors=["tab:red"], alpha=0.35)
+            ax.contour(xs, xs, mask.T.astype(float), levels=[0.5], colors=["tab:red"])
             ax.add_patch(plt.Circle((0, 0), avoid.config.collision_radius, color="0.5", alpha=0.4))
-            _setup(ax, extent if mask is vb else float(avoid.grid.hi[0]), title)
+            _setup(ax, float(xs[-1]), title)
         ax.annotate("", xy=(0.3 * ax.get_xlim()[1], 0), xytext=(0, 0),
                     arrowprops={"arrowstyle": "->", "lw": 2})
     cfg = avoid.config
