@@ -11,6 +11,10 @@
       d/dt p_y =      - omega_i p_x + v_o sin(theta) + w_y
       d/dt theta = omega_o - omega_i  (+ heading disturbances)
 
+  With heading-rate disturbances ``d_theta,i`` and ``d_theta,o`` (SPP eq. 28), vehicle ``i``'s frame turns at
+  ``omega_i + d_theta,i``: its own disturbance enters like ``omega_i`` (column ``(p_y, -p_x, -1)``), the other's
+  like ``omega_o`` (column ``(0, 0, 1)``).
+
   (eq. 44 prints ``v_i sin`` in the second line; the derivation, ``d/dt R(-theta_i)(p_o - p_i)``, gives
   ``v_o sin``, as in Air3D.) The control is vehicle ``i``'s ``(v_i, omega_i)``; the disturbance collects the other
   vehicle's ``(v_o, omega_o)`` and the wind: both winds rotated into ``i``'s frame add up to a disk of radius
@@ -49,7 +53,7 @@ def _check_nonneg(name: str, value: float) -> None:
         raise ValueError(f"{name} must be a finite number >= 0; got {value}.")
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, kw_only=True)
 class DubinsWind(ControlAffineDynamics):
     """Dubins vehicle under bounded wind (intruder paper eq. 43; SPP paper eq. 28).
 
@@ -99,7 +103,7 @@ class DubinsWind(ControlAffineDynamics):
         return ((1.0, 0.0), (0.0, 1.0), (0.0, 0.0))
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, kw_only=True)
 class RelativeDubins(ControlAffineDynamics):
     """Relative dynamics of another Dubins vehicle in vehicle ``i``'s body frame (intruder paper eq. 44).
 
@@ -107,7 +111,8 @@ class RelativeDubins(ControlAffineDynamics):
         v_min, v_max, omega_max: vehicle ``i``'s control bounds (the control of this system).
         other_v_min, other_v_max, other_omega_max: the other vehicle's bounds (part of the disturbance).
         wind: combined wind bound ``d_r,i + d_r,o`` [m/s].
-        heading_disturbance: combined heading-rate disturbance bound [rad/s].
+        own_heading_disturbance: vehicle ``i``'s heading-rate disturbance bound [rad/s].
+        other_heading_disturbance: the other vehicle's heading-rate disturbance bound [rad/s].
     """
 
     v_min: float = 0.0
@@ -117,7 +122,8 @@ class RelativeDubins(ControlAffineDynamics):
     other_v_max: float = 25.0
     other_omega_max: float = 2.0
     wind: float = 12.0
-    heading_disturbance: float = 0.0
+    own_heading_disturbance: float = 0.0
+    other_heading_disturbance: float = 0.0
     control_mode: str = "max"
     disturbance_mode: str = "min"
 
@@ -128,7 +134,8 @@ class RelativeDubins(ControlAffineDynamics):
         _check_nonneg("omega_max", self.omega_max)
         _check_nonneg("other_omega_max", self.other_omega_max)
         _check_nonneg("wind", self.wind)
-        _check_nonneg("heading_disturbance", self.heading_disturbance)
+        _check_nonneg("own_heading_disturbance", self.own_heading_disturbance)
+        _check_nonneg("other_heading_disturbance", self.other_heading_disturbance)
 
     @property
     def state_dim(self) -> int:
@@ -143,8 +150,9 @@ class RelativeDubins(ControlAffineDynamics):
         blocks: list = [Box((self.other_v_min, -self.other_omega_max), (self.other_v_max, self.other_omega_max))]
         if self.wind > 0:
             blocks.append(Ball((0.0, 0.0), self.wind))
-        if self.heading_disturbance > 0:
-            blocks.append(Box((-self.heading_disturbance,), (self.heading_disturbance,)))
+        for bound in (self.own_heading_disturbance, self.other_heading_disturbance):
+            if bound > 0:
+                blocks.append(Box((-bound,), (bound,)))
         return ProductSet(tuple(blocks))
 
     def open_loop(self, x):
@@ -160,7 +168,11 @@ class RelativeDubins(ControlAffineDynamics):
             rows[0] += [1.0, 0.0]
             rows[1] += [0.0, 1.0]
             rows[2] += [0.0, 0.0]
-        if self.heading_disturbance > 0:
+        if self.own_heading_disturbance > 0:  # vehicle i's frame turns with it
+            rows[0] += [x[1]]
+            rows[1] += [-x[0]]
+            rows[2] += [-1.0]
+        if self.other_heading_disturbance > 0:
             rows[0] += [0.0]
             rows[1] += [0.0]
             rows[2] += [1.0]
@@ -185,12 +197,12 @@ def tracking_error_dynamics(vehicle: DubinsWind, planning_v: tuple[float, float]
     return RelativeDubins(
         v_min=vehicle.v_min, v_max=vehicle.v_max, omega_max=vehicle.omega_max,
         other_v_min=v_lo, other_v_max=v_hi, other_omega_max=planning_omega_max,
-        wind=vehicle.wind, heading_disturbance=vehicle.heading_disturbance,
+        wind=vehicle.wind, own_heading_disturbance=vehicle.heading_disturbance,
         control_mode="max", disturbance_mode="min",
     )
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, kw_only=True)
 class SingleIntegrator(ControlAffineDynamics):
     """``dx/dt = u`` with ``||u||_2 <= speed`` (plus an optional constant drift) in ``dim`` dimensions."""
 

@@ -44,7 +44,7 @@ def _dot(p: Sequence, column: Sequence):
     return sum(terms[1:], terms[0]) if terms else 0.0
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, kw_only=True)
 class ControlAffineDynamics(abc.ABC):
     """Base class. Subclasses are frozen dataclasses (hashable: they are static jit arguments) and implement
     :meth:`open_loop`, :meth:`control_jacobian`, :meth:`disturbance_jacobian` and :attr:`state_dim`.

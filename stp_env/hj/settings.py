@@ -81,4 +81,8 @@ class SolverSettings:
             raise ValueError(
                 f"Unknown accuracy preset {level!r}; allowed: {list(ACCURACY_PRESETS)}."
             ) from None
+        clash = sorted({"scheme", "integrator"} & set(overrides))
+        if clash:
+            raise ValueError(f"with_accuracy({level!r}) fixes scheme and integrator; got {clash} too. Use "
+                             "SolverSettings(scheme=..., integrator=...) to choose them yourself.")
         return cls(scheme=scheme, integrator=integrator, **overrides)

@@ -29,7 +29,7 @@ from stp_env.artifacts import ArtifactStore
 from stp_env.dynamics import DubinsWind, RelativeDubins
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, kw_only=True)
 class AvoidRegionConfig:
     """Parameters of the avoid region. Defaults: the intruder paper's Section V (eq. 43 bounds, wind 6 m/s,
     ``t_IAT = 10 s``, ``R_c = 100 m``).
@@ -75,6 +75,8 @@ class AvoidRegionConfig:
             v_min=self.vehicle.v_min, v_max=self.vehicle.v_max, omega_max=self.vehicle.omega_max,
             other_v_min=self.intruder.v_min, other_v_max=self.intruder.v_max,
             other_omega_max=self.intruder.omega_max, wind=self.vehicle.wind + self.intruder.wind,
+            own_heading_disturbance=self.vehicle.heading_disturbance,
+            other_heading_disturbance=self.intruder.heading_disturbance,
             control_mode="max", disturbance_mode="min",
         )
 

@@ -46,7 +46,7 @@ def brd_time(t_iat: float, kbar: int) -> float:
     return t_iat / kbar
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, kw_only=True)
 class BufferConfig:
     """Parameters of the relative buffer region for one ``k̄``.
 

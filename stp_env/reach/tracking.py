@@ -36,7 +36,7 @@ from stp_env.artifacts import ArtifactStore
 from stp_env.dynamics import DubinsWind, RelativeDubins, tracking_error_dynamics
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, kw_only=True)
 class TrackingConfig:
     """Robust-trajectory-tracking parameters. Defaults: the BEACLS paper's city study (``U = [0, 25] m/s x
     |omega| <= 2 rad/s``, ``U^p = [11, 13] m/s x |omega| <= 1.2 rad/s``, wind 6 m/s).
