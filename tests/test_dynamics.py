@@ -467,4 +467,5 @@ def test_dynamics_are_hashable_and_frozen():
     assert DubinsWind(heading_disturbance=0.1).disturbance_space.dim == 3
     assert RelativeDubins(wind=0.0).disturbance_space.dim == 2
     assert RelativeDubins(wind=1.0, own_heading_disturbance=0.1).disturbance_space.dim == 5
-    assert RelativeDubins(wind=1.0, own_heading_disturbance=0.1, other_heading_disturbance=0.1).disturbance_space.dim == 6
+    both = RelativeDubins(wind=1.0, own_heading_disturbance=0.1, other_heading_disturbance=0.1)
+    assert both.disturbance_space.dim == 6
