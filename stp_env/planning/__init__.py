@@ -1,0 +1,1 @@
+"""Sequential trajectory planning (STP): single-vehicle reach-avoid planning and the sequential planner."""

@@ -1,0 +1,76 @@
+"""Time-varying obstacles induced by higher-priority vehicles, as signed-distance tables on the position plane.
+
+Each higher-priority vehicle ``j`` contributes disks of radii ``rho_{j,l}`` around its nominal positions
+``p_j(t + lambda_l)`` (lag ``lambda_l``): ``lambda = 0`` alone for the robust-tracking bubble (SPP eq. 27), the lag
+profiles of :mod:`stp_env.reach.obstacles` for the intruder-aware obstacles (eqs. 26-31, 49-57). A disk is only
+present while ``t + lambda`` lies in the vehicle's flight window ``[t_LDT_j, arrival_j]`` (before departure it
+waits on the ground, after arrival it has left the airspace).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def interpolate_positions(times, positions, t):
+    """Nominal positions at ``t`` by linear interpolation; ``times`` ``(J, K)``, ``positions`` ``(J, K, 2)``,
+    ``t`` ``(J, L)`` -> ``(J, L, 2)`` (clamped to the end samples)."""
+    def one(ts, ps, tq):
+        return jnp.stack([jnp.interp(tq, ts, ps[:, 0]), jnp.interp(tq, ts, ps[:, 1])], -1)
+
+    return jax.vmap(one)(times, positions, t)
+
+
+def moving_disks(t, params):
+    """``g(t, p) = min_{j, l active} ||p - p_j(t + lags_l)|| - radii_{j,l}`` on the plane ``(xs, ys)``.
+
+    ``params``: ``xs`` ``(nx,)``, ``ys`` ``(ny,)``, ``times`` ``(J, K)``, ``positions`` ``(J, K, 2)``,
+    ``lags`` ``(J, L)``, ``radii`` ``(J, L)``, ``start`` ``(J,)``, ``end`` ``(J,)``. Returns ``(nx, ny)``; a large
+    positive value where no disk is active.
+    """
+    tq = t + params["lags"]
+    centres = interpolate_positions(params["times"], params["positions"], tq)
+    active = (tq >= params["start"][:, None]) & (tq <= params["end"][:, None])
+    radii = jnp.where(active, params["radii"], -1e9)
+    cx = centres[..., 0].reshape(-1)
+    cy = centres[..., 1].reshape(-1)
+    r = radii.reshape(-1)
+    d = jnp.sqrt((params["xs"][:, None, None] - cx) ** 2 + (params["ys"][None, :, None] - cy) ** 2) - r
+    return jnp.min(d, axis=-1)
+
+
+def disk_params(grid, trajectories, lags, radii, dtype=np.float32) -> dict:
+    """Packs nominal trajectories for :func:`moving_disks`.
+
+    Args:
+        grid: the planning grid (its first two dimensions are the position plane).
+        trajectories: list of ``(times (K_j,), states (K_j, >=2), start, end)`` of the higher-priority vehicles.
+        lags: ``(L,)`` lags [s], shared by all vehicles.
+        radii: ``(L,)`` radii [m] (same for all vehicles) or ``(J, L)``.
+    """
+    if not trajectories:
+        raise ValueError("disk_params needs at least one trajectory.")
+    k = max(len(tr[0]) for tr in trajectories)
+    times = np.zeros((len(trajectories), k))
+    pos = np.zeros((len(trajectories), k, 2))
+    for j, (ts, xs, _, _) in enumerate(trajectories):
+        n = len(ts)
+        times[j, :n] = ts
+        pos[j, :n] = np.asarray(xs)[:, :2]
+        # Pad by repeating the last position at later times (1 s apart: increasing even in float32).
+        times[j, n:] = ts[-1] + np.arange(1, k - n + 1)
+        pos[j, n:] = np.asarray(xs)[-1, :2]
+    lags = np.broadcast_to(np.asarray(lags, np.float64), (len(trajectories), len(np.atleast_1d(lags))))
+    radii = np.broadcast_to(np.asarray(radii, np.float64), lags.shape)
+    return {
+        "xs": jnp.asarray(grid.coordinate_vector(0), dtype),
+        "ys": jnp.asarray(grid.coordinate_vector(1), dtype),
+        "times": jnp.asarray(times, dtype),
+        "positions": jnp.asarray(pos, dtype),
+        "lags": jnp.asarray(lags, dtype),
+        "radii": jnp.asarray(radii, dtype),
+        "start": jnp.asarray([tr[2] for tr in trajectories], dtype),
+        "end": jnp.asarray([tr[3] for tr in trajectories], dtype),
+    }

@@ -1,0 +1,205 @@
+"""Planning one vehicle: the reach-avoid BRS from its target under time-varying obstacles, its latest departure
+time, and the nominal trajectory.
+
+Intruder paper Section III-B (eqs. 9-11) and Section IV-D (eqs. 35-37); SPP paper eqs. (7)-(13). The BRS
+``V(t, t_STA)`` is the backward reach-avoid *tube* of the target ``L`` with the obstacle ``G(t)`` (double-obstacle
+VI, eq. 3), the vehicle's control minimising and the disturbance maximising (eq. 36). The latest departure time
+is ``t_LDT = sup {t : x0 in V(t, t_STA)}`` (end of Section III-B), read from the time-to-reach of the tube. The
+nominal trajectory follows ``u(t, x) = arg min_u max_d grad V(t, x) . f`` (eqs. 11, 37) from ``x0`` at ``t_LDT``.
+
+Obstacles are given as a jittable function of ``(t, params)`` returning ``g`` on the *position plane* (shape
+``grid.shape[:2]``; ``{g <= 0}`` is forbidden); it is broadcast over the heading, so moving disks around other
+vehicles' nominal trajectories cost one 2-D evaluation per time step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from stp_env import hj
+from stp_env.dynamics import DubinsWind
+
+
+class InfeasiblePlanError(ValueError):
+    """No departure time lets the vehicle reach its target by its STA within the planning horizon."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SinglePlan:
+    """The plan of one vehicle.
+
+    Attributes:
+        t_ldt: latest departure time [s].
+        sta: scheduled time of arrival [s].
+        times: trajectory sample times from ``t_ldt`` [s], shape ``(K,)``.
+        states: nominal states ``(p_x, p_y, theta)`` at ``times``, shape ``(K, 3)`` [m, m, rad].
+        controls: nominal controls ``(v, omega)`` applied from each sample, shape ``(K, 2)`` [m/s, rad/s].
+        arrival_time: first sample time inside the target [s].
+        n_steps: solver time steps of the BRS.
+    """
+
+    t_ldt: float
+    sta: float
+    times: np.ndarray
+    states: np.ndarray
+    controls: np.ndarray
+    arrival_time: float
+    n_steps: int
+
+
+def _value_in_time(grid: hj.Grid, slice_times, stack, t, x):
+    """``V(t, x)`` from slices ``stack[k]`` at ascending ``slice_times``: linear in time, multilinear in space;
+    only the two bracketing slices are touched."""
+    k = jnp.clip(jnp.searchsorted(slice_times, t, side="right") - 1, 0, slice_times.shape[0] - 2)
+    span = slice_times[k + 1] - slice_times[k]
+    w = jnp.clip(jnp.where(span > 0, (t - slice_times[k]) / span, 0.0), 0.0, 1.0)
+    return ((1.0 - w) * hj.interpolation.interpolate(grid, stack[k], x)
+            + w * hj.interpolation.interpolate(grid, stack[k + 1], x))
+
+
+TURN_DEADBAND = 0.05
+
+
+def planning_control(grid: hj.Grid, dynamics: DubinsWind, slice_times, stack, t, x):
+    """Optimal control and disturbance (eqs. 11, 37) at ``(t, x)`` from the BRS slices (jittable): the
+    gradient is a one-cell central difference of the interpolated value.
+
+    The turn rate is bang-bang in theory; on a grid its switching function ``dV/dtheta`` is noise around zero on
+    a straight optimal path, and a literal sign makes the vehicle chatter and arrive late. It is therefore
+    saturated-linear: full turn once turning changes ``V`` at least ``TURN_DEADBAND`` times as fast as the best
+    translation does, proportional below."""
+    steps = np.eye(3) * np.asarray(grid.spacing)[:, None]
+    p = jnp.stack([(_value_in_time(grid, slice_times, stack, t, x + h)
+                    - _value_in_time(grid, slice_times, stack, t, x - h)) / (2 * h[i])
+                   for i, h in enumerate(steps)])
+    xs, ps = (x[0], x[1], x[2]), (p[0], p[1], p[2])
+    u = jnp.stack(dynamics.optimal_control(xs, ps))
+    if dynamics.omega_max > 0:
+        scale = TURN_DEADBAND * jnp.hypot(p[0], p[1]) * dynamics.v_max / dynamics.omega_max + 1e-12
+        sign = -1.0 if dynamics.control_mode == "min" else 1.0
+        u = u.at[1].set(sign * dynamics.omega_max * jnp.clip(p[2] / scale, -1.0, 1.0))
+    return u, jnp.stack(dynamics.optimal_disturbance(xs, ps))
+
+
+@functools.partial(jax.jit, static_argnames=("grid", "dynamics", "n_steps", "wind_mode"))
+def _rollout(key, x0, t0, dt, slice_times, stack, *, grid, dynamics, n_steps, wind_mode):
+    """Midpoint integration of the vehicle under the planning controller and a wind model."""
+    def control(t, x):
+        return planning_control(grid, dynamics, slice_times, stack, t, x)
+
+    def wind(key, d_opt):
+        if wind_mode == "zero" or dynamics.wind == 0:
+            return jnp.zeros(2)
+        if wind_mode == "worst":
+            return d_opt[:2]
+        ang = jax.random.uniform(key, (), minval=-jnp.pi, maxval=jnp.pi)
+        r = dynamics.wind * jnp.sqrt(jax.random.uniform(jax.random.fold_in(key, 1)))
+        return r * jnp.array([jnp.cos(ang), jnp.sin(ang)])
+
+    def f(x, u, w):
+        return jnp.array([u[0] * jnp.cos(x[2]) + w[0], u[0] * jnp.sin(x[2]) + w[1], u[1]])
+
+    def step(carry, k):
+        x, key = carry
+        key, sub = jax.random.split(key)
+        t = t0 + k * dt
+        u, d = control(t, x)
+        w = wind(sub, d)
+        xm = x + 0.5 * dt * f(x, u, w)
+        u, d = control(t + 0.5 * dt, xm)
+        x_new = x + dt * f(xm, u, w)
+        x_new = x_new.at[2].set(jnp.mod(x_new[2] + jnp.pi, 2 * jnp.pi) - jnp.pi)
+        return (x_new, key), (x, u)
+
+    (_, _), (xs, us) = jax.lax.scan(step, (x0, key), jnp.arange(n_steps))
+    return xs, us
+
+
+def plan_single(grid: hj.Grid, dynamics: DubinsWind, start, target_center, target_radius: float, sta: float,
+                horizon: float, *, obstacle_fn=None, obstacle_params=None, settings: hj.SolverSettings | None = None,
+                slice_dt: float | None = None, time_step: float = 0.05, wind_mode: str = "zero", seed: int = 0,
+                progress: bool = False) -> SinglePlan:
+    """Plans one vehicle (intruder paper eqs. 35-37).
+
+    Args:
+        grid: ``(p_x, p_y, theta)`` grid, heading periodic.
+        dynamics: the planning dynamics (for robust trajectory tracking: the reduced control set ``U^p`` and no
+            wind; roles: control ``"min"``, disturbance ``"max"``).
+        start: initial state ``(p_x, p_y, theta)``.
+        target_center, target_radius: the target disk ``L`` [m].
+        sta: scheduled time of arrival [s].
+        horizon: how far before ``sta`` to look for a departure [s].
+        obstacle_fn: jittable ``(t, params) -> g`` on the position plane, shape ``grid.shape[:2]``.
+        obstacle_params: pytree of arrays passed to ``obstacle_fn``.
+        settings: solver settings (default: ``high`` accuracy).
+        slice_dt: spacing of the stored value slices used by the trajectory controller (default: ``time_step``).
+        time_step: trajectory sample period [s].
+        wind_mode: wind while extracting the trajectory: ``"zero"``, ``"random"`` or ``"worst"``.
+        seed: key of the random wind.
+
+    Raises:
+        InfeasiblePlanError: if ``start`` cannot reach the target by ``sta`` within ``horizon``.
+    """
+    if wind_mode not in ("zero", "random", "worst"):
+        raise ValueError(f"wind_mode must be 'zero', 'random' or 'worst'; got {wind_mode!r}.")
+    if not (horizon > 0 and time_step > 0):
+        raise ValueError(f"horizon and time_step must be positive; got {horizon}, {time_step}.")
+    start = np.asarray(start, np.float64)
+    if not bool(grid.contains(jnp.asarray(start))):
+        raise ValueError(f"start {tuple(start)} lies outside the planning grid {grid.lo}..{grid.hi}.")
+    settings = settings or hj.SolverSettings.with_accuracy("high")
+    slice_dt = slice_dt or time_step
+    n_slices = max(2, math.ceil(horizon / slice_dt) + 1)
+    times = sta - np.linspace(0.0, horizon, n_slices)  # decreasing: backward from the STA
+    target = hj.shapes.cylinder(grid, (0, 1), target_center, target_radius)
+    full_fn = None
+    if obstacle_fn is not None:
+        full_fn = _full_grid_obstacle(obstacle_fn, grid.shape[2])
+    res = hj.solve(settings, dynamics, grid, times, target, tube=True, obstacle=obstacle_params,
+                   obstacle_fn=full_fn, time_to_reach=True, progress=progress)
+    t_ldt = float(hj.interpolation.latest_departure_time(grid, res.time_to_reach, jnp.asarray(start, jnp.float32),
+                                                          sta))
+    if not math.isfinite(t_ldt):
+        raise InfeasiblePlanError(
+            f"start {tuple(np.round(start, 3))} cannot reach the target {tuple(target_center)} (radius "
+            f"{target_radius}) by t_STA = {sta} s within a {horizon} s horizon; increase the horizon or move the "
+            "STA later.")
+    # Trajectory from t_LDT with the controller of the stored slices (ascending time for interpolation).
+    slice_times = jnp.asarray(times[::-1].copy(), jnp.float32)
+    stack = res.values[::-1]
+    # Simulate a little past the STA so that a late arrival is measured, not hidden.
+    n_steps = max(1, math.ceil(1.1 * (sta - t_ldt) / time_step) + 1)
+    n_padded = 64 * math.ceil(n_steps / 64)  # fewer distinct scan lengths, fewer compilations
+    xs, us = _rollout(jax.random.key(seed), jnp.asarray(start, jnp.float32), jnp.float32(t_ldt),
+                      jnp.float32(time_step), slice_times, stack, grid=grid, dynamics=dynamics,
+                      n_steps=n_padded, wind_mode=wind_mode)
+    xs, us = np.asarray(xs, np.float64)[:n_steps], np.asarray(us, np.float64)[:n_steps]
+    sample_times = t_ldt + time_step * np.arange(n_steps)
+    dist = np.hypot(xs[:, 0] - target_center[0], xs[:, 1] - target_center[1])
+    inside = np.nonzero(dist <= target_radius)[0]
+    if inside.size:
+        k = int(inside[0]) + 1
+        arrival = float(sample_times[k - 1])
+    else:
+        k = n_steps
+        arrival = math.inf
+    return SinglePlan(t_ldt=t_ldt, sta=float(sta), times=sample_times[:k], states=xs[:k], controls=us[:k],
+                      arrival_time=arrival, n_steps=res.n_steps)
+
+
+@functools.lru_cache(maxsize=64)
+def _full_grid_obstacle(obstacle_fn, n_theta: int):
+    """``obstacle_fn`` on the position plane, broadcast over ``n_theta`` headings (cached so that repeated plans
+    with the same function reuse the compiled solver loop)."""
+
+    def full(t, params):
+        g2 = obstacle_fn(t, params)
+        return jnp.broadcast_to(g2[:, :, None], (*g2.shape, n_theta))
+
+    return full

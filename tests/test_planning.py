@@ -1,0 +1,75 @@
+"""Single-vehicle reach-avoid planning and robust-tracking STP on small crossing problems."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stp_env import hj
+from stp_env.dynamics import DubinsWind
+from stp_env.planning.single import InfeasiblePlanError, plan_single
+from stp_env.planning.stp import plan_rtt
+
+VEHICLE = DubinsWind(v_min=0.0, v_max=1.0, omega_max=1.0, wind=0.1)
+PLANNER = DubinsWind(v_min=0.5, v_max=0.6, omega_max=0.5, wind=0.0)
+GRID = hj.Grid.from_bounds((-1.5, -1.5, -np.pi), (1.5, 1.5, np.pi), (61, 61, 40), periodic=2)
+
+
+def test_straight_path_latest_departure_time():
+    # Pointing at the target: the time to reach is (distance - r) / v_max (NUMERICS.md), so t_LDT = -that.
+    start, target, r = (-1.0, 0.0, 0.0), (1.0, 0.0), 0.2
+    plan = plan_single(GRID, PLANNER, start, target, r, sta=0.0, horizon=5.0, time_step=0.05)
+    exact = -(2.0 - r) / PLANNER.v_max
+    dx = GRID.spacing[0]
+    assert plan.t_ldt == pytest.approx(exact, abs=dx / PLANNER.v_max)
+    assert plan.arrival_time <= 0.0 + 0.05
+    assert np.all(np.abs(plan.states[:, 1]) < dx)  # stays on the line
+    assert np.all((plan.controls[:, 0] >= 0.5 - 1e-6) & (plan.controls[:, 0] <= 0.6 + 1e-6))
+
+
+def test_infeasible_horizon_raises():
+    with pytest.raises(InfeasiblePlanError, match="cannot reach the target"):
+        plan_single(GRID, PLANNER, (-1.0, 0.0, 0.0), (1.0, 0.0), 0.2, sta=0.0, horizon=1.0)
+    with pytest.raises(ValueError, match="outside the planning grid"):
+        plan_single(GRID, PLANNER, (-3.0, 0.0, 0.0), (1.0, 0.0), 0.2, sta=0.0, horizon=1.0)
+
+
+def _min_separation(pa, pb):
+    lo, hi = max(pa.times[0], pb.times[0]), min(pa.times[-1], pb.times[-1])
+    if lo > hi:
+        return np.inf
+    ts = np.linspace(lo, hi, 400)
+    xa = np.stack([np.interp(ts, pa.times, pa.states[:, k]) for k in range(2)], -1)
+    xb = np.stack([np.interp(ts, pb.times, pb.states[:, k]) for k in range(2)], -1)
+    return float(np.linalg.norm(xa - xb, axis=1).min())
+
+
+@pytest.mark.slow
+def test_crossing_vehicles_keep_the_induced_obstacle_apart():
+    # Two vehicles crossing at right angles with the same STA: the lower-priority one must leave earlier or
+    # detour, and its nominal trajectory stays outside the higher-priority disk R_c + 2 r_e.
+    rc, r_e = 0.2, 0.05
+    plan = plan_rtt(GRID, VEHICLE, (0.5, 0.6), 0.5, r_e, rc,
+                    starts=[(-1.2, 0.0, 0.0), (0.0, -1.2, np.pi / 2)], targets=[(1.2, 0.0), (0.0, 1.2)],
+                    target_radius=0.25, stas=[0.0, 0.0], horizon=8.0, progress=False)
+    first, second = (v.plan for v in plan.vehicles)
+    dx = GRID.spacing[0]
+    assert first.arrival_time <= 0.05 and second.arrival_time <= 0.05
+    # Highest priority: no obstacle, straight line.
+    assert first.t_ldt == pytest.approx(-(2.4 - 0.2) / 0.6, abs=dx / 0.6)
+    # The lower-priority vehicle pays for the crossing with an earlier departure.
+    assert second.t_ldt < first.t_ldt - 0.1
+    # Half a cell of slack: the obstacle is resolved on the grid.
+    assert _min_separation(first, second) >= rc + 2 * r_e - 0.5 * dx
+
+
+def test_bad_inputs():
+    with pytest.raises(ValueError, match="permutation"):
+        plan_rtt(GRID, VEHICLE, (0.5, 0.6), 0.5, 0.05, 0.2, [(-1, 0, 0), (0, -1, 0)], [(1, 0), (0, 1)], 0.25,
+                 [0.0, 0.0], priorities=[0, 0], horizon=5.0, progress=False)
+    with pytest.raises(ValueError, match="not smaller than its target radius"):
+        plan_rtt(GRID, VEHICLE, (0.5, 0.6), 0.5, 0.3, 0.2, [(-1, 0, 0)], [(1, 0)], 0.25, [0.0], horizon=5.0,
+                 progress=False)
+    with pytest.raises(ValueError, match="needs buffer_radius"):
+        plan_rtt(GRID, VEHICLE, (0.5, 0.6), 0.5, 0.05, 0.2, [(-1, 0, 0)], [(1, 0)], 0.25, [0.0], horizon=5.0,
+                 kbar=2, progress=False)
