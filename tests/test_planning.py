@@ -73,3 +73,38 @@ def test_bad_inputs():
     with pytest.raises(ValueError, match="needs buffer_radius"):
         plan_rtt(GRID, VEHICLE, (0.5, 0.6), 0.5, 0.05, 0.2, [(-1, 0, 0)], [(1, 0)], 0.25, [0.0], horizon=5.0,
                  kbar=2, progress=False)
+
+
+def test_plan_scenario_tiny_arrives_and_separates():
+    from stp_env.planning.stp import plan_scenario
+    from stp_env.scenarios import make
+
+    scenario = make("tiny")
+    r_e = 4.13  # the default robust-tracking bound (tests/test_reach_tracking.py measures it)
+    plan = plan_scenario(scenario, tracking_bound=r_e, progress=False)
+    dx = scenario.grid().spacing[0]
+    for v, spec in zip(plan.vehicles, scenario.vehicles):
+        # Arrives by its STA, up to one trajectory sample.
+        assert v.plan.arrival_time <= spec.sta + scenario.time_step
+        assert v.plan.t_ldt < spec.sta
+    a, b = (v.plan for v in plan.vehicles)
+    assert _min_separation(a, b) >= scenario.collision_radius + 2 * r_e - 0.5 * dx
+
+
+@pytest.mark.slow
+def test_intruder_aware_plan_keeps_the_buffer(tmp_path):
+    from stp_env.artifacts import ArtifactStore
+    from stp_env.planning.stp import plan_scenario
+    from stp_env.scenarios import make
+
+    # STA spacing 90 s: the second vehicle must be in the air while the first still flies.
+    scenario = make("tiny-intruder", sta_spacing=90)
+    plan = plan_scenario(scenario, tracking_bound=4.13, store=ArtifactStore(tmp_path), progress=False)
+    first, second = (v.plan for v in plan.vehicles)
+    assert second.t_ldt < first.arrival_time  # they do share the airspace
+    buffer_radius = plan.vehicles[1].obstacle_radii[0]
+    assert buffer_radius > 500.0  # k̄ = 2 at 6 m/s wind: about 760 m
+    dx = scenario.grid().spacing[0]
+    assert _min_separation(first, second) >= buffer_radius - 0.5 * dx
+    for v, spec in zip(plan.vehicles, scenario.vehicles):
+        assert v.plan.arrival_time <= spec.sta + scenario.time_step

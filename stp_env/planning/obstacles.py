@@ -23,12 +23,19 @@ def interpolate_positions(times, positions, t):
     return jax.vmap(one)(times, positions, t)
 
 
+def static_plane(t, params):
+    """A time-invariant obstacle on the plane: ``params["static"]`` of shape ``(nx, ny)``."""
+    del t
+    return params["static"]
+
+
 def moving_disks(t, params):
-    """``g(t, p) = min_{j, l active} ||p - p_j(t + lags_l)|| - radii_{j,l}`` on the plane ``(xs, ys)``.
+    """``g(t, p) = min_{j, l active} ||p - p_j(t + lags_l)|| - radii_{j,l}`` on the plane ``(xs, ys)``, and
+    ``min`` with ``params["static"]`` (buildings) when present.
 
     ``params``: ``xs`` ``(nx,)``, ``ys`` ``(ny,)``, ``times`` ``(J, K)``, ``positions`` ``(J, K, 2)``,
     ``lags`` ``(J, L)``, ``radii`` ``(J, L)``, ``start`` ``(J,)``, ``end`` ``(J,)``. Returns ``(nx, ny)``; a large
-    positive value where no disk is active.
+    positive value where no obstacle is present.
     """
     tq = t + params["lags"]
     centres = interpolate_positions(params["times"], params["positions"], tq)
@@ -38,7 +45,10 @@ def moving_disks(t, params):
     cy = centres[..., 1].reshape(-1)
     r = radii.reshape(-1)
     d = jnp.sqrt((params["xs"][:, None, None] - cx) ** 2 + (params["ys"][None, :, None] - cy) ** 2) - r
-    return jnp.min(d, axis=-1)
+    g = jnp.min(d, axis=-1)
+    if "static" in params:
+        g = jnp.minimum(g, params["static"])
+    return g
 
 
 def disk_params(grid, trajectories, lags, radii, dtype=np.float32) -> dict:

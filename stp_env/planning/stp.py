@@ -11,8 +11,11 @@ SPP paper Section IV-C (robust trajectory tracking, eq. 27) and intruder paper A
   (26)-(31), (49)-(57) (:func:`stp_env.reach.obstacles.intruder_obstacle_profiles`), grown by the planning
   vehicle's own bubble ``r_e`` (Remark 1).
 
+Static obstacles (buildings) are avoided by the vehicle's own bubble ``r_e`` and, intruder-aware, by the
+conservative ``V^S`` of eqs. (32)-(33) (:func:`stp_env.reach.obstacles.static_inflation_radius`).
+
 Not yet here: the centralized and least-restrictive induced-obstacle methods (they need forward reachable sets
-under closed-loop feedback), static obstacles (``V^S``), replanning (Algorithm 4) and plan caching.
+under closed-loop feedback), replanning (Algorithm 4) and plan caching.
 """
 
 from __future__ import annotations
@@ -21,12 +24,13 @@ import dataclasses
 import math
 from collections.abc import Sequence
 
+import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
 from stp_env import hj
 from stp_env.dynamics import DubinsWind
-from stp_env.planning.obstacles import disk_params, moving_disks
+from stp_env.planning.obstacles import disk_params, moving_disks, static_plane
 from stp_env.planning.single import SinglePlan, plan_single
 
 
@@ -65,8 +69,8 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
              tracking_bound: float, collision_radius: float, starts: Sequence, targets: Sequence,
              target_radius: float | Sequence[float], stas: Sequence[float], priorities: Sequence[int] | None = None,
              *, horizon: float, kbar: int | None = None, buffer_radius: float | None = None,
-             obstacle_profiles: dict | None = None, settings: hj.SolverSettings | None = None,
-             time_step: float = 0.05, progress: bool = True) -> Plan:
+             obstacle_profiles: dict | None = None, static_obstacle=None,
+             settings: hj.SolverSettings | None = None, time_step: float = 0.05, progress: bool = True) -> Plan:
     """Plans every vehicle with robust trajectory tracking (optionally intruder-aware).
 
     Args:
@@ -79,6 +83,8 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
         priorities: ``0`` = highest (default: input order).
         horizon: planning horizon before each STA [s].
         kbar, buffer_radius, obstacle_profiles: intruder-aware mode (all three or none).
+        static_obstacle: signed distance to the static obstacles on the position plane (``grid.shape[:2]``),
+            already grown by whatever margin the caller needs (see :func:`plan_scenario`).
     """
     n = len(starts)
     radii = np.broadcast_to(np.asarray(target_radius, float), (n,))
@@ -113,8 +119,13 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
     for rank, i in enumerate(tqdm(order, desc="STP planning", unit="vehicle", disable=not progress)):
         kwargs = {}
         if trajectories:
-            kwargs = {"obstacle_fn": moving_disks,
-                      "obstacle_params": disk_params(grid, trajectories, lags_arr, rads_arr)}
+            params = disk_params(grid, trajectories, lags_arr, rads_arr)
+            if static_obstacle is not None:
+                params["static"] = jnp.asarray(static_obstacle, jnp.float32)
+            kwargs = {"obstacle_fn": moving_disks, "obstacle_params": params}
+        elif static_obstacle is not None:
+            kwargs = {"obstacle_fn": static_plane,
+                      "obstacle_params": {"static": jnp.asarray(static_obstacle, jnp.float32)}}
         single = plan_single(grid, planner, starts[i], targets[i], float(shrunk[i]), float(stas[i]), horizon,
                              settings=settings, time_step=time_step, progress=False, **kwargs)
         end = single.arrival_time if math.isfinite(single.arrival_time) else single.times[-1]
@@ -122,3 +133,57 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
         done[i] = VehiclePlan(index=i, priority=rank, plan=single, obstacle_lags=lags_arr, obstacle_radii=rads_arr)
     return Plan(vehicles=tuple(done[i] for i in range(n)), tracking_bound=float(tracking_bound),
                 collision_radius=float(collision_radius), kbar=kbar)
+
+
+def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, horizon: float | None = None,
+                  settings: hj.SolverSettings | None = None, progress: bool = True) -> Plan:
+    """Plans a registered :class:`stp_env.scenarios.Scenario` with robust trajectory tracking.
+
+    ``tracking_bound`` defaults to :func:`stp_env.reach.tracking.compute_tracking_bound` for the scenario's
+    vehicle and ``U^p`` (cached in ``store``); intruder-aware scenarios (``kbar`` set) take their buffer radius
+    from the avoid and relative-buffer artifacts of the same vehicle (also cached). ``horizon`` defaults to twice
+    the longest straight-line flight at the planning speed.
+    """
+    from stp_env.artifacts import ArtifactStore
+    from stp_env.reach.avoid import compute_avoid_region
+    from stp_env.reach.buffer import BufferConfig, buffer_radii, compute_relative_buffer
+    from stp_env.reach.defaults import default_avoid_config
+    from stp_env.reach.obstacles import intruder_obstacle_profiles, static_inflation_radius
+    from stp_env.reach.tracking import TrackingConfig, compute_tracking_bound
+
+    if scenario.method != "rtt":
+        raise NotImplementedError(
+            f"scenario {scenario.name!r} asks for method {scenario.method!r}; only 'rtt' (robust trajectory "
+            "tracking) is implemented so far. Use make(name, method='rtt').")
+    store = ArtifactStore() if store is None else store
+    vehicle = scenario.vehicle
+    if tracking_bound is None:
+        half_width = 0.5 * (vehicle.v_max + vehicle.wind)
+        cfg = TrackingConfig(vehicle=vehicle, planning_v=tuple(scenario.planning_v),
+                             planning_omega_max=scenario.planning_omega_max, half_width=half_width)
+        tracking_bound = compute_tracking_bound(cfg, store=store, progress=progress).bound
+    grid = scenario.grid()
+    starts, targets = scenario.starts(), scenario.targets()
+    if horizon is None:
+        dist = np.hypot(*(targets - starts[:, :2]).T)
+        horizon = 2.0 * float(dist.max()) / scenario.planning_v[1] + 1.0
+    margin = tracking_bound
+    aware = {}
+    if scenario.kbar is not None:
+        avoid_cfg = default_avoid_config(vehicle, scenario.collision_radius, scenario.t_iat)
+        avoid = compute_avoid_region(avoid_cfg, store=store, progress=progress)
+        buffer = compute_relative_buffer(BufferConfig(avoid=avoid_cfg, kbar=scenario.kbar), avoid, store=store,
+                                         progress=progress)
+        radii = buffer_radii(scenario.kbar, tracking_bound, avoid.detection_range(), buffer.radius,
+                             scenario.t_iat)
+        aware = {"kbar": scenario.kbar, "buffer_radius": radii.buffer,
+                 "obstacle_profiles": intruder_obstacle_profiles(vehicle, tracking_bound, scenario.collision_radius,
+                                                                 scenario.t_iat, scenario.kbar)}
+        margin += static_inflation_radius(vehicle, scenario.collision_radius, scenario.t_iat)
+    static = None
+    if scenario.buildings:
+        static = np.asarray(scenario.static_obstacle())[:, :, 0] - margin
+    return plan_rtt(grid, vehicle, tuple(scenario.planning_v), scenario.planning_omega_max, tracking_bound,
+                    scenario.collision_radius, starts, targets, scenario.target_radii(), scenario.stas(),
+                    scenario.priorities(), horizon=horizon, static_obstacle=static, settings=settings,
+                    time_step=scenario.time_step, progress=progress, **aware)

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
+
 from stp_env.artifacts import ArtifactStore
 from stp_env.dynamics import DubinsWind
 from stp_env.reach.avoid import AvoidRegion, AvoidRegionConfig, compute_avoid_region
@@ -61,17 +63,25 @@ class ReachArtifacts:
         }
 
 
+def default_avoid_config(vehicle: DubinsWind, collision_radius: float = 100.0, t_iat: float = 10.0,
+                         intruder: DubinsWind | None = None) -> AvoidRegionConfig:
+    """The avoid-region parameters used throughout (so that every user shares one cached artifact): 13 slices
+    (``tau`` a multiple of ``t_IAT / 12``, exact for ``t_BRD`` with ``k̄`` in 1..4) and a box of 1.45 times the
+    set's exact extent behind the vehicle (the set reaches about 1.12 times that in front)."""
+    intruder = vehicle if intruder is None else intruder
+    closing = max(intruder.v_max + vehicle.wind + intruder.wind - vehicle.v_max, 0.0)
+    behind = collision_radius + closing * t_iat
+    return AvoidRegionConfig(vehicle=vehicle, intruder=intruder, collision_radius=collision_radius, t_iat=t_iat,
+                             half_width=float(np.float32(1.45 * behind)), n_slices=13)
+
+
 def build_reach_artifacts(wind: float = 6.0, kbars=(1, 2, 3, 4), *, avoid_config: AvoidRegionConfig | None = None,
                           tracking_config: TrackingConfig | None = None, buffer_grid=(61, 61, 60),
                           store: ArtifactStore | None = None, progress: bool = True) -> ReachArtifacts:
     """Computes or loads everything for one wind level. ``store=None`` uses the default cache directory."""
     store = ArtifactStore() if store is None else store
     vehicle = DubinsWind(v_min=0.0, v_max=25.0, omega_max=2.0, wind=wind)
-    if avoid_config is None:
-        probe = AvoidRegionConfig(vehicle=vehicle, intruder=vehicle)
-        # The box must hold the set with margin: 1.45 x its exact extent behind the vehicle (320 m at 6 m/s).
-        avoid_config = AvoidRegionConfig(vehicle=vehicle, intruder=vehicle, n_slices=13,
-                                         half_width=max(320.0, round(1.45 * probe.behind_extent(), -1)))
+    avoid_config = avoid_config or default_avoid_config(vehicle)
     tracking_config = tracking_config or TrackingConfig(vehicle=vehicle)
     avoid = compute_avoid_region(avoid_config, store=store, progress=progress)
     tracking = compute_tracking_bound(tracking_config, store=store, progress=progress)
