@@ -16,9 +16,8 @@ import time
 
 from stp_env.artifacts import ArtifactStore
 from stp_env.dynamics import DubinsWind
-from stp_env.reach.avoid import AvoidRegionConfig, compute_avoid_region
-from stp_env.reach.defaults import build_reach_artifacts
-from stp_env.reach.tracking import TrackingConfig
+from stp_env.reach.avoid import compute_avoid_region
+from stp_env.reach.defaults import build_reach_artifacts, default_avoid_config
 
 
 def main() -> None:
@@ -28,12 +27,10 @@ def main() -> None:
     vehicle = DubinsWind(v_min=0.0, v_max=25.0, omega_max=2.0, wind=args.wind)
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
-        compute_avoid_region(AvoidRegionConfig(vehicle=vehicle, intruder=vehicle, n_slices=13), progress=False)
+        compute_avoid_region(default_avoid_config(vehicle), progress=False)
         avoid_s = time.perf_counter() - start
         start = time.perf_counter()
-        arts = build_reach_artifacts(
-            args.wind, (1, 2, 3, 4), store=ArtifactStore(tmp), progress=False,
-            tracking_config=TrackingConfig(vehicle=vehicle, half_width=10.0 if args.wind <= 6 else 30.0))
+        arts = build_reach_artifacts(args.wind, (1, 2, 3, 4), store=ArtifactStore(tmp), progress=False)
         total_s = time.perf_counter() - start
     summary = arts.summary()
     print(json.dumps({

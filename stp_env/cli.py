@@ -4,6 +4,8 @@ Subcommands:
 
 * ``avoid-region``: compute the intruder avoid region ``V^A(0, t_IAT)`` of two Dubins vehicles in wind
   (intruder paper eqs. 13-16) and write a PNG.
+* ``plan``: plan a registered scenario with robust trajectory tracking (intruder-aware when the scenario has a
+  k̄) and write a PNG of the nominal trajectories.
 * ``precompute``: build (or load from the cache) every reachability artifact of the default scenario (avoid
   region, tracking-error bound, relative buffer regions and disk radii for each k̄), print a JSON summary and
   write the figures.
@@ -64,6 +66,17 @@ def _build_parser() -> argparse.ArgumentParser:
                     help="solver preset (scheme + time integrator)")
     av.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
+    pl = sub.add_parser("plan", help="plan a registered scenario (robust trajectory tracking) and plot it",
+                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    pl.add_argument("--scenario", default="tiny", help="registered scenario name (see stp_env.scenarios.names())")
+    pl.add_argument("--kbar", type=_positive(int), default=None,
+                    help="plan intruder-aware for this k̄ (max vehicles the intruder may force to avoid)")
+    pl.add_argument("--sta-spacing", type=_nonnegative, default=None,
+                    help="seconds between consecutive scheduled arrivals (scenarios that support it)")
+    pl.add_argument("--out", default="plan.png", help="PNG file to write")
+    pl.add_argument("--cache-dir", default=None, help="artifact cache directory")
+    pl.add_argument("--no-progress", action="store_true", help="hide the progress bars")
+
     pre = sub.add_parser("precompute", help="build the reachability artifacts of the default scenario (cached)",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     pre.add_argument("--wind", type=_nonnegative, default=6.0, help="wind bound of vehicles and intruder [m/s]")
@@ -102,21 +115,44 @@ def _avoid_region(args) -> int:
     return 0
 
 
+def _plan(args) -> int:
+    from stp_env.artifacts import ArtifactStore
+    from stp_env.planning.plots import plot_plan
+    from stp_env.planning.stp import plan_scenario
+    from stp_env.scenarios import make
+
+    overrides = {}
+    if args.kbar is not None:
+        overrides["kbar"] = args.kbar
+    if args.sta_spacing is not None:
+        overrides["sta_spacing"] = args.sta_spacing
+    scenario = make(args.scenario, **overrides)
+    if scenario.method != "rtt":
+        scenario = scenario.with_overrides(method="rtt")
+    start = time.perf_counter()
+    plan = plan_scenario(scenario, store=ArtifactStore(args.cache_dir), progress=not args.no_progress)
+    seconds = time.perf_counter() - start
+    path = plot_plan(plan, scenario, args.out)
+    print(json.dumps({
+        "scenario": scenario.name, "png": path, "seconds": round(seconds, 1),
+        "tracking_bound_m": round(plan.tracking_bound, 3), "kbar": plan.kbar,
+        "t_ldt_s": [round(float(v.plan.t_ldt), 3) for v in plan.vehicles],
+        "arrival_s": [round(float(v.plan.arrival_time), 3) for v in plan.vehicles],
+        "sta_s": [float(s.sta) for s in scenario.vehicles],
+    }))
+    return 0
+
+
 def _precompute(args) -> int:
     from pathlib import Path
 
     from stp_env.artifacts import ArtifactStore
-    from stp_env.dynamics import DubinsWind
     from stp_env.reach.defaults import build_reach_artifacts
     from stp_env.reach.plots import plot_buffer_regions, plot_sets
-    from stp_env.reach.tracking import TrackingConfig
 
-    vehicle = DubinsWind(v_min=0.0, v_max=25.0, omega_max=2.0, wind=args.wind)
-    # The error box must hold the tracking bound: wider for strong wind.
-    tracking = TrackingConfig(vehicle=vehicle, half_width=10.0 if args.wind <= 6 else 30.0)
     start = time.perf_counter()
-    arts = build_reach_artifacts(args.wind, tuple(sorted(set(args.kbar))), tracking_config=tracking,
-                                 store=ArtifactStore(args.cache_dir), progress=not args.no_progress)
+    arts = build_reach_artifacts(args.wind, tuple(sorted(set(args.kbar))), store=ArtifactStore(args.cache_dir),
+                                 progress=not args.no_progress)
     summary = arts.summary()
     summary["seconds"] = round(time.perf_counter() - start, 1)
     out = Path(args.figures)
@@ -139,6 +175,8 @@ def main(argv=None) -> int:
             return _avoid_region(args)
         if args.command == "precompute":
             return _precompute(args)
+        if args.command == "plan":
+            return _plan(args)
     except ValueError as err:
         print(f"stp-env {args.command}: error: {err}", file=sys.stderr)
         return 2

@@ -149,7 +149,7 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
     from stp_env.reach.buffer import BufferConfig, buffer_radii, compute_relative_buffer
     from stp_env.reach.defaults import default_avoid_config
     from stp_env.reach.obstacles import intruder_obstacle_profiles, static_inflation_radius
-    from stp_env.reach.tracking import TrackingConfig, compute_tracking_bound
+    from stp_env.reach.tracking import default_tracking_bound
 
     if scenario.method != "rtt":
         raise NotImplementedError(
@@ -158,10 +158,8 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
     store = ArtifactStore() if store is None else store
     vehicle = scenario.vehicle
     if tracking_bound is None:
-        half_width = 0.5 * (vehicle.v_max + vehicle.wind)
-        cfg = TrackingConfig(vehicle=vehicle, planning_v=tuple(scenario.planning_v),
-                             planning_omega_max=scenario.planning_omega_max, half_width=half_width)
-        tracking_bound = compute_tracking_bound(cfg, store=store, progress=progress).bound
+        tracking_bound = default_tracking_bound(vehicle, tuple(scenario.planning_v), scenario.planning_omega_max,
+                                                store=store, progress=progress).bound
     grid = scenario.grid()
     starts, targets = scenario.starts(), scenario.targets()
     if horizon is None:

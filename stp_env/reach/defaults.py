@@ -23,7 +23,7 @@ from stp_env.reach.buffer import (
     disk_conservatism,
 )
 from stp_env.reach.plots import footprint_area_ratio
-from stp_env.reach.tracking import TrackingBound, TrackingConfig, compute_tracking_bound
+from stp_env.reach.tracking import TrackingBound, TrackingConfig, compute_tracking_bound, default_tracking_bound
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,9 +82,11 @@ def build_reach_artifacts(wind: float = 6.0, kbars=(1, 2, 3, 4), *, avoid_config
     store = ArtifactStore() if store is None else store
     vehicle = DubinsWind(v_min=0.0, v_max=25.0, omega_max=2.0, wind=wind)
     avoid_config = avoid_config or default_avoid_config(vehicle)
-    tracking_config = tracking_config or TrackingConfig(vehicle=vehicle)
     avoid = compute_avoid_region(avoid_config, store=store, progress=progress)
-    tracking = compute_tracking_bound(tracking_config, store=store, progress=progress)
+    if tracking_config is None:
+        tracking = default_tracking_bound(vehicle, store=store, progress=progress)
+    else:
+        tracking = compute_tracking_bound(tracking_config, store=store, progress=progress)
     buffers, radii = {}, {}
     d_a = avoid.detection_range()
     for kbar in kbars:

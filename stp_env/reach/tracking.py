@@ -165,3 +165,29 @@ def compute_tracking_bound(config: TrackingConfig | None = None, *, store: Artif
     return TrackingBound(config=config, value=value, bound=bound, min_value=float(value.min()),
                          converged=bool(arrays["converged"]), horizon=float(arrays["horizon"]),
                          n_steps=int(arrays["n_steps"]))
+
+
+def default_tracking_config(vehicle: DubinsWind, planning_v=(11.0, 13.0), planning_omega_max: float = 1.2,
+                            half_width: float | None = None) -> TrackingConfig:
+    """The tracking parameters used throughout, so that every user shares one cached artifact: the error box
+    scales with the vehicle's top ground speed (10 m for the papers' 25 m/s vehicle in 6 m/s wind)."""
+    if half_width is None:
+        half_width = float(np.float32(10.0 * (vehicle.v_max + vehicle.wind) / 31.0))
+    return TrackingConfig(vehicle=vehicle, planning_v=tuple(planning_v), planning_omega_max=planning_omega_max,
+                          half_width=half_width)
+
+
+def default_tracking_bound(vehicle: DubinsWind, planning_v=(11.0, 13.0), planning_omega_max: float = 1.2, *,
+                           store: ArtifactStore | None = None, progress: bool = True,
+                           max_doublings: int = 3) -> TrackingBound:
+    """:func:`compute_tracking_bound` on :func:`default_tracking_config`, doubling the error box while the bound
+    reaches the cost cap (strong wind needs a larger box: about 16 m of error at 11 m/s)."""
+    cfg = default_tracking_config(vehicle, planning_v, planning_omega_max)
+    for attempt in range(max_doublings + 1):
+        try:
+            return compute_tracking_bound(cfg, store=store, progress=progress)
+        except ValueError as err:
+            if "reaches the cost cap" not in str(err) or attempt == max_doublings:
+                raise
+            cfg = dataclasses.replace(cfg, half_width=2 * cfg.half_width)
+    raise AssertionError("unreachable")
