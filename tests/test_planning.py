@@ -108,3 +108,22 @@ def test_intruder_aware_plan_keeps_the_buffer(tmp_path):
     assert _min_separation(first, second) >= buffer_radius - 0.5 * dx
     for v, spec in zip(plan.vehicles, scenario.vehicles):
         assert v.plan.arrival_time <= spec.sta + scenario.time_step
+
+
+def test_shipped_tiny_plan_regenerates_bit_for_bit():
+    import importlib.util
+    from pathlib import Path
+
+    from stp_env.planning.stp import plan_to_arrays, shipped_plan
+
+    spec = importlib.util.spec_from_file_location(
+        "generate_plans", Path(__file__).resolve().parents[1] / "scripts" / "generate_plans.py")
+    gen = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gen)
+    fresh = gen.generate("tiny")
+    shipped = plan_to_arrays(shipped_plan("tiny"))
+    assert sorted(fresh) == sorted(shipped)
+    for key in fresh:
+        assert np.asarray(fresh[key]).tobytes() == np.asarray(shipped[key]).tobytes(), key
+    with pytest.raises(ValueError, match="No shipped plan"):
+        shipped_plan("nope")

@@ -185,3 +185,72 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
                     scenario.collision_radius, starts, targets, scenario.target_radii(), scenario.stas(),
                     scenario.priorities(), horizon=horizon, static_obstacle=static, settings=settings,
                     time_step=scenario.time_step, progress=progress, **aware)
+
+
+def plan_to_arrays(plan: Plan) -> dict[str, np.ndarray]:
+    """Packs a plan into plain arrays (ragged trajectories padded with NaN, lengths kept) for ``.npz`` files."""
+    n = len(plan.vehicles)
+    k = max(len(v.plan.times) for v in plan.vehicles)
+    times = np.full((n, k), np.nan)
+    states = np.full((n, k, 3), np.nan)
+    controls = np.full((n, k, 2), np.nan)
+    for i, v in enumerate(plan.vehicles):
+        m = len(v.plan.times)
+        times[i, :m], states[i, :m], controls[i, :m] = v.plan.times, v.plan.states, v.plan.controls
+    return {
+        "times": times, "states": states, "controls": controls,
+        "lengths": np.asarray([len(v.plan.times) for v in plan.vehicles]),
+        "t_ldt": np.asarray([v.plan.t_ldt for v in plan.vehicles]),
+        "sta": np.asarray([v.plan.sta for v in plan.vehicles]),
+        "arrival_time": np.asarray([v.plan.arrival_time for v in plan.vehicles]),
+        "n_steps": np.asarray([v.plan.n_steps for v in plan.vehicles]),
+        "priority": np.asarray([v.priority for v in plan.vehicles]),
+        "obstacle_lags": plan.vehicles[0].obstacle_lags, "obstacle_radii": plan.vehicles[0].obstacle_radii,
+        "tracking_bound": np.asarray(plan.tracking_bound), "collision_radius": np.asarray(plan.collision_radius),
+        "kbar": np.asarray(-1 if plan.kbar is None else plan.kbar),
+    }
+
+
+def plan_from_arrays(arrays) -> Plan:
+    """Inverse of :func:`plan_to_arrays`."""
+    vehicles = []
+    for i, m in enumerate(np.asarray(arrays["lengths"])):
+        single = SinglePlan(t_ldt=float(arrays["t_ldt"][i]), sta=float(arrays["sta"][i]),
+                            times=np.asarray(arrays["times"][i, :m]), states=np.asarray(arrays["states"][i, :m]),
+                            controls=np.asarray(arrays["controls"][i, :m]),
+                            arrival_time=float(arrays["arrival_time"][i]), n_steps=int(arrays["n_steps"][i]))
+        vehicles.append(VehiclePlan(index=i, priority=int(arrays["priority"][i]), plan=single,
+                                    obstacle_lags=np.asarray(arrays["obstacle_lags"]),
+                                    obstacle_radii=np.asarray(arrays["obstacle_radii"])))
+    kbar = int(arrays["kbar"])
+    return Plan(vehicles=tuple(vehicles), tracking_bound=float(arrays["tracking_bound"]),
+                collision_radius=float(arrays["collision_radius"]), kbar=None if kbar < 0 else kbar)
+
+
+def cached_plan(scenario, *, tracking_bound: float | None = None, store=None, progress: bool = True) -> Plan:
+    """:func:`plan_scenario` through the artifact store: keyed by the whole scenario and the tracking bound."""
+    from stp_env.artifacts import ArtifactStore
+    from stp_env.reach.tracking import default_tracking_bound
+
+    store = ArtifactStore() if store is None else store
+    if tracking_bound is None:
+        tracking_bound = default_tracking_bound(scenario.vehicle, tuple(scenario.planning_v),
+                                                scenario.planning_omega_max, store=store, progress=progress).bound
+    params = {"scenario": scenario, "tracking_bound": float(tracking_bound)}
+    art = store.load_or_compute(
+        "plan", params, lambda: plan_to_arrays(plan_scenario(scenario, tracking_bound=tracking_bound, store=store,
+                                                             progress=progress)))
+    return plan_from_arrays(art.arrays)
+
+
+def shipped_plan(name: str) -> Plan:
+    """A plan shipped with the package (``stp_env/data/plans``, made by ``scripts/generate_plans.py``)."""
+    from importlib import resources
+
+    ref = resources.files("stp_env") / "data" / "plans" / f"{name}.npz"
+    if not ref.is_file():
+        available = sorted(p.name[:-4] for p in (resources.files("stp_env") / "data" / "plans").iterdir()
+                           if p.name.endswith(".npz"))
+        raise ValueError(f"No shipped plan {name!r}; available: {available}.")
+    with resources.as_file(ref) as path, np.load(path, allow_pickle=False) as data:
+        return plan_from_arrays({k: data[k] for k in data.files})
