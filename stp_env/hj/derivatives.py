@@ -7,8 +7,10 @@ Schemes (Osher & Fedkiw, *Level Set Methods*, Sections 3.3-3.4):
 * ``weno5``: fifth-order WENO of Jiang & Peng, with ``epsilon`` added to the smoothness indicators of the
   divided differences (the choice of ``hj_reachability``, so that both can be compared at the same settings).
 
-Everything is written as shifted slices of one padded array per dimension and element-wise arithmetic, so that
-XLA fuses a whole right-hand side into one loop over the grid (no intermediate derivative arrays in memory).
+Everything is written as shifted slices of one padded array per dimension and element-wise arithmetic. XLA fuses
+each one-sided derivative into one loop over the grid (about 12 fused loops per right-hand side at 101^3: the
+ghost-cell paddings, one loop per axis and side, and one for Hamiltonian, dissipation and update); see
+BENCHMARKS.md for the measured flops and bytes per node.
 
 Boundaries (per non-periodic dimension, applied as ghost cells):
 
