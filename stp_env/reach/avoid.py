@@ -198,33 +198,29 @@ def _value_gradient(region: AvoidRegion):
     return grad
 
 
+def _optimal_input(region: AvoidRegion, player: str):
+    dyn = region.config.relative_dynamics
+    grad = _value_gradient(region)
+    optimum = dyn.optimal_control if player == "vehicle" else dyn.optimal_disturbance
+
+    def u(tau, x_rel):
+        p = grad(tau, x_rel)
+        return jnp.stack(optimum((x_rel[0], x_rel[1], x_rel[2]), (p[0], p[1], p[2])))
+
+    return u
+
+
 def make_avoidance_controller(region: AvoidRegion):
     """The avoidance control ``u^A`` (eq. 15) as a jittable ``(tau, x_rel) -> (v_i, omega_i)``, ``x_rel`` the
     intruder's state in the vehicle's body frame (eq. 44), ``tau`` the time since the intruder appeared [s]."""
-    dyn = region.config.relative_dynamics
-    grad = _value_gradient(region)
-
-    def u_avoid(tau, x_rel):
-        p = grad(tau, x_rel)
-        x = (x_rel[0], x_rel[1], x_rel[2])
-        return jnp.stack(dyn.optimal_control(x, (p[0], p[1], p[2])))
-
-    return u_avoid
+    return _optimal_input(region, "vehicle")
 
 
 def make_pursuit_controller(region: AvoidRegion):
     """The intruder's optimal pursuit (the minimising player of eq. 14) as a jittable ``(tau, x_rel) ->
     (v_I, omega_I, w_x, w_y)``: intruder speed and turn rate, and the worst combined wind in the vehicle's body
     frame [m/s]."""
-    dyn = region.config.relative_dynamics
-    grad = _value_gradient(region)
-
-    def u_pursue(tau, x_rel):
-        p = grad(tau, x_rel)
-        x = (x_rel[0], x_rel[1], x_rel[2])
-        return jnp.stack(dyn.optimal_disturbance(x, (p[0], p[1], p[2])))
-
-    return u_pursue
+    return _optimal_input(region, "intruder")
 
 
 def plot_avoid_region(region: AvoidRegion, path: str, headings_deg=(0, 90, 180, -90)) -> str:

@@ -115,6 +115,13 @@ def _paper_vehicle(wind: float) -> DubinsWind:
     return DubinsWind(v_min=0.0, v_max=25.0, omega_max=2.0, wind=float(wind))
 
 
+def _paper_fields(wind: float) -> dict:
+    """Fields shared by the papers' UAV scenarios: vehicle bounds (intruder paper eq. 43 bounds), the BEACLS
+    planning set ``U^p`` and ``R_c = 100 m``."""
+    return {"vehicle": _paper_vehicle(wind), "planning_v": BEACLS_PLANNING_V,
+            "planning_omega_max": BEACLS_PLANNING_OMEGA_MAX, "collision_radius": 100.0}
+
+
 BEACLS_PLANNING_V = (11.0, 13.0)
 BEACLS_PLANNING_OMEGA_MAX = 1.2
 
@@ -265,10 +272,7 @@ def city(*, n_vehicles: int = 50, wind: float = 6.0, sta_spacing: float = 0.0, k
         name="city",
         domain_lo=CITY_DOMAIN[0],
         domain_hi=CITY_DOMAIN[1],
-        vehicle=_paper_vehicle(wind),
-        planning_v=BEACLS_PLANNING_V,
-        planning_omega_max=BEACLS_PLANNING_OMEGA_MAX,
-        collision_radius=100.0,
+        **_paper_fields(wind),
         vehicles=vehicles,
         buildings=buildings,
         method="rtt",
@@ -330,10 +334,7 @@ def bay_area(*, n_vehicles: int = 200, wind: float = 11.0, sta_spacing: float = 
         name="bay-area",
         domain_lo=BAY_AREA_DOMAIN[0],
         domain_hi=BAY_AREA_DOMAIN[1],
-        vehicle=_paper_vehicle(wind),
-        planning_v=BEACLS_PLANNING_V,
-        planning_omega_max=BEACLS_PLANNING_OMEGA_MAX,
-        collision_radius=100.0,
+        **_paper_fields(wind),
         vehicles=vehicles,
         method="rtt",
         kbar=kbar,
@@ -367,10 +368,7 @@ def tiny(*, wind: float = 6.0, sta_spacing: float = 0.0, kbar: int | None = None
         name="tiny",
         domain_lo=(0.0, 0.0),
         domain_hi=(2000.0, 2000.0),
-        vehicle=_paper_vehicle(wind),
-        planning_v=BEACLS_PLANNING_V,
-        planning_omega_max=BEACLS_PLANNING_OMEGA_MAX,
-        collision_radius=100.0,
+        **_paper_fields(wind),
         vehicles=vehicles,
         method="rtt",
         kbar=kbar,
