@@ -122,16 +122,18 @@ def _freeze_step(settings, dynamics, grid, direction, global_alpha, values, dt_a
 
 @functools.partial(jax.jit, static_argnames=("settings", "dynamics", "grid", "direction", "tube",
                                              "obstacle_fn", "track_ttr"))
-def _advance(values, target, ttr, global_alpha, t_start, dt, n_steps, elapsed0, obstacle_params, *,
+def _advance(values, target, ttr, global_alpha, t_start, dt, n_steps, last_dt, elapsed0, obstacle_params, *,
              settings, dynamics, grid, direction, tube, obstacle_fn, track_ttr):
-    """``n_steps`` steps of (signed) size ``direction * dt`` from time ``t_start``."""
+    """``n_steps`` steps from time ``t_start``: all of (signed) size ``direction * dt`` but the last, of size
+    ``direction * last_dt`` (the remainder that lands exactly on a requested time; ``last_dt = dt`` if none)."""
     freeze = tube and settings.tube_mode == "freeze"
     stepper = _freeze_step if freeze else _rk_step
 
     def body(i, carry):
         v, ttr = carry
-        v_new = stepper(settings, dynamics, grid, direction, global_alpha, v, dt)
-        t_new = t_start + direction * (i + 1) * dt
+        h = jnp.where(i == n_steps - 1, last_dt, dt)
+        v_new = stepper(settings, dynamics, grid, direction, global_alpha, v, h)
+        t_new = t_start + direction * (i * dt + h)
         if tube and not freeze:
             v_new = jnp.minimum(v_new, target)
         if obstacle_fn is not None:
@@ -139,7 +141,7 @@ def _advance(values, target, ttr, global_alpha, t_start, dt, n_steps, elapsed0, 
         if track_ttr:
             e_old = elapsed0 + i * dt
             frac = jnp.where(v > 0, v / jnp.maximum(v - v_new, 1e-30), 0.0)
-            crossing = e_old + jnp.clip(frac, 0.0, 1.0) * dt
+            crossing = e_old + jnp.clip(frac, 0.0, 1.0) * h
             ttr = jnp.where(jnp.isinf(ttr) & (v_new <= 0), crossing, ttr)
         return v_new, ttr
 
@@ -269,26 +271,31 @@ def solve(settings: SolverSettings, dynamics: ControlAffineDynamics, grid: Grid,
                 step = dt_max
                 if rem <= 1e-9 * max(span, 1.0):
                     rem = 0.0
+            # Chunks of full steps; the remainder step (if any) rides in the last chunk: one dispatch per chunk.
             plan = []
             done = 0
             while done < n_full:
                 n = min(settings.steps_per_chunk, n_full - done)
-                plan.append((n, step, done * step))
+                plan.append([n, step, done * step, step])
                 done += n
             if rem > 0:
-                plan.append((1, rem, n_full * step))
-            for n, h, offset in plan:
+                if plan and plan[-1][0] < settings.steps_per_chunk:
+                    plan[-1][0] += 1
+                    plan[-1][3] = rem
+                else:
+                    plan.append([1, step, n_full * step, rem])
+            for n, h, offset, last in plan:
                 elapsed = abs(t - times[0]) + offset
                 values, ttr_carry = _advance(
                     values, target, ttr_carry, global_alpha,
                     jnp.asarray(t + direction * offset, dtype), jnp.asarray(h, dtype),
-                    jnp.asarray(n, jnp.int32), jnp.asarray(elapsed, dtype), obstacle,
+                    jnp.asarray(n, jnp.int32), jnp.asarray(last, dtype), jnp.asarray(elapsed, dtype), obstacle,
                     settings=settings, dynamics=dynamics, grid=grid, direction=direction, tube=tube,
                     obstacle_fn=obstacle_fn, track_ttr=time_to_reach)
                 n_steps_total += n
                 if bar is not None:
                     values.block_until_ready()
-                    bar.update(n * h)
+                    bar.update((n - 1) * h + last)
             t = float(t_next)
             outputs.append(values)
     finally:

@@ -51,20 +51,26 @@ def moving_disks(t, params):
     return g
 
 
-def disk_params(grid, trajectories, lags, radii, dtype=np.float32) -> dict:
+def disk_params(grid, trajectories, lags, radii, dtype=np.float32, n_slots: int | None = None,
+                n_samples: int | None = None) -> dict:
     """Packs nominal trajectories for :func:`moving_disks`.
 
     Args:
         grid: the planning grid (its first two dimensions are the position plane).
         trajectories: list of ``(times (K_j,), states (K_j, >=2), start, end)`` of the higher-priority vehicles.
         lags: ``(L,)`` lags [s], shared by all vehicles.
-        radii: ``(L,)`` radii [m] (same for all vehicles) or ``(J, L)``.
+        radii: ``(L,)`` radii [m] (same for all vehicles).
+        n_slots, n_samples: pad to this many vehicles (inactive) and samples, so that every vehicle of a scenario
+            passes arrays of one shape and the solver compiles once.
     """
     if not trajectories:
         raise ValueError("disk_params needs at least one trajectory.")
-    k = max(len(tr[0]) for tr in trajectories)
-    times = np.zeros((len(trajectories), k))
-    pos = np.zeros((len(trajectories), k, 2))
+    k = max(max(len(tr[0]) for tr in trajectories), n_samples or 0)
+    rows = max(len(trajectories), n_slots or 0)
+    times = np.zeros((rows, k))
+    pos = np.zeros((rows, k, 2))
+    for j in range(len(trajectories), rows):  # empty slots: increasing times, never active
+        times[j] = np.arange(k)
     for j, (ts, xs, _, _) in enumerate(trajectories):
         n = len(ts)
         times[j, :n] = ts
@@ -72,8 +78,12 @@ def disk_params(grid, trajectories, lags, radii, dtype=np.float32) -> dict:
         # Pad by repeating the last position at later times (1 s apart: increasing even in float32).
         times[j, n:] = ts[-1] + np.arange(1, k - n + 1)
         pos[j, n:] = np.asarray(xs)[-1, :2]
-    lags = np.broadcast_to(np.asarray(lags, np.float64), (len(trajectories), len(np.atleast_1d(lags))))
+    lags = np.broadcast_to(np.asarray(lags, np.float64), (rows, len(np.atleast_1d(lags))))
     radii = np.broadcast_to(np.asarray(radii, np.float64), lags.shape)
+    start = np.full(rows, np.inf)
+    end = np.full(rows, -np.inf)
+    start[:len(trajectories)] = [tr[2] for tr in trajectories]
+    end[:len(trajectories)] = [tr[3] for tr in trajectories]
     return {
         "xs": jnp.asarray(grid.coordinate_vector(0), dtype),
         "ys": jnp.asarray(grid.coordinate_vector(1), dtype),
@@ -81,6 +91,6 @@ def disk_params(grid, trajectories, lags, radii, dtype=np.float32) -> dict:
         "positions": jnp.asarray(pos, dtype),
         "lags": jnp.asarray(lags, dtype),
         "radii": jnp.asarray(radii, dtype),
-        "start": jnp.asarray([tr[2] for tr in trajectories], dtype),
-        "end": jnp.asarray([tr[3] for tr in trajectories], dtype),
+        "start": jnp.asarray(start, dtype),
+        "end": jnp.asarray(end, dtype),
     }

@@ -173,12 +173,13 @@ def plan_single(grid: hj.Grid, dynamics: DubinsWind, start, target_center, targe
     # Trajectory from t_LDT with the controller of the stored slices (ascending time for interpolation).
     slice_times = jnp.asarray(times[::-1].copy(), jnp.float32)
     stack = res.values[::-1]
-    # Simulate a little past the STA so that a late arrival is measured, not hidden.
+    # Simulate a little past the STA so that a late arrival is measured, not hidden. The scan always runs for the
+    # whole horizon (one compiled rollout per horizon and time step, shared by every vehicle of a scenario).
     n_steps = max(1, math.ceil(1.1 * (sta - t_ldt) / time_step) + 1)
-    n_padded = 64 * math.ceil(n_steps / 64)  # fewer distinct scan lengths, fewer compilations
+    n_scan = max(n_steps, math.ceil(1.1 * horizon / time_step) + 1)
     xs, us = _rollout(jax.random.key(seed), jnp.asarray(start, jnp.float32), jnp.float32(t_ldt),
                       jnp.float32(time_step), slice_times, stack, grid=grid, dynamics=dynamics,
-                      n_steps=n_padded, wind_mode=wind_mode)
+                      n_steps=n_scan, wind_mode=wind_mode)
     xs, us = np.asarray(xs, np.float64)[:n_steps], np.asarray(us, np.float64)[:n_steps]
     sample_times = t_ldt + time_step * np.arange(n_steps)
     dist = np.hypot(xs[:, 0] - target_center[0], xs[:, 1] - target_center[1])

@@ -70,7 +70,8 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
              target_radius: float | Sequence[float], stas: Sequence[float], priorities: Sequence[int] | None = None,
              *, horizon: float, kbar: int | None = None, buffer_radius: float | None = None,
              obstacle_profiles: dict | None = None, static_obstacle=None,
-             settings: hj.SolverSettings | None = None, time_step: float = 0.05, progress: bool = True) -> Plan:
+             settings: hj.SolverSettings | None = None, time_step: float = 0.05, arrival_margin: float | None = None,
+             progress: bool = True) -> Plan:
     """Plans every vehicle with robust trajectory tracking (optionally intruder-aware).
 
     Args:
@@ -85,6 +86,9 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
         kbar, buffer_radius, obstacle_profiles: intruder-aware mode (all three or none).
         static_obstacle: signed distance to the static obstacles on the position plane (``grid.shape[:2]``),
             already grown by whatever margin the caller needs (see :func:`plan_scenario`).
+        arrival_margin: plan to arrive this much before each STA [s]. The numerical tube is optimistic by about
+            a cell, so the nominal trajectory can reach the target up to ``dx / v`` late; the default, one cell at
+            the slowest planning speed, absorbs that.
     """
     n = len(starts)
     radii = np.broadcast_to(np.asarray(target_radius, float), (n,))
@@ -103,6 +107,9 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
             raise ValueError(f"vehicle {i}: the tracking-error bound ({tracking_bound:.3f} m) is not smaller than "
                              f"its target radius ({radii[i]:.3f} m); no target is left to plan for.")
     planner = DubinsWind(v_min=planning_v[0], v_max=planning_v[1], omega_max=planning_omega_max, wind=0.0)
+    if arrival_margin is None:
+        arrival_margin = max(grid.spacing[:2]) / max(planning_v[0], 1e-3 * planning_v[1])
+    slice_dt = max(time_step, horizon / 200)
     # Obstacle radii around each higher-priority nominal trajectory (lag 0 disk first).
     lags = [0.0]
     rads = [collision_radius + 2 * tracking_bound]
@@ -119,15 +126,18 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
     for rank, i in enumerate(tqdm(order, desc="STP planning", unit="vehicle", disable=not progress)):
         kwargs = {}
         if trajectories:
-            params = disk_params(grid, trajectories, lags_arr, rads_arr)
+            params = disk_params(grid, trajectories, lags_arr, rads_arr, n_slots=n - 1,
+                                 n_samples=math.ceil(1.1 * horizon / time_step) + 1)
             if static_obstacle is not None:
                 params["static"] = jnp.asarray(static_obstacle, jnp.float32)
             kwargs = {"obstacle_fn": moving_disks, "obstacle_params": params}
         elif static_obstacle is not None:
             kwargs = {"obstacle_fn": static_plane,
                       "obstacle_params": {"static": jnp.asarray(static_obstacle, jnp.float32)}}
-        single = plan_single(grid, planner, starts[i], targets[i], float(shrunk[i]), float(stas[i]), horizon,
-                             settings=settings, time_step=time_step, progress=False, **kwargs)
+        single = plan_single(grid, planner, starts[i], targets[i], float(shrunk[i]), float(stas[i]) - arrival_margin,
+                             horizon, settings=settings, time_step=time_step, slice_dt=slice_dt, progress=False,
+                             **kwargs)
+        single = dataclasses.replace(single, sta=float(stas[i]))
         end = single.arrival_time if math.isfinite(single.arrival_time) else single.times[-1]
         trajectories.append((single.times, single.states, single.t_ldt, end))
         done[i] = VehiclePlan(index=i, priority=rank, plan=single, obstacle_lags=lags_arr, obstacle_radii=rads_arr)
