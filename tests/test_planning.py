@@ -23,7 +23,7 @@ def test_straight_path_latest_departure_time():
     dx = GRID.spacing[0]
     assert plan.t_ldt == pytest.approx(exact, abs=dx / PLANNER.v_max)
     assert plan.arrival_time <= 0.0 + 0.05
-    assert np.all(np.abs(plan.states[:, 1]) < dx)  # stays on the line
+    assert np.all(np.abs(plan.flight()[1][:, 1]) < dx)  # stays on the line
     assert np.all((plan.controls[:, 0] >= 0.5 - 1e-6) & (plan.controls[:, 0] <= 0.6 + 1e-6))
 
 
@@ -35,12 +35,14 @@ def test_infeasible_horizon_raises():
 
 
 def _min_separation(pa, pb):
-    lo, hi = max(pa.times[0], pb.times[0]), min(pa.times[-1], pb.times[-1])
+    """Smallest distance between two nominal trajectories while both are in the air."""
+    (ta, sa), (tb, sb) = pa.flight(), pb.flight()
+    lo, hi = max(ta[0], tb[0]), min(ta[-1], tb[-1])
     if lo > hi:
         return np.inf
     ts = np.linspace(lo, hi, 400)
-    xa = np.stack([np.interp(ts, pa.times, pa.states[:, k]) for k in range(2)], -1)
-    xb = np.stack([np.interp(ts, pb.times, pb.states[:, k]) for k in range(2)], -1)
+    xa = np.stack([np.interp(ts, ta, sa[:, k]) for k in range(2)], -1)
+    xb = np.stack([np.interp(ts, tb, sb[:, k]) for k in range(2)], -1)
     return float(np.linalg.norm(xa - xb, axis=1).min())
 
 

@@ -23,18 +23,18 @@ def plot_plan(plan, scenario, path: str, snapshot_time: float | None = None) -> 
     if snapshot_time is None:
         grid_t = np.linspace(min(v.plan.t_ldt for v in plan.vehicles),
                              max(v.plan.times[-1] for v in plan.vehicles), 400)
-        flying = [sum((v.plan.times[0] <= t <= v.plan.times[-1]) for v in plan.vehicles) for t in grid_t]
+        flying = [sum((v.plan.t_ldt <= t <= v.plan.arrival_time) for v in plan.vehicles) for t in grid_t]
         snapshot_time = float(grid_t[int(np.argmax(flying))])
     colors = plt.cm.tab10(np.arange(len(plan.vehicles)) % 10)
     for v, spec, col in zip(plan.vehicles, scenario.vehicles, colors):
-        st = v.plan.states
+        times, st = v.plan.flight()
         ax.plot(st[:, 0], st[:, 1], color=col, lw=1.8)
         ax.add_patch(plt.Circle(spec.target, spec.target_radius, color=col, alpha=0.25))
         ax.plot(*spec.start[:2], "o", color=col, ms=4)
-        if v.plan.times[0] <= snapshot_time <= v.plan.times[-1]:
-            x = np.interp(snapshot_time, v.plan.times, st[:, 0])
-            y = np.interp(snapshot_time, v.plan.times, st[:, 1])
-            th = np.interp(snapshot_time, v.plan.times, np.unwrap(st[:, 2]))
+        if times[0] <= snapshot_time <= times[-1]:
+            x = np.interp(snapshot_time, times, st[:, 0])
+            y = np.interp(snapshot_time, times, st[:, 1])
+            th = np.interp(snapshot_time, times, np.unwrap(st[:, 2]))
             ax.annotate("", xy=(x + 0.04 * np.ptp(ax.get_xlim()) * np.cos(th), y + 0.04 * np.ptp(ax.get_xlim())
                                 * np.sin(th)), xytext=(x, y), arrowprops={"arrowstyle": "->", "color": col})
             ax.add_patch(plt.Circle((x, y), v.obstacle_radii[0], fill=False, ls="--", color=col))

@@ -37,10 +37,11 @@ class SinglePlan:
     Attributes:
         t_ldt: latest departure time [s].
         sta: scheduled time of arrival [s].
-        times: trajectory sample times from ``t_ldt`` [s], shape ``(K,)``.
+        times: trajectory sample times from ``t_ldt`` [s], shape ``(K,)``; they run a little past the STA.
         states: nominal states ``(p_x, p_y, theta)`` at ``times``, shape ``(K, 3)`` [m, m, rad].
         controls: nominal controls ``(v, omega)`` applied from each sample, shape ``(K, 2)`` [m/s, rad/s].
-        arrival_time: first sample time inside the target [s].
+        arrival_time: first sample time inside the target [s]; the vehicle leaves the airspace then, and
+            :meth:`flight` is the part of the trajectory before it.
         n_steps: solver time steps of the BRS.
     """
 
@@ -51,6 +52,12 @@ class SinglePlan:
     controls: np.ndarray
     arrival_time: float
     n_steps: int
+
+    def flight(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(times, states)`` from departure to arrival (inclusive)."""
+        k = int(np.searchsorted(self.times, self.arrival_time, side="right")) if math.isfinite(
+            self.arrival_time) else len(self.times)
+        return self.times[:k], self.states[:k]
 
 
 def _value_in_time(grid: hj.Grid, slice_times, stack, t, x):
@@ -184,13 +191,10 @@ def plan_single(grid: hj.Grid, dynamics: DubinsWind, start, target_center, targe
     sample_times = t_ldt + time_step * np.arange(n_steps)
     dist = np.hypot(xs[:, 0] - target_center[0], xs[:, 1] - target_center[1])
     inside = np.nonzero(dist <= target_radius)[0]
-    if inside.size:
-        k = int(inside[0]) + 1
-        arrival = float(sample_times[k - 1])
-    else:
-        k = n_steps
-        arrival = math.inf
-    return SinglePlan(t_ldt=t_ldt, sta=float(sta), times=sample_times[:k], states=xs[:k], controls=us[:k],
+    arrival = float(sample_times[int(inside[0])]) if inside.size else math.inf
+    # The samples go on past the arrival (into the target, with the same controller) until the STA: a tracking
+    # vehicle that trails its reference by up to the error bound still has a moving reference to follow.
+    return SinglePlan(t_ldt=t_ldt, sta=float(sta), times=sample_times, states=xs, controls=us,
                       arrival_time=arrival, n_steps=res.n_steps)
 
 

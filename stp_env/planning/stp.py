@@ -139,7 +139,7 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
                              **kwargs)
         single = dataclasses.replace(single, sta=float(stas[i]))
         end = single.arrival_time if math.isfinite(single.arrival_time) else single.times[-1]
-        trajectories.append((single.times, single.states, single.t_ldt, end))
+        trajectories.append((*single.flight(), single.t_ldt, end))
         done[i] = VehiclePlan(index=i, priority=rank, plan=single, obstacle_lags=lags_arr, obstacle_radii=rads_arr)
     return Plan(vehicles=tuple(done[i] for i in range(n)), tracking_bound=float(tracking_bound),
                 collision_radius=float(collision_radius), kbar=kbar)
