@@ -8,6 +8,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _strategies import grids
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -17,19 +18,6 @@ EPS32 = float(np.finfo(np.float32).eps)
 
 
 # ---------------------------------------------------------------------------------------- strategies
-@st.composite
-def grids(draw, max_dim: int = 3, max_n: int = 12):
-    ndim = draw(st.integers(1, max_dim))
-    lo, hi, shape, periodic = [], [], [], []
-    for i in range(ndim):
-        a = draw(st.floats(-10.0, 10.0, allow_nan=False, allow_infinity=False))
-        extent = draw(st.floats(0.5, 20.0, allow_nan=False, allow_infinity=False))
-        lo.append(a)
-        hi.append(a + extent)
-        shape.append(draw(st.integers(2, max_n)))
-        if draw(st.booleans()):
-            periodic.append(i)
-    return hj.Grid.from_bounds(lo, hi, shape, periodic=tuple(periodic))
 
 
 def index_tolerance(grid: hj.Grid) -> np.ndarray:
