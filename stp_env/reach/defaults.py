@@ -65,14 +65,15 @@ class ReachArtifacts:
 
 def default_avoid_config(vehicle: DubinsWind, collision_radius: float = 100.0, t_iat: float = 10.0,
                          intruder: DubinsWind | None = None) -> AvoidRegionConfig:
-    """The avoid-region parameters used throughout (so that every user shares one cached artifact): 13 slices
-    (``tau`` a multiple of ``t_IAT / 12``, exact for ``t_BRD`` with ``k̄`` in 1..4) and a box of 1.45 times the
-    set's exact extent behind the vehicle (the set reaches about 1.12 times that in front)."""
+    """The avoid-region parameters used throughout (so that every user shares one cached artifact): 61 slices
+    (``tau`` every ``t_IAT / 60``: 1/6 s by default, fine enough for linear interpolation in ``tau``, and exact for
+    ``t_BRD = t_IAT / k̄`` with ``k̄`` in 1..6) and a box of 1.45 times the set's exact extent behind the vehicle
+    (the set reaches about 1.12 times that in front)."""
     intruder = vehicle if intruder is None else intruder
     closing = max(intruder.v_max + vehicle.wind + intruder.wind - vehicle.v_max, 0.0)
     behind = collision_radius + closing * t_iat
     return AvoidRegionConfig(vehicle=vehicle, intruder=intruder, collision_radius=collision_radius, t_iat=t_iat,
-                             half_width=float(np.float32(1.45 * behind)), n_slices=13)
+                             half_width=float(np.float32(1.45 * behind)), n_slices=61)
 
 
 def build_reach_artifacts(wind: float = 6.0, kbars=(1, 2, 3, 4), *, avoid_config: AvoidRegionConfig | None = None,
