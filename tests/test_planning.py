@@ -131,3 +131,32 @@ def test_shipped_tiny_plan_regenerates_bit_for_bit():
         assert np.asarray(fresh[key]).tobytes() == np.asarray(shipped[key]).tobytes(), key
     with pytest.raises(ValueError, match="No shipped plan"):
         shipped_plan("nope")
+
+
+def test_replanning_changes_only_the_affected_vehicle():
+    from stp_env.planning.replan import replan
+    from stp_env.planning.stp import plan_scenario
+    from stp_env.scenarios import make
+
+    scenario = make("tiny")
+    plan = plan_scenario(scenario, tracking_bound=4.13, progress=False)
+    # Vehicle 1 (second priority) was pushed off its path by an intruder: at t = -60 s it is 300 m east of its
+    # nominal position, heading north-east.
+    t_bar = -60.0
+    nominal = plan.vehicles[1].plan
+    p = np.array([np.interp(t_bar, nominal.times, nominal.states[:, k]) for k in range(2)])
+    displaced = (float(p[0] + 300.0), float(p[1]), np.pi / 4)
+    new = replan(plan, scenario, {1: displaced}, t_bar)
+    assert new.vehicles[0] is plan.vehicles[0]  # untouched
+    moved = new.vehicles[1].plan
+    assert moved.t_ldt == pytest.approx(t_bar)
+    np.testing.assert_allclose(moved.states[0], displaced, atol=1e-5)
+    # The new STA is no earlier than a straight flight at the top planning speed allows, and the plan meets it.
+    target = np.asarray(scenario.vehicles[1].target)
+    straight = (np.hypot(*(target - np.asarray(displaced[:2]))) - scenario.vehicles[1].target_radius) / 13.0
+    assert moved.sta >= t_bar + straight - 1e-6
+    assert moved.arrival_time <= moved.sta + scenario.time_step
+    dx = scenario.grid().spacing[0]
+    assert _min_separation(plan.vehicles[0].plan, moved) >= scenario.collision_radius + 2 * 4.13 - 0.5 * dx
+    with pytest.raises(ValueError, match="out of range"):
+        replan(plan, scenario, {5: displaced}, t_bar)

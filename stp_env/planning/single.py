@@ -27,7 +27,12 @@ from stp_env.dynamics import DubinsWind
 
 
 class InfeasiblePlanError(ValueError):
-    """No departure time lets the vehicle reach its target by its STA within the planning horizon."""
+    """No departure time lets the vehicle reach its target by its STA within the planning horizon (or not from
+    the imposed departure time; ``latest_departure`` then holds the latest feasible one)."""
+
+    def __init__(self, message: str, latest_departure: float | None = None):
+        super().__init__(message)
+        self.latest_departure = latest_departure
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,7 +40,7 @@ class SinglePlan:
     """The plan of one vehicle.
 
     Attributes:
-        t_ldt: latest departure time [s].
+        t_ldt: latest departure time [s] (the departure time ``depart_at`` when one was imposed).
         sta: scheduled time of arrival [s].
         times: trajectory sample times from ``t_ldt`` [s], shape ``(K,)``; they run a little past the STA.
         states: nominal states ``(p_x, p_y, theta)`` at ``times``, shape ``(K, 3)`` [m, m, rad].
@@ -131,7 +136,7 @@ def _rollout(key, x0, t0, dt, slice_times, stack, *, grid, dynamics, n_steps, wi
 def plan_single(grid: hj.Grid, dynamics: DubinsWind, start, target_center, target_radius: float, sta: float,
                 horizon: float, *, obstacle_fn=None, obstacle_params=None, settings: hj.SolverSettings | None = None,
                 slice_dt: float | None = None, time_step: float = 0.05, wind_mode: str = "zero", seed: int = 0,
-                progress: bool = False) -> SinglePlan:
+                depart_at: float | None = None, progress: bool = False) -> SinglePlan:
     """Plans one vehicle (intruder paper eqs. 35-37).
 
     Args:
@@ -149,6 +154,8 @@ def plan_single(grid: hj.Grid, dynamics: DubinsWind, start, target_center, targe
         time_step: trajectory sample period [s].
         wind_mode: wind while extracting the trajectory: ``"zero"``, ``"random"`` or ``"worst"``.
         seed: key of the random wind.
+        depart_at: start the trajectory at this time instead of ``t_LDT`` (a vehicle already in the air, as after
+            replanning); it must not be later than ``t_LDT``.
 
     Raises:
         InfeasiblePlanError: if ``start`` cannot reach the target by ``sta`` within ``horizon``.
@@ -177,24 +184,30 @@ def plan_single(grid: hj.Grid, dynamics: DubinsWind, start, target_center, targe
             f"start {tuple(np.round(start, 3))} cannot reach the target {tuple(target_center)} (radius "
             f"{target_radius}) by t_STA = {sta} s within a {horizon} s horizon; increase the horizon or move the "
             "STA later.")
-    # Trajectory from t_LDT with the controller of the stored slices (ascending time for interpolation).
+    t_start = t_ldt
+    if depart_at is not None:
+        if depart_at > t_ldt + 1e-6:
+            raise InfeasiblePlanError(f"departing at {depart_at} s is later than the latest departure time "
+                                      f"{t_ldt:.3f} s for an arrival by {sta} s.", latest_departure=t_ldt)
+        t_start = float(depart_at)
+    # Trajectory from t_start with the controller of the stored slices (ascending time for interpolation).
     slice_times = jnp.asarray(times[::-1].copy(), jnp.float32)
     stack = res.values[::-1]
     # Simulate a little past the STA so that a late arrival is measured, not hidden. The scan always runs for the
     # whole horizon (one compiled rollout per horizon and time step, shared by every vehicle of a scenario).
-    n_steps = max(1, math.ceil(1.1 * (sta - t_ldt) / time_step) + 1)
+    n_steps = max(1, math.ceil(1.1 * (sta - t_start) / time_step) + 1)
     n_scan = max(n_steps, math.ceil(1.1 * horizon / time_step) + 1)
-    xs, us = _rollout(jax.random.key(seed), jnp.asarray(start, jnp.float32), jnp.float32(t_ldt),
+    xs, us = _rollout(jax.random.key(seed), jnp.asarray(start, jnp.float32), jnp.float32(t_start),
                       jnp.float32(time_step), slice_times, stack, grid=grid, dynamics=dynamics,
                       n_steps=n_scan, wind_mode=wind_mode)
     xs, us = np.asarray(xs, np.float64)[:n_steps], np.asarray(us, np.float64)[:n_steps]
-    sample_times = t_ldt + time_step * np.arange(n_steps)
+    sample_times = t_start + time_step * np.arange(n_steps)
     dist = np.hypot(xs[:, 0] - target_center[0], xs[:, 1] - target_center[1])
     inside = np.nonzero(dist <= target_radius)[0]
     arrival = float(sample_times[int(inside[0])]) if inside.size else math.inf
     # The samples go on past the arrival (into the target, with the same controller) until the STA: a tracking
     # vehicle that trails its reference by up to the error bound still has a moving reference to follow.
-    return SinglePlan(t_ldt=t_ldt, sta=float(sta), times=sample_times, states=xs, controls=us,
+    return SinglePlan(t_ldt=t_start, sta=float(sta), times=sample_times, states=xs, controls=us,
                       arrival_time=arrival, n_steps=res.n_steps)
 
 
