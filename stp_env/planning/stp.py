@@ -15,7 +15,7 @@ Static obstacles (buildings) are avoided by the vehicle's own bubble ``r_e`` and
 conservative ``V^S`` of eqs. (32)-(33) (:func:`stp_env.reach.obstacles.static_inflation_radius`).
 
 Not yet here: the centralized and least-restrictive induced-obstacle methods (they need forward reachable sets
-under closed-loop feedback), replanning (Algorithm 4) and plan caching.
+under closed-loop feedback). Replanning is in :mod:`stp_env.planning.replan`; plan caching in :func:`cached_plan`.
 """
 
 from __future__ import annotations
