@@ -70,10 +70,25 @@ class ReachResult:
 
 
 # ------------------------------------------------------------------------------------------- kernels
+def _broadcast(grid: Grid, coords):
+    """Grid states from *traced* coordinate vectors: with compile-time constant coordinates XLA would
+    constant-fold functions of the state over the whole grid (seconds of compilation on millions of nodes)."""
+    out = []
+    for i, c in enumerate(coords):
+        shape = [1] * grid.ndim
+        shape[i] = grid.shape[i]
+        out.append(jnp.reshape(c, shape))
+    return tuple(out)
+
+
+def _coords(grid: Grid, dtype):
+    return tuple(jnp.asarray(c, dtype) for c in grid.coordinate_vectors())
+
+
 def _rate(settings: SolverSettings, dynamics: ControlAffineDynamics, grid: Grid, direction: float,
-          global_alpha, values):
+          global_alpha, coords, values):
     """``dV/ds`` in solver time ``s`` (``s = t`` forward, ``s = -t`` backward)."""
-    states = grid.broadcast_states(values.dtype)
+    states = _broadcast(grid, coords)
     lefts, rights = [], []
     for axis in range(grid.ndim):
         left, right = one_sided_derivatives(values, axis, grid.spacing[axis], grid.is_periodic[axis],
@@ -92,8 +107,8 @@ def _rate(settings: SolverSettings, dynamics: ControlAffineDynamics, grid: Grid,
     return jnp.broadcast_to(rate, values.shape)
 
 
-def _rk_step(settings, dynamics, grid, direction, global_alpha, values, dt_abs):
-    rate = functools.partial(_rate, settings, dynamics, grid, direction, global_alpha)
+def _rk_step(settings, dynamics, grid, direction, global_alpha, coords, values, dt_abs):
+    rate = functools.partial(_rate, settings, dynamics, grid, direction, global_alpha, coords)
     v1 = values + dt_abs * rate(values)
     if settings.integrator == "euler":
         return v1
@@ -105,10 +120,10 @@ def _rk_step(settings, dynamics, grid, direction, global_alpha, values, dt_abs):
     return values / 3.0 + (2.0 / 3.0) * v3
 
 
-def _freeze_step(settings, dynamics, grid, direction, global_alpha, values, dt_abs):
+def _freeze_step(settings, dynamics, grid, direction, global_alpha, coords, values, dt_abs):
     """RK step with the monotone ("freeze") tube: every stage rate is clipped to ``<= 0``."""
     def rate(v):
-        return jnp.minimum(_rate(settings, dynamics, grid, direction, global_alpha, v), 0.0)
+        return jnp.minimum(_rate(settings, dynamics, grid, direction, global_alpha, coords, v), 0.0)
     v1 = values + dt_abs * rate(values)
     if settings.integrator == "euler":
         return v1
@@ -122,8 +137,8 @@ def _freeze_step(settings, dynamics, grid, direction, global_alpha, values, dt_a
 
 @functools.partial(jax.jit, static_argnames=("settings", "dynamics", "grid", "direction", "tube",
                                              "obstacle_fn", "track_ttr"))
-def _advance(values, target, ttr, global_alpha, t_start, dt, n_steps, last_dt, elapsed0, obstacle_params, *,
-             settings, dynamics, grid, direction, tube, obstacle_fn, track_ttr):
+def _advance(values, target, ttr, global_alpha, coords, t_start, dt, n_steps, last_dt, elapsed0, obstacle_params,
+             *, settings, dynamics, grid, direction, tube, obstacle_fn, track_ttr):
     """``n_steps`` steps from time ``t_start``: all of (signed) size ``direction * dt`` but the last, of size
     ``direction * last_dt`` (the remainder that lands exactly on a requested time; ``last_dt = dt`` if none)."""
     freeze = tube and settings.tube_mode == "freeze"
@@ -132,7 +147,7 @@ def _advance(values, target, ttr, global_alpha, t_start, dt, n_steps, last_dt, e
     def body(i, carry):
         v, ttr = carry
         h = jnp.where(i == n_steps - 1, last_dt, dt)
-        v_new = stepper(settings, dynamics, grid, direction, global_alpha, v, h)
+        v_new = stepper(settings, dynamics, grid, direction, global_alpha, coords, v, h)
         t_new = t_start + direction * (i * dt + h)
         if tube and not freeze:
             v_new = jnp.minimum(v_new, target)
@@ -149,8 +164,8 @@ def _advance(values, target, ttr, global_alpha, t_start, dt, n_steps, last_dt, e
 
 
 @functools.partial(jax.jit, static_argnames=("dynamics", "grid"))
-def _partial_bounds_max(dtype_probe, *, dynamics, grid):
-    states = grid.broadcast_states(dtype_probe.dtype)
+def _partial_bounds_max(coords, *, dynamics, grid):
+    states = _broadcast(grid, coords)
     alpha = dynamics.partial_bounds(states)
     maxes = jnp.stack([jnp.max(jnp.broadcast_to(jnp.abs(a), grid.shape)) for a in alpha])
     cfl_denominator = jnp.max(jnp.broadcast_to(
@@ -165,7 +180,7 @@ def cfl_time_step(settings: SolverSettings, dynamics: ControlAffineDynamics, gri
     ``dt = cfl / max_x sum_i alpha_i(x) / dx_i``, the same rule as ``hj_reachability``; with global dissipation
     the bound uses the per-dimension maxima (``sum_i max_x alpha_i / dx_i``), which is what that scheme needs.
     """
-    maxes, denom_local = _partial_bounds_max(jnp.zeros((), dtype), dynamics=dynamics, grid=grid)
+    maxes, denom_local = _partial_bounds_max(_coords(grid, dtype), dynamics=dynamics, grid=grid)
     maxes = np.asarray(maxes, dtype=np.float64)
     if settings.dissipation == "global":
         denom = float(np.sum(maxes / np.asarray(grid.spacing)))
@@ -257,6 +272,7 @@ def solve(settings: SolverSettings, dynamics: ControlAffineDynamics, grid: Grid,
 
     outputs = [values]
     n_steps_total = 0
+    coords = _coords(grid, dtype)
     bar = _progress_bar(abs(times[-1] - times[0]), progress)
     try:
         t = float(times[0])
@@ -287,7 +303,7 @@ def solve(settings: SolverSettings, dynamics: ControlAffineDynamics, grid: Grid,
             for n, h, offset, last in plan:
                 elapsed = abs(t - times[0]) + offset
                 values, ttr_carry = _advance(
-                    values, target, ttr_carry, global_alpha,
+                    values, target, ttr_carry, global_alpha, coords,
                     jnp.asarray(t + direction * offset, dtype), jnp.asarray(h, dtype),
                     jnp.asarray(n, jnp.int32), jnp.asarray(last, dtype), jnp.asarray(elapsed, dtype), obstacle,
                     settings=settings, dynamics=dynamics, grid=grid, direction=direction, tube=tube,
