@@ -97,6 +97,25 @@ def interpolate_in_time(times, values_stack, t):
     return (1.0 - w) * values_stack[k] + w * values_stack[k + 1]
 
 
+def interpolate_slices(grid: Grid, slice_times, stack, t, state):
+    """``V(t, state)`` from value slices ``stack[k]`` at *ascending* ``slice_times``: linear in time, multilinear
+    in space, clamped outside the time range. Only the two bracketing slices are read (controllers call this
+    every step; :func:`interpolate_in_time` would blend whole grids)."""
+    k = jnp.clip(jnp.searchsorted(slice_times, t, side="right") - 1, 0, slice_times.shape[0] - 2)
+    span = slice_times[k + 1] - slice_times[k]
+    w = jnp.clip(jnp.where(span > 0, (t - slice_times[k]) / span, 0.0), 0.0, 1.0)
+    return (1.0 - w) * interpolate(grid, stack[k], state) + w * interpolate(grid, stack[k + 1], state)
+
+
+def gradient_slices(grid: Grid, slice_times, stack, t, state):
+    """Spatial gradient of :func:`interpolate_slices` by one-cell central differences (the nodes' central
+    differences where ``state`` is a node); shape ``(ndim,)``."""
+    steps = np.eye(grid.ndim) * np.asarray(grid.spacing)[:, None]
+    return jnp.stack([(interpolate_slices(grid, slice_times, stack, t, state + h)
+                       - interpolate_slices(grid, slice_times, stack, t, state - h)) / (2 * h[i])
+                      for i, h in enumerate(steps)])
+
+
 def time_to_reach_at(grid: Grid, time_to_reach, state):
     """Time-to-reach at ``state``: multilinear where all surrounding nodes (of non-zero weight) are finite, else
     ``inf`` (the state is not reached within the horizon for certain)."""

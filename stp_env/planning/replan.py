@@ -23,7 +23,7 @@ import numpy as np
 from stp_env import hj
 from stp_env.dynamics import DubinsWind
 from stp_env.planning.obstacles import disk_params, moving_disks
-from stp_env.planning.single import InfeasiblePlanError, _full_grid_obstacle, plan_single
+from stp_env.planning.single import InfeasiblePlanError, full_grid_obstacle, plan_single
 from stp_env.planning.stp import Plan, VehiclePlan
 
 
@@ -43,7 +43,7 @@ def earliest_arrival(grid: hj.Grid, planner: DubinsWind, state, t_bar: float, ta
     n = max(2, math.ceil(horizon / slice_dt) + 1)
     times = t_bar + np.linspace(0.0, horizon, n)
     dyn = planner.with_modes(control_mode="max", disturbance_mode="min")
-    full_fn = None if obstacle_fn is None else _full_grid_obstacle(obstacle_fn, grid.shape[2])
+    full_fn = None if obstacle_fn is None else full_grid_obstacle(obstacle_fn, grid.shape[2])
     res = hj.solve(settings, dyn, grid, times, init, obstacle=obstacle_params, obstacle_fn=full_fn, progress=False)
     in_target = jnp.broadcast_to(hj.shapes.cylinder(grid, (0, 1), target_center, target_radius) <= 0, grid.shape)
     reached = np.asarray(jnp.any((res.values <= 0) & in_target, axis=(1, 2, 3)))

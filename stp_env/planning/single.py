@@ -65,16 +65,6 @@ class SinglePlan:
         return self.times[:k], self.states[:k]
 
 
-def _value_in_time(grid: hj.Grid, slice_times, stack, t, x):
-    """``V(t, x)`` from slices ``stack[k]`` at ascending ``slice_times``: linear in time, multilinear in space;
-    only the two bracketing slices are touched."""
-    k = jnp.clip(jnp.searchsorted(slice_times, t, side="right") - 1, 0, slice_times.shape[0] - 2)
-    span = slice_times[k + 1] - slice_times[k]
-    w = jnp.clip(jnp.where(span > 0, (t - slice_times[k]) / span, 0.0), 0.0, 1.0)
-    return ((1.0 - w) * hj.interpolation.interpolate(grid, stack[k], x)
-            + w * hj.interpolation.interpolate(grid, stack[k + 1], x))
-
-
 TURN_DEADBAND = 0.05
 
 
@@ -86,10 +76,7 @@ def planning_control(grid: hj.Grid, dynamics: DubinsWind, slice_times, stack, t,
     a straight optimal path, and a literal sign makes the vehicle chatter and arrive late. It is therefore
     saturated-linear: full turn once turning changes ``V`` at least ``TURN_DEADBAND`` times as fast as the best
     translation does, proportional below."""
-    steps = np.eye(3) * np.asarray(grid.spacing)[:, None]
-    p = jnp.stack([(_value_in_time(grid, slice_times, stack, t, x + h)
-                    - _value_in_time(grid, slice_times, stack, t, x - h)) / (2 * h[i])
-                   for i, h in enumerate(steps)])
+    p = hj.interpolation.gradient_slices(grid, slice_times, stack, t, x)
     xs, ps = (x[0], x[1], x[2]), (p[0], p[1], p[2])
     u = jnp.stack(dynamics.optimal_control(xs, ps))
     if dynamics.omega_max > 0:
@@ -174,7 +161,7 @@ def plan_single(grid: hj.Grid, dynamics: DubinsWind, start, target_center, targe
     target = hj.shapes.cylinder(grid, (0, 1), target_center, target_radius)
     full_fn = None
     if obstacle_fn is not None:
-        full_fn = _full_grid_obstacle(obstacle_fn, grid.shape[2])
+        full_fn = full_grid_obstacle(obstacle_fn, grid.shape[2])
     res = hj.solve(settings, dynamics, grid, times, target, tube=True, obstacle=obstacle_params,
                    obstacle_fn=full_fn, time_to_reach=True, progress=progress)
     t_ldt = float(hj.interpolation.latest_departure_time(grid, res.time_to_reach, jnp.asarray(start, jnp.float32),
@@ -212,7 +199,7 @@ def plan_single(grid: hj.Grid, dynamics: DubinsWind, start, target_center, targe
 
 
 @functools.lru_cache(maxsize=64)
-def _full_grid_obstacle(obstacle_fn, n_theta: int):
+def full_grid_obstacle(obstacle_fn, n_theta: int):
     """``obstacle_fn`` on the position plane, broadcast over ``n_theta`` headings (cached so that repeated plans
     with the same function reuse the compiled solver loop)."""
 

@@ -177,34 +177,20 @@ def make_value_function(region: AvoidRegion):
     stack = jnp.asarray(region.values, jnp.float32)
 
     def value(tau, x_rel):
-        slab = hj.interpolation.interpolate_in_time(taus, stack, tau)
-        return hj.interpolation.interpolate(grid, slab, x_rel)
+        return hj.interpolation.interpolate_slices(grid, taus, stack, tau, x_rel)
 
     return value
 
 
-def _value_gradient(region: AvoidRegion):
+def _optimal_input(region: AvoidRegion, player: str):
+    dyn = region.config.relative_dynamics
     grid = region.grid
     taus = jnp.asarray(region.taus, jnp.float32)
     stack = jnp.asarray(region.values, jnp.float32)
-    steps = np.eye(3) * np.asarray(grid.spacing)[:, None]
-
-    def grad(tau, x_rel):
-        slab = hj.interpolation.interpolate_in_time(taus, stack, tau)
-        f = lambda s: hj.interpolation.interpolate(grid, slab, s)  # noqa: E731
-        # Central differences of the interpolant, one cell wide (matches the nodes' central differences).
-        return jnp.stack([(f(x_rel + h) - f(x_rel - h)) / (2 * h[i]) for i, h in enumerate(steps)])
-
-    return grad
-
-
-def _optimal_input(region: AvoidRegion, player: str):
-    dyn = region.config.relative_dynamics
-    grad = _value_gradient(region)
     optimum = dyn.optimal_control if player == "vehicle" else dyn.optimal_disturbance
 
     def u(tau, x_rel):
-        p = grad(tau, x_rel)
+        p = hj.interpolation.gradient_slices(grid, taus, stack, tau, x_rel)
         return jnp.stack(optimum((x_rel[0], x_rel[1], x_rel[2]), (p[0], p[1], p[2])))
 
     return u
