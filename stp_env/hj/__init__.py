@@ -8,7 +8,7 @@ Modules: :mod:`~stp_env.hj.grid` (grids), :mod:`~stp_env.hj.sets` (input sets),
 """
 
 from stp_env.hj import interpolation, shapes
-from stp_env.hj.dynamics import ControlAffineDynamics
+from stp_env.hj.dynamics import ControlAffineDynamics, FeedbackDynamics
 from stp_env.hj.grid import Grid
 from stp_env.hj.sets import Ball, Box, ProductSet
 from stp_env.hj.settings import ACCURACY_PRESETS, SolverSettings
@@ -27,6 +27,7 @@ __all__ = [
     "Box",
     "ControlAffineDynamics",
     "ConvergedResult",
+    "FeedbackDynamics",
     "Grid",
     "ProductSet",
     "ReachResult",

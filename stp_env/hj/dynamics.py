@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import jax.numpy as jnp
 
@@ -127,6 +127,13 @@ class ControlAffineDynamics(abc.ABC):
             h = h + self.disturbance_space.optimum(qd, self.disturbance_mode)
         return h
 
+    def hamiltonian_at(self, t, x: Sequence, p: Sequence, params=None):
+        """``H(t, x, p)`` as the solver calls it, with the time ``t`` of the stage and the ``dynamics_params``
+        pytree of :func:`stp_env.hj.solve`. Time-invariant dynamics ignore both (:meth:`hamiltonian`);
+        time-varying ones (:class:`FeedbackDynamics`) override this."""
+        del t, params
+        return self.hamiltonian(x, p)
+
     def optimal_control(self, x: Sequence, p: Sequence) -> tuple:
         """``arg opt_u p . G_u(x) u`` (the control realising :meth:`hamiltonian`)."""
         qu, _ = self._input_directions(x, p)
@@ -168,3 +175,88 @@ class ControlAffineDynamics(abc.ABC):
                     k += b.dim
             out.append(a)
         return tuple(out)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class FeedbackDynamics(ControlAffineDynamics):
+    """Closed-loop dynamics of a control-affine system under a given state-feedback law (SPP paper eq. 14):
+
+        dx/dt = f(x) + G_u(x) kappa(t, x; params) + G_d(x) d,   d in D,
+
+    so that the control no longer appears as an input and only the disturbance plays (eq. 17):
+    ``H(t, x, p) = p . (f(x) + G_u(x) kappa(t, x)) + opt_d p . G_d(x) d``.
+
+    Attributes:
+        base: the open-loop dynamics (its ``control_space`` bounds the feedback, its disturbance set and the
+            ``disturbance_mode`` of this object are used).
+        feedback: jittable ``kappa(t, x, params) -> tuple`` of ``base.control_space.dim`` arrays broadcastable
+            against ``x`` (structure-of-arrays, as everywhere in this module). The solver evaluates it on the whole
+            grid at the time of every Runge-Kutta stage, with ``params`` the ``dynamics_params`` pytree given to
+            :func:`stp_env.hj.solve` (traced: tables such as a value function over time slices change without
+            recompiling). It must be hashable (a module-level function or a frozen dataclass), since the
+            dynamics are a static argument of the compiled solver loop; and its values must lie in
+            ``base.control_space``: the dissipation coefficients and the CFL step are the base's bounds over all
+            controls and disturbances (:meth:`partial_bounds`), valid for any feedback inside ``U`` and
+            time-invariant, so the step is still computed once.
+    """
+
+    base: ControlAffineDynamics
+    feedback: Callable
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not isinstance(self.base, ControlAffineDynamics):
+            raise TypeError(f"base must be a ControlAffineDynamics; got {type(self.base).__name__}.")
+        if isinstance(self.base, FeedbackDynamics):
+            raise TypeError("base is already closed-loop; give the open-loop dynamics.")
+        if not callable(self.feedback):
+            raise TypeError(f"feedback must be callable (t, x, params) -> control; got {self.feedback!r}.")
+        try:
+            hash(self.feedback)
+        except TypeError:
+            raise TypeError("feedback must be hashable (a module-level function or a frozen dataclass): the "
+                            "dynamics are a static argument of the compiled solver loop.") from None
+
+    @property
+    def state_dim(self) -> int:
+        return self.base.state_dim
+
+    @property
+    def control_space(self) -> ProductSet:
+        return self.base.control_space
+
+    @property
+    def disturbance_space(self) -> ProductSet:
+        return self.base.disturbance_space
+
+    def open_loop(self, x):
+        return self.base.open_loop(x)
+
+    def control_jacobian(self, x):
+        return self.base.control_jacobian(x)
+
+    def disturbance_jacobian(self, x):
+        return self.base.disturbance_jacobian(x)
+
+    def closed_loop(self, t, x: Sequence, params=None, d: Sequence | None = None) -> tuple:
+        """``dx/dt`` under the feedback at time ``t`` and disturbance ``d`` (zero if ``None``)."""
+        return self.__call__(x, self.feedback(t, x, params), d)
+
+    def hamiltonian(self, x: Sequence, p: Sequence):
+        raise TypeError("FeedbackDynamics are time-varying: use hamiltonian_at(t, x, p, params) (as solve() does).")
+
+    def hamiltonian_at(self, t, x: Sequence, p: Sequence, params=None):
+        """``p . (f(x) + G_u(x) kappa(t, x)) + opt_d p . G_d(x) d`` (SPP paper eq. 17 in this package's sign
+        convention: forward problems that cover every disturbance use ``disturbance_mode="max"``)."""
+        u = self.feedback(t, x, params)
+        if len(u) != self.control_space.dim:
+            raise ValueError(f"feedback returned {len(u)} control components; the control space has "
+                             f"{self.control_space.dim}.")
+        qu, qd = self._input_directions(x, p)
+        h = _dot(p, self.open_loop(x)) + _dot(qu, u)
+        if qd:
+            h = h + self.disturbance_space.optimum(qd, self.disturbance_mode)
+        return h
+
+    def optimal_control(self, x: Sequence, p: Sequence) -> tuple:
+        raise TypeError("FeedbackDynamics have no control input; the control is feedback(t, x, params).")

@@ -19,7 +19,9 @@ Sign conventions (stated once, used everywhere)
 Numerics: Lax-Friedrichs numerical Hamiltonian
 ``H^(x, p-, p+) = H(x, (p- + p+)/2) - sum_i alpha_i(x) (p+_i - p-_i) / 2`` with the dynamics' partial bounds
 ``alpha``; upwind derivatives from :mod:`stp_env.hj.derivatives`; TVD Runge-Kutta of order 1-3 with a fixed
-CFL-limited step (the dynamics are time-invariant, so the bound is computed once). Each time interval between
+CFL-limited step (the bound is computed once: dynamics are time-invariant, or, for closed-loop
+:class:`~stp_env.hj.FeedbackDynamics`, bounded over all inputs by their open-loop bounds; such time-varying
+dynamics receive the stage time and the traced ``dynamics_params``). Each time interval between
 requested times runs as device loops of ``steps_per_chunk`` steps; values never leave the device inside a loop.
 """
 
@@ -86,8 +88,9 @@ def _coords(grid: Grid, dtype):
 
 
 def _rate(settings: SolverSettings, dynamics: ControlAffineDynamics, grid: Grid, direction: float,
-          global_alpha, coords, values):
-    """``dV/ds`` in solver time ``s`` (``s = t`` forward, ``s = -t`` backward)."""
+          global_alpha, coords, values, t=None, dyn_params=None):
+    """``dV/ds`` in solver time ``s`` (``s = t`` forward, ``s = -t`` backward); ``t`` and ``dyn_params`` reach
+    time-varying dynamics (:meth:`ControlAffineDynamics.hamiltonian_at`), time-invariant ones ignore them."""
     states = _broadcast(grid, coords)
     lefts, rights = [], []
     for axis in range(grid.ndim):
@@ -96,7 +99,7 @@ def _rate(settings: SolverSettings, dynamics: ControlAffineDynamics, grid: Grid,
         lefts.append(left)
         rights.append(right)
     p_mean = tuple(0.5 * (a + b) for a, b in zip(lefts, rights))
-    ham = dynamics.hamiltonian(states, p_mean)
+    ham = dynamics.hamiltonian_at(t, states, p_mean, dyn_params)
     if settings.dissipation == "local":
         alpha = dynamics.partial_bounds(states)
     else:
@@ -107,38 +110,45 @@ def _rate(settings: SolverSettings, dynamics: ControlAffineDynamics, grid: Grid,
     return jnp.broadcast_to(rate, values.shape)
 
 
-def _rk_step(settings, dynamics, grid, direction, global_alpha, coords, values, dt_abs):
-    rate = functools.partial(_rate, settings, dynamics, grid, direction, global_alpha, coords)
-    v1 = values + dt_abs * rate(values)
+def _rk_step(settings, dynamics, grid, direction, global_alpha, coords, values, dt_abs, t=None, dyn_params=None):
+    """One TVD Runge-Kutta step from time ``t``; the stages are evaluated at ``t``, ``t + h`` and (RK3)
+    ``t + h/2`` (``h = direction * dt_abs``), which only time-varying dynamics read."""
+    def rate(v, c):
+        tc = None if t is None else t + direction * c * dt_abs
+        return _rate(settings, dynamics, grid, direction, global_alpha, coords, v, tc, dyn_params)
+    v1 = values + dt_abs * rate(values, 0.0)
     if settings.integrator == "euler":
         return v1
-    v2 = v1 + dt_abs * rate(v1)
+    v2 = v1 + dt_abs * rate(v1, 1.0)
     if settings.integrator == "rk2":
         return 0.5 * (values + v2)
     v_half = 0.75 * values + 0.25 * v2
-    v3 = v_half + dt_abs * rate(v_half)
+    v3 = v_half + dt_abs * rate(v_half, 0.5)
     return values / 3.0 + (2.0 / 3.0) * v3
 
 
-def _freeze_step(settings, dynamics, grid, direction, global_alpha, coords, values, dt_abs):
+def _freeze_step(settings, dynamics, grid, direction, global_alpha, coords, values, dt_abs, t=None,
+                 dyn_params=None):
     """RK step with the monotone ("freeze") tube: every stage rate is clipped to ``<= 0``."""
-    def rate(v):
-        return jnp.minimum(_rate(settings, dynamics, grid, direction, global_alpha, coords, v), 0.0)
-    v1 = values + dt_abs * rate(values)
+    def rate(v, c):
+        tc = None if t is None else t + direction * c * dt_abs
+        return jnp.minimum(_rate(settings, dynamics, grid, direction, global_alpha, coords, v, tc, dyn_params),
+                           0.0)
+    v1 = values + dt_abs * rate(values, 0.0)
     if settings.integrator == "euler":
         return v1
-    v2 = v1 + dt_abs * rate(v1)
+    v2 = v1 + dt_abs * rate(v1, 1.0)
     if settings.integrator == "rk2":
         return 0.5 * (values + v2)
     v_half = 0.75 * values + 0.25 * v2
-    v3 = v_half + dt_abs * rate(v_half)
+    v3 = v_half + dt_abs * rate(v_half, 0.5)
     return values / 3.0 + (2.0 / 3.0) * v3
 
 
 @functools.partial(jax.jit, static_argnames=("settings", "dynamics", "grid", "direction", "tube",
                                              "obstacle_fn", "track_ttr"))
 def _advance(values, target, ttr, global_alpha, coords, t_start, dt, n_steps, last_dt, elapsed0, obstacle_params,
-             *, settings, dynamics, grid, direction, tube, obstacle_fn, track_ttr):
+             dyn_params=None, *, settings, dynamics, grid, direction, tube, obstacle_fn, track_ttr):
     """``n_steps`` steps from time ``t_start``: all of (signed) size ``direction * dt`` but the last, of size
     ``direction * last_dt`` (the remainder that lands exactly on a requested time; ``last_dt = dt`` if none)."""
     freeze = tube and settings.tube_mode == "freeze"
@@ -147,7 +157,8 @@ def _advance(values, target, ttr, global_alpha, coords, t_start, dt, n_steps, la
     def body(i, carry):
         v, ttr = carry
         h = jnp.where(i == n_steps - 1, last_dt, dt)
-        v_new = stepper(settings, dynamics, grid, direction, global_alpha, coords, v, h)
+        t_old = t_start + direction * i * dt
+        v_new = stepper(settings, dynamics, grid, direction, global_alpha, coords, v, h, t_old, dyn_params)
         t_new = t_start + direction * (i * dt + h)
         if tube and not freeze:
             v_new = jnp.minimum(v_new, target)
@@ -215,7 +226,7 @@ def _check_inputs(grid: Grid, dynamics, target, times) -> np.ndarray:
 def solve(settings: SolverSettings, dynamics: ControlAffineDynamics, grid: Grid, times: Sequence[float],
           target, *, tube: bool = False, obstacle=None, obstacle_fn: ObstacleFn | None = None,
           initial_values=None, time_to_reach: bool = False, progress: bool = True,
-          dtype=jnp.float32) -> ReachResult:
+          dtype=jnp.float32, dynamics_params=None) -> ReachResult:
     """Solves a reachability problem and returns the value functions at ``times`` only.
 
     Args:
@@ -231,6 +242,9 @@ def solve(settings: SolverSettings, dynamics: ControlAffineDynamics, grid: Grid,
         obstacle_fn: jittable ``(t, obstacle) -> g(t, x)`` for time-varying obstacles (hashable: a module-level
             function, so that repeated solves reuse the compiled loop).
         time_to_reach: also return the first time each node enters ``{V <= 0}``.
+        dynamics_params: pytree of arrays passed, traced, to time-varying dynamics at every Runge-Kutta stage
+            (``dynamics.hamiltonian_at(t, x, p, dynamics_params)``; for :class:`~stp_env.hj.FeedbackDynamics`
+            the tables of its feedback law). Time-invariant dynamics ignore it.
         progress: show a tqdm progress bar (in simulated seconds).
         dtype: ``jnp.float32`` (default) or ``jnp.float64`` (needs ``jax_enable_x64``).
     """
@@ -255,6 +269,8 @@ def solve(settings: SolverSettings, dynamics: ControlAffineDynamics, grid: Grid,
                              f"{grid.shape}.")
         obstacle = jax.tree.map(lambda a: jnp.asarray(a), obstacle)
 
+    if dynamics_params is not None:
+        dynamics_params = jax.tree.map(lambda a: jnp.asarray(a), dynamics_params)
     dt_max, alpha_max = cfl_time_step(settings, dynamics, grid, dtype)
     global_alpha = jnp.asarray(alpha_max, dtype)
 
@@ -306,7 +322,7 @@ def solve(settings: SolverSettings, dynamics: ControlAffineDynamics, grid: Grid,
                     values, target, ttr_carry, global_alpha, coords,
                     jnp.asarray(t + direction * offset, dtype), jnp.asarray(h, dtype),
                     jnp.asarray(n, jnp.int32), jnp.asarray(last, dtype), jnp.asarray(elapsed, dtype), obstacle,
-                    settings=settings, dynamics=dynamics, grid=grid, direction=direction, tube=tube,
+                    dynamics_params, settings=settings, dynamics=dynamics, grid=grid, direction=direction, tube=tube,
                     obstacle_fn=obstacle_fn, track_ttr=time_to_reach)
                 n_steps_total += n
                 if bar is not None:
