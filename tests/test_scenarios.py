@@ -62,7 +62,7 @@ def test_every_registered_scenario_builds_and_validates(name):
 
 
 def test_registered_names():
-    assert {"four-vehicle", "city", "bay-area", "tiny", "tiny-intruder"} <= set(scenarios.names())
+    assert {"four-vehicle", "city", "bay-area", "tiny", "tiny-intruder", "town"} <= set(scenarios.names())
     assert scenarios.make("tiny").kbar is None and scenarios.make("tiny-intruder").kbar == 2
 
 
@@ -250,3 +250,46 @@ def test_same_seed_same_scenario_other_seed_differs(city):
     bay = scenarios.make("bay-area", n_vehicles=20)
     assert scenarios.make("bay-area", n_vehicles=20) == bay
     assert scenarios.make("bay-area", n_vehicles=20, seed=7).vehicles != bay.vehicles
+
+
+# ------------------------------------------------------------------------------------------ town
+def test_town_setup():
+    from stp_env.scenarios.registry import TOWN_DESTINATIONS, TOWN_ORIGIN
+
+    s = scenarios.make("town")
+    assert s.kbar == 2 and s.n_vehicles == 7 and s.vehicle.wind == 6.0 and s.method == "rtt"
+    assert (s.planning_v, s.planning_omega_max, s.collision_radius, s.t_iat) == ((11.0, 13.0), 1.2, 100.0, 10.0)
+    assert s.domain_lo == (0.0, 0.0) and s.domain_hi == (4000.0, 4000.0)
+    assert s.grid_spacing[0] == 50.0 and s.grid_spacing[1] == 50.0
+    assert np.all(s.starts() == (*TOWN_ORIGIN, 0.0))
+    assert {tuple(c) for c in s.targets()} <= set(TOWN_DESTINATIONS) and len({tuple(c) for c in s.targets()}) >= 2
+    assert np.all(s.target_radii() == 150.0) and 2 * 150.0 / s.grid_spacing[0] >= 5  # NUMERICS.md
+    np.testing.assert_array_equal(s.stas(), 90.0 * s.priorities())
+    np.testing.assert_array_equal(scenarios.make("town", kbar=1).stas(), 100.0 * s.priorities())
+    # The buildings are far from the targets and from the straight routes: beyond V^S (~410 m at 6 m/s,
+    # intruder paper eqs. 32-33) plus the tracking bubble, so they do not bend the routes.
+    assert len(s.buildings) == 2
+    for b in s.buildings:
+        assert np.all(b.signed_distance(np.asarray(TOWN_DESTINATIONS)) > 1000.0)
+        for c in TOWN_DESTINATIONS:
+            route = np.linspace(TOWN_ORIGIN, c, 400)
+            assert b.signed_distance(route).min() > 500.0
+
+
+@pytest.mark.parametrize("kbar", [1, 2, 3, 4])
+def test_town_kbar_range(kbar):
+    assert scenarios.make("town", kbar=kbar).kbar == kbar
+
+
+@pytest.mark.parametrize("bad", [0, 5, None, True, 2.0])
+def test_town_rejects_other_kbar(bad):
+    with pytest.raises(ValueError, match="kbar must be one of"):
+        scenarios.make("town", kbar=bad)
+
+
+def test_town_seed_sets_destinations_and_priorities():
+    a, b = scenarios.make("town"), scenarios.make("town", seed=1)
+    assert a == scenarios.make("town", seed=0)
+    assert not (np.array_equal(a.priorities(), b.priorities()) and np.array_equal(a.targets(), b.targets()))
+    assert a.buildings == b.buildings and a.stas().max() == 90.0 * 6
+    assert scenarios.make("town", n_vehicles=8).n_vehicles == 8

@@ -123,7 +123,7 @@ def _rollout(key, x0, t0, dt, slice_times, stack, *, grid, dynamics, n_steps, wi
 def plan_single(grid: hj.Grid, dynamics: DubinsWind, start, target_center, target_radius: float, sta: float,
                 horizon: float, *, obstacle_fn=None, obstacle_params=None, settings: hj.SolverSettings | None = None,
                 slice_dt: float | None = None, time_step: float = 0.05, wind_mode: str = "zero", seed: int = 0,
-                depart_at: float | None = None, progress: bool = False) -> SinglePlan:
+                depart_at: float | None = None, progress: bool = False, early_stop: bool = True) -> SinglePlan:
     """Plans one vehicle (intruder paper eqs. 35-37).
 
     Args:
@@ -143,6 +143,10 @@ def plan_single(grid: hj.Grid, dynamics: DubinsWind, start, target_center, targe
         seed: key of the random wind.
         depart_at: start the trajectory at this time instead of ``t_LDT`` (a vehicle already in the air, as after
             replanning); it must not be later than ``t_LDT``.
+        early_stop: stop the backward solve at the first stored slice by which the start state has entered the
+            tube (and, with ``depart_at``, that is no later than it): ``t_LDT`` is then known (the time-to-reach of
+            a node never changes once finite) and the slices from there to the STA are all the trajectory needs.
+            ``False`` solves the whole horizon (same values, same ``t_LDT``; only for comparisons).
 
     Raises:
         InfeasiblePlanError: if ``start`` cannot reach the target by ``sta`` within ``horizon``.
@@ -162,10 +166,14 @@ def plan_single(grid: hj.Grid, dynamics: DubinsWind, start, target_center, targe
     full_fn = None
     if obstacle_fn is not None:
         full_fn = full_grid_obstacle(obstacle_fn, grid.shape[2])
-    res = hj.solve(settings, dynamics, grid, times, target, tube=True, obstacle=obstacle_params,
-                   obstacle_fn=full_fn, time_to_reach=True, progress=progress)
-    t_ldt = float(hj.interpolation.latest_departure_time(grid, res.time_to_reach, jnp.asarray(start, jnp.float32),
-                                                          sta))
+    x0 = jnp.asarray(start, jnp.float32)
+    if early_stop:
+        res, times = _solve_until_departure(settings, dynamics, grid, times, target, x0, full_fn, obstacle_params,
+                                            depart_at, progress)
+    else:
+        res = hj.solve(settings, dynamics, grid, times, target, tube=True, obstacle=obstacle_params,
+                       obstacle_fn=full_fn, time_to_reach=True, progress=progress)
+    t_ldt = float(sta - _time_to_reach_at(res.time_to_reach, x0, grid=grid))  # -inf if not reached
     if not math.isfinite(t_ldt):
         raise InfeasiblePlanError(
             f"start {tuple(np.round(start, 3))} cannot reach the target {tuple(target_center)} (radius "
@@ -196,6 +204,45 @@ def plan_single(grid: hj.Grid, dynamics: DubinsWind, start, target_center, targe
     # vehicle that trails its reference by up to the error bound still has a moving reference to follow.
     return SinglePlan(t_ldt=t_start, sta=float(sta), times=sample_times, states=xs, controls=us,
                       arrival_time=arrival, n_steps=res.n_steps)
+
+
+@functools.partial(jax.jit, static_argnames=("grid",))
+def _time_to_reach_at(ttr, x, *, grid):
+    """:func:`hj.interpolation.time_to_reach_at`, compiled (eagerly it dispatches dozens of small ops)."""
+    return hj.interpolation.time_to_reach_at(grid, ttr, x)
+
+
+EARLY_STOP_SEGMENTS = 20
+"""With ``early_stop``, the backward solve checks the start state about this many times over the horizon."""
+
+
+def _solve_until_departure(settings, dynamics, grid, times, target, x0, obstacle_fn, obstacle_params, depart_at,
+                           progress):
+    """The tube of :func:`hj.solve` over the decreasing slice ``times``, in segments of consecutive slices, stopped
+    after the first segment at whose end the start ``x0`` has a finite time-to-reach (and the solve has passed
+    ``depart_at``, if given). Each segment continues from the previous one's last values (the solver re-applies
+    the obstacle at a segment's first time: idempotent, ``max(V, -g)`` already holds), so the values are those of a
+    single solve; the time-to-reach of a segment is shifted by its start's elapsed time and kept where earlier
+    segments had set it (a node's time-to-reach is its *first* entry). Returns ``(result, times_solved)``."""
+    n = len(times)
+    per = max(1, math.ceil((n - 1) / EARLY_STOP_SEGMENTS))
+    stacks, ttr, n_steps, dt, lo = [], None, 0, 0.0, 0
+    while lo < n - 1:
+        hi = min(lo + per, n - 1)
+        seg = hj.solve(settings, dynamics, grid, times[lo:hi + 1], target, tube=True, obstacle=obstacle_params,
+                       obstacle_fn=obstacle_fn, initial_values=None if lo == 0 else stacks[-1][-1],
+                       time_to_reach=True, progress=progress)
+        offset = jnp.float32(abs(times[lo] - times[0]))
+        shifted = seg.time_to_reach + offset
+        ttr = shifted if ttr is None else jnp.where(jnp.isfinite(ttr), ttr, shifted)
+        stacks.append(seg.values if lo == 0 else seg.values[1:])
+        n_steps, dt, lo = n_steps + seg.n_steps, seg.dt, hi
+        reached = bool(jnp.isfinite(_time_to_reach_at(ttr, x0, grid=grid)))
+        if reached and (depart_at is None or times[hi] <= depart_at):
+            break
+    solved = times[:lo + 1]
+    return hj.ReachResult(values=jnp.concatenate(stacks), times=solved, n_steps=n_steps, dt=dt,
+                          time_to_reach=ttr), solved
 
 
 @functools.lru_cache(maxsize=64)

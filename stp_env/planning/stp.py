@@ -65,6 +65,14 @@ class Plan:
         return np.asarray([v.plan.t_ldt for v in self.vehicles])
 
 
+PLANNING_SETTINGS = hj.SolverSettings.with_accuracy("medium")
+"""Default solver settings of :func:`plan_rtt`: ENO2 + TVD-RK2 (the ``medium`` preset). The planning BRS has no
+relative-frame terms (the reason NUMERICS.md asks for WENO5 in the intruder problems): measured on ``town``, its
+nominal trajectories still arrive within 3 s of the planned arrival (one cell at the slowest planning speed before
+the STA), at about half the cost per step of WENO5 + RK2; first-order upwinding + Euler costs little less but
+departs ~15 s earlier than needed (more dissipation, a smaller tube)."""
+
+
 def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float], planning_omega_max: float,
              tracking_bound: float, collision_radius: float, starts: Sequence, targets: Sequence,
              target_radius: float | Sequence[float], stas: Sequence[float], priorities: Sequence[int] | None = None,
@@ -83,7 +91,9 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
         starts, targets, target_radius, stas: per vehicle ``(p_x, p_y, theta)``, target centre, radius, STA.
         priorities: ``0`` = highest (default: input order).
         horizon: planning horizon before each STA [s].
-        kbar, buffer_radius, obstacle_profiles: intruder-aware mode (all three or none).
+        kbar, buffer_radius, obstacle_profiles: intruder-aware mode (all three or none); lag disks inside the
+            buffer disk are folded into it (:func:`fold_contained_disks`).
+        settings: solver settings (default :data:`PLANNING_SETTINGS`).
         static_obstacle: signed distance to the static obstacles on the position plane (``grid.shape[:2]``),
             already grown by whatever margin the caller needs (see :func:`plan_scenario`).
         arrival_margin: plan to arrive this much before each STA [s]. The numerical tube is optimistic by about
@@ -107,6 +117,7 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
             raise ValueError(f"vehicle {i}: the tracking-error bound ({tracking_bound:.3f} m) is not smaller than "
                              f"its target radius ({radii[i]:.3f} m); no target is left to plan for.")
     planner = DubinsWind(v_min=planning_v[0], v_max=planning_v[1], omega_max=planning_omega_max, wind=0.0)
+    settings = settings or PLANNING_SETTINGS
     if arrival_margin is None:
         arrival_margin = max(grid.spacing[:2]) / max(planning_v[0], 1e-3 * planning_v[1])
     slice_dt = max(time_step, horizon / 200)
@@ -118,7 +129,8 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
         for prof in obstacle_profiles.values():
             lags.extend(prof.lags.tolist())
             rads.extend((prof.radii + tracking_bound).tolist())
-    lags_arr, rads_arr = np.asarray(lags), np.asarray(rads)
+    lags_arr, rads_arr, pad_before, pad_after = fold_contained_disks(np.asarray(lags), np.asarray(rads),
+                                                                     planning_v[1])
 
     order = sorted(range(n), key=lambda i: priorities[i])
     done: dict[int, VehiclePlan] = {}
@@ -139,10 +151,34 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
                              **kwargs)
         single = dataclasses.replace(single, sta=float(stas[i]))
         end = single.arrival_time if math.isfinite(single.arrival_time) else single.times[-1]
-        trajectories.append((*single.flight(), single.t_ldt, end))
+        trajectories.append((*single.flight(), single.t_ldt - pad_before, end + pad_after))
         done[i] = VehiclePlan(index=i, priority=rank, plan=single, obstacle_lags=lags_arr, obstacle_radii=rads_arr)
     return Plan(vehicles=tuple(done[i] for i in range(n)), tracking_bound=float(tracking_bound),
                 collision_radius=float(collision_radius), kbar=kbar)
+
+
+def fold_contained_disks(lags: np.ndarray, radii: np.ndarray, speed: float):
+    """Drops the lag disks that lie inside the lag-0 disk ``radii[0]`` (cheaper obstacles, same or larger set).
+
+    A nominal trajectory moves at most ``speed`` (the top planning speed: it is planned with ``U^p`` and no wind),
+    so the disk of radius ``rho`` around ``p_j(t + lambda)`` lies inside the disk of radius ``rho_0`` around
+    ``p_j(t)`` whenever ``rho + speed |lambda| <= rho_0``. In intruder-aware planning that holds for most lag
+    profiles of eqs. (26)-(31), (49)-(57) against the buffer disk of eqs. (21), (48) (for ``k̄ <= 3`` at 6 m/s wind
+    for all of them). A lag disk is active while ``t + lambda`` lies in the flight window ``[t_LDT_j, arrival_j]``
+    (:func:`stp_env.planning.obstacles.moving_disks`); the lag-0 disk only while ``t`` does. To keep the union a
+    superset, the flight window of every higher-priority vehicle is widened by the largest dropped positive lag
+    before departure and the largest dropped negative lag's size after arrival: there the lag-0 disk sits at the
+    clamped end position, within ``speed |lambda|`` of every dropped disk's centre.
+
+    Returns ``(lags, radii, pad_before, pad_after)`` with the kept disks, lag-0 disk first.
+    """
+    lags, radii = np.asarray(lags, np.float64), np.asarray(radii, np.float64)
+    inside = radii + speed * np.abs(lags) <= radii[0]
+    inside[0] = False
+    dropped = lags[inside]
+    pad_before = float(max(dropped.max(initial=0.0), 0.0))
+    pad_after = float(max(-dropped.min(initial=0.0), 0.0))
+    return lags[~inside], radii[~inside], pad_before, pad_after
 
 
 def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, horizon: float | None = None,
@@ -251,6 +287,15 @@ def cached_plan(scenario, *, tracking_bound: float | None = None, store=None, pr
         "plan", params, lambda: plan_to_arrays(plan_scenario(scenario, tracking_bound=tracking_bound, store=store,
                                                              progress=progress)))
     return plan_from_arrays(art.arrays)
+
+
+def shipped_plan_for(scenario: str, kbar: int | None = None) -> Plan:
+    """The shipped plan of a registered scenario at its default parameters, for one ``k̄`` (``None``: the
+    intruder-unaware plan): ``shipped_plan_for("town", 2)`` loads ``town-kbar2.npz`` (``k̄ = 1, 2, 3`` are
+    shipped for ``town``), ``shipped_plan_for("tiny")`` loads ``tiny.npz``. The plan is for
+    ``make(scenario, kbar=kbar)``; ``scripts/generate_plans.py`` lists what is shipped."""
+    name = scenario if kbar is None else f"{scenario}-kbar{int(kbar)}"
+    return shipped_plan(name)
 
 
 def shipped_plan(name: str) -> Plan:
