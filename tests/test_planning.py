@@ -160,3 +160,101 @@ def test_replanning_changes_only_the_affected_vehicle():
     assert _min_separation(plan.vehicles[0].plan, moved) >= scenario.collision_radius + 2 * 4.13 - 0.5 * dx
     with pytest.raises(ValueError, match="out of range"):
         replan(plan, scenario, {5: displaced}, t_bar)
+
+
+def test_early_stop_gives_the_full_solve_t_ldt_with_fewer_steps():
+    # The time-to-reach of a node never changes once finite, so stopping the backward solve once the start is
+    # inside the tube gives the same t_LDT (up to float32 rounding of the segment offsets) and the same trajectory.
+    start, target, r = (-1.0, 0.3, 0.5), (1.0, -0.2), 0.2
+    full = plan_single(GRID, PLANNER, start, target, r, sta=0.0, horizon=10.0, early_stop=False)
+    early = plan_single(GRID, PLANNER, start, target, r, sta=0.0, horizon=10.0)
+    assert early.t_ldt == pytest.approx(full.t_ldt, abs=1e-4)
+    assert early.n_steps < 0.6 * full.n_steps
+    np.testing.assert_allclose(early.states, full.states, atol=1e-3)
+    # With depart_at the solve goes on until it has passed the imposed departure time.
+    later = plan_single(GRID, PLANNER, start, target, r, sta=0.0, horizon=10.0, depart_at=full.t_ldt - 3.0)
+    assert later.times[0] == pytest.approx(full.t_ldt - 3.0)
+    assert later.arrival_time <= 0.05
+
+
+def test_folded_lag_disks_are_a_superset_of_the_lag_profiles():
+    # fold_contained_disks drops the lag disks inside the lag-0 disk and widens the flight window instead: the
+    # obstacle g (sub-zero set) must contain the original union at every time, before, during and after the flight.
+    import jax.numpy as jnp
+
+    from stp_env.planning.obstacles import disk_params, moving_disks
+    from stp_env.planning.stp import fold_contained_disks
+
+    grid = hj.Grid.from_bounds((0.0, 0.0, -np.pi), (2000.0, 2000.0, np.pi), (81, 81, 8), periodic=2)
+    lags = np.concatenate([[0.0], np.linspace(-10.0, 10.0, 41), [12.0]])
+    radii = np.concatenate([[700.0], 400.0 + 10.0 * np.abs(np.linspace(-10.0, 10.0, 41)), [650.0]])
+    kept_lags, kept_radii, before, after = fold_contained_disks(lags, radii, speed=13.0)
+    assert kept_lags[0] == 0.0 and kept_radii[0] == 700.0
+    assert 12.0 in kept_lags and len(kept_lags) < len(lags)  # 650 + 13 * 12 > 700: kept
+    assert (before, after) == (10.0, 10.0)
+    ts = np.arange(0.0, 100.0, 0.5)
+    heading = np.cumsum(np.full_like(ts, 0.01))
+    xy = np.stack([300.0 + np.cumsum(13.0 * 0.5 * np.cos(heading)), 500.0 + np.cumsum(13.0 * 0.5 * np.sin(heading)),
+                   heading], -1)
+    full = disk_params(grid, [(ts, xy, ts[0], ts[-1])], lags, radii)
+    folded = disk_params(grid, [(ts, xy, ts[0] - before, ts[-1] + after)], kept_lags, kept_radii)
+    for t in (-15.0, -8.0, -0.3, 0.0, 33.3, 99.5, 104.0, 111.0):
+        g_full, g_folded = moving_disks(jnp.float32(t), full), moving_disks(jnp.float32(t), folded)
+        assert np.all(np.asarray(g_folded) <= np.asarray(g_full) + 1e-3), t
+
+
+TOWN_KBARS = (1, 2, 3)
+
+
+@pytest.fixture(scope="module")
+def town_plans():
+    from stp_env.planning.stp import shipped_plan_for
+    from stp_env.scenarios import make
+
+    return {k: (make("town", kbar=k), shipped_plan_for("town", k)) for k in TOWN_KBARS}
+
+
+def _pair_distances(plan, ts):
+    """Distances ``(T, N, N)`` between vehicles' nominal positions at ``ts`` (``inf`` unless both are flying) and
+    the number of vehicles flying at each time."""
+    pos = []
+    for v in plan.vehicles:
+        times, st = v.plan.flight()
+        p = np.stack([np.interp(ts, times, st[:, k]) for k in range(2)], -1)
+        p[(ts < times[0]) | (ts > times[-1])] = np.nan
+        pos.append(p)
+    pos = np.stack(pos, 1)
+    d = np.linalg.norm(pos[:, :, None] - pos[:, None], axis=-1)
+    d[np.isnan(d)] = np.inf
+    d[:, np.arange(len(pos[0])), np.arange(len(pos[0]))] = np.inf
+    return d, np.sum(np.isfinite(pos[..., 0]), axis=1)
+
+
+@pytest.mark.parametrize("kbar", TOWN_KBARS)
+def test_shipped_town_plans_keep_the_buffer_and_share_the_airspace(town_plans, kbar):
+    # Intruder-aware planning (intruder paper Algorithm 3, eq. 34): every pair of nominal trajectories stays at
+    # least the buffer radius of eqs. (21), (48) apart while both fly (half a cell of grid slack), every vehicle
+    # arrives by its STA, and vehicles do share the airspace: at some time a vehicle has another one within two
+    # buffer radii, so an intruder could press more than one if the plan did not keep the buffer.
+    scenario, plan = town_plans[kbar]
+    assert plan.kbar == kbar and len(plan.vehicles) == scenario.n_vehicles
+    buffer_radius = plan.vehicles[0].obstacle_radii[0]
+    dx = scenario.grid().spacing[0]
+    t0 = min(v.plan.t_ldt for v in plan.vehicles)
+    t1 = max(v.plan.arrival_time for v in plan.vehicles)
+    d, flying = _pair_distances(plan, np.arange(t0, t1, 0.25))
+    assert d.min() >= buffer_radius - 0.5 * dx
+    assert d.min() <= 2.0 * buffer_radius
+    assert flying.max() >= 3
+    for v, spec in zip(plan.vehicles, scenario.vehicles):
+        assert v.plan.arrival_time <= spec.sta + scenario.time_step
+        assert v.priority == spec.priority
+        np.testing.assert_allclose(v.plan.states[0, :2], spec.start[:2])
+        end = v.plan.flight()[1][-1]
+        assert np.hypot(end[0] - spec.target[0], end[1] - spec.target[1]) <= spec.target_radius
+
+
+def test_shipped_town_buffer_radii_shrink_with_kbar(town_plans):
+    # t_BRD = t_IAT / k̄: a larger k̄ allows a smaller relative buffer region (eqs. 22, 46-47).
+    radii = [town_plans[k][1].vehicles[0].obstacle_radii[0] for k in TOWN_KBARS]
+    assert radii[0] > radii[1] > radii[2] > 2 * 245.0  # beyond the separation region (d^A ~ 246 m, eq. 20)
