@@ -1,0 +1,43 @@
+"""Baseline policies: jittable functions ``policy(key, state, params) -> actions`` of the simulation core.
+
+Vehicle policies return ``(N, 2)`` actions in ``[-1, 1]`` (see :mod:`stp_env.baselines.vehicles`); intruder
+policies return ``(2,)`` (see :mod:`stp_env.baselines.intruders`). They read the full
+:class:`~stp_env.sim.EnvState` (the papers' controllers assume full state information), so they run inside
+``lax.scan`` and ``vmap`` with the core (:func:`stp_env.sim.rollout`).
+"""
+
+from stp_env.baselines.intruders import (
+    INTRUDERS,
+    bezier_intruder,
+    greedy_pursuit,
+    hj_pursuit,
+    hover,
+    intruder_policy,
+    max_k,
+    random_intruder,
+)
+from stp_env.baselines.vehicles import (
+    VEHICLE_POLICIES,
+    fallback_control,
+    nominal_tracking,
+    safety_filter,
+    switching,
+    vehicle_policy,
+)
+
+__all__ = [
+    "INTRUDERS",
+    "VEHICLE_POLICIES",
+    "bezier_intruder",
+    "fallback_control",
+    "greedy_pursuit",
+    "hj_pursuit",
+    "hover",
+    "intruder_policy",
+    "max_k",
+    "nominal_tracking",
+    "random_intruder",
+    "safety_filter",
+    "switching",
+    "vehicle_policy",
+]

@@ -1,0 +1,133 @@
+"""Scripted intruders as jittable ``(key, state, params) -> (2,)`` actions in ``[-1, 1]``.
+
+* :func:`hover`: stays where it appeared (``v = v_min``, no turn): a Bezier curve of degree 1 with both control
+  points at the spawn point (mission-survivability paper, Section III-B).
+* :func:`bezier_intruder`: a random Bezier curve of degree ``k`` over ``[t_, t_ + t_IAT]`` from the spawn point
+  (the other ``k`` control points uniform within ``v_I,max t_IAT / 2`` of it, drawn from the episode's intruder
+  key), followed by steering at the next point of the curve.
+* :func:`random_intruder`: uniform random actions every step.
+* :func:`greedy_pursuit`: full speed at the nearest flying vehicle.
+* :func:`hj_pursuit`: the minimising player of the avoid game (eq. 14) against the most threatened flying vehicle
+  (the smallest ``V^A``): optimal pursuit from the value table.
+* :func:`max_k`: the strategy of the intruder paper's Figs. 6-7: appear on a vehicle's avoid boundary (use
+  ``spawn_mode="boundary"``), then go for the avoid boundary of the next vehicle not yet forced (HJ pursuit of the
+  unforced vehicle with the smallest ``V^A``), to force as many vehicles as possible.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+
+from stp_env.sim import tables
+from stp_env.sim.physics import control_to_action, relative_state, wrap_angle
+from stp_env.sim.types import FLYING
+
+HEADING_GAIN = 3.0  # [1/s]
+
+
+def _steer(state, params, point, speed=None):
+    """Action turning the intruder toward ``point`` at ``speed`` (default ``v_max``)."""
+    xi = state.intruder_x
+    b = params.intruder_bounds
+    d = point - xi[:2]
+    err = wrap_angle(jnp.arctan2(d[1], d[0]) - xi[2])
+    omega = jnp.clip(HEADING_GAIN * err, -b[2], b[2])
+    v = b[1] if speed is None else speed
+    return control_to_action(v, omega, b)
+
+
+def hover(key, state, params):
+    del key, state
+    b = params.intruder_bounds
+    return control_to_action(b[0], 0.0, b)
+
+
+def random_intruder(key, state, params):
+    del state, params
+    return jax.random.uniform(key, (2,), minval=-1.0, maxval=1.0)
+
+
+def bezier_intruder(degree: int):
+    """A random-Bezier intruder of ``degree >= 1`` (degree 1: :func:`hover`)."""
+    if isinstance(degree, bool) or not isinstance(degree, int) or degree < 1:
+        raise ValueError(f"degree must be an integer >= 1; got {degree!r}.")
+    if degree == 1:
+        return hover
+    binom = jnp.asarray([math.comb(degree, i) for i in range(degree + 1)], jnp.float32)
+    powers = jnp.arange(degree + 1, dtype=jnp.float32)
+
+    def policy(key, state, params):
+        del key
+        b = params.intruder_bounds
+        reach = 0.5 * b[1] * params.t_iat
+        u = jax.random.uniform(state.intruder_key, (degree, 2))
+        r = reach * jnp.sqrt(u[:, 0])
+        a = 2 * jnp.pi * u[:, 1]
+        p0 = state.intruder_memory[:2]
+        pts = jnp.concatenate([p0[None], p0 + jnp.stack([r * jnp.cos(a), r * jnp.sin(a)], 1)], 0)
+        s = jnp.clip((state.t - state.t_appear + params.dt) / params.t_iat, 0.0, 1.0)
+        basis = binom * s ** powers * (1 - s) ** (degree - powers)
+        target = basis @ pts
+        dist = jnp.linalg.norm(target - state.intruder_x[:2])
+        speed = jnp.clip(dist / params.dt, b[0], b[1])
+        return _steer(state, params, target, speed)
+
+    policy.__name__ = f"bezier{degree}"
+    return policy
+
+
+def greedy_pursuit(key, state, params):
+    del key
+    fly = state.status == FLYING
+    d = jnp.where(fly, jnp.hypot(*(state.x[:, :2] - state.intruder_x[None, :2]).T), jnp.inf)
+    j = jnp.argmin(d)
+    return jnp.where(jnp.any(fly), _steer(state, params, state.x[j, :2]), hover(None, state, params))
+
+
+def _pursue(state, params, eligible):
+    """HJ-optimal pursuit (eq. 14's minimiser) of the eligible vehicle with the smallest ``V^A``."""
+    tau = state.t - state.t_appear
+    rel = relative_state(state.x, state.intruder_x[None, :])
+    vals = jax.vmap(lambda r: tables.avoid_value(params, tau, r))(rel)
+    vals = jnp.where(eligible, vals, jnp.inf)
+    j = jnp.argmin(vals)
+    d = tables.pursuit_input(params, tau, rel[j])
+    hj_action = control_to_action(d[0], d[1], params.intruder_bounds)
+    # Outside the table (V = FAR), the gradient is zero: close in greedily instead.
+    return jnp.where(vals[j] < tables.FAR, hj_action, _steer(state, params, state.x[j, :2])), jnp.any(eligible)
+
+
+def hj_pursuit(key, state, params):
+    del key
+    a, ok = _pursue(state, params, state.status == FLYING)
+    return jnp.where(ok, a, hover(None, state, params))
+
+
+def max_k(key, state, params):
+    del key
+    fly = state.status == FLYING
+    unforced = fly & ~jnp.isfinite(state.avoid_start)
+    a_next, ok_next = _pursue(state, params, unforced)
+    a_any, ok_any = _pursue(state, params, fly)
+    return jnp.where(ok_next, a_next, jnp.where(ok_any, a_any, hover(None, state, params)))
+
+
+INTRUDERS = {
+    "hover": hover,
+    "random": random_intruder,
+    "bezier2": bezier_intruder(2),
+    "bezier3": bezier_intruder(3),
+    "greedy": greedy_pursuit,
+    "hj": hj_pursuit,
+    "max-k": max_k,
+}
+
+
+def intruder_policy(name: str):
+    """A scripted intruder by name: one of :data:`INTRUDERS`."""
+    if name not in INTRUDERS:
+        raise ValueError(f"unknown intruder {name!r}; allowed: {', '.join(INTRUDERS)}.")
+    return INTRUDERS[name]

@@ -1,0 +1,38 @@
+"""The pure JAX simulation core: arrays in, arrays out (see ``ARCHITECTURE.md``).
+
+* :mod:`~stp_env.sim.types`: ``EnvParams`` (constants), ``EnvState`` (per step), status and mode codes.
+* :mod:`~stp_env.sim.config`: ``EnvConfig`` and ``RewardConfig`` (typed).
+* :mod:`~stp_env.sim.build`: ``make_params`` / ``params_for`` (scenario + plan + artifacts -> ``EnvParams``).
+* :mod:`~stp_env.sim.core`: ``reset``, ``step``, ``observe`` and the events of a step.
+* :mod:`~stp_env.sim.rollout`: ``rollout`` (``vmap`` of ``lax.scan``).
+* :mod:`~stp_env.sim.wind`, :mod:`~stp_env.sim.spawn`, :mod:`~stp_env.sim.tables`,
+  :mod:`~stp_env.sim.physics`: wind models, intruder spawning, value-table reads, kinematics.
+"""
+
+from stp_env.sim.build import busiest_window, load_artifacts, load_plan, make_params, params_for
+from stp_env.sim.config import EnvConfig, RewardConfig
+from stp_env.sim.core import episode_over, lifecycle, nominal_reference, observe, reset, step
+from stp_env.sim.rollout import rollout, steps_for
+from stp_env.sim.types import (
+    AFTER_AVOIDANCE,
+    ARRIVED,
+    AVOIDING,
+    COLLIDED,
+    FLYING,
+    GONE,
+    NOMINAL,
+    OUT_OF_BOUNDS,
+    PENDING,
+    PRESENT,
+    WAITING,
+    EnvParams,
+    EnvState,
+    n_forced,
+)
+
+__all__ = [
+    "AFTER_AVOIDANCE", "ARRIVED", "AVOIDING", "COLLIDED", "FLYING", "GONE", "NOMINAL", "OUT_OF_BOUNDS", "PENDING",
+    "PRESENT", "WAITING", "EnvConfig", "EnvParams", "EnvState", "RewardConfig", "busiest_window", "episode_over",
+    "lifecycle", "load_artifacts", "load_plan", "make_params", "n_forced", "nominal_reference", "observe",
+    "params_for", "reset", "rollout", "step", "steps_for",
+]

@@ -1,0 +1,220 @@
+"""From a scenario, its plan and the reachability artifacts to :class:`~stp_env.sim.types.EnvParams` (host side,
+numpy; runs once per environment)."""
+
+from __future__ import annotations
+
+import math
+
+import jax.numpy as jnp
+import numpy as np
+
+from stp_env import hj
+from stp_env.sim.config import EnvConfig
+from stp_env.sim.types import EnvParams
+
+
+def flying_counts(plan, times: np.ndarray) -> np.ndarray:
+    """How many vehicles of ``plan`` are in the air (departed, not yet arrived) at each of ``times``."""
+    dep = np.asarray([v.plan.t_ldt for v in plan.vehicles])
+    arr = np.asarray([v.plan.arrival_time if math.isfinite(v.plan.arrival_time) else v.plan.times[-1]
+                      for v in plan.vehicles])
+    return ((times[:, None] >= dep[None, :]) & (times[:, None] < arr[None, :])).sum(axis=1)
+
+
+def busiest_window(plan, step: float = 0.5) -> tuple[float, float]:
+    """The first longest time interval during which the most vehicles of ``plan`` are in the air [s]."""
+    dep = min(v.plan.t_ldt for v in plan.vehicles)
+    end = max(v.plan.times[-1] for v in plan.vehicles)
+    times = np.arange(dep, end + step, step)
+    counts = flying_counts(plan, times)
+    best = counts == counts.max()
+    # longest run of True
+    runs, start = [], None
+    for i, b in enumerate(best):
+        if b and start is None:
+            start = i
+        if (not b or i == len(best) - 1) and start is not None:
+            stop = i if b else i - 1
+            runs.append((stop - start, start, stop))
+            start = None
+    _, a, b = max(runs)
+    return float(times[a]), float(times[b])
+
+
+def _plan_arrays(plan):
+    vehicles = plan.vehicles
+    steps = {round(float(np.diff(v.plan.times[:2])[0]), 9) for v in vehicles if len(v.plan.times) > 1}
+    if len(steps) > 1:
+        raise ValueError(f"The plan's vehicles use different sample periods {sorted(steps)}; the simulator needs one.")
+    dt = steps.pop() if steps else 1.0
+    k = max(len(v.plan.times) for v in vehicles)
+    n = len(vehicles)
+    states = np.zeros((n, k, 3), np.float32)
+    controls = np.zeros((n, k, 2), np.float32)
+    for i, v in enumerate(vehicles):
+        m = len(v.plan.times)
+        states[i, :m], controls[i, :m] = v.plan.states, v.plan.controls
+        states[i, m:], controls[i, m:] = v.plan.states[-1], v.plan.controls[-1]
+    return {
+        "nominal_t0": np.asarray([v.plan.times[0] for v in vehicles], np.float32),
+        "nominal_dt": np.float32(dt),
+        "nominal_states": states,
+        "nominal_controls": controls,
+        "nominal_len": np.asarray([len(v.plan.times) for v in vehicles], np.int32),
+        "departure": np.asarray([v.plan.t_ldt for v in vehicles], np.float32),
+        "sta": np.asarray([v.plan.sta for v in vehicles], np.float32),
+        "starts": states[:, 0].copy(),
+    }
+
+
+def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None) -> EnvParams:
+    """Assemble the simulator's constants.
+
+    Args:
+        scenario: a :class:`stp_env.scenarios.Scenario`.
+        plan: its :class:`stp_env.planning.Plan` (nominal trajectories and departure times).
+        avoid: the :class:`stp_env.reach.avoid.AvoidRegion` for the scenario's vehicle, ``R_c`` and ``t_IAT``.
+        tracking: the :class:`stp_env.reach.tracking.TrackingBound` of its planning set.
+        config: :class:`EnvConfig` (default: ``EnvConfig()``).
+    """
+    config = EnvConfig() if config is None else config
+    n = scenario.n_vehicles
+    if len(plan.vehicles) != n:
+        raise ValueError(f"The plan has {len(plan.vehicles)} vehicles but scenario {scenario.name!r} has {n}.")
+    acfg = avoid.config
+    mismatch = [f"{name}: scenario {a!r}, avoid region {b!r}" for name, a, b in (
+        ("collision_radius", scenario.collision_radius, acfg.collision_radius),
+        ("t_iat", scenario.t_iat, acfg.t_iat),
+        ("vehicle v_max", scenario.vehicle.v_max, acfg.vehicle.v_max),
+        ("vehicle wind", scenario.vehicle.wind, acfg.vehicle.wind)) if not math.isclose(a, b, rel_tol=1e-6)]
+    if mismatch:
+        raise ValueError("The avoid region was computed for another scenario: " + "; ".join(mismatch) + ".")
+    arrays = _plan_arrays(plan)
+    d_a = float(avoid.detection_range())
+    d_sense = 1.5 * d_a if config.d_sense is None else config.d_sense
+    if d_sense < d_a:
+        raise ValueError(f"d_sense ({d_sense} m) must be at least the detection range d^A = {d_a:.1f} m (eq. 16): "
+                         "a vehicle must see the intruder before it has to avoid it.")
+    veh, intr = acfg.vehicle, acfg.intruder
+    margin = config.dt * (veh.v_max + intr.v_max + veh.wind + intr.wind) if config.avoid_margin is None \
+        else config.avoid_margin
+    t_iat = float(scenario.t_iat)
+    if config.appear_window is None:
+        lo, hi = busiest_window(plan)
+    else:
+        first = float(arrays["departure"].min())
+        lo, hi = first + config.appear_window[0], first + config.appear_window[1]
+    if config.episode == "window":
+        t_start, t_end = lo - config.lead, hi + t_iat + config.tail
+    else:
+        t_start = float(arrays["departure"].min())
+        last = max(float(arrays["sta"].max()), max(float(v.plan.times[-1]) for v in plan.vehicles))
+        t_end = max(last, hi + t_iat) + config.tail
+    t_start = max(t_start, float(arrays["departure"].min()) - config.dt)
+
+    if scenario.buildings:
+        gx, gy = scenario.grid_points[:2]
+        sdf_grid = hj.Grid.from_bounds(scenario.domain_lo, scenario.domain_hi, (gx, gy))
+        sdf = np.asarray(scenario.static_obstacle())[:, :, 0].astype(np.float32)
+    else:
+        sdf_grid = hj.Grid.from_bounds(scenario.domain_lo, scenario.domain_hi, (5, 5))
+        sdf = np.full((5, 5), 1.0e6, np.float32)
+
+    tcfg = tracking.config
+    grads = hj.interpolation.gradient_field(tcfg.grid, jnp.asarray(-np.asarray(tracking.value), jnp.float32))
+    kbar = plan.kbar if plan.kbar is not None else (scenario.kbar if scenario.kbar is not None else -1)
+    f32 = np.float32
+    return EnvParams(
+        dt=jnp.asarray(config.dt, f32),
+        t_start=jnp.asarray(t_start, f32),
+        t_end=jnp.asarray(t_end, f32),
+        domain_lo=jnp.asarray(scenario.domain_lo, f32),
+        domain_hi=jnp.asarray(scenario.domain_hi, f32),
+        vehicle_bounds=jnp.asarray([veh.v_min, veh.v_max, veh.omega_max, veh.wind, veh.heading_disturbance], f32),
+        intruder_bounds=jnp.asarray([intr.v_min, intr.v_max, intr.omega_max, intr.wind, intr.heading_disturbance],
+                                    f32),
+        collision_radius=jnp.asarray(scenario.collision_radius, f32),
+        departure=jnp.asarray(arrays["departure"]),
+        sta=jnp.asarray(arrays["sta"]),
+        starts=jnp.asarray(arrays["starts"]),
+        targets=jnp.asarray(scenario.targets(), f32),
+        target_radii=jnp.asarray(scenario.target_radii(), f32),
+        nominal_t0=jnp.asarray(arrays["nominal_t0"]),
+        nominal_dt=jnp.asarray(arrays["nominal_dt"]),
+        nominal_states=jnp.asarray(arrays["nominal_states"]),
+        nominal_controls=jnp.asarray(arrays["nominal_controls"]),
+        nominal_len=jnp.asarray(arrays["nominal_len"]),
+        planning_v_max=jnp.asarray(scenario.planning_v[1], f32),
+        sdf=jnp.asarray(sdf),
+        avoid_taus=jnp.asarray(avoid.taus, f32),
+        avoid_values=jnp.asarray(avoid.values, f32),
+        detection_range=jnp.asarray(d_a, f32),
+        tracking_grads=tuple(jnp.asarray(g, f32) for g in grads),
+        tracking_bound=jnp.asarray(tracking.bound, f32),
+        t_iat=jnp.asarray(t_iat, f32),
+        appear_window=jnp.asarray([lo, hi], f32),
+        spawn_radius=jnp.asarray(1.5 * d_a if config.spawn_radius is None else config.spawn_radius, f32),
+        avoid_margin=jnp.asarray(margin, f32),
+        kbar=jnp.asarray(kbar, jnp.int32),
+        d_sense=jnp.asarray(d_sense, f32),
+        gust_time_constant=jnp.asarray(config.gust_time_constant, f32),
+        reward_weights=jnp.asarray(config.rewards.as_array()),
+        n_vehicles=n,
+        avoid_grid=acfg.grid,
+        tracking_grid=tcfg.grid,
+        sdf_grid=sdf_grid,
+        avoid_dynamics=acfg.relative_dynamics,
+        tracking_dynamics=tcfg.error_dynamics,
+        wind_model=config.wind_model,
+        spawn_mode=config.spawn_mode,
+        safety_filter=config.safety_filter,
+        n_nearest=config.n_nearest,
+    )
+
+
+def load_artifacts(scenario, *, store=None, progress: bool = True):
+    """``(avoid region, tracking bound)`` for a scenario from the artifact cache (computed on first use: about
+    20 s and 30 s on 2 cores for the city vehicle)."""
+    from stp_env.artifacts import ArtifactStore
+    from stp_env.reach.avoid import compute_avoid_region
+    from stp_env.reach.defaults import default_avoid_config
+    from stp_env.reach.tracking import default_tracking_bound
+
+    store = ArtifactStore() if store is None else store
+    avoid = compute_avoid_region(default_avoid_config(scenario.vehicle, scenario.collision_radius, scenario.t_iat),
+                                 store=store, progress=progress)
+    tracking = default_tracking_bound(scenario.vehicle, tuple(scenario.planning_v), scenario.planning_omega_max,
+                                      store=store, progress=progress)
+    return avoid, tracking
+
+
+def load_plan(scenario, *, tracking_bound: float, store=None, progress: bool = True):
+    """The shipped plan when ``scenario`` is a registry default that ships one, else the cached plan (planned on
+    first use)."""
+    from stp_env.planning.stp import cached_plan, shipped_plan
+    from stp_env.scenarios import make, names
+
+    if scenario.name in names():
+        try:
+            default = make(scenario.name)
+        except (TypeError, ValueError):
+            default = None
+        if default == scenario:
+            try:
+                return shipped_plan(scenario.name)
+            except ValueError:
+                pass
+    return cached_plan(scenario, tracking_bound=tracking_bound, store=store, progress=progress)
+
+
+def params_for(scenario, config: EnvConfig | None = None, *, store=None, progress: bool = True) -> EnvParams:
+    """Everything from a scenario (a :class:`Scenario` or a registry name): artifacts, plan, params."""
+    from stp_env.scenarios import Scenario, make
+
+    if isinstance(scenario, str):
+        scenario = make(scenario)
+    if not isinstance(scenario, Scenario):
+        raise ValueError(f"scenario must be a registry name or a Scenario; got {type(scenario).__name__}.")
+    avoid, tracking = load_artifacts(scenario, store=store, progress=progress)
+    plan = load_plan(scenario, tracking_bound=tracking.bound, store=store, progress=progress)
+    return make_params(scenario, plan, avoid, tracking, config)

@@ -1,0 +1,134 @@
+"""Typed configuration of the simulation: frozen dataclasses with checked fields (unknown fields are a
+``TypeError``, as for any dataclass)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from stp_env.sim.types import SPAWN_MODES, WIND_MODELS
+
+
+def _finite(name: str, value, *, positive: bool = False, nonneg: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+        raise ValueError(f"{name} must be a number; got {value!r}.")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be finite; got {value}.")
+    if positive and value <= 0:
+        raise ValueError(f"{name} must be > 0; got {value}.")
+    if nonneg and value < 0:
+        raise ValueError(f"{name} must be >= 0; got {value}.")
+    return value
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class RewardConfig:
+    """Rewards per step.
+
+    Vehicles: ``progress`` times the decrease of the distance to the target [per m]; ``arrival`` once on
+    arrival (``late_arrival`` instead if after the STA); ``collision`` once on a collision (negative).
+    Intruder: ``forced`` per vehicle newly forced to avoid (eq. 39); ``intruder_collision`` per vehicle it
+    collides with or that collides because of it; ``shaping`` times the decrease of the smallest avoid-region value
+    ``min_i V^A_i`` over unforced flying vehicles [per m] (a potential-based shaping, 0 by default).
+    """
+
+    progress: float = 0.01
+    arrival: float = 1.0
+    late_arrival: float = 0.5
+    collision: float = -10.0
+    forced: float = 1.0
+    intruder_collision: float = 10.0
+    shaping: float = 0.0
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            _finite(f.name, getattr(self, f.name))
+
+    def as_array(self) -> np.ndarray:
+        return np.asarray([getattr(self, f.name) for f in dataclasses.fields(self)], np.float32)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class EnvConfig:
+    """How an environment is simulated (the scenario and its plan say *what* is simulated).
+
+    Attributes:
+        dt: step length [s]; controls are held over a step (zero-order hold).
+        wind_model: ``"uniform"`` (a new wind uniformly in the disk of radius ``d_r`` every step, as in the
+            papers), ``"constant"`` (one wind per episode), ``"gusts"`` (Ornstein-Uhlenbeck, clipped to the disk),
+            ``"worst"`` (from the HJ value gradients: against tracking while on the plan, against avoidance while
+            avoiding).
+        gust_time_constant: correlation time of ``"gusts"`` [s].
+        appear_window: the intruder appears at ``t_`` drawn uniformly from this window, in seconds relative to
+            the first departure; ``None``: while the most vehicles are in the air (see ``make_params``).
+        spawn_mode: ``"outside"`` (uniform within ``spawn_radius`` of a flying vehicle, outside every avoid
+            region: Assumption 3) or ``"boundary"`` (on the boundary of a random flying vehicle's avoid region,
+            Observation 1, and outside the others').
+        spawn_radius: [m] (``None``: 1.5 d^A).
+        safety_filter: replace each vehicle's action by ``u^A`` from its avoid-start time until the intruder
+            leaves (eq. 38). Off: vehicles do what their policy says (the avoid start is still recorded).
+        avoid_margin: [m] a vehicle starts avoiding when ``V^A <= avoid_margin``; ``None``: one step of the
+            fastest closing speed, ``dt (v_max + v_I,max + d_r + d_I)``, so that the boundary is not stepped over.
+        d_sense: sensing range for observations [m] (``None``: 1.5 d^A); must be >= d^A.
+        episode: ``"window"`` (start ``lead`` seconds before the intruder can appear and end ``tail`` seconds
+            after it leaves: the part of a flight that matters for k̄) or ``"full"`` (first departure to the last
+            STA plus ``tail``).
+        lead, tail: [s].
+        n_nearest: other vehicles listed in each observation.
+        rewards: :class:`RewardConfig`.
+    """
+
+    dt: float = 0.1
+    wind_model: str = "uniform"
+    gust_time_constant: float = 5.0
+    appear_window: tuple[float, float] | None = None
+    spawn_mode: str = "outside"
+    spawn_radius: float | None = None
+    safety_filter: bool = True
+    avoid_margin: float | None = None
+    d_sense: float | None = None
+    episode: str = "window"
+    lead: float = 5.0
+    tail: float = 10.0
+    n_nearest: int = 4
+    rewards: RewardConfig = dataclasses.field(default_factory=RewardConfig)
+
+    def __post_init__(self) -> None:
+        _finite("dt", self.dt, positive=True)
+        _finite("gust_time_constant", self.gust_time_constant, positive=True)
+        if self.wind_model not in WIND_MODELS:
+            raise ValueError(f"wind_model {self.wind_model!r} is not known; allowed: {', '.join(WIND_MODELS)}.")
+        if self.spawn_mode not in SPAWN_MODES:
+            raise ValueError(f"spawn_mode {self.spawn_mode!r} is not known; allowed: {', '.join(SPAWN_MODES)}.")
+        if self.appear_window is not None:
+            if len(self.appear_window) != 2:
+                raise ValueError(f"appear_window must be (lo, hi) in seconds; got {self.appear_window!r}.")
+            lo, hi = (_finite("appear_window", v) for v in self.appear_window)
+            if hi < lo:
+                raise ValueError(f"appear_window must have lo <= hi; got {self.appear_window!r}.")
+            object.__setattr__(self, "appear_window", (lo, hi))
+        for name in ("spawn_radius", "d_sense"):
+            if getattr(self, name) is not None:
+                _finite(name, getattr(self, name), positive=True)
+        if self.avoid_margin is not None:
+            _finite("avoid_margin", self.avoid_margin, nonneg=True)
+        if not isinstance(self.safety_filter, bool):
+            raise ValueError(f"safety_filter must be True or False; got {self.safety_filter!r}.")
+        if self.episode not in ("window", "full"):
+            raise ValueError(f"episode must be 'window' or 'full'; got {self.episode!r}.")
+        _finite("lead", self.lead, nonneg=True)
+        _finite("tail", self.tail, nonneg=True)
+        if isinstance(self.n_nearest, bool) or not isinstance(self.n_nearest, int) or self.n_nearest < 0:
+            raise ValueError(f"n_nearest must be an integer >= 0; got {self.n_nearest!r}.")
+        if not isinstance(self.rewards, RewardConfig):
+            raise ValueError(f"rewards must be a RewardConfig; got {type(self.rewards).__name__}.")
+
+    def with_overrides(self, **overrides) -> EnvConfig:
+        names = {f.name for f in dataclasses.fields(self)}
+        unknown = sorted(set(overrides) - names)
+        if unknown:
+            raise ValueError(f"unknown EnvConfig field(s) {unknown}; allowed: {sorted(names)}.")
+        return dataclasses.replace(self, **overrides)

@@ -1,0 +1,383 @@
+"""The pure simulation core: ``reset(key, params)``, ``step(key, state, actions, params)``, ``observe``.
+
+One step of length ``dt`` (intruder paper Sections II and IV):
+
+1. The intruder appears when ``t >= t_`` (Assumption 1) at a state outside every flying vehicle's avoid region
+   (Assumption 3; :mod:`stp_env.sim.spawn`) and is removed once ``t - t_ >= t_IAT``. Vehicles that were avoiding
+   switch to the after-avoidance mode then (eq. 40).
+2. Vehicles on the ground take off at their departure time (from their plan's first state).
+3. Avoid start (eqs. 17-18): a flying vehicle whose relative state reaches ``V^A(t - t_, t_IAT) <= margin`` is
+   forced; ``t_i = t``. The set of forced vehicles is ``N^RP`` (eq. 39).
+4. Controls: each agent's action in ``[-1, 1]^2`` (clipped) maps to its ``(v, omega)`` bounds. With the safety
+   filter on, forced vehicles apply ``u^A`` (eq. 15) instead, until the intruder leaves (eq. 38).
+5. Wind (:mod:`stp_env.sim.wind`), then exact Dubins motion under zero-order hold (:func:`dubins_step`).
+6. Events: collisions (vehicle-vehicle and vehicle-intruder within ``R_c``, vehicle-building where the signed
+   distance is <= 0), leaving the domain, arrival in the target disk (and whether before the STA). A collision of
+   a vehicle whose assumptions held (the intruder appeared outside its avoid region, and it applied ``u^A`` at
+   every step from ``t_i`` on) is a *guarantee violation*.
+
+Waiting and finished vehicles are outside the airspace: they neither move nor collide. Actions of agents that
+cannot act (waiting, finished, an absent intruder) are ignored.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from stp_env import hj
+from stp_env.sim import spawn as spawn_lib
+from stp_env.sim import tables
+from stp_env.sim import wind as wind_lib
+from stp_env.sim.physics import action_to_control, control_to_action, dubins_step, relative_state, rotate, wrap_angle
+from stp_env.sim.types import (
+    AFTER_AVOIDANCE,
+    ARRIVED,
+    AVOIDING,
+    COLLIDED,
+    FLYING,
+    GONE,
+    NOMINAL,
+    OUT_OF_BOUNDS,
+    PENDING,
+    PRESENT,
+    WAITING,
+    EnvParams,
+    EnvState,
+    replace,
+)
+
+COMPLIANCE_TOL = 1e-3  # |a - a^A| in action units below which a vehicle counts as applying u^A
+
+
+# ------------------------------------------------------------------------------------------------ plans
+def nominal_reference(params: EnvParams, t):
+    """Every vehicle's nominal state and control at time ``t``: linear interpolation of the plan samples (heading
+    along the shortest arc), clamped to the first and last samples. Shapes ``(N, 3)``, ``(N, 2)``."""
+    s = (t - params.nominal_t0) / params.nominal_dt
+    last = jnp.maximum(params.nominal_len - 1, 0)
+    s = jnp.clip(s, 0.0, last.astype(s.dtype))
+    k0 = jnp.floor(s).astype(jnp.int32)
+    k1 = jnp.minimum(k0 + 1, last)
+    w = (s - k0)[:, None]
+    idx = jnp.arange(params.n_vehicles)
+    a, b = params.nominal_states[idx, k0], params.nominal_states[idx, k1]
+    pos = (1 - w) * a[:, :2] + w * b[:, :2]
+    head = wrap_angle(a[:, 2] + w[:, 0] * wrap_angle(b[:, 2] - a[:, 2]))
+    return jnp.concatenate([pos, head[:, None]], axis=1), params.nominal_controls[idx, k0]
+
+
+def building_distance(params: EnvParams, p):
+    """Signed distance to the buildings at positions ``p`` (..., 2) [m] (bilinear in the table)."""
+    grid = params.sdf_grid
+    q = jnp.clip(p, jnp.asarray(grid.lo), jnp.asarray(grid.hi))
+    flat = q.reshape(-1, 2)
+    d = jax.vmap(lambda z: hj.interpolation.interpolate(grid, params.sdf, z))(flat)
+    return d.reshape(p.shape[:-1])
+
+
+# ------------------------------------------------------------------------------------------------ reset
+def reset(key, params: EnvParams) -> EnvState:
+    """A new episode at ``params.t_start``: vehicles already departed are on their nominal trajectories (zero
+    tracking error), the others wait; the intruder appears at ``t_ ~ U(appear_window)``."""
+    n = params.n_vehicles
+    k_appear, k_wind, k_intruder, k_spawn = jax.random.split(key, 4)
+    t0 = params.t_start
+    lo, hi = params.appear_window[0], params.appear_window[1]
+    t_appear = lo + (hi - lo) * jax.random.uniform(k_appear, (), dtype=t0.dtype)
+    x_nom, _ = nominal_reference(params, t0)
+    departed = params.departure <= t0
+    arrived = departed & (jnp.hypot(*(x_nom[:, :2] - params.targets).T) <= params.target_radii)
+    status = jnp.where(arrived, ARRIVED, jnp.where(departed, FLYING, WAITING)).astype(jnp.int32)
+    x = jnp.where(departed[:, None], x_nom, params.starts)
+    # The spawn state, drawn now from the nominal states at the first step time >= t_ (see spawn.spawn).
+    t_app = t0 + jnp.ceil(jnp.maximum(t_appear - t0, 0.0) / params.dt - 1e-4) * params.dt
+    x_app, _ = nominal_reference(params, t_app)
+    d_app = jnp.hypot(*(x_app[:, :2] - params.targets).T)
+    fly_app = (params.departure <= t_app) & (d_app > params.target_radii)
+    x_spawn = spawn_lib.spawn(k_spawn, x_app, fly_app, params)
+    inf = jnp.full((n,), jnp.inf, t0.dtype)
+    state = EnvState(
+        t=t0,
+        step_count=jnp.zeros((), jnp.int32),
+        x=x,
+        status=status,
+        mode=jnp.full((n,), NOMINAL, jnp.int32),
+        avoid_start=inf,
+        complied=jnp.ones((n,), bool),
+        assumption_ok=jnp.ones((n,), bool),
+        used_filter=jnp.zeros((n,), bool),
+        min_separation=inf,
+        arrival_time=jnp.where(arrived, t0, jnp.inf),
+        collision_time=inf,
+        collided_with_intruder=jnp.zeros((n,), bool),
+        guarantee_violation=jnp.zeros((n,), bool),
+        wind=wind_lib.initial_wind(k_wind, params),
+        intruder_x=jnp.zeros((3,), t0.dtype),
+        intruder_status=jnp.asarray(PENDING, jnp.int32),
+        t_appear=t_appear,
+        intruder_key=k_intruder,
+        intruder_memory=jnp.concatenate([x_spawn, jnp.zeros((1,), t0.dtype)]),
+        intruder_distance=inf,
+        avoid_value=jnp.full((n,), tables.FAR, t0.dtype),
+    )
+    return lifecycle(state, params)
+
+
+# ------------------------------------------------------------------------------------------------ helpers
+def flying(state: EnvState):
+    return state.status == FLYING
+
+
+def intruder_present(state: EnvState):
+    return state.intruder_status == PRESENT
+
+
+def avoid_values(params: EnvParams, state: EnvState):
+    """``V^A`` of each vehicle against the intruder ``(N,)``; ``FAR`` when not flying or no intruder."""
+    vals = tables.vehicle_intruder_values(params, state)
+    ok = flying(state) & intruder_present(state)
+    return jnp.where(ok, vals, tables.FAR)
+
+
+def avoidance_actions(params: EnvParams, state: EnvState):
+    """``u^A`` (eq. 15) of every vehicle against the present intruder, as actions ``(N, 2)``."""
+    tau = state.t - state.t_appear
+    rel = relative_state(state.x, state.intruder_x[None, :])
+    u = jax.vmap(lambda r: tables.avoidance_control(params, tau, r))(rel)
+    return control_to_action(u[:, 0], u[:, 1], params.vehicle_bounds)
+
+
+def done_vehicles(state: EnvState):
+    return state.status >= ARRIVED
+
+
+def episode_over(state: EnvState, params: EnvParams):
+    """``(terminated, truncated)``: every vehicle done and the intruder gone; or the time limit."""
+    terminated = jnp.all(done_vehicles(state)) & (state.intruder_status == GONE)
+    truncated = (state.t >= params.t_end - 1e-6 * params.dt) & ~terminated
+    return terminated, truncated
+
+
+# ------------------------------------------------------------------------------------------------ step
+def lifecycle(state: EnvState, params: EnvParams) -> EnvState:
+    """Items 1-3 of the module docstring at the state's time ``t``. ``reset`` and ``step`` end with it, so every
+    state a policy sees is up to date (a vehicle knows it is forced in the step it is)."""
+    t = state.t
+    # 1. the intruder leaves ...
+    leaving = intruder_present(state) & (t - state.t_appear >= params.t_iat - 1e-6 * params.dt)
+    mode = jnp.where(leaving & (state.mode == AVOIDING), AFTER_AVOIDANCE, state.mode)
+    intruder_status = jnp.where(leaving, GONE, state.intruder_status)
+    state = replace(state, mode=mode, intruder_status=intruder_status)
+    # 2. departures
+    depart = (state.status == WAITING) & (t >= params.departure - 1e-6 * params.dt)
+    state = replace(state, status=jnp.where(depart, FLYING, state.status),
+                    x=jnp.where(depart[:, None], params.starts, state.x))
+    # ... or appears (after departures, so that vehicles taking off now count)
+    appear = (state.intruder_status == PENDING) & (t >= state.t_appear - 1e-6 * params.dt)
+    state = replace(state,
+                    intruder_x=jnp.where(appear, state.intruder_memory[:3], state.intruder_x),
+                    t_appear=jnp.where(appear, t, state.t_appear),
+                    intruder_status=jnp.where(appear, PRESENT, state.intruder_status))
+    # Assumption 3 per vehicle: checked when the intruder appears, or when a vehicle takes off while it is here.
+    vals = avoid_values(params, state)
+    check = (appear & flying(state)) | (depart & intruder_present(state))
+    assumption_ok = jnp.where(check, vals > params.avoid_margin, state.assumption_ok)
+    # 3. avoid start (eqs. 17-18)
+    start = flying(state) & intruder_present(state) & (state.mode == NOMINAL) & (vals <= params.avoid_margin)
+    d_int = jnp.where(flying(state) & intruder_present(state),
+                      jnp.hypot(*(state.x[:, :2] - state.intruder_x[None, :2]).T), jnp.inf)
+    return replace(state, assumption_ok=assumption_ok, intruder_distance=d_int, avoid_value=vals,
+                   mode=jnp.where(start, AVOIDING, state.mode),
+                   avoid_start=jnp.where(start, t, state.avoid_start))
+
+
+def step(key, state: EnvState, actions, params: EnvParams):
+    """Advance one step from ``t`` to ``t + dt``. ``actions``: ``(N + 1, 2)`` in ``[-1, 1]`` (vehicles, then the
+    intruder; clipped; NaN is the adapters' job to reject). Returns ``(state, rewards)``, rewards ``(N + 1,)``."""
+    k_wind = key
+    n = params.n_vehicles
+    w = params.reward_weights
+    fly = flying(state)
+    present = intruder_present(state)
+
+    # 4. controls (the safety filter of eq. 38)
+    actions = jnp.clip(actions, -1.0, 1.0)
+    a_veh = actions[:n]
+    avoiding = fly & present & (state.mode == AVOIDING)
+    a_avoid = avoidance_actions(params, state)
+    use_filter = avoiding & params.safety_filter
+    a_veh = jnp.where(use_filter[:, None], a_avoid, a_veh)
+    complied = state.complied & ~(avoiding & (jnp.max(jnp.abs(a_veh - a_avoid), axis=1) > COMPLIANCE_TOL))
+    v, om = action_to_control(a_veh, params.vehicle_bounds)
+    v_i, om_i = action_to_control(actions[n], params.intruder_bounds)
+
+    # 5. wind and motion
+    winds, head_dist, wind_state = wind_lib.sample(k_wind, state, params)
+    x_new = dubins_step(state.x, v, om + head_dist[:n], winds[:n], params.dt)
+    x = jnp.where(fly[:, None], x_new, state.x)
+    xi_new = dubins_step(state.intruder_x, v_i, om_i + head_dist[n], winds[n], params.dt)
+    xi = jnp.where(present, xi_new, state.intruder_x)
+    t = state.t + params.dt
+
+    # 6. events
+    p = x[:, :2]
+    lo, hi = params.domain_lo, params.domain_hi
+    out = fly & jnp.any((p < lo) | (p > hi), axis=1)
+    hit_building = fly & (building_distance(params, p) <= 0.0)
+    diff = p[:, None, :] - p[None, :, :]
+    dist = jnp.sqrt(jnp.sum(diff ** 2, axis=-1) + jnp.eye(n) * 1e30)
+    pair_ok = fly[:, None] & fly[None, :]
+    dist = jnp.where(pair_ok, dist, jnp.inf)
+    hit_vehicle = jnp.any(dist <= params.collision_radius, axis=1)
+    d_int = jnp.where(fly & present, jnp.hypot(*(p - xi[None, :2]).T), jnp.inf)
+    hit_intruder = d_int <= params.collision_radius
+    collided = fly & (hit_vehicle | hit_intruder | hit_building)
+    d_target = jnp.hypot(*(p - params.targets).T)
+    arrived = fly & ~collided & ~out & (d_target <= params.target_radii)
+    status = jnp.where(collided, COLLIDED, jnp.where(out, OUT_OF_BOUNDS, jnp.where(arrived, ARRIVED, state.status)))
+    min_sep = jnp.minimum(state.min_separation, jnp.where(fly, jnp.minimum(jnp.min(dist, axis=1), d_int), jnp.inf))
+    violation = collided & state.assumption_ok & complied
+
+    new_state = replace(
+        state, t=t, step_count=state.step_count + 1, x=x, status=status.astype(jnp.int32),
+        complied=complied, used_filter=use_filter, min_separation=min_sep,
+        arrival_time=jnp.where(arrived, t, state.arrival_time),
+        collision_time=jnp.where(collided, t, state.collision_time),
+        collided_with_intruder=state.collided_with_intruder | (collided & hit_intruder),
+        guarantee_violation=state.guarantee_violation | violation,
+        wind=wind_state, intruder_x=xi, intruder_distance=d_int,
+    )
+    new_state = lifecycle(new_state, params)
+
+    # rewards (weights: progress, arrival, late_arrival, collision, forced, intruder_collision, shaping)
+    d_prev = jnp.hypot(*(state.x[:, :2] - params.targets).T)
+    r_veh = jnp.where(fly, w[0] * (d_prev - d_target), 0.0)
+    on_time = t <= params.sta + 1e-6
+    r_veh = r_veh + jnp.where(arrived, jnp.where(on_time, w[1], w[2]), 0.0) + jnp.where(collided, w[3], 0.0)
+    newly_forced = jnp.isfinite(new_state.avoid_start) & ~jnp.isfinite(state.avoid_start)
+    intruder_hits = collided & (hit_intruder | (hit_vehicle & jnp.isfinite(state.avoid_start)))
+    r_int = w[4] * jnp.sum(newly_forced) + w[5] * jnp.sum(intruder_hits)
+    shaping = w[6] * (_potential(state, params) - _potential(new_state, params))
+    r_int = r_int + jnp.where(present & intruder_present(new_state), shaping, 0.0)
+    rewards = jnp.concatenate([r_veh, r_int[None]]).astype(jnp.float32)
+    return new_state, rewards
+
+
+def _potential(state: EnvState, params: EnvParams):
+    """``min_i V^A_i`` over unforced flying vehicles (the intruder's shaping potential), capped at ``d_sense``."""
+    ok = flying(state) & ~jnp.isfinite(state.avoid_start)
+    return jnp.minimum(jnp.min(jnp.where(ok, state.avoid_value, jnp.inf)), params.d_sense)
+
+
+# ------------------------------------------------------------------------------------------------ observations
+def _scale(params: EnvParams):
+    center = 0.5 * (params.domain_lo + params.domain_hi)
+    half = 0.5 * jnp.max(params.domain_hi - params.domain_lo)
+    return center, half
+
+
+def vehicle_observation_size(params: EnvParams) -> int:
+    return 20 + 5 * params.n_nearest
+
+
+def intruder_observation_size(params: EnvParams) -> int:
+    return 8 + 7 * params.n_nearest
+
+
+def _nearest(p_from, p_all, valid, k):
+    """Indices of the ``k`` nearest valid points to each row of ``p_from`` and whether each exists."""
+    d = jnp.sqrt(jnp.sum((p_from[:, None, :] - p_all[None, :, :]) ** 2, axis=-1))
+    d = jnp.where(valid, d, jnp.inf)
+    neg, idx = jax.lax.top_k(-d, k)
+    return idx, jnp.isfinite(neg)
+
+
+def observe(state: EnvState, params: EnvParams):
+    """Observations ``(vehicle_obs (N, 20 + 5K), intruder_obs (8 + 7K,))``, every entry in ``[-2, 2]``.
+
+    Vehicle row (positions scaled by the domain half-size ``L``, relative ones by ``d_sense``):
+
+    ====== =====================================================================================
+    0-1    own position ``(p - centre) / L``
+    2-3    ``cos theta, sin theta``
+    4-6    flying, finished (arrived / collided / out), waiting flags
+    7-8    avoiding, after-avoidance flags
+    9      ``(STA - t) / T`` (``T`` = episode length)
+    10-11  target centre in the body frame ``/ L``
+    12-15  tracking error in the body frame: ``e_x, e_y`` ``/ (10 r_e)``, ``cos e_theta, sin e_theta``
+    16-19  intruder within ``d_sense``: visible flag, ``p_x, p_y`` in the body frame ``/ d_sense``, and
+           ``V^A / d_sense`` (1 when not visible)
+    20+    the ``K`` nearest flying vehicles: present flag, ``p_x, p_y`` (body frame) ``/ d_sense``,
+           ``cos, sin`` of the relative heading
+    ====== =====================================================================================
+
+    Intruder row: present flag; position ``/ L`` (2); ``cos, sin``; ``tau / t_IAT``; time until it appears
+    ``/ T``; ``|N^RP| / N``; then for the ``K`` nearest flying vehicles: present flag, their position in the
+    intruder's body frame ``/ d_sense`` (2), ``cos, sin`` of their heading relative to the intruder's, the avoid
+    value ``V^A / d_sense`` of that vehicle against the intruder, forced flag.
+    """
+    n, k = params.n_vehicles, params.n_nearest
+    center, half = _scale(params)
+    ds = params.d_sense
+    T = jnp.maximum(params.t_end - params.t_start, 1.0)
+    fly = flying(state)
+    present = intruder_present(state)
+    x = state.x
+    c, s = jnp.cos(x[:, 2]), jnp.sin(x[:, 2])
+    done = done_vehicles(state)
+    target_body = rotate(-x[:, 2], params.targets - x[:, :2]) / half
+    x_ref, _ = nominal_reference(params, state.t)
+    err = relative_state(x, x_ref)
+    r_scale = 10.0 * jnp.maximum(params.tracking_bound, 1e-6)
+    rel_i = relative_state(x, state.intruder_x[None, :])
+    vals = state.avoid_value
+    visible = fly & present & (jnp.hypot(rel_i[:, 0], rel_i[:, 1]) <= ds)
+    intr = jnp.stack([visible.astype(x.dtype), rel_i[:, 0] / ds, rel_i[:, 1] / ds,
+                      jnp.where(visible, jnp.minimum(vals / ds, 1.0), 1.0)], axis=1)
+    intr = intr * jnp.concatenate([jnp.ones((n, 1)), jnp.repeat(visible[:, None], 2, 1), jnp.ones((n, 1))], 1)
+    own = jnp.concatenate([
+        (x[:, :2] - center) / half, c[:, None], s[:, None],
+        fly[:, None], done[:, None], (state.status == WAITING)[:, None],
+        (state.mode == AVOIDING)[:, None], (state.mode == AFTER_AVOIDANCE)[:, None],
+        ((params.sta - state.t) / T)[:, None], target_body,
+        err[:, :2] / r_scale, jnp.cos(err[:, 2:3]), jnp.sin(err[:, 2:3]),
+    ], axis=1).astype(x.dtype)
+    parts = [own, intr]
+    if k > 0:
+        valid = fly[None, :] & ~jnp.eye(n, dtype=bool)
+        kk = min(k, n)
+        idx, exists = _nearest(x[:, :2], x[:, :2], valid, kk)
+        exists = exists & fly[:, None]
+        other = x[idx]                                            # (N, kk, 3)
+        rel = relative_state(x[:, None, :], other)                # (N, kk, 3)
+        block = jnp.stack([exists.astype(x.dtype), rel[..., 0] / ds, rel[..., 1] / ds,
+                           jnp.cos(rel[..., 2]), jnp.sin(rel[..., 2])], axis=-1) * exists[..., None]
+        block = block.reshape(n, 5 * kk)
+        if kk < k:
+            block = jnp.concatenate([block, jnp.zeros((n, 5 * (k - kk)), x.dtype)], axis=1)
+        parts.append(block)
+    vehicle_obs = jnp.clip(jnp.concatenate(parts, axis=1), -2.0, 2.0)
+
+    xi = state.intruder_x
+    tau = state.t - state.t_appear
+    own_i = jnp.stack([present.astype(x.dtype), (xi[0] - center[0]) / half, (xi[1] - center[1]) / half,
+                       jnp.cos(xi[2]), jnp.sin(xi[2]), jnp.where(present, tau / params.t_iat, 0.0),
+                       jnp.where(state.intruder_status == PENDING, (state.t_appear - state.t) / T, 0.0),
+                       jnp.sum(jnp.isfinite(state.avoid_start)) / n])
+    own_i = own_i * jnp.where(present, 1.0, jnp.asarray([1, 0, 0, 0, 0, 1, 1, 1], x.dtype))
+    parts_i = [own_i]
+    if k > 0:
+        kk = min(k, n)
+        idx, exists = _nearest(xi[None, :2], x[:, :2], fly[None, :], kk)
+        idx, exists = idx[0], exists[0] & present
+        rel = relative_state(xi[None, :], x[idx])                 # (kk, 3)
+        block = jnp.stack([exists.astype(x.dtype), rel[:, 0] / ds, rel[:, 1] / ds, jnp.cos(rel[:, 2]),
+                           jnp.sin(rel[:, 2]), jnp.minimum(vals[idx] / ds, 1.0),
+                           jnp.isfinite(state.avoid_start[idx]).astype(x.dtype)], axis=-1) * exists[:, None]
+        block = block.reshape(7 * kk)
+        if kk < k:
+            block = jnp.concatenate([block, jnp.zeros((7 * (k - kk),), x.dtype)])
+        parts_i.append(block)
+    intruder_obs = jnp.clip(jnp.concatenate(parts_i), -2.0, 2.0)
+    return vehicle_obs, intruder_obs

@@ -1,0 +1,95 @@
+"""Where the intruder appears (Assumptions 1 and 3; Observation 1 of the intruder paper).
+
+* ``"outside"``: candidates uniform within ``spawn_radius`` of a random flying vehicle (uniform in the domain when
+  none flies), random heading; the first candidate inside the domain and outside every flying vehicle's avoid
+  region ``{V^A(0, t_IAT) <= margin}`` is taken.
+* ``"boundary"``: candidates on the boundary of a random flying vehicle's avoid region (a random bearing and
+  relative heading, the radius found by bisection of ``V^A(0, t_IAT) = margin + 1 m`` along the bearing), kept if
+  inside the domain and outside every other vehicle's avoid region: the most dangerous legal start.
+
+``M`` candidates are drawn at once (fixed shapes under jit). If none is legal, the candidate with the largest
+smallest avoid value is used, and the vehicles whose region it lies in get ``assumption_ok = False`` (the core
+checks this for every vehicle when the intruder appears).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from stp_env.sim import tables
+from stp_env.sim.physics import relative_state, rotate, wrap_angle
+from stp_env.sim.types import EnvParams
+
+N_CANDIDATES = 64
+N_BISECT = 24
+SPAWN_CLEARANCE = 2.0  # extra clearance from the avoid regions, in tracking-error bounds r_e
+
+
+def _min_value(params: EnvParams, x, fly, xi):
+    """Smallest ``V^A(0)`` over flying vehicles for an intruder at ``xi`` (``FAR`` if none flies)."""
+    rel = relative_state(x, xi[None, :])
+    vals = jax.vmap(lambda r: tables.avoid_value(params, 0.0, r))(rel)
+    return jnp.min(jnp.where(fly, vals, tables.FAR))
+
+
+def _random_flying(key, fly):
+    logits = jnp.where(fly, 0.0, -jnp.inf)
+    j = jax.random.categorical(key, jnp.where(jnp.any(fly), logits, 0.0))
+    return j, jnp.any(fly)
+
+
+def _candidate_outside(key, x, fly, params: EnvParams):
+    k1, k2, k3, k4 = jax.random.split(key, 4)
+    j, any_fly = _random_flying(k1, fly)
+    u = jax.random.uniform(k2, (2,))
+    r = params.collision_radius + (params.spawn_radius - params.collision_radius) * jnp.sqrt(u[0])
+    a = 2 * jnp.pi * u[1]
+    near = x[j, :2] + r * jnp.array([jnp.cos(a), jnp.sin(a)])
+    anywhere = params.domain_lo + jax.random.uniform(k3, (2,)) * (params.domain_hi - params.domain_lo)
+    p = jnp.where(any_fly, near, anywhere)
+    theta = jax.random.uniform(k4, (), minval=-jnp.pi, maxval=jnp.pi)
+    return jnp.array([p[0], p[1], theta])
+
+
+def _candidate_boundary(key, x, fly, params: EnvParams):
+    k1, k2, k3 = jax.random.split(key, 3)
+    j, any_fly = _random_flying(k1, fly)
+    bearing = jax.random.uniform(k2, (), minval=-jnp.pi, maxval=jnp.pi)
+    rel_heading = jax.random.uniform(k3, (), minval=-jnp.pi, maxval=jnp.pi)
+    direction = jnp.array([jnp.cos(bearing), jnp.sin(bearing)])
+    level = params.avoid_margin + SPAWN_CLEARANCE * params.tracking_bound + 1.0
+    grid = params.avoid_grid
+    r_hi0 = 0.999 * min(-grid.lo[0], grid.hi[0], -grid.lo[1], grid.hi[1])  # inside the table on every bearing
+
+    def value(r):
+        return tables.avoid_value(params, 0.0, jnp.array([r * direction[0], r * direction[1], rel_heading]))
+
+    def bisect(_, lohi):
+        lo, hi = lohi
+        mid = 0.5 * (lo + hi)
+        inside = value(mid) <= level
+        return jnp.where(inside, mid, lo), jnp.where(inside, hi, mid)
+
+    _, hi = jax.lax.fori_loop(0, N_BISECT, bisect, (jnp.zeros(()), jnp.asarray(r_hi0, jnp.float32)))
+    p_rel = hi * direction
+    xj = x[j]
+    p = xj[:2] + rotate(xj[2], p_rel)
+    cand = jnp.array([p[0], p[1], wrap_angle(xj[2] + rel_heading)])
+    return jnp.where(any_fly, cand, _candidate_outside(key, x, fly, params))
+
+
+def spawn(key, x, fly, params: EnvParams):
+    """The intruder's state at appearance (3,), for vehicles at ``x`` (N, 3) of which ``fly`` (N,) are flying.
+
+    The core calls it at reset with the *nominal* states at the appearance time (vehicles track their plans
+    within ``r_e`` until then), so candidates keep ``2 r_e`` of extra clearance from the avoid regions; the core
+    checks Assumption 3 again against the actual states when the intruder appears."""
+    keys = jax.random.split(key, N_CANDIDATES)
+    make = _candidate_boundary if params.spawn_mode == "boundary" else _candidate_outside
+    cands = jax.vmap(lambda k: make(k, x, fly, params))(keys)
+    inside = jnp.all((cands[:, :2] >= params.domain_lo) & (cands[:, :2] <= params.domain_hi), axis=1)
+    minv = jax.vmap(lambda c: _min_value(params, x, fly, c))(cands)
+    legal = inside & (minv > params.avoid_margin + SPAWN_CLEARANCE * params.tracking_bound)
+    fallback = jnp.argmax(jnp.where(inside, minv, -jnp.inf))
+    return cands[jnp.where(jnp.any(legal), jnp.argmax(legal), fallback)]

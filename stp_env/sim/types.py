@@ -1,0 +1,152 @@
+"""State and parameters of the pure simulation core (arrays only, so that ``reset`` and ``step`` jit and vmap).
+
+``EnvParams`` holds everything a step needs (bounds, plans, value tables); ``EnvState`` what changes every step.
+Both are pytrees (``jax.tree_util.register_dataclass``). Static sizes (vehicle count, grids, wind model) are
+metadata fields: they are part of the compiled program, so changing them recompiles; every array field can change
+without recompiling, and ``EnvState`` fields can be batched with ``vmap``.
+
+Frames and units: SI (m, s, rad), world frame for absolute states, headings wrapped to ``[-pi, pi)``. Relative
+states are in the vehicle's body frame (intruder paper eq. 44).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from stp_env.dynamics import RelativeDubins
+from stp_env.hj.grid import Grid
+
+# Vehicle statuses (EnvState.status).
+WAITING, FLYING, ARRIVED, COLLIDED, OUT_OF_BOUNDS = 0, 1, 2, 3, 4
+STATUS_NAMES = ("waiting", "flying", "arrived", "collided", "out_of_bounds")
+# Vehicle control modes (EnvState.mode): following the plan, avoiding the intruder (u^A, eq. 15), after avoidance
+# (eq. 40: heading for the target with the fallback controller).
+NOMINAL, AVOIDING, AFTER_AVOIDANCE = 0, 1, 2
+MODE_NAMES = ("nominal", "avoiding", "after_avoidance")
+# Intruder lifecycle (EnvState.intruder_status), Assumption 1.
+PENDING, PRESENT, GONE = 0, 1, 2
+INTRUDER_STATUS_NAMES = ("pending", "present", "gone")
+
+WIND_MODELS = ("uniform", "constant", "gusts", "worst")
+SPAWN_MODES = ("outside", "boundary")
+
+
+def _pytree(cls, meta=()):
+    fields = [f.name for f in dataclasses.fields(cls)]
+    return jax.tree_util.register_dataclass(cls, data_fields=[f for f in fields if f not in meta],
+                                            meta_fields=list(meta))
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvParams:
+    """Constants of an environment (see :func:`stp_env.sim.build.make_params`, which fills them from a scenario,
+    a plan and the reachability artifacts). ``N`` vehicles, ``K`` plan samples, ``S`` avoid-region slices.
+
+    Static (metadata, hashable):
+        n_vehicles, avoid_grid, tracking_grid, sdf_grid: sizes and grids.
+        avoid_dynamics: eq. (44) with the roles of eq. (14); tracking_dynamics: SPP eqs. (24)-(25).
+        wind_model: one of :data:`WIND_MODELS`. spawn_mode: one of :data:`SPAWN_MODES`.
+        safety_filter: override a vehicle's action with ``u^A`` from its avoid-start time (eq. 38).
+        n_nearest: vehicles listed in each observation.
+    """
+
+    # --- time
+    dt: jax.Array                 # () [s] step length (zero-order hold)
+    t_start: jax.Array            # () [s] episode start time (plan time axis)
+    t_end: jax.Array              # () [s] the episode is truncated here
+    # --- domain and bounds
+    domain_lo: jax.Array          # (2,) [m]
+    domain_hi: jax.Array          # (2,) [m]
+    vehicle_bounds: jax.Array     # (5,) v_min, v_max [m/s], omega_max [rad/s], wind [m/s], heading dist. [rad/s]
+    intruder_bounds: jax.Array    # (5,) the same for the intruder
+    collision_radius: jax.Array   # () R_c [m]
+    # --- plans (per vehicle)
+    departure: jax.Array          # (N,) [s] departure time (t_LDT)
+    sta: jax.Array                # (N,) [s]
+    starts: jax.Array             # (N, 3) [m, m, rad] state on the ground
+    targets: jax.Array            # (N, 2) [m]
+    target_radii: jax.Array       # (N,) [m]
+    nominal_t0: jax.Array         # (N,) [s] time of the first plan sample
+    nominal_dt: jax.Array         # () [s] plan sample period
+    nominal_states: jax.Array     # (N, K, 3) [m, m, rad], padded with the last sample
+    nominal_controls: jax.Array   # (N, K, 2) [m/s, rad/s]
+    nominal_len: jax.Array        # (N,) samples used
+    planning_v_max: jax.Array     # () [m/s] fastest planning speed (fallback controller)
+    # --- static obstacles
+    sdf: jax.Array                # sdf_grid.shape [m] signed distance to buildings (negative inside)
+    # --- reachability tables
+    avoid_taus: jax.Array         # (S,) [s] ascending
+    avoid_values: jax.Array       # (S, *avoid_grid.shape) V^A(tau_k, t_IAT) [m]
+    detection_range: jax.Array    # () d^A [m] (eq. 16)
+    tracking_grads: tuple         # 3 x tracking_grid.shape: gradient of W = -V of the tracking-error game
+    tracking_bound: jax.Array     # () r_e [m]
+    # --- intruder
+    t_iat: jax.Array              # () [s]
+    appear_window: jax.Array      # (2,) [s] the intruder appears at t_ ~ U[lo, hi] (lo == hi: fixed)
+    spawn_radius: jax.Array       # () [m] "outside" spawns lie within this distance of a flying vehicle
+    avoid_margin: jax.Array       # () [m] avoid start when V^A <= margin (one step of the fastest closing)
+    kbar: jax.Array               # () int, the bound under test
+    d_sense: jax.Array            # () [m] sensing range (>= d^A)
+    gust_time_constant: jax.Array  # () [s] correlation time of the "gusts" wind model
+    # --- rewards
+    reward_weights: jax.Array     # (7,) see stp_env.sim.config.RewardConfig.as_array
+    # --- static
+    n_vehicles: int
+    avoid_grid: Grid
+    tracking_grid: Grid
+    sdf_grid: Grid
+    avoid_dynamics: RelativeDubins
+    tracking_dynamics: RelativeDubins
+    wind_model: str = "uniform"
+    spawn_mode: str = "outside"
+    safety_filter: bool = True
+    n_nearest: int = 4
+
+
+EnvParams = _pytree(EnvParams, meta=("n_vehicles", "avoid_grid", "tracking_grid", "sdf_grid", "avoid_dynamics",
+                                     "tracking_dynamics", "wind_model",
+                                     "spawn_mode", "safety_filter", "n_nearest"))
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvState:
+    """Everything that changes during an episode (``N`` vehicles)."""
+
+    t: jax.Array                  # () [s]
+    step_count: jax.Array         # () int
+    x: jax.Array                  # (N, 3) [m, m, rad]
+    status: jax.Array             # (N,) int, WAITING / FLYING / ARRIVED / COLLIDED / OUT_OF_BOUNDS
+    mode: jax.Array               # (N,) int, NOMINAL / AVOIDING / AFTER_AVOIDANCE
+    avoid_start: jax.Array        # (N,) [s] t_i of eqs. 17-18 (inf: never)
+    complied: jax.Array           # (N,) bool: applied u^A at every step since t_i
+    assumption_ok: jax.Array      # (N,) bool: the intruder appeared outside this vehicle's avoid region
+    used_filter: jax.Array        # (N,) bool: the safety filter replaced this step's action
+    min_separation: jax.Array     # (N,) [m] smallest distance to another vehicle or the intruder so far
+    arrival_time: jax.Array       # (N,) [s] (inf: not arrived)
+    collision_time: jax.Array     # (N,) [s] (inf: none)
+    collided_with_intruder: jax.Array  # (N,) bool
+    guarantee_violation: jax.Array     # (N,) bool
+    wind: jax.Array               # (N + 1, 2) [m/s] current wind per agent (constant and gust models)
+    intruder_x: jax.Array         # (3,) [m, m, rad]
+    intruder_status: jax.Array    # () int, PENDING / PRESENT / GONE
+    t_appear: jax.Array           # () [s] t_
+    intruder_key: jax.Array       # key: randomness of scripted intruders for this episode
+    intruder_memory: jax.Array    # (4,) spawn state (x, y, theta) and 0, drawn at reset (scripted intruders read it)
+    intruder_distance: jax.Array  # (N,) [m] distance to the intruder (inf when absent)
+    avoid_value: jax.Array        # (N,) [m] V^A(t - t_, t_IAT) of each flying vehicle (FAR when absent)
+
+
+EnvState = _pytree(EnvState)
+
+
+def replace(obj: Any, **changes) -> Any:
+    return dataclasses.replace(obj, **changes)
+
+
+def n_forced(state: EnvState) -> jax.Array:
+    """``|N^RP|`` (eq. 39): vehicles forced to avoid the intruder so far."""
+    return jnp.sum(jnp.isfinite(state.avoid_start))
