@@ -99,12 +99,22 @@ def interpolate_in_time(times, values_stack, t):
 
 def interpolate_slices(grid: Grid, slice_times, stack, t, state):
     """``V(t, state)`` from value slices ``stack[k]`` at *ascending* ``slice_times``: linear in time, multilinear
-    in space, clamped outside the time range. Only the two bracketing slices are read (controllers call this
-    every step; :func:`interpolate_in_time` would blend whole grids)."""
+    in space, clamped outside the time range. Only the ``2 * 2^ndim`` nodes around ``(t, state)`` are read, by
+    scalar gathers into the whole stack (indexing ``stack[k]`` with a traced ``k`` would copy a whole slice, and
+    under ``vmap`` one slice per batch element)."""
     k = jnp.clip(jnp.searchsorted(slice_times, t, side="right") - 1, 0, slice_times.shape[0] - 2)
     span = slice_times[k + 1] - slice_times[k]
     w = jnp.clip(jnp.where(span > 0, (t - slice_times[k]) / span, 0.0), 0.0, 1.0)
-    return (1.0 - w) * interpolate(grid, stack[k], state) + w * interpolate(grid, stack[k + 1], state)
+    i0, i1, w1 = _corners(grid, state)
+    w0 = 1.0 - w1
+    out = 0.0
+    for corner in itertools.product((0, 1), repeat=grid.ndim):
+        idx = tuple(jnp.where(c, i1[d], i0[d]) for d, c in enumerate(corner))
+        weight = 1.0
+        for d, c in enumerate(corner):
+            weight = weight * (w1[d] if c else w0[d])
+        out = out + weight * ((1.0 - w) * stack[(k, *idx)] + w * stack[(k + 1, *idx)])
+    return out
 
 
 def gradient_slices(grid: Grid, slice_times, stack, t, state):
