@@ -189,21 +189,23 @@ def load_artifacts(scenario, *, store=None, progress: bool = True):
 
 
 def load_plan(scenario, *, tracking_bound: float, store=None, progress: bool = True):
-    """The shipped plan when ``scenario`` is a registry default that ships one, else the cached plan (planned on
-    first use)."""
-    from stp_env.planning.stp import cached_plan, shipped_plan
+    """The shipped plan when ``scenario`` is a registry default (at its ``kbar``) that ships one
+    (:func:`stp_env.planning.stp.shipped_plan_for`), else the cached plan (planned on first use)."""
+    from stp_env.planning.stp import cached_plan, shipped_plan_for
     from stp_env.scenarios import make, names
 
     if scenario.name in names():
-        try:
-            default = make(scenario.name)
-        except (TypeError, ValueError):
-            default = None
-        if default == scenario:
+        for kbar in (scenario.kbar, None):
             try:
-                return shipped_plan(scenario.name)
-            except ValueError:
-                pass
+                default = make(scenario.name) if kbar is None else make(scenario.name, kbar=kbar)
+            except (TypeError, ValueError):
+                continue
+            if default == scenario:
+                for key in dict.fromkeys((scenario.kbar, None)):
+                    try:
+                        return shipped_plan_for(scenario.name, key)
+                    except ValueError:
+                        pass
     return cached_plan(scenario, tracking_bound=tracking_bound, store=store, progress=progress)
 
 
