@@ -101,7 +101,7 @@ def _rate(settings: SolverSettings, dynamics: ControlAffineDynamics, grid: Grid,
     p_mean = tuple(0.5 * (a + b) for a, b in zip(lefts, rights))
     ham = dynamics.hamiltonian_at(t, states, p_mean, dyn_params)
     if settings.dissipation == "local":
-        alpha = dynamics.partial_bounds(states)
+        alpha = dynamics.partial_bounds_at(t, states, dyn_params)
     else:
         alpha = tuple(global_alpha[i] for i in range(grid.ndim))
     diss = sum(a * (r - l) for a, l, r in zip(alpha, lefts, rights)) * 0.5
