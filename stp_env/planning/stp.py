@@ -14,8 +14,10 @@ SPP paper Section IV-C (robust trajectory tracking, eq. 27) and intruder paper A
 Static obstacles (buildings) are avoided by the vehicle's own bubble ``r_e`` and, intruder-aware, by the
 conservative ``V^S`` of eqs. (32)-(33) (:func:`stp_env.reach.obstacles.static_inflation_radius`).
 
-Not yet here: the centralized and least-restrictive induced-obstacle methods (they need forward reachable sets
-under closed-loop feedback). Replanning is in :mod:`stp_env.planning.replan`; plan caching in :func:`cached_plan`.
+The centralized and least-restrictive induced-obstacle methods (SPP Sections IV-A, IV-B: forward reachable sets
+under the enforced feedback, or of all controls intersected with the BRS) are in :mod:`stp_env.planning.methods`;
+:func:`plan_scenario` dispatches on ``Scenario.method``. Replanning is in :mod:`stp_env.planning.replan`; plan
+caching in :func:`cached_plan`.
 """
 
 from __future__ import annotations
@@ -183,7 +185,10 @@ def fold_contained_disks(lags: np.ndarray, radii: np.ndarray, speed: float):
 
 def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, horizon: float | None = None,
                   settings: hj.SolverSettings | None = None, progress: bool = True) -> Plan:
-    """Plans a registered :class:`stp_env.scenarios.Scenario` with robust trajectory tracking.
+    """Plans a registered :class:`stp_env.scenarios.Scenario` with its ``method``: robust trajectory tracking
+    (``"rtt"``, below) or the centralized / least-restrictive methods (:func:`stp_env.planning.methods.plan_methods`,
+    full control set, horizon by default twice the longest straight flight at ``v_max`` plus 1 s; intruder-aware
+    buffers are not available for them, and ``tracking_bound`` is not used).
 
     ``tracking_bound`` defaults to :func:`stp_env.reach.tracking.compute_tracking_bound` for the scenario's
     vehicle and ``U^p`` (cached in ``store``); intruder-aware scenarios (``kbar`` set) take their buffer radius
@@ -198,9 +203,20 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
     from stp_env.reach.tracking import default_tracking_bound
 
     if scenario.method != "rtt":
-        raise NotImplementedError(
-            f"scenario {scenario.name!r} asks for method {scenario.method!r}; only 'rtt' (robust trajectory "
-            "tracking) is implemented so far. Use make(name, method='rtt').")
+        from stp_env.planning.methods import plan_methods
+
+        if scenario.kbar is not None:
+            raise NotImplementedError(
+                f"scenario {scenario.name!r}: intruder-aware planning (kbar={scenario.kbar}) is implemented for "
+                f"method 'rtt' only, not {scenario.method!r}.")
+        if horizon is None:
+            dist = np.hypot(*(scenario.targets() - scenario.starts()[:, :2]).T)
+            horizon = 2.0 * float(dist.max()) / scenario.vehicle.v_max + 1.0
+        static = np.asarray(scenario.static_obstacle())[:, :, 0] if scenario.buildings else None
+        return plan_methods(scenario.grid(), scenario.vehicle, scenario.method, scenario.collision_radius,
+                            scenario.starts(), scenario.targets(), scenario.target_radii(), scenario.stas(),
+                            scenario.priorities(), horizon=horizon, static_obstacle=static, settings=settings,
+                            time_step=scenario.time_step, progress=progress).plan
     store = ArtifactStore() if store is None else store
     vehicle = scenario.vehicle
     if tracking_bound is None:
