@@ -1,0 +1,153 @@
+"""The intruder's single-agent view of the simulation core, as pure JAX functions (one env and a batch).
+
+The vehicles are driven by a baseline policy (:data:`stp_env.baselines.VEHICLE_POLICIES`, ``switching`` =
+``u*`` of eq. 38 by default) inside the step; the only action from outside is the intruder's ``(2,)``.
+
+Horizons (what one intruder episode is):
+
+* ``"intruder"`` (default, for training): the episode starts when the intruder appears and ends (terminated) when
+  it leaves, ``t_IAT`` later (Assumption 1). The appearance time ``t_`` is drawn uniformly on the core's step grid
+  within ``params.appear_window``, and the core is reset *at* ``t_`` (:func:`stp_env.sim.reset` with
+  ``t_start = t_``): vehicles already in the air start on their nominal trajectories. This skips the steps in
+  which the intruder's actions are ignored (before it appears and after it leaves), which are 90 % of a core
+  episode for ``town``. Collisions after the intruder has left are not part of its return.
+* ``"episode"``: the core's episode (``t_start`` to ``t_end``, see :class:`stp_env.sim.EnvConfig`); terminated
+  when every vehicle is done and the intruder gone, truncated at ``t_end`` (``TimeLimit.truncated``).
+
+Keys: each env carries one ``jax.random`` key. A reset splits it into ``(key, k_reset)``, a step into
+``(key, k_step)``; seeding an env with ``seed`` sets its key to :func:`key_for_seed` ``(seed)``. The Gymnasium env and
+the batched VecEnv follow the same rule, so a VecEnv seeded with ``s`` reproduces ``n`` Gymnasium envs seeded
+with ``s, s + 1, ..., s + n - 1`` (SB3's convention).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+
+from stp_env import sim
+from stp_env.baselines import VEHICLE_POLICIES
+from stp_env.sim import core
+from stp_env.sim.types import COLLIDED, GONE, EnvParams, EnvState, replace
+
+HORIZONS = ("intruder", "episode")
+
+
+def key_for_seed(seed: int):
+    """The env key of an integer seed (a raw ``uint32`` key, so that batches of keys and states can be selected
+    with ``jnp.where``)."""
+    return jax.random.PRNGKey(int(seed) % 2**32)
+
+
+def check_horizon(horizon: str) -> str:
+    if horizon not in HORIZONS:
+        raise ValueError(f"horizon {horizon!r} is not known; allowed: {', '.join(HORIZONS)}.")
+    return horizon
+
+
+def check_vehicle_policy(name: str):
+    if name not in VEHICLE_POLICIES:
+        raise ValueError(f"unknown vehicle policy {name!r}; allowed: {', '.join(VEHICLE_POLICIES)}.")
+    return VEHICLE_POLICIES[name]
+
+
+def reset_one(key, params: EnvParams, horizon: str) -> EnvState:
+    """A new intruder episode (see the module docstring for the horizons)."""
+    if horizon == "episode":
+        return core.reset(key, params)
+    k_time, k_reset = jax.random.split(key)
+    lo, hi = params.appear_window[0], params.appear_window[1]
+    first = jnp.ceil((lo - params.t_start) / params.dt - 1e-4)
+    last = jnp.maximum(jnp.floor((hi - params.t_start) / params.dt + 1e-4), first)
+    k = first + jnp.floor(jax.random.uniform(k_time, ()) * (last - first + 1.0))
+    t_appear = params.t_start + jnp.minimum(k, last) * params.dt
+    at_appear = replace(params, t_start=t_appear, appear_window=jnp.stack([t_appear, t_appear]))
+    return core.reset(k_reset, at_appear)
+
+
+def step_one(key, state: EnvState, action, params: EnvParams, vehicle_policy):
+    """One core step: the vehicles' baseline actions and the intruder's ``action`` ``(2,)``.
+    Returns ``(state, intruder_reward)``."""
+    k_vehicles, k_step = jax.random.split(key)
+    a_vehicles = vehicle_policy(k_vehicles, state, params)
+    actions = jnp.concatenate([a_vehicles, jnp.asarray(action, a_vehicles.dtype)[None, :]], axis=0)
+    state, rewards = core.step(k_step, state, actions, params)
+    return state, rewards[-1]
+
+
+def episode_end(state: EnvState, params: EnvParams, horizon: str):
+    """``(terminated, truncated)`` of the intruder's episode."""
+    terminated, truncated = core.episode_over(state, params)
+    if horizon == "intruder":
+        terminated = terminated | (state.intruder_status == GONE)
+        truncated = truncated & ~terminated
+    return terminated, truncated
+
+
+def episode_stats(state: EnvState):
+    """Numbers reported in the infos: ``|N^RP|`` (eq. 39), collisions, guarantee violations so far, time [s]."""
+    return {
+        "n_forced": sim.n_forced(state).astype(jnp.int32),
+        "collisions": jnp.sum(state.status == COLLIDED).astype(jnp.int32),
+        "intruder_collisions": jnp.sum(state.collided_with_intruder).astype(jnp.int32),
+        "guarantee_violations": jnp.sum(state.guarantee_violation).astype(jnp.int32),
+        "time": state.t,
+    }
+
+
+def intruder_obs(state: EnvState, params: EnvParams):
+    return core.observe(state, params)[1].astype(jnp.float32)
+
+
+# ------------------------------------------------------------------------------------------------ one env
+@functools.partial(jax.jit, static_argnames=("horizon",))
+def env_reset(key, params: EnvParams, horizon: str):
+    """``(key, state, obs)``: the env key after the reset split, the new state, the intruder's observation."""
+    key, k_reset = jax.random.split(key)
+    state = reset_one(k_reset, params, horizon)
+    return key, state, intruder_obs(state, params)
+
+
+@functools.partial(jax.jit, static_argnames=("horizon", "vehicle_policy"))
+def env_step(key, state: EnvState, action, params: EnvParams, horizon: str, vehicle_policy):
+    """``(key, state, obs, reward, terminated, truncated, stats)`` without auto-reset (Gymnasium API)."""
+    key, k_step = jax.random.split(key)
+    state, reward = step_one(k_step, state, action, params, vehicle_policy)
+    terminated, truncated = episode_end(state, params, horizon)
+    return key, state, intruder_obs(state, params), reward, terminated, truncated, episode_stats(state)
+
+
+# ------------------------------------------------------------------------------------------------ batch
+@functools.partial(jax.jit, static_argnames=("horizon",))
+def batch_reset(keys, params: EnvParams, horizon: str):
+    """:func:`env_reset` for a batch of keys ``(n,)``."""
+    return jax.vmap(env_reset.__wrapped__, in_axes=(0, None, None))(keys, params, horizon)
+
+
+@functools.partial(jax.jit, static_argnames=("horizon", "vehicle_policy"))
+def batch_step(keys, states: EnvState, actions, params: EnvParams, horizon: str, vehicle_policy):
+    """One step of ``n`` envs with auto-reset, in one compiled program.
+
+    Returns ``(keys, states, obs, rewards, terminated, truncated, terminal_obs, stats)``: ``obs`` are the
+    observations after the auto-reset of the finished envs, ``terminal_obs`` and ``stats`` those of the state
+    the step reached (before the reset). The reset branch runs only when some env finished.
+    """
+    step = jax.vmap(env_step.__wrapped__, in_axes=(0, 0, 0, None, None, None))
+    keys, states, obs, rewards, terminated, truncated, stats = step(keys, states, actions, params, horizon,
+                                                                    vehicle_policy)
+    done = terminated | truncated
+
+    def reset_done(operand):
+        keys, states, obs = operand
+        new_keys, new_states, new_obs = batch_reset.__wrapped__(keys, params, horizon)
+
+        def pick(a, b):
+            return jnp.where(done.reshape(done.shape + (1,) * (a.ndim - 1)), a, b)
+
+        return pick(new_keys, keys), jax.tree.map(pick, new_states, states), pick(new_obs, obs)
+
+    keys, next_states, next_obs = jax.lax.cond(jnp.any(done), reset_done, lambda operand: operand,
+                                               (keys, states, obs))
+    return keys, next_states, next_obs, rewards, terminated, truncated, obs, stats

@@ -1,0 +1,99 @@
+"""The intruder as a single-agent Gymnasium environment (the vehicles run a baseline policy inside the core).
+
+================  ==========================================================================================
+observation       ``Box(-2, 2, (8 + 7K,), float32)``: :func:`stp_env.sim.observe`'s intruder row (present flag,
+                  position, heading, ``tau / t_IAT``, time to appear, ``|N^RP| / N``, then the ``K`` nearest
+                  flying vehicles in its body frame with their avoid values ``V^A`` and forced flags)
+action            ``Box(-1, 1, (2,), float32)``: speed in ``[v_min, v_max]`` and turn rate in
+                  ``[-omega_max, omega_max]`` of the intruder (clipped; NaN or a wrong shape is a ``ValueError``)
+reward            the core's intruder reward (:class:`stp_env.sim.RewardConfig`: ``forced`` per vehicle newly
+                  forced to avoid, ``intruder_collision`` per collision it causes, ``shaping`` by ``min V^A``)
+episode           ``horizon="intruder"``: from its appearance until it leaves (``t_IAT``); ``"episode"``: the
+                  core's episode. See :mod:`stp_env.rl.functional`.
+info              ``n_forced`` (``|N^RP|``, eq. 39), ``kbar``, ``collisions``, ``intruder_collisions``,
+                  ``guarantee_violations``, ``time`` [s]
+================  ==========================================================================================
+
+Seeding: ``reset(seed=s)`` sets the env's key to ``key_for_seed(s)``; later resets continue from it, so episodes
+after a seeded reset are reproducible. ``reset()`` without a seed before any seeded reset draws the key from
+Gymnasium's ``np_random``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import jax
+import numpy as np
+
+from stp_env import sim
+from stp_env.rl import functional as F
+from stp_env.sim.core import intruder_observation_size
+
+
+def build_params(scenario="town", config: sim.EnvConfig | None = None, *, params=None, store=None) -> sim.EnvParams:
+    """``params`` if given, else :func:`stp_env.sim.params_for` of the scenario and config."""
+    if params is not None:
+        if scenario != "town" or config is not None:
+            raise ValueError("Pass either params or scenario/config, not both.")
+        return params
+    return sim.params_for(scenario, sim.EnvConfig() if config is None else config, store=store, progress=False)
+
+
+def check_action(action, shape) -> np.ndarray:
+    action = np.asarray(action, dtype=np.float32)
+    if action.shape != shape:
+        raise ValueError(f"actions must have shape {shape}; got {action.shape}.")
+    if not np.all(np.isfinite(action)):
+        raise ValueError("actions must be finite (no NaN or inf).")
+    return action
+
+
+class IntruderEnv(gym.Env):
+    """The intruder's view of a scenario (see the module docstring).
+
+    Args:
+        scenario: registry name or :class:`stp_env.scenarios.Scenario` (default ``"town"``).
+        config: :class:`stp_env.sim.EnvConfig` (rewards, wind, spawn, safety filter).
+        horizon: ``"intruder"`` or ``"episode"``.
+        vehicle_policy: a name in :data:`stp_env.baselines.VEHICLE_POLICIES` (``"switching"``: ``u*``, eq. 38).
+        params: prebuilt :class:`stp_env.sim.EnvParams` (instead of scenario and config).
+    """
+
+    metadata: ClassVar[dict] = {"render_modes": []}
+
+    def __init__(self, scenario="town", config: sim.EnvConfig | None = None, *, horizon: str = "intruder",
+                 vehicle_policy: str = "switching", params: sim.EnvParams | None = None, store=None):
+        self.horizon = F.check_horizon(horizon)
+        self.vehicle_policy_name = vehicle_policy
+        self._vehicle_policy = F.check_vehicle_policy(vehicle_policy)
+        self.params = build_params(scenario, config, params=params, store=store)
+        size = intruder_observation_size(self.params)
+        self.observation_space = gym.spaces.Box(-2.0, 2.0, (size,), np.float32)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self.render_mode = None
+        self.kbar = int(self.params.kbar)
+        self._key = None
+        self.state: sim.EnvState | None = None
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        if options:
+            raise ValueError(f"IntruderEnv.reset takes no options; got {sorted(options)}.")
+        if seed is not None:
+            self._key = F.key_for_seed(seed)
+        elif self._key is None:
+            self._key = F.key_for_seed(int(self.np_random.integers(0, 2**32)))
+        self._key, self.state, obs = F.env_reset(self._key, self.params, self.horizon)
+        return np.asarray(obs), {"kbar": self.kbar, "time": float(self.state.t)}
+
+    def step(self, action):
+        if self.state is None:
+            raise RuntimeError("Call reset() before step().")
+        action = check_action(action, (2,))
+        out = F.env_step(self._key, self.state, action, self.params, self.horizon, self._vehicle_policy)
+        self._key, self.state, obs, reward, terminated, truncated, stats = jax.device_get(out)
+        info = {name: (float(value) if name == "time" else int(value)) for name, value in stats.items()}
+        info["kbar"] = self.kbar
+        return np.asarray(obs), float(reward), bool(terminated), bool(truncated), info

@@ -1,0 +1,150 @@
+"""A native Stable-Baselines3 ``VecEnv`` of ``n`` intruder envs backed by the batched JAX core.
+
+One call of :func:`stp_env.rl.functional.batch_step` (one compiled program: ``vmap`` of the core step, the
+vehicles' baseline policy, the observations, and the auto-reset of the finished envs) per ``step``; no
+subprocesses, no per-env Python loop.
+
+SB3 conventions kept (as in ``DummyVecEnv`` over :class:`stp_env.rl.IntruderEnv`, which it reproduces step for
+step for the same seeds):
+
+* ``seed(s)`` gives env ``i`` the seed ``s + i`` at the next ``reset()``; envs without a seed keep their key stream
+  (the first ``reset()`` without any seed draws seeds from ``np.random``, as ``VecEnv.seed(None)`` does).
+* A finished env is reset inside the step: its ``info`` holds ``terminal_observation`` and
+  ``TimeLimit.truncated`` (truncated and not terminated), and ``reset_infos[i]`` the new episode's reset info.
+* Every info has ``n_forced`` (``|N^RP|``), ``kbar``, ``collisions``, ``intruder_collisions``,
+  ``guarantee_violations`` and ``time`` [s] (the values of the state the step reached).
+* The envs share one :class:`stp_env.sim.EnvParams`: ``get_attr(name)`` returns the shared attribute once per
+  index, except the per-env arrays in :attr:`IntruderVecEnv.PER_ENV_ATTRS`; ``set_attr`` only sets shared
+  attributes on every env at once; ``env_method`` calls the shared method once per index;
+  ``env_is_wrapped`` is ``False`` (there are no Gymnasium wrappers inside).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import gymnasium as gym
+import jax
+import jax.numpy as jnp
+import numpy as np
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
+
+from stp_env import sim
+from stp_env.rl import functional as F
+from stp_env.rl.gym_env import build_params, check_action
+from stp_env.sim.core import intruder_observation_size
+
+STAT_NAMES = ("n_forced", "collisions", "intruder_collisions", "guarantee_violations")
+INFO_NAMES = (*STAT_NAMES, "time")
+
+
+class IntruderVecEnv(VecEnv):
+    """``n_envs`` intruder envs in one batched JAX state (see the module docstring).
+
+    Args:
+        n_envs: batch size.
+        scenario, config, horizon, vehicle_policy, params, store: as for :class:`stp_env.rl.IntruderEnv`.
+    """
+
+    PER_ENV_ATTRS = ("n_forced", "time", "intruder_status")
+    render_mode = None
+
+    def __init__(self, n_envs: int, scenario="town", config: sim.EnvConfig | None = None, *,
+                 horizon: str = "intruder", vehicle_policy: str = "switching", params: sim.EnvParams | None = None,
+                 store=None):
+        if isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1:
+            raise ValueError(f"n_envs must be an integer >= 1; got {n_envs!r}.")
+        self.horizon = F.check_horizon(horizon)
+        self.vehicle_policy_name = vehicle_policy
+        self._vehicle_policy = F.check_vehicle_policy(vehicle_policy)
+        self.params = build_params(scenario, config, params=params, store=store)
+        self.kbar = int(self.params.kbar)
+        size = intruder_observation_size(self.params)
+        super().__init__(n_envs, gym.spaces.Box(-2.0, 2.0, (size,), np.float32),
+                         gym.spaces.Box(-1.0, 1.0, (2,), np.float32))
+        self._keys = None
+        self._states = None
+        self._actions = None
+
+    # ---------------------------------------------------------------------------------------------- core API
+    def reset(self) -> np.ndarray:
+        if self._keys is None and any(s is None for s in self._seeds):
+            drawn = self.seed(None)
+            self._seeds = [s if s is not None else d for s, d in zip(self._seeds, drawn)]
+        keys = np.asarray(self._keys) if self._keys is not None else np.zeros((self.num_envs, 2), np.uint32)
+        for i, seed in enumerate(self._seeds):
+            if seed is not None:
+                keys[i] = np.asarray(F.key_for_seed(seed))
+        self._keys, self._states, obs = F.batch_reset(jnp.asarray(keys), self.params, self.horizon)
+        obs = np.asarray(obs)
+        times = np.asarray(self._states.t).tolist()
+        self.reset_infos = [{"kbar": self.kbar, "time": t} for t in times]
+        self._reset_seeds()
+        self._reset_options()
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = check_action(actions, (self.num_envs, 2))
+
+    def step_wait(self):
+        if self._states is None:
+            raise RuntimeError("Call reset() before step().")
+        if self._actions is None:
+            raise RuntimeError("Call step_async() before step_wait().")
+        out = F.batch_step(self._keys, self._states, self._actions, self.params, self.horizon,
+                           self._vehicle_policy)
+        self._keys, self._states = out[0], out[1]
+        self._actions = None
+        obs, rewards, terminated, truncated, terminal_obs, stats, new_times = jax.device_get(
+            (out[2], out[3], out[4], out[5], out[6], out[7], self._states.t))
+        dones = terminated | truncated
+        columns = [stats[name].tolist() for name in STAT_NAMES] + [stats["time"].tolist()]
+        infos = [dict(zip(INFO_NAMES, values)) for values in zip(*columns)]
+        for info in infos:
+            info["kbar"] = self.kbar
+        for i in np.flatnonzero(dones).tolist():
+            infos[i]["terminal_observation"] = terminal_obs[i]
+            infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
+            self.reset_infos[i] = {"kbar": self.kbar, "time": float(new_times[i])}
+        return obs, rewards.astype(np.float32), dones, infos
+
+    def close(self) -> None:
+        self._keys = self._states = None
+
+    # ---------------------------------------------------------------------------------------------- attributes
+    def _per_env(self, name: str) -> np.ndarray:
+        if self._states is None:
+            raise AttributeError(f"{name!r} is known after reset().")
+        if name == "n_forced":
+            return np.asarray(jax.vmap(sim.n_forced)(self._states))
+        if name == "time":
+            return np.asarray(self._states.t)
+        return np.asarray(self._states.intruder_status)
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        idx = list(self._get_indices(indices))
+        if attr_name in self.PER_ENV_ATTRS:
+            values = self._per_env(attr_name)
+            return [values[i].item() for i in idx]
+        value = getattr(self, attr_name)
+        return [value for _ in idx]
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        idx = list(self._get_indices(indices))
+        if sorted(idx) != list(range(self.num_envs)):
+            raise ValueError("IntruderVecEnv envs share their attributes: set_attr applies to every env at once "
+                             f"(indices=None); got indices {indices!r}.")
+        if attr_name in self.PER_ENV_ATTRS or attr_name.startswith("_"):
+            raise ValueError(f"{attr_name!r} cannot be set.")
+        setattr(self, attr_name, value)
+
+    def env_method(self, method_name: str, *method_args, indices: VecEnvIndices = None, **method_kwargs) -> list:
+        method = getattr(self, method_name)
+        return [method(*method_args, **method_kwargs) for _ in self._get_indices(indices)]
+
+    def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        return [None for _ in range(self.num_envs)]
