@@ -14,6 +14,8 @@ from stp_env.baselines.intruders import (
     hover,
     intruder_policy,
     max_k,
+    mixture,
+    mixture_index,
     random_intruder,
 )
 from stp_env.baselines.vehicles import (
@@ -35,6 +37,8 @@ __all__ = [
     "hover",
     "intruder_policy",
     "max_k",
+    "mixture",
+    "mixture_index",
     "nominal_tracking",
     "random_intruder",
     "safety_filter",

@@ -131,3 +131,23 @@ def intruder_policy(name: str):
     if name not in INTRUDERS:
         raise ValueError(f"unknown intruder {name!r}; allowed: {', '.join(INTRUDERS)}.")
     return INTRUDERS[name]
+
+
+def mixture(names):
+    """One intruder policy that plays ``names[i]`` in an episode, ``i`` drawn uniformly from the episode's
+    intruder key (:func:`mixture_index`): many intruder types in one compiled rollout. Under ``vmap`` every
+    branch is evaluated (``lax.switch`` becomes a select), so a mixture costs the sum of its members."""
+    names = tuple(names)
+    policies = [intruder_policy(name) for name in names]
+
+    def policy(key, state, params):
+        i = mixture_index(state, len(policies))
+        return jax.lax.switch(i, policies, key, state, params)
+
+    policy.__name__ = "mixture(" + ",".join(names) + ")"
+    return policy
+
+
+def mixture_index(state, n: int):
+    """Which member of a :func:`mixture` of ``n`` intruders plays in the episode of ``state``."""
+    return jax.random.randint(jax.random.fold_in(state.intruder_key, 7), (), 0, n)

@@ -1,0 +1,428 @@
+"""STP under an intruder: a PettingZoo environment of Dubins vehicles in wind, planned by sequential trajectory
+planning, and one adversarial intruder (Bansal, Chen, Fisac, Tomlin; see ``../shared/papers``).
+
+Quick start::
+
+    from stp_env.env import parallel_env
+
+    env = parallel_env()                       # the "town" scenario, k̄ = 2, 7 vehicles + 1 intruder
+    observations, infos = env.reset(seed=0)
+    while env.agents:
+        actions = {agent: env.action_space(agent).sample() for agent in env.agents}
+        observations, rewards, terminations, truncations, infos = env.step(actions)
+    print(infos["intruder"]["n_forced"], "vehicles were forced to avoid; bound k̄ =", infos["intruder"]["kbar"])
+
+The environment is a thin adapter around the pure JAX core :mod:`stp_env.sim` (``reset``, ``step``, ``observe``;
+one jitted call per step); batched rollouts of thousands of episodes use the core directly
+(:func:`stp_env.sim.rollout`).
+
+Agents
+------
+================  ==========================================================================================
+``vehicle_<i>``   STP vehicle ``i`` (scenario order). Dubins kinematics under wind (intruder paper eq. 43).
+                  Waits on the ground until its departure time ``t_LDT`` (outside the airspace: cannot
+                  collide, its actions are ignored), leaves the airspace when it reaches its target disk
+                  (terminated), or when it collides or leaves the domain (terminated).
+``intruder``      Appears at ``t_`` (random in ``EnvConfig.appear_window``, or ``reset(options=
+                  {"appear_time": t})``) outside every vehicle's avoid region (Assumption 3), and is removed
+                  ``t_IAT`` later (terminated). Its actions are ignored before it appears.
+================  ==========================================================================================
+
+Actions
+-------
+``Box(-1, 1, (2,), float32)`` for every agent: ``a[0]`` maps linearly to the speed ``[v_min, v_max]`` [m/s],
+``a[1]`` to the turn rate ``[-omega_max, omega_max]`` [rad/s]. Out-of-range actions are clipped. NaN or inf,
+wrong shapes, and actions for unknown or finished agents raise ``ValueError`` and leave the state unchanged.
+A live agent missing from the action dict applies the zero action. With ``EnvConfig(safety_filter=True)`` (the
+default), a vehicle forced by the intruder (its relative state reached the boundary of ``V^A``, eqs. 17-18) has
+its action replaced by the avoidance control ``u^A`` (eq. 15) until the intruder leaves (eq. 38); the info
+``used_filter`` says when.
+
+Observations
+------------
+``Box(-2, 2, (20 + 5K,))`` for vehicles and ``Box(-2, 2, (8 + 7K,))`` for the intruder (``K = n_nearest``, 4 by
+default): own state, time to the STA, target, tracking error, the intruder within the sensing range ``d_sense``
+(>= ``d^A``, eq. 16) with its avoid-region value, and the ``K`` nearest flying vehicles, in the body frame. The
+table of entries is in :func:`stp_env.sim.core.observe`. ``state()`` is the global state: every vehicle's
+``(x, y, cos, sin)`` scaled by the domain, status and mode flags, the intruder's, and the time.
+
+Rewards
+-------
+:class:`stp_env.sim.RewardConfig`: vehicles get progress toward the target, an arrival bonus (smaller after the
+STA) and a collision penalty; the intruder gets ``+forced`` per vehicle newly forced to avoid, a large bonus per
+collision it causes, and optional shaping by the avoid-region value.
+
+Infos (fresh dicts every step)
+------------------------------
+Vehicles: ``status`` (waiting / flying / arrived / collided / out_of_bounds), ``mode`` (nominal / avoiding /
+after_avoidance), ``avoid_start_time`` (``t_i`` [s], ``None`` if never forced), ``forced``, ``n_forced``
+(``|N^RP|``, eq. 39), ``kbar``, ``collision``, ``guarantee_violation`` (a collision although the intruder
+appeared outside its avoid region and it applied ``u^A`` from ``t_i`` on), ``used_filter``, ``min_separation``
+[m], ``cost`` (1.0 in the step of a collision: the safety-gymnasium convention), ``time`` [s].
+Intruder: ``status`` (pending / present / gone), ``n_forced``, ``kbar``, ``kbar_exceeded``, ``collisions``,
+``guarantee_violations``, ``cost`` (0.0), ``time``.
+
+Arguments
+---------
+``parallel_env(scenario="town", config=None, *, max_cycles=None, render_mode=None, params=None, store=None)``:
+``scenario`` is a registry name or a :class:`stp_env.scenarios.Scenario`; ``config`` an
+:class:`stp_env.sim.EnvConfig` (``dt`` [s], wind model, spawn mode, safety filter, episode window, rewards);
+``max_cycles`` caps the steps (default: the episode window ``t_end - t_start`` over ``dt``); ``params``
+bypasses the scenario (prebuilt :class:`stp_env.sim.EnvParams`). ``env(...)`` is the AEC form
+(``parallel_to_aec``), ``raw_env(...)`` the same without the order-enforcing wrapper.
+Render modes: ``"rgb_array"`` (a top-down map: buildings, targets, vehicles with headings and danger zones,
+the intruder, avoid-region footprints when ``render_avoid_regions=True``) and ``"human"`` (the same in a window).
+
+Version history
+---------------
+* v0 (``stp_v0``): first release.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import ClassVar
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+from pettingzoo import ParallelEnv
+from pettingzoo.utils.conversions import parallel_to_aec_wrapper
+from pettingzoo.utils.wrappers import OrderEnforcingWrapper
+
+from stp_env import sim
+from stp_env.sim import core
+from stp_env.sim.types import (
+    COLLIDED,
+    GONE,
+    INTRUDER_STATUS_NAMES,
+    MODE_NAMES,
+    PRESENT,
+    STATUS_NAMES,
+)
+
+DEFAULT_SCENARIO = "town"
+
+
+@functools.lru_cache(maxsize=8)
+def _cached_params(scenario, config):
+    return sim.params_for(scenario, config, progress=False)
+
+
+def _info_arrays(prev, new):
+    """Everything the infos need, packed into one float32 array ``(9, N)`` (one device-to-host copy)."""
+    n = new.status.shape[0]
+    scalars = jnp.zeros((n,), jnp.float32).at[0].set(new.t).at[1].set(new.intruder_status.astype(jnp.float32))
+    return jnp.stack([new.status.astype(jnp.float32), new.mode.astype(jnp.float32), new.avoid_start,
+                      new.guarantee_violation.astype(jnp.float32), new.used_filter.astype(jnp.float32),
+                      new.min_separation, prev.status.astype(jnp.float32), scalars,
+                      jnp.zeros((n,), jnp.float32)]).astype(jnp.float32)
+
+
+def _advance(key, state, actions, params):
+    """One adapter step: ``step``, then everything the adapter converts to numpy, packed into one array."""
+    key, sub = jax.random.split(key)
+    new, rewards = core.step(sub, state, actions, params)
+    obs_v, obs_i = core.observe(new, params)
+    term, trunc = core.episode_over(new, params)
+    flat = jnp.concatenate([obs_v.ravel(), obs_i, rewards, _info_arrays(state, new).ravel(),
+                            jnp.stack([term, trunc]).astype(jnp.float32)])
+    return key, new, flat
+
+
+def _start(key, params):
+    key, sub = jax.random.split(key)
+    state = core.reset(sub, params)
+    obs_v, obs_i = core.observe(state, params)
+    flat = jnp.concatenate([obs_v.ravel(), obs_i, jnp.zeros((params.n_vehicles + 1,), jnp.float32),
+                            _info_arrays(state, state).ravel(), jnp.zeros((2,), jnp.float32)])
+    return key, state, flat
+
+
+_start_jit = jax.jit(_start)
+TRACE_COUNTS = {"step": 0}  # incremented when the step function is traced (tests check it stays at 1)
+
+
+def _count_traces(fn):
+    def wrapped(*args):
+        TRACE_COUNTS["step"] += 1
+        return fn(*args)
+
+    return wrapped
+
+
+_advance_jit = jax.jit(_count_traces(_advance))
+
+
+class STPParallelEnv(ParallelEnv):
+    """PettingZoo ParallelEnv of STP vehicles and an intruder; see the module docstring (the user's manual)."""
+
+    metadata: ClassVar[dict] = {"name": "stp_v0", "render_modes": ["human", "rgb_array"], "render_fps": 10,
+                                "is_parallelizable": True}
+
+    def __init__(self, scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, *,
+                 max_cycles: int | None = None, render_mode: str | None = None, params: sim.EnvParams | None = None,
+                 render_avoid_regions: bool = False, store=None):
+        from stp_env.scenarios import Scenario, make
+
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode {render_mode!r} is not supported; allowed: "
+                             f"{self.metadata['render_modes']} or None.")
+        if config is not None and not isinstance(config, sim.EnvConfig):
+            raise ValueError(f"config must be a stp_env.sim.EnvConfig; got {type(config).__name__}.")
+        config = sim.EnvConfig() if config is None else config
+        if isinstance(scenario, str):
+            scenario = make(scenario)
+        if not isinstance(scenario, Scenario):
+            raise ValueError(f"scenario must be a registry name or a Scenario; got {type(scenario).__name__}.")
+        self.scenario = scenario
+        self.config = config
+        if params is None:
+            params = _cached_params(scenario, config) if store is None else sim.params_for(
+                scenario, config, store=store, progress=False)
+        self.params = params
+        n = params.n_vehicles
+        self.possible_agents = [f"vehicle_{i}" for i in range(n)] + ["intruder"]
+        self._index = {a: i for i, a in enumerate(self.possible_agents)}
+        default_cycles = sim.steps_for(params)
+        if max_cycles is None:
+            max_cycles = default_cycles
+        if isinstance(max_cycles, bool) or not isinstance(max_cycles, (int, np.integer)) or max_cycles < 1:
+            raise ValueError(f"max_cycles must be a positive integer; got {max_cycles!r}.")
+        self.max_cycles = int(max_cycles)
+        self.render_mode = render_mode
+        self.render_avoid_regions = render_avoid_regions
+        self._dv = core.vehicle_observation_size(params)
+        self._di = core.intruder_observation_size(params)
+        self._kbar = int(params.kbar)
+        self._key = None
+        self._state = None
+        self._steps = 0
+        self.agents: list[str] = []
+        self._fig = None
+
+    # ------------------------------------------------------------------------------------------ spaces
+    @functools.cache  # noqa: B019  (one space object per agent, as PettingZoo recommends)
+    def observation_space(self, agent):
+        self._check_known(agent)
+        size = self._di if agent == "intruder" else self._dv
+        return gymnasium.spaces.Box(-2.0, 2.0, (size,), np.float32)
+
+    @functools.cache  # noqa: B019
+    def action_space(self, agent):
+        self._check_known(agent)
+        return gymnasium.spaces.Box(-1.0, 1.0, (2,), np.float32)
+
+    @property
+    def state_space(self):
+        n = self.params.n_vehicles
+        return gymnasium.spaces.Box(-2.0, 2.0, (9 * n + 7,), np.float32)
+
+    def _check_known(self, agent):
+        if agent not in self._index:
+            raise ValueError(f"unknown agent {agent!r}; agents are {self.possible_agents}.")
+
+    # ------------------------------------------------------------------------------------------ reset / step
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        if seed is not None:
+            self._key = jax.random.key(int(seed))
+        elif self._key is None:
+            self._key = jax.random.key(int(np.random.SeedSequence().entropy % (2 ** 31)))
+        params = self.params
+        options = {} if options is None else dict(options)
+        unknown = sorted(set(options) - {"appear_time"})
+        if unknown:
+            raise ValueError(f"unknown reset option(s) {unknown}; allowed: ['appear_time'] (seconds, plan time).")
+        if "appear_time" in options:
+            t = float(options["appear_time"])
+            if not np.isfinite(t):
+                raise ValueError(f"appear_time must be finite; got {t}.")
+            params = _replace(params, appear_window=jnp.asarray([t, t], jnp.float32))
+        self._key, self._state, flat = _start_jit(self._key, params)
+        self._steps = 0
+        self.agents = list(self.possible_agents)
+        obs, _, info_arr, _ = self._unpack(np.asarray(flat))
+        infos = self._infos(info_arr)
+        if self.render_mode == "human":
+            self.render()
+        return obs, infos
+
+    def _parse_actions(self, actions) -> np.ndarray:
+        if self._state is None:
+            raise RuntimeError("call reset() before step().")
+        if not isinstance(actions, dict):
+            raise ValueError(f"actions must be a dict {{agent: action}}; got {type(actions).__name__}.")
+        n = self.params.n_vehicles
+        arr = np.zeros((n + 1, 2), np.float32)
+        for agent, a in actions.items():
+            if agent not in self._index:
+                raise ValueError(f"action for unknown agent {agent!r}; agents are {self.possible_agents}.")
+            if agent not in self.agents:
+                raise ValueError(f"action for {agent!r}, which has finished (terminated or truncated); "
+                                 f"live agents: {self.agents}.")
+            if a is None:
+                continue
+            a = np.asarray(a, dtype=np.float64)
+            if a.shape != (2,):
+                raise ValueError(f"action for {agent!r} must have shape (2,) (speed, turn rate in [-1, 1]); got "
+                                 f"shape {a.shape}.")
+            if not np.all(np.isfinite(a)):
+                raise ValueError(f"action for {agent!r} is not finite: {a.tolist()}; actions must be finite numbers "
+                                 "in [-1, 1] (out-of-range values are clipped).")
+            arr[self._index[agent]] = np.clip(a, -1.0, 1.0)
+        return arr
+
+    def step(self, actions):
+        arr = self._parse_actions(actions)  # raises before anything changes
+        self._key, self._state, flat = _advance_jit(self._key, self._state, arr, self.params)
+        self._steps += 1
+        obs, rewards, info_arr, (_, trunc) = self._unpack(np.asarray(flat))
+        done_v = info_arr[0] >= sim.ARRIVED
+        intruder_done = int(info_arr[7, 1]) == GONE
+        truncated_all = bool(trunc) or self._steps >= self.max_cycles
+        infos = self._infos(info_arr)
+        live = list(self.agents)
+        rew = {a: float(rewards[self._index[a]]) for a in live}
+        terms, truncs = {}, {}
+        for a in live:
+            i = self._index[a]
+            terms[a] = bool(intruder_done) if a == "intruder" else bool(done_v[i])
+            truncs[a] = truncated_all and not terms[a]
+        infos = {a: infos[a] for a in live}
+        obs = {a: obs[a] for a in live}
+        self.agents = [a for a in live if not (terms[a] or truncs[a])]
+        if self.render_mode == "human":
+            self.render()
+        return obs, rew, terms, truncs, infos
+
+    # ------------------------------------------------------------------------------------------ conversions
+    def _unpack(self, flat):
+        n = self.params.n_vehicles
+        k = n * self._dv
+        obs_v = flat[:k].reshape(n, self._dv)
+        obs_i = flat[k:k + self._di]
+        k += self._di
+        rewards = flat[k:k + n + 1]
+        k += n + 1
+        info = flat[k:k + 9 * n].reshape(9, n)
+        flags = flat[k + 9 * n:]
+        obs = {f"vehicle_{i}": obs_v[i] for i in range(n)}
+        obs["intruder"] = obs_i
+        return obs, rewards, info, (bool(flags[0]), bool(flags[1]))
+
+    def _infos(self, info):
+        n = self.params.n_vehicles
+        status, mode, avoid_start = info[0].astype(int), info[1].astype(int), info[2]
+        forced = np.isfinite(avoid_start)
+        n_forced = int(forced.sum())
+        kbar = self._kbar
+        collided = status == COLLIDED
+        new_collision = collided & (info[6].astype(int) != COLLIDED)
+        t = float(info[7, 0])
+        violation, used, min_sep = info[3] > 0, info[4] > 0, info[5]
+        infos = {}
+        for i in range(n):
+            infos[f"vehicle_{i}"] = {
+                "status": STATUS_NAMES[status[i]],
+                "mode": MODE_NAMES[mode[i]],
+                "avoid_start_time": float(avoid_start[i]) if forced[i] else None,
+                "forced": bool(forced[i]),
+                "n_forced": n_forced,
+                "kbar": kbar,
+                "collision": bool(collided[i]),
+                "guarantee_violation": bool(violation[i]),
+                "used_filter": bool(used[i]),
+                "min_separation": float(min_sep[i]),
+                "cost": float(new_collision[i]),
+                "time": t,
+            }
+        infos["intruder"] = {
+            "status": INTRUDER_STATUS_NAMES[int(info[7, 1])],
+            "n_forced": n_forced,
+            "kbar": kbar,
+            "kbar_exceeded": bool(kbar > 0 and n_forced > kbar),
+            "collisions": int(collided.sum()),
+            "guarantee_violations": int(violation.sum()),
+            "cost": 0.0,
+            "time": t,
+        }
+        return infos
+
+    def state(self) -> np.ndarray:
+        """The global state (``state_space``): per vehicle ``(x, y)`` scaled, ``cos, sin``, flying / finished /
+        waiting / avoiding / after flags; the intruder's ``(x, y, cos, sin)``, present flag, ``tau / t_IAT``; and
+        the time since the episode start over its length."""
+        if self._state is None:
+            raise RuntimeError("call reset() before state().")
+        s = jax.device_get(self._state)
+        prm = self.params
+        lo, hi = np.asarray(prm.domain_lo), np.asarray(prm.domain_hi)
+        center, half = 0.5 * (lo + hi), 0.5 * float(np.max(hi - lo))
+        x = np.asarray(s.x)
+        status, mode = np.asarray(s.status), np.asarray(s.mode)
+        veh = np.concatenate([(x[:, :2] - center) / half, np.cos(x[:, 2:3]), np.sin(x[:, 2:3]),
+                              (status == sim.FLYING)[:, None], (status >= sim.ARRIVED)[:, None],
+                              (status == sim.WAITING)[:, None], (mode == sim.AVOIDING)[:, None],
+                              (mode == sim.AFTER_AVOIDANCE)[:, None]], axis=1).ravel()
+        xi = np.asarray(s.intruder_x)
+        present = int(s.intruder_status) == PRESENT
+        tau = (float(s.t) - float(s.t_appear)) / float(prm.t_iat) if present else 0.0
+        length = max(float(prm.t_end - prm.t_start), 1.0)
+        intr = np.asarray([(xi[0] - center[0]) / half, (xi[1] - center[1]) / half, np.cos(xi[2]), np.sin(xi[2]),
+                           float(present), tau, (float(s.t) - float(prm.t_start)) / length])
+        return np.clip(np.concatenate([veh, intr]), -2.0, 2.0).astype(np.float32)
+
+    # ------------------------------------------------------------------------------------------ render
+    def render(self):
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'.")
+            return None
+        if self._state is None:
+            raise RuntimeError("call reset() before render().")
+        from stp_env.render import draw_frame
+
+        fig = draw_frame(self, self._fig)
+        self._fig = fig
+        if self.render_mode == "rgb_array":
+            fig.canvas.draw()
+            return np.asarray(fig.canvas.buffer_rgba())[:, :, :3].copy()
+        import matplotlib
+        import matplotlib.pyplot as plt
+
+        if matplotlib.get_backend().lower() not in ("agg", "pdf", "svg", "ps", "cairo", "template"):
+            plt.pause(1.0 / self.metadata["render_fps"])
+        return None
+
+    def close(self):
+        if self._fig is not None:
+            import matplotlib.pyplot as plt
+
+            plt.close(self._fig)
+            self._fig = None
+
+    @property
+    def env_state(self) -> sim.EnvState:
+        """The core's :class:`~stp_env.sim.EnvState` (read-only use; for parity checks and custom analysis)."""
+        return self._state
+
+
+def _replace(params, **changes):
+    import dataclasses
+
+    return dataclasses.replace(params, **changes)
+
+
+def parallel_env(scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, **kwargs) -> STPParallelEnv:
+    """The ParallelEnv (see the module docstring for arguments)."""
+    return STPParallelEnv(scenario, config, **kwargs)
+
+
+def raw_env(scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, **kwargs):
+    """The AEC form without the order-enforcing wrapper."""
+    return parallel_to_aec_wrapper(parallel_env(scenario, config, **kwargs))
+
+
+def env(scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, **kwargs):
+    """The AEC form (``parallel_to_aec`` of :func:`parallel_env`, with PettingZoo's order enforcing)."""
+    return OrderEnforcingWrapper(raw_env(scenario, config, **kwargs))
