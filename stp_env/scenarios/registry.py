@@ -252,8 +252,12 @@ def city(*, n_vehicles: int = 50, wind: float = 6.0, sta_spacing: float = 0.0, k
     * ``STA_i = sta_spacing * priority`` [s] (0, 5 or 10 s in BEACLS Cases 0-4, :data:`CITY_CASES`).
     * ``R_c = 100 m``, ``t_IAT = 10 s``; ``kbar=None`` plans without regard to an intruder (BEACLS Section V);
       ``kbar=3`` is the intruder paper's setting.
-    * Grid 251 x 251 x 36: 20 m in position (10 cells across a target), 10 degrees in heading. Trajectory samples
-      every 0.5 s (at most 15.5 m of travel, under a cell).
+    * Grid 151 x 151 x 24: 33.3 m in position (6 cells across a target, NUMERICS.md asks for >= 5), 15 degrees in
+      heading. The solver's time step is set by the heading axis (CFL rate ``omega / dtheta`` = 4.6 /s against
+      ``v / dx`` = 0.39 /s at ``U^p``) and the planning turn radius (13 / 1.2 = 11 m) is a third of a cell: with
+      the earlier 251 x 251 x 36 (20 m, 10 degrees) a vehicle took ~290 s to plan, with this grid 6.2x fewer
+      nodes and 1.6x fewer steps (BENCHMARKS.md, "City planning"). Streets between lots are 80 m, 2.4 cells.
+      Trajectory samples every 0.5 s (at most 19 m of travel, under a cell).
 
     Randomness: ``seed`` is split into two streams, one for the buildings and one for the vehicles (destinations
     and priorities), so ``n_vehicles`` does not change the downtown.
@@ -278,7 +282,7 @@ def city(*, n_vehicles: int = 50, wind: float = 6.0, sta_spacing: float = 0.0, k
         method="rtt",
         kbar=kbar,
         t_iat=10.0,
-        grid_points=(251, 251, 36),
+        grid_points=(151, 151, 24),
         time_step=0.5,
         seed=seed,
         description=f"City study (BEACLS Section V, intruder paper Section V-A) on a synthetic downtown: "
