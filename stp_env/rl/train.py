@@ -1,0 +1,298 @@
+"""Training learned intruders with Stable-Baselines3 on the native batched VecEnv (one module; scripts and the
+``stp-env train-intruder`` subcommand are thin wrappers around :func:`train`).
+
+``train(TrainConfig(...))`` builds an :class:`~stp_env.rl.IntruderVecEnv` (the vehicles run ``switching``,
+``u*`` with the HJ safety filter, inside the core), trains PPO (or A2C) with the given seed, and writes to
+``out_dir``: ``config.json``, SB3 logs (``progress.csv``, TensorBoard events with ``"tensorboard"`` in
+``log_formats``), ``checkpoints/`` every ``checkpoint_every`` steps, ``evaluations.csv`` (one row per evaluation:
+mean, 95 % interval and max of ``|N^RP|``, collisions, guarantee violations, episodes above k̄), ``best_model.zip``
+(best mean ``|N^RP|``), ``model.zip`` and ``intruder.npz`` (the deterministic actor for
+:func:`stp_env.rl.policy.load_intruder`). Same config, same seed, same machine: same run (torch uses
+``torch_threads`` CPU threads; JAX keys come from :func:`stp_env.rl.key_for_seed`).
+
+The PettingZoo + SuperSuit route
+--------------------------------
+For those who want the multi-agent adapter instead (about 10x slower, see ``BENCHMARKS.md``)::
+
+    import supersuit as ss
+    from stable_baselines3 import PPO
+    from stp_env.env import parallel_env
+
+    penv = ss.pettingzoo_env_to_vec_env_v1(parallel_env())        # every agent is one env of the vector
+    venv = ss.concat_vec_envs_v1(penv, 4, num_cpus=0, base_class="stable_baselines3")
+    venv.reset(seed=0)        # seed it HERE: SuperSuit's wrapper has no seed() that PPO(seed=...) can forward
+    model = PPO("MlpPolicy", venv, seed=0)                         # seeds torch only
+
+SuperSuit's ``SB3VecEnvWrapper`` (SB3 2.9) does not store seeds for the next reset as SB3's ``VecEnv.seed`` does,
+and PPO's own first ``reset()`` passes no seed; call ``venv.reset(seed=s)`` yourself (copies ``i`` get
+``s + i``) before ``learn``, and pass ``reset_num_timesteps=False`` if you must keep that first observation. All
+agents then share one policy (vehicles included): mask the vehicles' transitions or give them fixed actions
+if only the intruder should learn; :class:`~stp_env.rl.IntruderVecEnv` does that by construction.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from stp_env import sim
+
+ALGORITHMS = ("ppo", "a2c")
+LOG_FORMATS = ("stdout", "csv", "tensorboard", "log", "json")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class TrainConfig:
+    """Everything that shapes a training run (unknown fields are a ``TypeError``).
+
+    Attributes:
+        scenario: registry name; kbar: override the scenario's k̄ (``None``: its default).
+        horizon: ``"intruder"`` (appearance to departure) or ``"episode"`` (:mod:`stp_env.rl.functional`).
+        vehicle_policy: the vehicles' baseline policy (``"switching"``: u* with the safety filter).
+        forced_reward: per vehicle newly forced to avoid (eq. 39); collision_reward: per collision the intruder
+            causes; shaping_reward: times the decrease of ``min V^A`` over unforced vehicles [per m].
+        algo: ``"ppo"`` or ``"a2c"``; net_arch: hidden layer widths of actor and critic (tanh).
+        total_timesteps, n_envs, n_steps (per env per rollout), batch_size, n_epochs, learning_rate, gamma,
+        gae_lambda, ent_coef, clip_range: the usual PPO settings (A2C uses n_steps, learning_rate, gamma,
+        gae_lambda, ent_coef).
+        seed: one integer for torch, SB3 and the JAX env keys.
+        eval_every: evaluate every this many env steps (0: only at the end); eval_episodes: episodes per
+            evaluation, from seeds ``eval_seed, eval_seed + 1, ...`` (held out from training's ``seed + i``).
+        checkpoint_every: save a checkpoint every this many env steps (0: never).
+        out_dir: output folder; log_formats: SB3 logger formats.
+        torch_threads: CPU threads for torch.
+    """
+
+    scenario: str = "town"
+    kbar: int | None = None
+    horizon: str = "intruder"
+    vehicle_policy: str = "switching"
+    forced_reward: float = 1.0
+    collision_reward: float = 10.0
+    shaping_reward: float = 0.01
+    algo: str = "ppo"
+    net_arch: tuple[int, ...] = (64, 64)
+    total_timesteps: int = 2_000_000
+    n_envs: int = 64
+    n_steps: int = 128
+    batch_size: int = 2048
+    n_epochs: int = 10
+    learning_rate: float = 3e-4
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    ent_coef: float = 0.0
+    clip_range: float = 0.2
+    seed: int = 0
+    eval_every: int = 200_000
+    eval_episodes: int = 256
+    eval_seed: int = 1_000_000
+    checkpoint_every: int = 500_000
+    out_dir: str = "runs/intruder"
+    log_formats: tuple[str, ...] = ("stdout", "csv")
+    torch_threads: int = 1
+
+    def __post_init__(self) -> None:
+        from stp_env.rl.functional import check_horizon, check_vehicle_policy
+
+        check_horizon(self.horizon)
+        check_vehicle_policy(self.vehicle_policy)
+        if self.algo not in ALGORITHMS:
+            raise ValueError(f"algo {self.algo!r} is not known; allowed: {', '.join(ALGORITHMS)}.")
+        for name in ("total_timesteps", "n_envs", "n_steps", "batch_size", "n_epochs", "eval_episodes",
+                     "torch_threads"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be an integer >= 1; got {value!r}.")
+        for name in ("seed", "eval_every", "checkpoint_every", "eval_seed"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"{name} must be an integer >= 0; got {value!r}.")
+        if self.kbar is not None and (isinstance(self.kbar, bool) or not isinstance(self.kbar, int) or self.kbar < 1):
+            raise ValueError(f"kbar must be None or an integer >= 1; got {self.kbar!r}.")
+        object.__setattr__(self, "net_arch", tuple(self.net_arch))
+        object.__setattr__(self, "log_formats", tuple(self.log_formats))
+        if not self.net_arch or any(isinstance(w, bool) or not isinstance(w, int) or w < 1 for w in self.net_arch):
+            raise ValueError(f"net_arch must be widths >= 1; got {self.net_arch!r}.")
+        unknown = sorted(set(self.log_formats) - set(LOG_FORMATS))
+        if unknown:
+            raise ValueError(f"unknown log formats {unknown}; allowed: {', '.join(LOG_FORMATS)}.")
+        for name in ("forced_reward", "collision_reward", "shaping_reward", "learning_rate", "gamma",
+                     "gae_lambda", "ent_coef", "clip_range"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ValueError(f"{name} must be a finite number; got {value!r}.")
+        if (self.n_envs * self.n_steps) % self.batch_size and self.algo == "ppo":
+            raise ValueError(f"n_envs * n_steps ({self.n_envs * self.n_steps}) must be a multiple of batch_size "
+                             f"({self.batch_size}).")
+
+    def env_config(self) -> sim.EnvConfig:
+        rewards = sim.RewardConfig(forced=self.forced_reward, intruder_collision=self.collision_reward,
+                                   shaping=self.shaping_reward)
+        return sim.EnvConfig(rewards=rewards)
+
+    def scenario_object(self):
+        from stp_env.scenarios import make
+
+        return make(self.scenario) if self.kbar is None else make(self.scenario, kbar=self.kbar)
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def mean_interval(values) -> tuple[float, float]:
+    """Mean and the half-width of its 95 % normal interval (``1.96 s / sqrt(n)``)."""
+    values = np.asarray(values, np.float64)
+    if values.size < 2:
+        return float(values.mean()) if values.size else math.nan, math.nan
+    return float(values.mean()), float(1.96 * values.std(ddof=1) / math.sqrt(values.size))
+
+
+def evaluate_on_vec_env(predict, venv, n_episodes: int, seed: int) -> dict:
+    """Run ``n_episodes`` episodes of ``predict(obs) -> actions`` on an :class:`IntruderVecEnv`, each env's
+    first episode after ``venv.seed(seed + k n_envs)`` (so episode ``j`` is seeded ``seed + j``). Returns
+    per-episode arrays ``n_forced``, ``collisions``, ``guarantee_violations``, ``returns``."""
+    n = venv.num_envs
+    rows = {"n_forced": [], "collisions": [], "guarantee_violations": [], "returns": []}
+    for start in range(0, n_episodes, n):
+        venv.seed(seed + start)
+        obs = venv.reset()
+        finished = np.zeros(n, bool)
+        returns = np.zeros(n)
+        final = [None] * n
+        while not finished.all():
+            obs, rewards, dones, infos = venv.step(predict(obs))
+            returns += np.where(finished, 0.0, rewards)
+            for i in np.flatnonzero(dones & ~finished):
+                final[i] = infos[i]
+            finished |= dones
+        take = min(n, n_episodes - start)
+        for i in range(take):
+            rows["n_forced"].append(final[i]["n_forced"])
+            rows["collisions"].append(final[i]["collisions"])
+            rows["guarantee_violations"].append(final[i]["guarantee_violations"])
+            rows["returns"].append(returns[i])
+    return {k: np.asarray(v) for k, v in rows.items()}
+
+
+def summarize(result: dict, kbar: int) -> dict:
+    mean, half = mean_interval(result["n_forced"])
+    return {
+        "episodes": int(result["n_forced"].size),
+        "mean_n_forced": mean,
+        "ci95_n_forced": half,
+        "max_n_forced": int(result["n_forced"].max()),
+        "episodes_above_kbar": int(np.sum(result["n_forced"] > kbar)),
+        "collisions": int(result["collisions"].sum()),
+        "guarantee_violations": int(result["guarantee_violations"].sum()),
+        "mean_return": float(result["returns"].mean()),
+    }
+
+
+def _callbacks(config: TrainConfig, eval_env, out: Path, kbar: int):
+    from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
+
+    class IntruderEvalCallback(BaseCallback):
+        """Evaluates the deterministic policy every ``eval_every`` env steps on held-out seeds; logs ``eval/*``,
+        appends to ``evaluations.csv`` and keeps ``best_model.zip`` (best mean ``|N^RP|``)."""
+
+        def __init__(self):
+            super().__init__()
+            self.next_eval = config.eval_every if config.eval_every else math.inf
+            self.best = -math.inf
+            self.history: list[dict] = []
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps >= self.next_eval:
+                self.next_eval += config.eval_every
+                self.evaluate()
+            return True
+
+        def evaluate(self) -> dict:
+            def predict(obs):
+                return self.model.predict(obs, deterministic=True)[0]
+
+            start = time.perf_counter()
+            row = {"timesteps": self.num_timesteps,
+                   **summarize(evaluate_on_vec_env(predict, eval_env, config.eval_episodes, config.eval_seed),
+                               kbar),
+                   "seconds": round(time.perf_counter() - start, 2)}
+            for key, value in row.items():
+                if key != "timesteps":
+                    self.logger.record(f"eval/{key}", value)
+            path = out / "evaluations.csv"
+            new = not path.exists()
+            with path.open("a", newline="") as f:
+                writer = csv.DictWriter(f, fieldnames=list(row))
+                if new:
+                    writer.writeheader()
+                writer.writerow(row)
+            if row["mean_n_forced"] > self.best:
+                self.best = row["mean_n_forced"]
+                self.model.save(out / "best_model")
+            self.history.append(row)
+            return row
+
+    callbacks = [IntruderEvalCallback()]
+    if config.checkpoint_every:
+        callbacks.append(CheckpointCallback(save_freq=max(config.checkpoint_every // config.n_envs, 1),
+                                            save_path=str(out / "checkpoints"), name_prefix="intruder"))
+    return callbacks
+
+
+def make_model(config: TrainConfig, venv):
+    from stable_baselines3 import A2C, PPO
+
+    policy_kwargs = {"net_arch": {"pi": list(config.net_arch), "vf": list(config.net_arch)}}
+    if config.algo == "a2c":
+        return A2C("MlpPolicy", venv, n_steps=config.n_steps, learning_rate=config.learning_rate,
+                   gamma=config.gamma, gae_lambda=config.gae_lambda, ent_coef=config.ent_coef,
+                   policy_kwargs=policy_kwargs, seed=config.seed, device="cpu", verbose=0)
+    return PPO("MlpPolicy", venv, n_steps=config.n_steps, batch_size=config.batch_size, n_epochs=config.n_epochs,
+               learning_rate=config.learning_rate, gamma=config.gamma, gae_lambda=config.gae_lambda,
+               ent_coef=config.ent_coef, clip_range=config.clip_range, policy_kwargs=policy_kwargs,
+               seed=config.seed, device="cpu", verbose=0)
+
+
+def train(config: TrainConfig, *, params: sim.EnvParams | None = None):
+    """Train an intruder (see the module docstring). ``params``: prebuilt :class:`EnvParams` (must match the
+    config's scenario and rewards; used by tests to skip the build). Returns ``(model, eval_history)``."""
+    import torch
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    from stp_env.rl.policy import export_mlp
+    from stp_env.rl.vec_env import IntruderVecEnv
+
+    torch.set_num_threads(config.torch_threads)
+    out = Path(config.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    if (out / "evaluations.csv").exists():
+        (out / "evaluations.csv").unlink()
+    (out / "config.json").write_text(json.dumps(config.to_json(), indent=2))
+    if params is None:
+        params = sim.params_for(config.scenario_object(), config.env_config(), progress=False)
+    env_kwargs = {"params": params, "horizon": config.horizon, "vehicle_policy": config.vehicle_policy}
+    venv = VecMonitor(IntruderVecEnv(config.n_envs, **env_kwargs),
+                      info_keywords=("n_forced", "collisions", "guarantee_violations"))
+    eval_env = IntruderVecEnv(config.n_envs, **env_kwargs)
+    kbar = int(params.kbar)
+    model = make_model(config, venv)
+    model.set_logger(configure(str(out), list(config.log_formats)))
+    callbacks = _callbacks(config, eval_env, out, kbar)
+    start = time.perf_counter()
+    model.learn(total_timesteps=config.total_timesteps, callback=callbacks)
+    final = callbacks[0].evaluate()
+    final["train_seconds"] = round(time.perf_counter() - start, 1)
+    model.save(out / "model")
+    export_mlp(model, out / "intruder.npz", metadata={
+        "scenario": config.scenario, "kbar": kbar, "horizon": config.horizon, "seed": config.seed,
+        "total_timesteps": config.total_timesteps, "final_eval": {k: v for k, v in final.items()}})
+    venv.close()
+    eval_env.close()
+    return model, callbacks[0].history
