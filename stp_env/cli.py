@@ -10,6 +10,10 @@ Subcommands:
   region, tracking-error bound, relative buffer regions and disk radii for each k̄), print a JSON summary and
   write the figures.
 
+* ``train-intruder``: train a learned intruder with Stable-Baselines3 (PPO by default) on the native batched
+  VecEnv against vehicles running ``u*`` with the HJ safety filter (:mod:`stp_env.rl.train`; needs the ``rl``
+  extra); prints the last evaluation as JSON and writes the model, logs and ``intruder.npz`` to ``--out``.
+
 Exit codes: 0 on success, 2 on bad options (with a message saying what is allowed).
 """
 
@@ -86,6 +90,7 @@ def _build_parser() -> argparse.ArgumentParser:
                      help="artifact cache directory (default: $STP_ENV_CACHE_DIR or the user cache directory)")
     pre.add_argument("--figures", default="figures", help="directory for the PNG figures")
     pre.add_argument("--no-progress", action="store_true", help="hide the progress bars")
+    _add_train_intruder_parser(sub)
     return parser
 
 
@@ -167,6 +172,62 @@ def _precompute(args) -> int:
     return 0
 
 
+def _env_steps(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def _add_train_intruder_parser(sub) -> None:
+    tr = sub.add_parser("train-intruder", help="train a learned intruder with Stable-Baselines3 (needs the rl extra)",
+                        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                        description="PPO (or A2C) on stp_env.rl.IntruderVecEnv: the vehicles run u* with the HJ "
+                                    "safety filter; the intruder is rewarded per vehicle forced to avoid (eq. 39), "
+                                    "per collision, and by the avoid-region value (shaping).")
+    tr.add_argument("--scenario", default="town", help="registered scenario name")
+    tr.add_argument("--kbar", type=_positive(int), default=None, help="override the scenario's k̄")
+    tr.add_argument("--algo", choices=["ppo", "a2c"], default="ppo")
+    tr.add_argument("--timesteps", type=_positive(int), default=2_000_000, help="total env steps")
+    tr.add_argument("--n-envs", type=_positive(int), default=64, help="envs in the batched VecEnv")
+    tr.add_argument("--n-steps", type=_positive(int), default=128, help="steps per env per rollout")
+    tr.add_argument("--batch-size", type=_positive(int), default=2048, help="PPO minibatch size")
+    tr.add_argument("--seed", type=int, default=0, help="seed of torch, SB3 and the JAX env keys")
+    tr.add_argument("--horizon", choices=["intruder", "episode"], default="intruder",
+                    help="intruder: appearance to departure; episode: the core's whole episode")
+    tr.add_argument("--forced-reward", type=float, default=1.0, help="per vehicle newly forced to avoid")
+    tr.add_argument("--collision-reward", type=float, default=10.0, help="per collision the intruder causes")
+    tr.add_argument("--shaping-reward", type=float, default=0.01,
+                    help="times the decrease of min V^A over unforced vehicles [per m]")
+    tr.add_argument("--eval-every", type=_env_steps, default=200_000, help="env steps between evaluations")
+    tr.add_argument("--eval-episodes", type=_positive(int), default=256, help="held-out episodes per evaluation")
+    tr.add_argument("--checkpoint-every", type=_env_steps, default=500_000,
+                    help="env steps between checkpoints (0: none)")
+    tr.add_argument("--tensorboard", action="store_true", help="also write TensorBoard logs")
+    tr.add_argument("--out", default="runs/intruder", help="output directory")
+
+
+def _train_intruder(args) -> int:
+    try:
+        from stp_env.rl.train import TrainConfig, train
+    except ImportError as err:
+        raise ValueError(f"train-intruder needs the rl extra (pip install 'stp-env[rl]'): {err}") from None
+
+    formats = ("stdout", "csv", "tensorboard") if args.tensorboard else ("stdout", "csv")
+    config = TrainConfig(scenario=args.scenario, kbar=args.kbar, algo=args.algo, total_timesteps=args.timesteps,
+                         n_envs=args.n_envs, n_steps=args.n_steps, batch_size=args.batch_size, seed=args.seed,
+                         horizon=args.horizon, forced_reward=args.forced_reward,
+                         collision_reward=args.collision_reward, shaping_reward=args.shaping_reward,
+                         eval_every=args.eval_every, eval_episodes=args.eval_episodes,
+                         checkpoint_every=args.checkpoint_every, out_dir=args.out, log_formats=formats)
+    _, history = train(config)
+    print(json.dumps({**history[-1], "out": args.out}))
+    return 0
+
+
 def main(argv=None) -> int:
     parser = _build_parser()
     args = parser.parse_args(argv)
@@ -177,6 +238,8 @@ def main(argv=None) -> int:
             return _precompute(args)
         if args.command == "plan":
             return _plan(args)
+        if args.command == "train-intruder":
+            return _train_intruder(args)
     except ValueError as err:
         print(f"stp-env {args.command}: error: {err}", file=sys.stderr)
         return 2
