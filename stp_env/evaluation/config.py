@@ -1,0 +1,136 @@
+"""What one evaluation configuration is (typed), and how names become policies.
+
+A :class:`Configuration` fixes everything that shapes an episode distribution: the scenario and its k̄, the wind
+bound and wind model, where the intruder spawns, the intruder and the vehicles' policy. Policies are jittable
+functions ``(key, state, params) -> actions`` (:mod:`stp_env.baselines`); a learned intruder enters the same way
+(see :func:`resolve_intruder`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import math
+from collections.abc import Callable
+
+from stp_env.baselines import INTRUDERS, VEHICLE_POLICIES
+from stp_env.sim import EnvConfig
+from stp_env.sim.types import SPAWN_MODES, WIND_MODELS
+
+SPAWN_CHOICES = ("auto", *SPAWN_MODES)
+"""``auto``: ``boundary`` for the ``max-k`` intruder (the strategy of the intruder paper's Figs. 6-7 starts on a
+vehicle's avoid boundary), ``outside`` for every other intruder."""
+
+EPISODE_CHOICES = ("window", "full")
+
+
+def resolve_intruder(spec: str) -> Callable:
+    """An intruder policy from a name or an import spec.
+
+    * a scripted intruder: one of :data:`stp_env.baselines.INTRUDERS`;
+    * ``"package.module:attribute"``: a jittable policy ``(key, state, params) -> (2,)`` defined in an importable
+      module (how a learned intruder exported to JAX is evaluated);
+    * ``"package.module:factory=ARGUMENT"``: ``factory(ARGUMENT)`` must return such a policy (e.g. a loader
+      taking a checkpoint path).
+
+    The policy is a static argument of the compiled rollout: the same object must be passed for every batch (a
+    factory is called once here), or each batch would compile again.
+    """
+    if spec in INTRUDERS:
+        return INTRUDERS[spec]
+    if ":" not in spec:
+        raise ValueError(f"unknown intruder {spec!r}; allowed: {', '.join(INTRUDERS)}, or 'package.module:policy' "
+                         "or 'package.module:factory=ARGUMENT' for a learned (jittable) intruder.")
+    module_name, _, attribute = spec.partition(":")
+    attribute, has_argument, argument = attribute.partition("=")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as err:
+        raise ValueError(f"intruder {spec!r}: cannot import {module_name!r} ({err}).") from None
+    if not hasattr(module, attribute):
+        raise ValueError(f"intruder {spec!r}: module {module_name!r} has no attribute {attribute!r}.")
+    policy = getattr(module, attribute)
+    if has_argument:
+        policy = policy(argument)
+    if not callable(policy):
+        raise ValueError(f"intruder {spec!r} is not callable; expected a policy (key, state, params) -> (2,).")
+    return policy
+
+
+def resolve_vehicle_policy(name: str) -> Callable:
+    if name not in VEHICLE_POLICIES:
+        raise ValueError(f"unknown vehicle policy {name!r}; allowed: {', '.join(VEHICLE_POLICIES)}.")
+    return VEHICLE_POLICIES[name]
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Configuration:
+    """One evaluated configuration.
+
+    Attributes:
+        scenario: registry name (:func:`stp_env.scenarios.make`).
+        kbar: the bound under test, passed to the scenario factory (its plan is planned for it).
+        intruder: intruder name or import spec (:func:`resolve_intruder`).
+        wind: wind bound ``d_r`` of vehicles and intruder [m/s]; ``None``: the scenario's (a non-default wind
+            needs its own reachability artifacts and plan, computed and cached on first use).
+        wind_model: :data:`stp_env.sim.types.WIND_MODELS`.
+        spawn_mode: one of :data:`SPAWN_CHOICES`.
+        vehicle_policy: ``"switching"`` (``u*``, eq. 38, with the core's safety filter) or ``"nominal"`` (``u^PP``
+            only: the safety filter is off and vehicles ignore the intruder; their avoid starts are still counted).
+        episode: ``"window"`` (around the intruder's appearance window) or ``"full"`` (first departure to the last
+            STA), see :class:`stp_env.sim.EnvConfig`.
+    """
+
+    scenario: str = "town"
+    kbar: int = 2
+    intruder: str = "hj"
+    wind: float | None = None
+    wind_model: str = "uniform"
+    spawn_mode: str = "auto"
+    vehicle_policy: str = "switching"
+    episode: str = "window"
+
+    def __post_init__(self) -> None:
+        if isinstance(self.kbar, bool) or not isinstance(self.kbar, int) or self.kbar < 1:
+            raise ValueError(f"kbar must be an integer >= 1 (the number of vehicles the intruder may force to "
+                             f"avoid); got {self.kbar!r}.")
+        if self.wind is not None and (not isinstance(self.wind, (int, float)) or not math.isfinite(self.wind)
+                                      or self.wind < 0):
+            raise ValueError(f"wind must be a finite number >= 0 [m/s]; got {self.wind!r}.")
+        if self.wind_model not in WIND_MODELS:
+            raise ValueError(f"wind model {self.wind_model!r} is not known; allowed: {', '.join(WIND_MODELS)}.")
+        if self.spawn_mode not in SPAWN_CHOICES:
+            raise ValueError(f"spawn mode {self.spawn_mode!r} is not known; allowed: {', '.join(SPAWN_CHOICES)}.")
+        if self.episode not in EPISODE_CHOICES:
+            raise ValueError(f"episode {self.episode!r} is not known; allowed: {', '.join(EPISODE_CHOICES)}.")
+        resolve_vehicle_policy(self.vehicle_policy)
+
+    @property
+    def effective_spawn_mode(self) -> str:
+        if self.spawn_mode != "auto":
+            return self.spawn_mode
+        return "boundary" if self.intruder == "max-k" else "outside"
+
+    @property
+    def label(self) -> str:
+        wind = "default" if self.wind is None else f"{self.wind:g}"
+        return (f"{self.scenario}_k{self.kbar}_{self.intruder.replace(':', '.').replace('/', '.')}_wind{wind}"
+                f"_{self.wind_model}_{self.effective_spawn_mode}_{self.vehicle_policy}")
+
+    def make_scenario(self):
+        from stp_env.scenarios import make
+
+        overrides = {"kbar": self.kbar}
+        if self.wind is not None:
+            overrides["wind"] = float(self.wind)
+        try:
+            return make(self.scenario, **overrides)
+        except TypeError as err:
+            raise ValueError(f"scenario {self.scenario!r} does not take {sorted(overrides)}: {err}") from None
+
+    def env_config(self) -> EnvConfig:
+        return EnvConfig(wind_model=self.wind_model, spawn_mode=self.effective_spawn_mode,
+                         safety_filter=self.vehicle_policy != "nominal", episode=self.episode)
+
+    def policies(self) -> tuple[Callable, Callable]:
+        return resolve_vehicle_policy(self.vehicle_policy), resolve_intruder(self.intruder)

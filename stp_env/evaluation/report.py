@@ -1,0 +1,83 @@
+"""Results as JSON, CSV and a markdown table; bad episodes as replayable records (``events.json`` +
+``events.npz``)."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+
+CSV_COLUMNS = (
+    "label", "scenario", "kbar", "intruder", "scenario_wind_mps", "wind_model", "spawn_mode", "vehicle_policy",
+    "episode", "episodes", "forced_mean", "forced_max", "exceed", "exceed_rate", "exceed_upper", "confidence",
+    "collision_episodes", "collisions", "intruder_collisions", "out_of_bounds", "guarantee_violations",
+    "violation_episodes", "violation_upper", "assumption_failures", "due", "on_time_rate", "arrived_rate",
+    "min_separation_m", "min_separation_p5_m", "min_separation_median_m", "collision_radius_m", "seed", "n_steps",
+    "batch_size", "seconds", "episodes_per_s",
+)
+
+
+def _pct(x) -> str:
+    if x is None:
+        return "n/a"
+    if x == 0:
+        return "0"
+    return f"{100 * x:.2g}%" if x < 0.01 else f"{100 * x:.1f}%"
+
+
+def markdown_table(summaries: list[dict]) -> str:
+    """One row per configuration: what the report's numbers mean is in :func:`stp_env.evaluation.summarize`."""
+    conf = summaries[0]["confidence"] if summaries else 0.95
+    head = ("| intruder | k̄ | wind [m/s] | episodes | mean \\|N^RP\\| | max \\|N^RP\\| | \\|N^RP\\| > k̄ | "
+            f"P(\\|N^RP\\| > k̄) ≤ ({100 * conf:g}%) | collisions (intruder) | guarantee violations | "
+            "on time | min sep. [m] |")
+    rows = [head, "|" + " --- |" * 12]
+    for s in summaries:
+        wind = f"{s['scenario_wind_mps']:g} {s['wind_model']}"
+        rows.append(
+            f"| {s['intruder']} ({s['spawn_mode']}) | {s['kbar']} | {wind} | {s['episodes']} | "
+            f"{s['forced_mean']:.2f} | {s['forced_max']} | {s['exceed']} | {_pct(s['exceed_upper'])} | "
+            f"{s['collisions']} ({s['intruder_collisions']}) | {s['guarantee_violations']} | "
+            f"{_pct(s['on_time_rate'])} | {s['min_separation_m']} |")
+    return "\n".join(rows)
+
+
+def write_csv(summaries: list[dict], path) -> str:
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=CSV_COLUMNS, extrasaction="ignore")
+        writer.writeheader()
+        for s in summaries:
+            writer.writerow(s)
+    return str(path)
+
+
+def write_json(summaries: list[dict], path, **extra) -> str:
+    Path(path).write_text(json.dumps({**extra, "configurations": summaries}, indent=1) + "\n")
+    return str(path)
+
+
+def write_events(results, out_dir) -> tuple[str, str]:
+    """``events.json`` (one record per saved bad episode: configuration, seed, index, step count, what went
+    wrong) and ``events.npz`` (each record's final state, keys ``"{n}/{field}"`` with ``n`` its position in the
+    JSON list). :func:`stp_env.evaluation.replay_event` replays a record."""
+    out_dir = Path(out_dir)
+    records, arrays = [], {}
+    for result in results:
+        for event in result.events:
+            n = len(records)
+            records.append({k: v for k, v in event.items() if k != "state"} | {"npz_prefix": f"{n}/"})
+            for field, value in event["state"].items():
+                arrays[f"{n}/{field}"] = np.asarray(value)
+    json_path, npz_path = out_dir / "events.json", out_dir / "events.npz"
+    json_path.write_text(json.dumps(records, indent=1) + "\n")
+    np.savez_compressed(npz_path, **arrays)
+    return str(json_path), str(npz_path)
+
+
+def load_event_state(npz_path, record: dict) -> dict:
+    """The saved final state of one ``events.json`` record."""
+    prefix = record["npz_prefix"]
+    with np.load(npz_path, allow_pickle=False) as data:
+        return {k[len(prefix):]: data[k] for k in data.files if k.startswith(prefix)}

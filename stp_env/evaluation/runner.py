@@ -1,0 +1,289 @@
+"""Monte Carlo evaluation on the batched core: episodes in fixed-size batches, one compiled program per set of
+static arguments (policies, batch size, step count), replayable episodes.
+
+Seeding: episode ``i`` of a run with seed ``s`` is ``sim.rollout(fold_in(key(s), i), ..., n_envs=1)``, so any
+episode replays alone from ``(seed, index)`` (:func:`replay`). Every configuration of a run uses the same seed:
+configurations with the same static structure see the same random draws (common random numbers), which makes
+their differences less noisy.
+
+The k̄ values of one scenario have plans with slightly different sample counts; :func:`pad_plan` pads them to a
+common length (the padding is never read: ``nominal_reference`` clamps at ``nominal_len``), and all configurations
+of a run use the longest step count among them (an episode's state is frozen once it ends), so that the k̄ values
+share one compiled program.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from stp_env import sim
+from stp_env.evaluation.config import Configuration
+from stp_env.evaluation.stats import clopper_pearson_upper
+from stp_env.sim.types import ARRIVED, COLLIDED, OUT_OF_BOUNDS
+
+EVENT_KINDS = ("bound_exceeded", "collision", "guarantee_violation", "assumption_failed")
+
+
+@functools.partial(jax.jit, static_argnames=("vehicle_policy", "intruder_policy", "n_steps", "record"))
+def run_batch(key, indices, params, vehicle_policy, intruder_policy, n_steps: int, record: bool = False):
+    """Episodes ``indices`` (B,) of the run keyed by ``key``: ``(final states, trajectories)`` batched over ``B``
+    (trajectories ``None`` unless ``record``; fields as in :func:`stp_env.sim.rollout`)."""
+    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(indices)
+    final, traj = jax.vmap(
+        lambda k: sim.rollout(k, params, vehicle_policy, intruder_policy, 1, n_steps, record=record))(keys)
+    return jax.tree.map(lambda a: a[:, 0], (final, traj))
+
+
+def pad_plan(params, n_samples: int):
+    """``params`` with the nominal trajectories padded (repeating the last sample) to ``n_samples``."""
+    k = params.nominal_states.shape[1]
+    if k == n_samples:
+        return params
+    if k > n_samples:
+        raise ValueError(f"cannot pad a plan of {k} samples to {n_samples}.")
+    widths = ((0, 0), (0, n_samples - k), (0, 0))
+    return dataclasses.replace(params, nominal_states=jnp.pad(params.nominal_states, widths, mode="edge"),
+                               nominal_controls=jnp.pad(params.nominal_controls, widths, mode="edge"))
+
+
+def host_state(state) -> dict[str, np.ndarray]:
+    """A (batched) :class:`EnvState` as numpy arrays (the PRNG key as its raw data)."""
+    out = {}
+    for f in dataclasses.fields(state):
+        value = getattr(state, f.name)
+        if jnp.issubdtype(value.dtype, jax.dtypes.prng_key):
+            value = jax.random.key_data(value)
+        out[f.name] = np.asarray(value)
+    return out
+
+
+@dataclasses.dataclass
+class ConfigResult:
+    """The outcome of one configuration.
+
+    ``episodes``: per-episode final-state arrays (``host_state``) plus ``n_forced`` and ``index``; ``summary``:
+    the numbers of the report (:func:`summarize`); ``events``: the replayable bad episodes (the first
+    ``max_events``; ``summary`` counts them all); ``showcase``: the recorded trajectory of the first episode with
+    the most forced vehicles (for the figures); ``params``: the simulator constants used.
+    """
+
+    config: Configuration
+    seed: int
+    n_steps: int
+    plan_samples: int
+    episodes: dict
+    summary: dict
+    events: list
+    showcase: dict | None
+    params: object = dataclasses.field(repr=False, default=None)
+
+
+def _events(config: Configuration, seed: int, n_steps: int, plan_samples: int, ep: dict, kbar: int) -> list[dict]:
+    n_forced = ep["n_forced"]
+    kinds = {
+        "bound_exceeded": n_forced > kbar,
+        "collision": np.any(ep["status"] == COLLIDED, axis=1),
+        "guarantee_violation": np.any(ep["guarantee_violation"], axis=1),
+        "assumption_failed": ~np.all(ep["assumption_ok"], axis=1),
+    }
+    bad = np.flatnonzero(np.any(np.stack(list(kinds.values())), axis=0))
+    out = []
+    for j in bad:
+        collided = np.flatnonzero(ep["status"][j] == COLLIDED)
+        out.append({
+            "label": config.label, "config": dataclasses.asdict(config), "seed": seed, "index": int(ep["index"][j]),
+            "n_steps": n_steps, "plan_samples": plan_samples,
+            "kinds": [k for k, v in kinds.items() if v[j]],
+            "n_forced": int(n_forced[j]),
+            "collided_vehicles": collided.tolist(),
+            "collision_times_s": [round(float(ep["collision_time"][j, i]), 2) for i in collided],
+            "with_intruder": [bool(ep["collided_with_intruder"][j, i]) for i in collided],
+            "violating_vehicles": np.flatnonzero(ep["guarantee_violation"][j]).tolist(),
+            "t_appear_s": round(float(ep["t_appear"][j]), 2),
+            "state": {k: v[j] for k, v in ep.items() if k not in ("index",)},
+        })
+    return out
+
+
+def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.95) -> dict:
+    """The report's numbers for one configuration from its per-episode arrays.
+
+    * ``forced_hist[m]``: episodes with ``|N^RP| = m`` (eq. 39), ``m = 0 .. N``; ``forced_mean``, ``forced_max``.
+    * ``exceed``: episodes with ``|N^RP| > k̄``; ``exceed_rate`` and its exact one-sided Clopper-Pearson upper bound
+      ``exceed_upper`` at ``confidence``.
+    * ``collision_episodes`` (episodes with any collision), ``collisions`` (vehicles), ``intruder_collisions``
+      (vehicles hit by the intruder), ``guarantee_violations`` (vehicles that collided although the intruder
+      appeared outside their avoid region and they applied ``u^A`` throughout, i.e. a failure of the theory or
+      the numerics), ``violation_episodes`` and its upper bound; ``assumption_failures``: episodes where the
+      intruder appeared inside a vehicle's avoid region (Assumption 3 failed; no guarantee applies).
+    * ``due``: vehicles whose STA falls within the simulated time (``<= t_end``); ``on_time_rate``: the fraction of
+      them that arrived by their STA; ``arrived_rate``: that arrived at all within the episode.
+    * ``min_separation_m``: the smallest distance between a vehicle and another vehicle or the intruder over all
+      episodes (``R_c`` is the collision radius); ``min_separation_p5_m`` / ``..._median_m``: percentiles of the
+      per-episode minimum.
+    """
+    n_ep = len(ep["n_forced"])
+    kbar = config.kbar
+    n_forced = ep["n_forced"]
+    n_veh = ep["status"].shape[1]
+    hist = np.bincount(n_forced, minlength=n_veh + 1)
+    exceed = int(np.sum(n_forced > kbar))
+    collided = ep["status"] == COLLIDED
+    violation_eps = int(np.sum(np.any(ep["guarantee_violation"], axis=1)))
+    sta = np.asarray(params.sta)
+    due = sta <= float(params.t_end) + 1e-6
+    on_time = (ep["arrival_time"] <= sta[None, :] + 1e-6) & due[None, :]
+    arrived = (ep["status"] == ARRIVED) & due[None, :]
+    n_due = int(due.sum()) * n_ep
+    per_episode_sep = np.min(ep["min_separation"], axis=1)
+    finite = per_episode_sep[np.isfinite(per_episode_sep)]
+    return {
+        "label": config.label,
+        "scenario": config.scenario, "kbar": kbar, "intruder": config.intruder,
+        "wind_mps": None if config.wind is None else float(config.wind),
+        "scenario_wind_mps": round(float(params.vehicle_bounds[3]), 3),
+        "wind_model": config.wind_model, "spawn_mode": config.effective_spawn_mode,
+        "vehicle_policy": config.vehicle_policy, "episode": config.episode,
+        "episodes": n_ep, "vehicles": n_veh,
+        "forced_hist": hist.tolist(),
+        "forced_mean": round(float(n_forced.mean()), 4), "forced_max": int(n_forced.max()),
+        "exceed": exceed, "exceed_rate": exceed / n_ep,
+        "exceed_upper": clopper_pearson_upper(exceed, n_ep, confidence),
+        "confidence": confidence,
+        "collision_episodes": int(np.sum(np.any(collided, axis=1))),
+        "collisions": int(collided.sum()),
+        "intruder_collisions": int(np.sum(collided & ep["collided_with_intruder"])),
+        "out_of_bounds": int(np.sum(ep["status"] == OUT_OF_BOUNDS)),
+        "guarantee_violations": int(ep["guarantee_violation"].sum()),
+        "violation_episodes": violation_eps,
+        "violation_upper": clopper_pearson_upper(violation_eps, n_ep, confidence),
+        "assumption_failures": int(np.sum(~np.all(ep["assumption_ok"], axis=1))),
+        "due": n_due,
+        "on_time_rate": float(on_time.sum() / n_due) if n_due else None,
+        "arrived_rate": float(arrived.sum() / n_due) if n_due else None,
+        "collision_radius_m": float(params.collision_radius),
+        "min_separation_m": round(float(finite.min()), 2) if finite.size else None,
+        "min_separation_p5_m": round(float(np.percentile(finite, 5)), 2) if finite.size else None,
+        "min_separation_median_m": round(float(np.median(finite)), 2) if finite.size else None,
+        "t_window_s": [round(float(params.t_start), 2), round(float(params.t_end), 2)],
+    }
+
+
+def build_params(configs, *, store=None, progress: bool = True) -> list:
+    """``EnvParams`` for each configuration (cached reachability artifacts and plans; computed on first use)."""
+    cache = {}
+    out = []
+    for config in configs:
+        scenario, env_config = config.make_scenario(), config.env_config()
+        key = (scenario, env_config)
+        if key not in cache:
+            cache[key] = sim.params_for(scenario, env_config, store=store, progress=progress)
+        out.append(cache[key])
+    return out
+
+
+def evaluate(configs, *, episodes: int = 1000, seed: int = 0, batch_size: int = 250, confidence: float = 0.95,
+             max_events: int = 50, store=None, progress: bool = True, params=None) -> list[ConfigResult]:
+    """Evaluate each :class:`Configuration` on ``episodes`` episodes (the same seeds for each).
+
+    Episodes run ``batch_size`` at a time (the last batch padded with extra episodes whose results are dropped),
+    so that each set of static arguments compiles once. ``params``: optional prebuilt ``EnvParams`` per
+    configuration (default :func:`build_params`).
+    """
+    configs = list(configs)
+    if not configs:
+        raise ValueError("no configuration to evaluate.")
+    for name, value in (("episodes", episodes), ("batch_size", batch_size)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name} must be an integer >= 1; got {value!r}.")
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence must be in (0, 1); got {confidence!r}.")
+    batch_size = min(batch_size, episodes)
+    all_params = build_params(configs, store=store, progress=progress) if params is None else list(params)
+    plan_samples = max(p.nominal_states.shape[1] for p in all_params)
+    n_steps = max(sim.steps_for(p) for p in all_params)
+    key = jax.random.key(seed)
+    results = []
+    for config, params_i in zip(configs, all_params):
+        params_i = pad_plan(params_i, plan_samples)
+        vehicle_policy, intruder_policy = config.policies()
+        results.append(_evaluate_one(config, params_i, vehicle_policy, intruder_policy, key, seed, episodes,
+                                     batch_size, n_steps, plan_samples, confidence, max_events, progress))
+    return results
+
+
+def _evaluate_one(config, params, vehicle_policy, intruder_policy, key, seed, episodes, batch_size, n_steps,
+                  plan_samples, confidence, max_events, progress) -> ConfigResult:
+    from tqdm.auto import tqdm
+
+    chunks: list[dict] = []
+    showcase, best = None, -1
+    start = time.perf_counter()
+    with tqdm(total=episodes, desc=config.label, unit="ep", disable=not progress, leave=True) as bar:
+        for first in range(0, episodes, batch_size):
+            indices = np.arange(first, first + batch_size, dtype=np.int32)
+            final, traj = run_batch(key, jnp.asarray(indices), params, vehicle_policy, intruder_policy, n_steps,
+                                    record=True)
+            keep = min(batch_size, episodes - first)
+            ep = {k: v[:keep] for k, v in host_state(final).items()}
+            ep["n_forced"] = np.sum(np.isfinite(ep["avoid_start"]), axis=1)
+            ep["index"] = indices[:keep]
+            j = int(np.argmax(ep["n_forced"]))
+            if ep["n_forced"][j] > best:
+                best = int(ep["n_forced"][j])
+                showcase = {k: np.asarray(v[j]) for k, v in traj.items()}
+                showcase.update(index=int(indices[j]), final={k: v[j] for k, v in ep.items()})
+            chunks.append(ep)
+            bar.update(keep)
+    seconds = time.perf_counter() - start
+    ep = {k: np.concatenate([c[k] for c in chunks]) for k in chunks[0]}
+    summary = summarize(config, ep, params, confidence=confidence)
+    summary.update(seed=seed, n_steps=n_steps, batch_size=batch_size, seconds=round(seconds, 2),
+                   episodes_per_s=round(episodes / seconds, 2))
+    events = _events(config, seed, n_steps, plan_samples, ep, config.kbar)
+    summary["events_saved"] = min(len(events), max_events)
+    return ConfigResult(config=config, seed=seed, n_steps=n_steps, plan_samples=plan_samples, episodes=ep,
+                        summary=summary, events=events[:max_events], showcase=showcase, params=params)
+
+
+def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_steps: int, *, record: bool = True):
+    """Episode ``index`` of the run with ``seed``, alone: ``(final state, trajectory)`` as numpy dicts (the
+    trajectory ``None`` without ``record``). The same episode as in :func:`evaluate` when ``params`` (padded the
+    same way) and ``n_steps`` are the same."""
+    final, traj = run_batch(jax.random.key(seed), jnp.asarray([index], jnp.int32), params, vehicle_policy,
+                            intruder_policy, n_steps, record=record)
+    state = {k: v[0] for k, v in host_state(final).items()}
+    state["n_forced"] = np.sum(np.isfinite(state["avoid_start"]))
+    return state, (None if traj is None else {k: np.asarray(v[0]) for k, v in traj.items()})
+
+
+def replay_event(event: dict, *, store=None, progress: bool = False, record: bool = True):
+    """Replay a saved event (an entry of ``ConfigResult.events`` or of ``events.json``)."""
+    config = Configuration(**event["config"])
+    params = pad_plan(build_params([config], store=store, progress=progress)[0], event["plan_samples"])
+    vehicle_policy, intruder_policy = config.policies()
+    return replay(event["seed"], event["index"], params, vehicle_policy, intruder_policy, event["n_steps"],
+                  record=record)
+
+
+def same_outcome(a: dict, b: dict, *, atol: float = 1e-3) -> bool:
+    """Whether two final states (numpy dicts) are the same outcome: equal statuses, modes, forced set and flags,
+    and times and states within ``atol``."""
+    exact = ("status", "mode", "complied", "assumption_ok", "collided_with_intruder", "guarantee_violation",
+             "intruder_status", "step_count")
+    if any(not np.array_equal(a[k], b[k]) for k in exact):
+        return False
+    if not np.array_equal(np.isfinite(a["avoid_start"]), np.isfinite(b["avoid_start"])):
+        return False
+    for k in ("avoid_start", "arrival_time", "collision_time", "t_appear", "x", "intruder_x", "min_separation"):
+        x, y = np.asarray(a[k], float), np.asarray(b[k], float)
+        if not np.allclose(np.where(np.isfinite(x), x, 0.0), np.where(np.isfinite(y), y, 0.0), atol=atol, rtol=0):
+            return False
+    return True
+
