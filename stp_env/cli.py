@@ -9,6 +9,10 @@ Subcommands:
 * ``precompute``: build (or load from the cache) every reachability artifact of the default scenario (avoid
   region, tracking-error bound, relative buffer regions and disk radii for each k̄), print a JSON summary and
   write the figures.
+* ``evaluate``: Monte Carlo evaluation of the k̄ bound (how many vehicles an intruder forces to avoid) over
+  intruders, k̄ values and wind, with exact confidence bounds; prints a markdown table and writes results, replayable
+  bad episodes and figures (:mod:`stp_env.evaluation`).
+* ``render``: one episode (from a seed and an episode index, or a saved event) as an animated GIF.
 
 * ``train-intruder``: train a learned intruder with Stable-Baselines3 (PPO by default) on the native batched
   VecEnv against vehicles running ``u*`` with the HJ safety filter (:mod:`stp_env.rl.train`; needs the ``rl``
@@ -44,6 +48,26 @@ def _nonnegative(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
     if not value >= 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def _nonnegative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def _probability(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"must be between 0 and 1 (exclusive), got {text}")
     return value
 
 
@@ -90,8 +114,77 @@ def _build_parser() -> argparse.ArgumentParser:
                      help="artifact cache directory (default: $STP_ENV_CACHE_DIR or the user cache directory)")
     pre.add_argument("--figures", default="figures", help="directory for the PNG figures")
     pre.add_argument("--no-progress", action="store_true", help="hide the progress bars")
+
+    _add_evaluate_parsers(sub)
     _add_train_intruder_parser(sub)
     return parser
+
+
+def _add_episode_options(p, *, many: bool) -> None:
+    """Options shared by ``evaluate`` (lists) and ``render`` (one configuration)."""
+    from stp_env.baselines import INTRUDERS, VEHICLE_POLICIES
+    from stp_env.evaluation.config import EPISODE_CHOICES, SPAWN_CHOICES
+    from stp_env.sim.types import WIND_MODELS
+
+    nargs = "+" if many else None
+    p.add_argument("--scenario", default="town", help="registered scenario name (see stp_env.scenarios.names())")
+    p.add_argument("--kbar", type=_positive(int), nargs=nargs, default=[1, 2, 3] if many else 2,
+                   help="k̄, the number of vehicles the intruder may force to avoid (>= 1); each value uses the "
+                        "scenario's plan for that k̄" + (" (several: one configuration each)" if many else ""))
+    p.add_argument("--intruder", nargs=nargs, default=["max-k"] if many else "max-k",
+                   help=f"intruder policy: one of {', '.join(INTRUDERS)}, or 'package.module:policy' / "
+                        "'package.module:factory=ARG' for a learned jittable policy (key, state, params) -> (2,)")
+    p.add_argument("--wind", type=_nonnegative, default=None,
+                   help="wind bound d_r of vehicles and intruder [m/s] (None: the scenario's, 6 m/s for town; "
+                        "another value computes its own reachability artifacts and plan on first use)")
+    p.add_argument("--wind-model", choices=WIND_MODELS, default="uniform",
+                   help="uniform: a new wind in the disk every step (the papers); constant: one per episode; "
+                        "gusts: Ornstein-Uhlenbeck; worst: the HJ games' worst-case wind")
+    p.add_argument("--spawn-mode", choices=SPAWN_CHOICES, default="auto",
+                   help="where the intruder appears: outside every avoid region (Assumption 3), on a vehicle's "
+                        "avoid boundary (Observation 1), or auto (boundary for max-k, else outside)")
+    p.add_argument("--vehicle-policy", choices=list(VEHICLE_POLICIES), default="switching",
+                   help="switching: u* (eq. 38) with the safety filter; nominal: u^PP, the filter off")
+    p.add_argument("--episode", choices=EPISODE_CHOICES, default="window",
+                   help="window: from 5 s before the intruder's appearance window to 10 s after it can leave; "
+                        "full: first departure to the last STA (slower)")
+    p.add_argument("--seed", type=_nonnegative_int, default=0, help="run seed; episode i replays from (seed, i)")
+    p.add_argument("--cache-dir", default=None,
+                   help="artifact cache directory (None: $STP_ENV_CACHE_DIR or the user cache directory)")
+    p.add_argument("--no-progress", action="store_true", help="hide the progress bars")
+
+
+def _add_evaluate_parsers(sub) -> None:
+    ev = sub.add_parser("evaluate", help="Monte Carlo evaluation of the k̄ bound with exact confidence bounds",
+                        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                        description="Run episodes of a scenario for every (intruder, k̄) configuration and report "
+                                    "|N^RP| (vehicles forced to avoid, eq. 39), P(|N^RP| > k̄) with an exact "
+                                    "Clopper-Pearson upper bound, collisions, guarantee violations, on-time "
+                                    "arrivals and the smallest separation. Prints a markdown table; writes "
+                                    "results.{json,csv,md}, events.{json,npz} (replayable bad episodes) and PNG "
+                                    "figures to --out.")
+    _add_episode_options(ev, many=True)
+    ev.add_argument("--episodes", type=_positive(int), default=1000, help="episodes per configuration")
+    ev.add_argument("--batch-size", type=_positive(int), default=250,
+                    help="episodes per compiled batch (memory grows with it; every batch has this size)")
+    ev.add_argument("--confidence", type=_probability, default=0.95,
+                    help="confidence level of the one-sided upper bounds (0 < c < 1)")
+    ev.add_argument("--out", default="evaluation", help="output directory")
+    ev.add_argument("--no-figures", action="store_true", help="write the results only")
+
+    rd = sub.add_parser("render", help="render one episode as an animated GIF",
+                        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                        description="Replay episode --index of the run with --seed (the same episode as in "
+                                    "`stp-env evaluate` with the same options), or a saved bad episode "
+                                    "(--events FILE --event N), and write it as a GIF (PNG frames if pillow "
+                                    "is missing).")
+    _add_episode_options(rd, many=False)
+    rd.add_argument("--index", type=_nonnegative_int, default=0, help="episode index within the run")
+    rd.add_argument("--events", default=None, help="an events.json written by `stp-env evaluate`")
+    rd.add_argument("--event", type=_nonnegative_int, default=0, help="which record of --events")
+    rd.add_argument("--frame-dt", type=_positive(float), default=0.5, help="simulated time between frames [s]")
+    rd.add_argument("--fps", type=_positive(int), default=8, help="frames per second of the GIF")
+    rd.add_argument("--out", default="episode.gif", help="GIF file to write")
 
 
 def _avoid_region(args) -> int:
@@ -172,6 +265,74 @@ def _precompute(args) -> int:
     return 0
 
 
+def _evaluation_configs(args, kbars, intruders):
+    from stp_env.evaluation import Configuration, resolve_intruder
+    from stp_env.scenarios import make
+
+    make(args.scenario)                      # an unknown scenario fails here, before any work
+    for spec in intruders:
+        resolve_intruder(spec)
+    return [Configuration(scenario=args.scenario, kbar=k, intruder=i, wind=args.wind, wind_model=args.wind_model,
+                          spawn_mode=args.spawn_mode, vehicle_policy=args.vehicle_policy, episode=args.episode)
+            for i in dict.fromkeys(intruders) for k in dict.fromkeys(kbars)]
+
+
+def _evaluate(args) -> int:
+    from stp_env.artifacts import ArtifactStore
+    from stp_env.evaluation import pipeline
+
+    configs = _evaluation_configs(args, args.kbar, args.intruder)
+    for config in configs:
+        config.make_scenario()               # a k̄ the scenario does not allow fails here
+    result = pipeline.run(configs, args.out, episodes=args.episodes, seed=args.seed, batch_size=args.batch_size,
+                          confidence=args.confidence, store=ArtifactStore(args.cache_dir),
+                          progress=not args.no_progress, figures=not args.no_figures)
+    print(result["markdown"])
+    print(f"\n{len(configs)} configuration(s) x {args.episodes} episodes in {result['seconds']} s; wrote "
+          f"{', '.join(result['files'])}")
+    return 0
+
+
+def _render(args) -> int:
+    import json as json_lib
+    from pathlib import Path
+
+    from stp_env.artifacts import ArtifactStore
+    from stp_env.evaluation import Configuration, build_params, pad_plan, replay
+    from stp_env.evaluation.render import render_episode
+    from stp_env.sim import COLLIDED, steps_for
+
+    store = ArtifactStore(args.cache_dir)
+    if args.events is not None:
+        records = json_lib.loads(Path(args.events).read_text())
+        if not 0 <= args.event < len(records):
+            raise ValueError(f"--event {args.event}: {args.events} has {len(records)} record(s).")
+        record = records[args.event]
+        config, seed, index = Configuration(**record["config"]), record["seed"], record["index"]
+        params = pad_plan(build_params([config], store=store, progress=not args.no_progress)[0],
+                          record["plan_samples"])
+        n_steps = record["n_steps"]
+    else:
+        config = _evaluation_configs(args, [args.kbar], [args.intruder])[0]
+        seed, index = args.seed, args.index
+        params = build_params([config], store=store, progress=not args.no_progress)[0]
+        n_steps = steps_for(params)
+    start = time.perf_counter()
+    vehicle_policy, intruder_policy = config.policies()
+    final, traj = replay(seed, index, params, vehicle_policy, intruder_policy, n_steps)
+    title = (f"{config.scenario}, k̄ = {config.kbar}, {config.intruder} intruder, seed {seed}, episode {index}: "
+             f"|N^RP| = {int(final['n_forced'])}")
+    files = render_episode(traj, final, params, config.make_scenario(), args.out, frame_dt=args.frame_dt,
+                           fps=args.fps, title=title)
+    print(json.dumps({
+        "files": files if len(files) == 1 else [files[0], "...", files[-1]], "frames": len(files),
+        "seed": seed, "index": index, "label": config.label, "n_forced": int(final["n_forced"]),
+        "collided": int((final["status"] == COLLIDED).sum()),
+        "guarantee_violations": int(final["guarantee_violation"].sum()),
+        "seconds": round(time.perf_counter() - start, 1)}))
+    return 0
+
+
 def _env_steps(text: str) -> int:
     try:
         value = int(text)
@@ -240,6 +401,10 @@ def main(argv=None) -> int:
             return _plan(args)
         if args.command == "train-intruder":
             return _train_intruder(args)
+        if args.command == "evaluate":
+            return _evaluate(args)
+        if args.command == "render":
+            return _render(args)
     except ValueError as err:
         print(f"stp-env {args.command}: error: {err}", file=sys.stderr)
         return 2

@@ -41,6 +41,7 @@ def run(configs, out_dir, *, episodes: int = 1000, seed: int = 0, batch_size: in
         report.write_json(summaries, out / "results.json", seed=seed, episodes=episodes, batch_size=batch_size),
         report.write_csv(summaries, out / "results.csv"),
         *report.write_events(results, out),
+        report.write_episodes(results, out / "episodes.npz"),
     ]
     (out / "results.md").write_text(markdown + "\n")
     files.append(str(out / "results.md"))

@@ -1,5 +1,5 @@
 """Results as JSON, CSV and a markdown table; bad episodes as replayable records (``events.json`` +
-``events.npz``)."""
+``events.npz``); every episode's final state (``episodes.npz``)."""
 
 from __future__ import annotations
 
@@ -74,6 +74,14 @@ def write_events(results, out_dir) -> tuple[str, str]:
     json_path.write_text(json.dumps(records, indent=1) + "\n")
     np.savez_compressed(npz_path, **arrays)
     return str(json_path), str(npz_path)
+
+
+def write_episodes(results, path) -> str:
+    """Every episode's final state, keys ``"{label}/{field}"`` (plus ``n_forced`` and ``index``), for analyses
+    beyond the summary."""
+    arrays = {f"{r.config.label}/{k}": np.asarray(v) for r in results for k, v in r.episodes.items()}
+    np.savez_compressed(path, **arrays)
+    return str(path)
 
 
 def load_event_state(npz_path, record: dict) -> dict:

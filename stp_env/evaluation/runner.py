@@ -189,12 +189,15 @@ def build_params(configs, *, store=None, progress: bool = True) -> list:
 
 
 def evaluate(configs, *, episodes: int = 1000, seed: int = 0, batch_size: int = 250, confidence: float = 0.95,
-             max_events: int = 50, store=None, progress: bool = True, params=None) -> list[ConfigResult]:
+             max_events: int = 50, store=None, progress: bool = True, params=None,
+             showcase: bool = True) -> list[ConfigResult]:
     """Evaluate each :class:`Configuration` on ``episodes`` episodes (the same seeds for each).
 
     Episodes run ``batch_size`` at a time (the last batch padded with extra episodes whose results are dropped),
     so that each set of static arguments compiles once. ``params``: optional prebuilt ``EnvParams`` per
-    configuration (default :func:`build_params`).
+    configuration (default :func:`build_params`). ``showcase``: record the batches' trajectories to keep the
+    episode with the most forced vehicles for the figures (memory ``batch_size x steps x vehicles``: about 45 MB
+    per batch of 250 town episodes; off: ``ConfigResult.showcase`` is ``None``).
     """
     configs = list(configs)
     if not configs:
@@ -214,12 +217,13 @@ def evaluate(configs, *, episodes: int = 1000, seed: int = 0, batch_size: int = 
         params_i = pad_plan(params_i, plan_samples)
         vehicle_policy, intruder_policy = config.policies()
         results.append(_evaluate_one(config, params_i, vehicle_policy, intruder_policy, key, seed, episodes,
-                                     batch_size, n_steps, plan_samples, confidence, max_events, progress))
+                                     batch_size, n_steps, plan_samples, confidence, max_events, progress,
+                                     showcase))
     return results
 
 
 def _evaluate_one(config, params, vehicle_policy, intruder_policy, key, seed, episodes, batch_size, n_steps,
-                  plan_samples, confidence, max_events, progress) -> ConfigResult:
+                  plan_samples, confidence, max_events, progress, record) -> ConfigResult:
     from tqdm.auto import tqdm
 
     chunks: list[dict] = []
@@ -229,13 +233,13 @@ def _evaluate_one(config, params, vehicle_policy, intruder_policy, key, seed, ep
         for first in range(0, episodes, batch_size):
             indices = np.arange(first, first + batch_size, dtype=np.int32)
             final, traj = run_batch(key, jnp.asarray(indices), params, vehicle_policy, intruder_policy, n_steps,
-                                    record=True)
+                                    record=record)
             keep = min(batch_size, episodes - first)
             ep = {k: v[:keep] for k, v in host_state(final).items()}
             ep["n_forced"] = np.sum(np.isfinite(ep["avoid_start"]), axis=1)
             ep["index"] = indices[:keep]
             j = int(np.argmax(ep["n_forced"]))
-            if ep["n_forced"][j] > best:
+            if record and ep["n_forced"][j] > best:
                 best = int(ep["n_forced"][j])
                 showcase = {k: np.asarray(v[j]) for k, v in traj.items()}
                 showcase.update(index=int(indices[j]), final={k: v[j] for k, v in ep.items()})

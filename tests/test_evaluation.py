@@ -1,0 +1,212 @@
+"""The evaluation (issue 7): exact Clopper-Pearson bounds against scipy, the ``evaluate`` and ``render``
+subcommands on a tiny run, bad options (exit code 2 with a clear message), and replays of saved episodes.
+
+Compile budget: the whole module compiles the rollout twice (a batch of 2 for ``evaluate``, a batch of 1 for the
+replays, the nominal-control counterpart of the figures and ``render``): the run uses the nominal vehicle policy,
+so that the Fig. 5 counterpart is the same program as a replay.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+
+import numpy as np
+import pytest
+from scipy import special
+from scipy.stats import beta
+
+from stp_env import cli
+from stp_env.evaluation import (
+    Configuration,
+    beta_ppf,
+    betainc,
+    clopper_pearson_interval,
+    clopper_pearson_lower,
+    clopper_pearson_upper,
+    replay_event,
+    resolve_intruder,
+    same_outcome,
+)
+from stp_env.evaluation.report import load_event_state
+from stp_env.sim import COLLIDED
+
+TINY = ["--scenario", "tiny-intruder", "--kbar", "2", "--intruder", "greedy", "--vehicle-policy", "nominal",
+        "--seed", "1", "--no-progress"]
+EPISODES = 3
+
+
+# ------------------------------------------------------------------------------------------------ statistics
+@pytest.mark.parametrize("n", [1, 2, 7, 30, 1000, 12345, 10**6])
+@pytest.mark.parametrize("confidence", [0.9, 0.95, 0.99])
+def test_clopper_pearson_matches_scipy(n, confidence):
+    for k in sorted({0, 1, 2, n // 3, n // 2, n - 1, n} - {-1}):
+        if k > n:
+            continue
+        upper = 1.0 if k == n else beta.ppf(confidence, k + 1, n - k)
+        lower = 0.0 if k == 0 else beta.ppf(1 - confidence, k, n - k + 1)
+        assert clopper_pearson_upper(k, n, confidence) == pytest.approx(upper, rel=1e-9, abs=1e-12)
+        assert clopper_pearson_lower(k, n, confidence) == pytest.approx(lower, rel=1e-9, abs=1e-12)
+        lo, hi = clopper_pearson_interval(k, n, confidence)
+        tail = (1 - confidence) / 2
+        assert lo == pytest.approx(0.0 if k == 0 else beta.ppf(tail, k, n - k + 1), rel=1e-9, abs=1e-12)
+        assert hi == pytest.approx(1.0 if k == n else beta.ppf(1 - tail, k + 1, n - k), rel=1e-9, abs=1e-12)
+
+
+def test_rule_of_three_and_betainc():
+    # no event in n trials: the 95 % bound is 1 - 0.05^(1/n), about 3/n
+    assert clopper_pearson_upper(0, 1000) == pytest.approx(1 - 0.05 ** (1 / 1000), rel=1e-12)
+    assert 2.9 / 1000 < clopper_pearson_upper(0, 1000) < 3.0 / 1000
+    rng = np.random.default_rng(0)
+    for a, b, x in zip(rng.uniform(0.05, 300, 200), rng.uniform(0.05, 300, 200), rng.uniform(0, 1, 200)):
+        assert betainc(a, b, x) == pytest.approx(special.betainc(a, b, x), rel=1e-9, abs=1e-14)
+    for q in (1e-6, 0.05, 0.5, 0.95):
+        assert beta_ppf(q, 3.5, 200.0) == pytest.approx(beta.ppf(q, 3.5, 200.0), rel=1e-9)
+
+
+@pytest.mark.parametrize("args", [(1, 0), (-1, 5), (6, 5), (1, 5, 1.0), (1, 5, 0.0), (1.5, 5)])
+def test_clopper_pearson_rejects_bad_input(args):
+    with pytest.raises(ValueError):
+        clopper_pearson_upper(*args)
+
+
+# ------------------------------------------------------------------------------------------------ intruders
+def test_resolve_intruder_names_and_import_specs():
+    from stp_env.baselines import INTRUDERS
+
+    assert resolve_intruder("max-k") is INTRUDERS["max-k"]
+    assert resolve_intruder("stp_env.baselines.intruders:hover") is INTRUDERS["hover"]
+    # a factory called with the text after '=' (how a checkpoint loader is passed its path)
+    assert resolve_intruder("stp_env.evaluation.config:resolve_intruder=greedy") is INTRUDERS["greedy"]
+    for bad, message in (("nope", "unknown intruder"), ("no_such_module_xyz:policy", "cannot import"),
+                         ("stp_env.baselines.intruders:nope", "has no attribute")):
+        with pytest.raises(ValueError, match=message):
+            resolve_intruder(bad)
+
+
+def test_configuration_rejects_bad_fields():
+    with pytest.raises(ValueError, match="kbar"):
+        Configuration(kbar=0)
+    with pytest.raises(ValueError, match="wind"):
+        Configuration(wind=-1.0)
+    with pytest.raises(ValueError, match="spawn mode"):
+        Configuration(spawn_mode="sky")
+    assert Configuration(intruder="max-k").effective_spawn_mode == "boundary"
+    assert Configuration(intruder="hj").effective_spawn_mode == "outside"
+
+
+# ------------------------------------------------------------------------------------------------ subcommands
+def _cli(argv):
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = cli.main(argv)
+        except SystemExit as exc:     # argparse errors
+            code = exc.code
+    return code, out.getvalue(), err.getvalue()
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("evaluation")
+    code, stdout, stderr = _cli(["evaluate", *TINY, "--episodes", str(EPISODES), "--batch-size", "2",
+                                 "--out", str(out)])
+    assert code == 0, stderr
+    return out, stdout
+
+
+def test_evaluate_writes_results(tiny_run):
+    out, stdout = tiny_run
+    assert "| intruder | k̄ |" in stdout and "| greedy (outside) | 2 |" in stdout
+    summary = json.loads((out / "results.json").read_text())["configurations"]
+    assert len(summary) == 1
+    s = summary[0]
+    assert s["episodes"] == EPISODES and sum(s["forced_hist"]) == EPISODES
+    # the summary agrees with the per-episode final states
+    with np.load(out / "episodes.npz") as data:
+        label = s["label"]
+        n_forced, status = data[f"{label}/n_forced"], data[f"{label}/status"]
+        assert list(data[f"{label}/index"]) == list(range(EPISODES))
+    assert np.array_equal(np.bincount(n_forced, minlength=len(s["forced_hist"])), s["forced_hist"])
+    assert s["collisions"] == int(np.sum(status == COLLIDED))
+    assert s["exceed_upper"] == pytest.approx(clopper_pearson_upper(s["exceed"], EPISODES))
+    assert (out / "results.csv").read_text().count("\n") == 2
+    assert (out / "results.md").read_text().startswith("| intruder |")
+    for name in ("forced_histogram.png", "summary.png", "episode.png", "distance_vs_time.png"):
+        assert (out / name).stat().st_size > 10_000, name
+
+
+def test_saved_events_replay(tiny_run):
+    out, _ = tiny_run
+    records = json.loads((out / "events.json").read_text())
+    # vehicles that ignore an intruder flying straight at them collide: the run has events to replay
+    assert records and any("collision" in r["kinds"] for r in records)
+    for record in records:
+        saved = load_event_state(out / "events.npz", record)
+        replayed, traj = replay_event(record)
+        assert same_outcome(saved, replayed), record
+        assert int(replayed["n_forced"]) == record["n_forced"]
+        assert np.flatnonzero(replayed["status"] == COLLIDED).tolist() == record["collided_vehicles"]
+        assert traj["x"].shape[0] == record["n_steps"]
+
+
+def test_replay_of_any_episode_matches_the_batch(tiny_run):
+    """Episode 2 ran in the padded second batch of 2; replayed alone it ends the same."""
+    out, _ = tiny_run
+    summary = json.loads((out / "results.json").read_text())["configurations"][0]
+    with np.load(out / "episodes.npz") as data:
+        saved = {k.split("/", 1)[1]: data[k] for k in data.files if k.startswith(summary["label"] + "/")}
+    from stp_env.evaluation import build_params, pad_plan, replay
+
+    config = Configuration(scenario="tiny-intruder", kbar=2, intruder="greedy", vehicle_policy="nominal")
+    params = build_params([config], progress=False)[0]
+    params = pad_plan(params, params.nominal_states.shape[1])
+    final, _ = replay(1, 2, params, *config.policies(), summary["n_steps"])
+    episode = {k: v[2] for k, v in saved.items()}
+    assert same_outcome(episode, final)
+    other = {k: v[1] for k, v in saved.items()}
+    assert not same_outcome(other, final)          # and the comparison can tell episodes apart
+
+
+def test_render_writes_a_small_gif(tiny_run, tmp_path):
+    out, _ = tiny_run
+    gif = tmp_path / "episode.gif"
+    code, stdout, stderr = _cli(["render", "--events", str(out / "events.json"), "--event", "0",
+                                 "--frame-dt", "2", "--out", str(gif), "--no-progress"])
+    assert code == 0, stderr
+    info = json.loads(stdout.strip().splitlines()[-1])
+    record = json.loads((out / "events.json").read_text())[0]
+    assert info["index"] == record["index"] and info["n_forced"] == record["n_forced"]
+    assert gif.read_bytes()[:6] in (b"GIF89a", b"GIF87a")
+    assert 1_000 < gif.stat().st_size < 2_000_000
+
+
+# ------------------------------------------------------------------------------------------------ bad options
+@pytest.mark.parametrize("argv, message", [
+    (["evaluate", "--scenario", "nope"], "unknown scenario 'nope'"),
+    (["evaluate", "--kbar", "0"], "--kbar: must be > 0"),
+    (["evaluate", "--episodes", "-5"], "--episodes: must be > 0"),
+    (["evaluate", "--episodes", "many"], "--episodes: expected"),
+    (["evaluate", "--intruder", "nope"], "unknown intruder 'nope'"),
+    (["evaluate", "--scenario", "town", "--kbar", "7"], "kbar must be one of"),
+    (["evaluate", "--confidence", "1.5"], "--confidence: must be between 0 and 1"),
+    (["evaluate", "--spawn-mode", "sky"], "invalid choice: 'sky'"),
+    (["render", "--kbar", "0"], "--kbar: must be > 0"),
+    (["render", "--index", "-1"], "--index: must be >= 0"),
+])
+def test_bad_options_exit_2(argv, message):
+    code, _, stderr = _cli(argv)
+    assert code == 2
+    assert message in stderr, stderr
+
+
+def test_render_rejects_a_missing_event(tiny_run):
+    out, _ = tiny_run
+    code, _, stderr = _cli(["render", "--events", str(out / "events.json"), "--event", "999"])
+    assert code == 2 and "record(s)" in stderr
+
+
+def test_clopper_pearson_is_monotone():
+    ups = [clopper_pearson_upper(k, 50) for k in range(51)]
+    assert np.all(np.diff(ups) > 0) and ups[-1] == 1.0
