@@ -232,8 +232,9 @@ class STPParallelEnv(ParallelEnv):
         params = self.params
         options = {} if options is None else dict(options)
         unknown = sorted(set(options) - {"appear_time"})
-        if unknown:
-            raise ValueError(f"unknown reset option(s) {unknown}; allowed: ['appear_time'] (seconds, plan time).")
+        if unknown:  # PettingZoo's API test passes arbitrary options and expects them to be ignored
+            gymnasium.logger.warn(f"ignoring unknown reset option(s) {unknown}; known: ['appear_time'] (seconds, "
+                                  "plan time).")
         if "appear_time" in options:
             t = float(options["appear_time"])
             if not np.isfinite(t):
