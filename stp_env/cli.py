@@ -320,7 +320,7 @@ def _render(args) -> int:
     start = time.perf_counter()
     vehicle_policy, intruder_policy = config.policies()
     final, traj = replay(seed, index, params, vehicle_policy, intruder_policy, n_steps)
-    title = (f"{config.scenario}, k̄ = {config.kbar}, {config.intruder} intruder, seed {seed}, episode {index}: "
+    title = (f"{config.scenario}, k̄ = {config.kbar}, {config.intruder} intruder\nseed {seed}, episode {index}: "
              f"|N^RP| = {int(final['n_forced'])}")
     files = render_episode(traj, final, params, config.make_scenario(), args.out, frame_dt=args.frame_dt,
                            fps=args.fps, title=title)

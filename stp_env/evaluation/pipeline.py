@@ -7,8 +7,8 @@ import dataclasses
 import time
 from pathlib import Path
 
-from stp_env.baselines import nominal_tracking
 from stp_env.evaluation import plots, report
+from stp_env.evaluation.config import resolve_vehicle_policy
 from stp_env.evaluation.runner import evaluate, replay
 
 
@@ -18,12 +18,14 @@ def showcase_result(results):
     return max(with_showcase, key=lambda r: r.summary["forced_max"]) if with_showcase else None
 
 
-def nominal_counterpart(result):
-    """The showcase episode replayed with the vehicles on nominal tracking ``u^PP`` and the safety filter off:
-    the same seed, wind draws and intruder spawn (the intruder's policy reacts to the vehicles it sees)."""
-    params = dataclasses.replace(result.params, safety_filter=False)
+def counterpart(result, vehicle_policy: str):
+    """The showcase episode replayed under another vehicle policy (``"nominal"``: ``u^PP`` with the safety filter
+    off; ``"switching"``: ``u*`` with it on): the same seed, wind draws and intruder spawn (the intruder's policy
+    reacts to the vehicles it sees)."""
+    params = dataclasses.replace(result.params, safety_filter=vehicle_policy != "nominal")
     _, intruder_policy = result.config.policies()
-    return replay(result.seed, result.showcase["index"], params, nominal_tracking, intruder_policy, result.n_steps)
+    return replay(result.seed, result.showcase["index"], params, resolve_vehicle_policy(vehicle_policy),
+                  intruder_policy, result.n_steps)
 
 
 def run(configs, out_dir, *, episodes: int = 1000, seed: int = 0, batch_size: int = 250, confidence: float = 0.95,
@@ -56,9 +58,12 @@ def run(configs, out_dir, *, episodes: int = 1000, seed: int = 0, batch_size: in
                     f"{show['index']}: |N^RP| = {int(show['final']['n_forced'])}")
             files.append(plots.plot_episode(show, show["final"], best.params, scenario, str(out / "episode.png"),
                                             title=f"{scenario.name}: {what}"))
-            nominal_final, nominal_traj = nominal_counterpart(best)
+            own = best.config.vehicle_policy
+            other = "nominal" if own == "switching" else "switching"
+            other_final, other_traj = counterpart(best, other)
+            runs = {own: (show, show["final"]), other: (other_traj, other_final)}
             files.append(plots.plot_distance_vs_time(
-                show, show["final"], nominal_traj, nominal_final, best.params, str(out / "distance_vs_time.png"),
+                *runs["switching"], *runs["nominal"], best.params, str(out / "distance_vs_time.png"),
                 title=f"distance to the intruder, avoidance u* vs nominal u^PP\n{scenario.name}: {what}"))
     return {"summaries": summaries, "markdown": markdown, "files": files,
             "seconds": round(time.perf_counter() - start, 1)}

@@ -24,6 +24,13 @@ def _plt():
     return plt
 
 
+_VEHICLE_PALETTE = (0, 1, 2, 4, 5, 6, 7, 8, 9)   # tab10 without red: red is the intruder's
+
+
+def vehicle_color(i: int):
+    return _plt().get_cmap("tab10")(_VEHICLE_PALETTE[i % len(_VEHICLE_PALETTE)])
+
+
 def _intruder_colors(names):
     plt = _plt()
     cmap = plt.get_cmap("tab10")
@@ -69,7 +76,7 @@ def plot_forced_histograms(summaries: list[dict], path: str) -> str:
         ax.grid(alpha=0.3, axis="y")
     axes[0][0].set_ylabel("fraction of episodes")
     axes[0][-1].legend(fontsize=8, loc="upper right")
-    fig.suptitle(f"{summaries[0]['scenario']}: vehicles forced to avoid (dashed horizontal: {100 * conf:g}% "
+    fig.suptitle(f"{summaries[0]['scenario']}: vehicles forced to avoid\n(dashed horizontal: {100 * conf:g}% "
                  "upper bound on P(|N^RP| > k̄))", fontsize=10)
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -89,31 +96,32 @@ def _intruder_distance(traj) -> np.ndarray:
 
 def plot_distance_vs_time(avoid_traj, avoid_final, nominal_traj, nominal_final, params, path: str,
                           title: str = "") -> str:
-    """Distance to the intruder against the time since it appeared, for each vehicle forced to avoid (avoidance
-    run), under ``u*`` (solid) and under ``u^PP`` (dashed: the same episode with the vehicles ignoring the
-    intruder); ``R_c`` as a line, avoid starts as dots, collisions as crosses (intruder paper Fig. 5)."""
+    """Distance to the intruder against the time since it appeared, for each vehicle forced to avoid in either
+    run, under ``u*`` (solid) and under ``u^PP`` (dashed: the same episode, same seed, with the vehicles ignoring
+    the intruder); ``R_c`` as a line, avoid starts as dots, collisions as crosses (intruder paper Fig. 5)."""
     plt = _plt()
     t_app = float(avoid_final["t_appear"])
     t_iat = float(params.t_iat)
     r_c = float(params.collision_radius)
-    forced = np.flatnonzero(np.isfinite(avoid_final["avoid_start"]))
+    forced = np.flatnonzero(np.isfinite(avoid_final["avoid_start"]) | np.isfinite(nominal_final["avoid_start"]))
     if forced.size == 0:   # nobody forced: show the vehicles that came closest
         d = np.nanmin(_intruder_distance(avoid_traj), axis=0)
         forced = np.argsort(np.where(np.isfinite(d), d, np.inf))[:2]
     fig, ax = plt.subplots(figsize=(7.5, 4.6), constrained_layout=True)
-    cmap = plt.get_cmap("tab10")
     d_avoid, d_nom = _intruder_distance(avoid_traj), _intruder_distance(nominal_traj)
     tau_a, tau_n = avoid_traj["t"] - t_app, nominal_traj["t"] - t_app
     ymax = 0.0
-    for c, i in enumerate(forced):
-        col = cmap(c % 10)
+    for i in forced:
+        col = vehicle_color(i)
         ax.plot(tau_a, d_avoid[:, i], color=col, lw=2, label=f"vehicle {i}: avoidance u* (eq. 38)")
         ax.plot(tau_n, d_nom[:, i], color=col, lw=1.5, ls="--", label=f"vehicle {i}: nominal u^PP")
         ymax = max(ymax, np.nanmax(np.r_[d_avoid[:, i], d_nom[:, i], 0.0]))
-        t_i = avoid_final["avoid_start"][i]
-        if np.isfinite(t_i):
-            k = int(np.argmin(np.abs(avoid_traj["t"] - t_i)))
-            ax.plot(tau_a[k], d_avoid[k, i], "o", color=col, ms=7, mec="k")
+        for traj, final, tau, d in ((avoid_traj, avoid_final, tau_a, d_avoid),
+                                    (nominal_traj, nominal_final, tau_n, d_nom)):
+            t_i = final["avoid_start"][i]
+            if np.isfinite(t_i):
+                k = int(np.argmin(np.abs(traj["t"] - t_i)))
+                ax.plot(tau[k], d[k, i], "o", color=col, ms=7, mec="k")
         for traj, final, tau, d in ((avoid_traj, avoid_final, tau_a, d_avoid),
                                     (nominal_traj, nominal_final, tau_n, d_nom)):
             if final["status"][i] == COLLIDED:
@@ -151,15 +159,14 @@ def plot_episode(traj, final, params, scenario, path: str, title: str = "") -> s
     (left) and the encounter (right)."""
     plt = _plt()
     n = traj["x"].shape[1]
-    cmap = plt.get_cmap("tab10")
-    fig, axes = plt.subplots(1, 2, figsize=(12, 6), constrained_layout=True)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 6.3), constrained_layout=True)
     present = traj["intruder_status"] == PRESENT
     ip = traj["intruder_x"][present]
     forced = np.flatnonzero(np.isfinite(final["avoid_start"]))
     for ax in axes:
         _draw_scene(ax, scenario, params)
         for i in range(n):
-            col = cmap(i % 10)
+            col = vehicle_color(i)
             fly = traj["status"][:, i] == FLYING
             xy = np.where(fly[:, None], traj["x"][:, i, :2], np.nan)
             ax.plot(xy[:, 0], xy[:, 1], color=col, lw=1.2, label=f"vehicle {i}" if ax is axes[0] else None)
@@ -175,8 +182,8 @@ def plot_episode(traj, final, params, scenario, path: str, title: str = "") -> s
         for i in forced:
             k = int(np.argmin(np.abs(traj["t"] - final["avoid_start"][i])))
             p = traj["x"][k, i, :2]
-            ax.plot(*p, "o", color=cmap(i % 10), ms=8, mec="k")
-            ax.add_patch(plt.Circle(p, float(params.collision_radius), fill=False, ls=":", color=cmap(i % 10)))
+            ax.plot(*p, "o", color=vehicle_color(i), ms=8, mec="k")
+            ax.add_patch(plt.Circle(p, float(params.collision_radius), fill=False, ls=":", color=vehicle_color(i)))
             if ip.size:
                 kk = min(int(np.searchsorted(traj["t"][present], traj["t"][k])), len(ip) - 1)
                 ax.plot(*ip[kk, :2], "o", color="r", ms=6, mec="k")
@@ -196,8 +203,8 @@ def plot_episode(traj, final, params, scenario, path: str, title: str = "") -> s
         axes[1].set_xlim(c[0] - half, c[0] + half)
         axes[1].set_ylim(c[1] - half, c[1] + half)
         axes[0].add_patch(plt.Rectangle(c - half, 2 * half, 2 * half, fill=False, ls="--", color="0.4"))
-    axes[1].set_title("the encounter: ▲ intruder appears, ● avoid start (dotted circle: R_c),\n"
-                      "red ●: the intruder at that avoid start", fontsize=10)
+    axes[1].set_title("encounter: ▲ intruder appears, ● avoid start\n(dotted: R_c around it), "
+                      "red ●: the intruder then", fontsize=10)
     axes[0].legend(fontsize=8, loc="lower left", ncol=2)
     fig.suptitle(title or "episode", fontsize=11)
     fig.savefig(path, dpi=90)
@@ -242,7 +249,7 @@ def plot_summary(summaries: list[dict], path: str) -> str:
     ax.set_xlabel("k̄")
     ax.set_ylabel("|N^RP|")
     ax.set_title("vehicles forced to avoid", fontsize=10)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left")
     ax = axes[1, 0]
     labels = [f"{s['intruder']}\nk̄={s['kbar']}" for s in summaries]
     xs = np.arange(len(summaries))
@@ -260,19 +267,20 @@ def plot_summary(summaries: list[dict], path: str) -> str:
     ax.set_title("collisions / guarantee violations (counts printed)", fontsize=10)
     ax.legend(fontsize=8)
     ax = axes[1, 1]
-    seps = [s["min_separation_m"] if s["min_separation_m"] is not None else np.nan for s in summaries]
+    seps = np.asarray([s["min_separation_m"] if s["min_separation_m"] is not None else np.nan for s in summaries])
     ax.bar(xs, seps, color=[colors[s["intruder"]] for s in summaries], alpha=0.8)
     r_c = summaries[0]["collision_radius_m"]
     ax.axhline(r_c, color="r", lw=1.2)
-    ax.text(-0.4, r_c, f"R_c = {r_c:g} m", color="r", va="bottom", fontsize=8)
+    ax.text(-0.45, r_c, f"R_c = {r_c:g} m", color="r", va="bottom", fontsize=8)
+    for x, s, sep in zip(xs, summaries, seps):
+        on_time = "n/a" if s["on_time_rate"] is None else f"{100 * s['on_time_rate']:.0f}%"
+        ax.text(x, 0.5 * np.nan_to_num(sep, nan=r_c), f"{sep:.0f} m\n\non time:\n{on_time}\nof {s['due']}",
+                ha="center", va="center", fontsize=8, color="k")
     ax.set_xticks(xs, labels, fontsize=8)
     ax.set_ylabel("smallest separation [m]")
-    ax2 = ax.twinx()
-    ax2.plot(xs, [100 * (s["on_time_rate"] or 0) for s in summaries], "kD", label="on-time arrivals [%]")
-    ax2.set_ylim(0, 105)
-    ax2.set_ylabel("on-time arrivals of due vehicles [%]")
-    ax2.legend(fontsize=8, loc="lower right")
-    ax.set_title("smallest vehicle-vehicle / vehicle-intruder distance; on-time rate", fontsize=10)
+    ax.set_ylim(0, 1.2 * max(np.nanmax(np.r_[seps, r_c]), r_c))
+    ax.set_title("smallest vehicle-vehicle / vehicle-intruder distance;\non-time arrivals of the due vehicles",
+                 fontsize=10)
     for a in axes.flat:
         a.grid(alpha=0.3)
     fig.suptitle(f"{summaries[0]['scenario']}: evaluation summary ({summaries[0]['episodes']} episodes per "

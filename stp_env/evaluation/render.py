@@ -24,7 +24,7 @@ def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float 
     import matplotlib.pyplot as plt
     from matplotlib import animation
 
-    from stp_env.evaluation.plots import _draw_scene
+    from stp_env.evaluation.plots import _draw_scene, vehicle_color
 
     t = traj["t"]
     t_app, t_iat = float(final["t_appear"]), float(params.t_iat)
@@ -47,8 +47,7 @@ def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float 
         half = 0.5 * max(np.ptp(pts, axis=0).max(), 6 * float(params.collision_radius)) + 200.0
     else:
         c, half = 0.5 * (lo + hi), 0.5 * float(np.max(hi - lo))
-    cmap = plt.get_cmap("tab10")
-    fig, ax = plt.subplots(figsize=(5, 5), constrained_layout=True)
+    fig, ax = plt.subplots(figsize=(5, 5.3), constrained_layout=True)
     _draw_scene(ax, scenario, params)
     ax.set_xlim(c[0] - half, c[0] + half)
     ax.set_ylim(c[1] - half, c[1] + half)
@@ -56,9 +55,9 @@ def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float 
     ax.grid(alpha=0.3)
     ax.set_xlabel("p_x [m]")
     ax.set_ylabel("p_y [m]")
-    trails = [ax.plot([], [], color=cmap(i % 10), lw=1.2)[0] for i in range(n)]
-    dots = [ax.plot([], [], "o", color=cmap(i % 10), ms=6)[0] for i in range(n)]
-    disks = [plt.Circle((0, 0), float(params.collision_radius), fill=False, ls=":", color=cmap(i % 10))
+    trails = [ax.plot([], [], color=vehicle_color(i), lw=1.2)[0] for i in range(n)]
+    dots = [ax.plot([], [], "o", color=vehicle_color(i), ms=6)[0] for i in range(n)]
+    disks = [plt.Circle((0, 0), float(params.collision_radius), fill=False, ls=":", color=vehicle_color(i))
              for i in range(n)]
     for d in disks:
         ax.add_patch(d)
@@ -77,7 +76,7 @@ def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float 
             on = fly[k, i] or traj["status"][k, i] == COLLIDED
             p = traj["x"][k, i, :2] if on else (np.nan, np.nan)
             dots[i].set_data([p[0]], [p[1]])
-            dots[i].set_markeredgecolor("k" if traj["mode"][k, i] == AVOIDING else cmap(i % 10))
+            dots[i].set_markeredgecolor("k" if traj["mode"][k, i] == AVOIDING else vehicle_color(i))
             dots[i].set_markersize(9 if traj["mode"][k, i] == AVOIDING else 6)
             disks[i].set_center(p)
             disks[i].set_visible(bool(on) and traj["mode"][k, i] == AVOIDING)

@@ -122,8 +122,10 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
       appeared outside their avoid region and they applied ``u^A`` throughout, i.e. a failure of the theory or
       the numerics), ``violation_episodes`` and its upper bound; ``assumption_failures``: episodes where the
       intruder appeared inside a vehicle's avoid region (Assumption 3 failed; no guarantee applies).
-    * ``due``: vehicles whose STA falls within the simulated time (``<= t_end``); ``on_time_rate``: the fraction of
-      them that arrived by their STA; ``arrived_rate``: that arrived at all within the episode.
+    * ``due``: vehicle-episodes whose STA falls within the simulated time (``<= t_end``), not counting vehicles
+      already in their target when the episode starts; ``on_time_rate``: the fraction of them that arrived by their
+      STA; ``arrived_rate``: that arrived at all within the episode. A ``"window"`` episode has few due vehicles
+      (one per town episode); ``"full"`` episodes measure every vehicle.
     * ``min_separation_m``: the smallest distance between a vehicle and another vehicle or the intruder over all
       episodes (``R_c`` is the collision radius); ``min_separation_p5_m`` / ``..._median_m``: percentiles of the
       per-episode minimum.
@@ -137,10 +139,13 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
     collided = ep["status"] == COLLIDED
     violation_eps = int(np.sum(np.any(ep["guarantee_violation"], axis=1)))
     sta = np.asarray(params.sta)
-    due = sta <= float(params.t_end) + 1e-6
-    on_time = (ep["arrival_time"] <= sta[None, :] + 1e-6) & due[None, :]
-    arrived = (ep["status"] == ARRIVED) & due[None, :]
-    n_due = int(due.sum()) * n_ep
+    # vehicles already in their target at the episode start are not simulated (reset gives them arrival_time =
+    # t_start, not their real arrival), so they do not count
+    done_at_start = ep["arrival_time"] <= float(params.t_start) + 1e-6
+    due = (sta[None, :] <= float(params.t_end) + 1e-6) & ~done_at_start
+    on_time = (ep["arrival_time"] <= sta[None, :] + 1e-6) & due
+    arrived = (ep["status"] == ARRIVED) & due
+    n_due = int(due.sum())
     per_episode_sep = np.min(ep["min_separation"], axis=1)
     finite = per_episode_sep[np.isfinite(per_episode_sep)]
     return {
