@@ -359,7 +359,7 @@ def _add_train_intruder_parser(sub) -> None:
     tr.add_argument("--seed", type=int, default=0, help="seed of torch, SB3 and the JAX env keys")
     tr.add_argument("--horizon", choices=["intruder", "episode"], default="intruder",
                     help="intruder: appearance to departure; episode: the core's whole episode")
-    tr.add_argument("--forced-reward", type=float, default=1.0, help="per vehicle newly forced to avoid")
+    tr.add_argument("--forced-reward", type=float, default=5.0, help="per vehicle newly forced to avoid")
     tr.add_argument("--collision-reward", type=float, default=10.0, help="per collision the intruder causes")
     tr.add_argument("--shaping-reward", type=float, default=0.01,
                     help="times the decrease of min V^A over unforced vehicles [per m]")

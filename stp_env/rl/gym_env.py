@@ -93,7 +93,8 @@ class IntruderEnv(gym.Env):
             raise RuntimeError("Call reset() before step().")
         action = check_action(action, (2,))
         out = F.env_step(self._key, self.state, action, self.params, self.horizon, self._vehicle_policy)
-        self._key, self.state, obs, reward, terminated, truncated, stats = jax.device_get(out)
+        self._key, self.state = out[0], out[1]
+        obs, reward, terminated, truncated, stats = jax.device_get(out[2:])
         info = {name: (float(value) if name == "time" else int(value)) for name, value in stats.items()}
         info["kbar"] = self.kbar
         return np.asarray(obs), float(reward), bool(terminated), bool(truncated), info

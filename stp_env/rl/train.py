@@ -12,22 +12,28 @@ mean, 95 % interval and max of ``|N^RP|``, collisions, guarantee violations, epi
 
 The PettingZoo + SuperSuit route
 --------------------------------
-For those who want the multi-agent adapter instead (about 10x slower, see ``BENCHMARKS.md``)::
+For those who want the multi-agent adapter instead (much slower, see ``BENCHMARKS.md``)::
 
     import supersuit as ss
     from stable_baselines3 import PPO
+    from stable_baselines3.common.utils import set_random_seed
     from stp_env.env import parallel_env
 
-    penv = ss.pettingzoo_env_to_vec_env_v1(parallel_env())        # every agent is one env of the vector
-    venv = ss.concat_vec_envs_v1(penv, 4, num_cpus=0, base_class="stable_baselines3")
-    venv.reset(seed=0)        # seed it HERE: SuperSuit's wrapper has no seed() that PPO(seed=...) can forward
-    model = PPO("MlpPolicy", venv, seed=0)                         # seeds torch only
+    env = ss.black_death_v3(ss.pad_observations_v0(parallel_env()))  # fixed agent set, one observation size
+    venv = ss.concat_vec_envs_v1(ss.pettingzoo_env_to_vec_env_v1(env), 4, num_cpus=0,
+                                 base_class="stable_baselines3")       # every agent of every copy is one env
+    set_random_seed(0)          # python, numpy, torch
+    venv.venv.reset(seed=0)     # the envs: copy i gets seed 0 + i; later resets continue each copy's key
+    model = PPO("MlpPolicy", venv, seed=None)                          # NOT seed=0, see below
+    model.learn(100_000)
 
-SuperSuit's ``SB3VecEnvWrapper`` (SB3 2.9) does not store seeds for the next reset as SB3's ``VecEnv.seed`` does,
-and PPO's own first ``reset()`` passes no seed; call ``venv.reset(seed=s)`` yourself (copies ``i`` get
-``s + i``) before ``learn``, and pass ``reset_num_timesteps=False`` if you must keep that first observation. All
-agents then share one policy (vehicles included): mask the vehicles' transitions or give them fixed actions
-if only the intruder should learn; :class:`~stp_env.rl.IntruderVecEnv` does that by construction.
+Seeding: with SB3 2.9, ``PPO(seed=s)`` calls ``venv.seed(s)``, and SuperSuit's ``SB3VecEnvWrapper`` forwards it
+to its ``ConcatVecEnv``, which has no ``seed`` method (``AttributeError``); ``venv.reset(seed=s)`` fails the same
+way. Seed the inner ``ConcatVecEnv`` with ``venv.venv.reset(seed=s)`` and the rest with ``set_random_seed(s)``
+before building the model, as above: PPO's own first ``reset()`` passes no seed, and
+:func:`stp_env.env.parallel_env` continues from the seeded key. All agents then share one policy, the vehicles
+included: if only the intruder should learn, mask the vehicles' transitions or fix their actions;
+:class:`~stp_env.rl.IntruderVecEnv` does that by construction (the vehicles run ``switching`` inside the core).
 """
 
 from __future__ import annotations
@@ -56,7 +62,10 @@ class TrainConfig:
         horizon: ``"intruder"`` (appearance to departure) or ``"episode"`` (:mod:`stp_env.rl.functional`).
         vehicle_policy: the vehicles' baseline policy (``"switching"``: u* with the safety filter).
         forced_reward: per vehicle newly forced to avoid (eq. 39); collision_reward: per collision the intruder
-            causes; shaping_reward: times the decrease of ``min V^A`` over unforced vehicles [per m].
+            causes; shaping_reward: times the decrease of ``min V^A`` over unforced vehicles [per m]. Keep
+            ``forced_reward > shaping_reward * d_sense``: when a vehicle is forced it leaves the potential's set, so
+            the potential jumps up by up to ``d_sense`` and the shaping pays ``-shaping_reward * jump`` in that step
+            (with ``forced_reward = 1``, ``shaping_reward = 0.01`` the intruder learns to approach and not force).
         algo: ``"ppo"`` or ``"a2c"``; net_arch: hidden layer widths of actor and critic (tanh).
         total_timesteps, n_envs, n_steps (per env per rollout), batch_size, n_epochs, learning_rate, gamma,
         gae_lambda, ent_coef, clip_range: the usual PPO settings (A2C uses n_steps, learning_rate, gamma,
@@ -73,7 +82,7 @@ class TrainConfig:
     kbar: int | None = None
     horizon: str = "intruder"
     vehicle_policy: str = "switching"
-    forced_reward: float = 1.0
+    forced_reward: float = 5.0
     collision_reward: float = 10.0
     shaping_reward: float = 0.01
     algo: str = "ppo"

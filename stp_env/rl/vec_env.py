@@ -72,7 +72,7 @@ class IntruderVecEnv(VecEnv):
         if self._keys is None and any(s is None for s in self._seeds):
             drawn = self.seed(None)
             self._seeds = [s if s is not None else d for s, d in zip(self._seeds, drawn)]
-        keys = np.asarray(self._keys) if self._keys is not None else np.zeros((self.num_envs, 2), np.uint32)
+        keys = np.array(self._keys) if self._keys is not None else np.zeros((self.num_envs, 2), np.uint32)
         for i, seed in enumerate(self._seeds):
             if seed is not None:
                 keys[i] = np.asarray(F.key_for_seed(seed))

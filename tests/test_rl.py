@@ -1,0 +1,142 @@
+"""Learned-intruder plumbing (stp_env.rl): the Gymnasium env against gymnasium's and SB3's checkers, the native
+VecEnv against DummyVecEnv over the Gymnasium env (same seeds, same everything, auto-resets included) and SB3's
+VecEnv wrappers, a short PPO run, same seed -> same actions, and the exported MLP as a jittable intruder."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.vec_env import DummyVecEnv, VecCheckNan, VecMonitor
+
+from stp_env import sim
+from stp_env.rl import IntruderEnv, IntruderVecEnv
+from stp_env.rl.policy import export_mlp, load_mlp, mlp_intruder
+from stp_env.rl.train import TrainConfig, evaluate_on_vec_env, make_model
+
+N_ENVS = 4
+
+
+@pytest.fixture(scope="module")
+def params():
+    """``town`` with a short-lived intruder (``t_IAT`` = 3 s; the avoid tables stay those of 10 s) appearing within
+    5 s of the window start and the time limit 7 s after it: intruder episodes end when it leaves (terminated) or
+    at the time limit (truncated), so short runs see both kinds of auto-reset. Only array fields change: the same
+    compiled programs as the default ``town``."""
+    base = sim.params_for("town", sim.EnvConfig(), progress=False)
+    lo = base.appear_window[0]
+    return dataclasses.replace(base, t_iat=jnp.asarray(3.0, jnp.float32), appear_window=jnp.stack([lo, lo + 5.0]),
+                               t_end=lo + 7.0)
+
+
+def test_gym_env_passes_gymnasium_and_sb3_checks(params):
+    gym_check_env(IntruderEnv(params=params), skip_render_check=True)
+    sb3_check_env(IntruderEnv(params=params), warn=True)
+    env = IntruderEnv(params=params)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="finite"):
+        env.step(np.array([np.nan, 0.0], np.float32))
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros(3, np.float32))
+
+
+def test_vec_env_matches_dummy_vec_env_over_the_gym_env(params):
+    dummy = DummyVecEnv([lambda: IntruderEnv(params=params) for _ in range(N_ENVS)])
+    native = IntruderVecEnv(N_ENVS, params=params)
+    dummy.seed(123)
+    native.seed(123)
+    np.testing.assert_array_equal(dummy.reset(), native.reset())
+    assert native.reset_infos == dummy.reset_infos
+    rng = np.random.default_rng(0)
+    kinds = set()
+    for _ in range(70):
+        actions = rng.uniform(-1.2, 1.2, (N_ENVS, 2)).astype(np.float32)
+        obs_d, rew_d, done_d, infos_d = dummy.step(actions)
+        obs_n, rew_n, done_n, infos_n = native.step(actions)
+        np.testing.assert_array_equal(obs_n, obs_d)
+        np.testing.assert_array_equal(rew_n, rew_d)
+        np.testing.assert_array_equal(done_n, done_d)
+        assert obs_n.dtype == np.float32 and rew_n.dtype == np.float32 and done_n.dtype == bool
+        for i in range(N_ENVS):
+            term_d = infos_d[i].pop("terminal_observation", None)
+            term_n = infos_n[i].pop("terminal_observation", None)
+            assert (term_d is None) == (term_n is None) == (not done_d[i])
+            if done_d[i]:
+                np.testing.assert_array_equal(term_n, term_d)
+                assert not np.array_equal(term_n, obs_n[i])  # the observation after the reset is returned
+                kinds.add(infos_n[i]["TimeLimit.truncated"])
+            else:
+                infos_d[i].pop("TimeLimit.truncated")  # DummyVecEnv sets it on every step
+            assert infos_n[i] == infos_d[i]
+        assert native.reset_infos == dummy.reset_infos
+    assert kinds == {True, False}, "expected both time-limit and terminal episode ends"
+
+
+def test_vec_env_sb3_api_and_seeding(params):
+    venv = IntruderVecEnv(N_ENVS, params=params)
+    venv.seed(7)
+    first = venv.reset()
+    venv.seed(7)
+    np.testing.assert_array_equal(venv.reset(), first)
+    single = IntruderVecEnv(N_ENVS, params=params)
+    single.seed(8)  # env i gets seed 8 + i: envs 1..3 of seed 7 are envs 0..2 of seed 8
+    np.testing.assert_array_equal(single.reset()[:-1], first[1:])
+    assert not np.array_equal(first[0], first[1])
+    assert venv.get_attr("kbar") == [int(params.kbar)] * N_ENVS
+    assert venv.get_attr("n_forced", indices=[1, 3]) == [0, 0]
+    assert venv.get_attr("time", indices=2) == [pytest.approx(float(venv._states.t[2]))]
+    with pytest.raises(AttributeError):
+        venv.get_attr("no_such_attribute")
+    venv.set_attr("custom", 3)
+    assert venv.get_attr("custom", indices=[0, 1]) == [3, 3]
+    with pytest.raises(ValueError, match="share"):
+        venv.set_attr("custom", 4, indices=[0])
+    assert venv.env_method("get_attr", "kbar", indices=[0, 2]) == [[int(params.kbar)] * N_ENVS] * 2
+    assert venv.env_is_wrapped(Monitor) == [False] * N_ENVS
+    with pytest.raises(ValueError, match="finite"):
+        venv.step(np.full((N_ENVS, 2), np.nan, np.float32))
+    checked = VecMonitor(VecCheckNan(venv, raise_exception=True))
+    checked.reset()
+    for _ in range(3):
+        checked.step(np.zeros((N_ENVS, 2), np.float32))
+
+
+def _short_ppo(params, seed: int, steps: int = 2048):
+    config = TrainConfig(n_envs=N_ENVS, n_steps=steps // N_ENVS, batch_size=512, n_epochs=2, seed=seed,
+                         net_arch=(16, 16))
+    model = make_model(config, IntruderVecEnv(N_ENVS, params=params))
+    model.learn(total_timesteps=steps)
+    return model
+
+
+def test_short_ppo_run_is_seeded_and_exports_a_jittable_intruder(params, tmp_path):
+    model_a = _short_ppo(params, seed=3, steps=4096)
+    model_b = _short_ppo(params, seed=3, steps=4096)
+    model_c = _short_ppo(params, seed=4, steps=2048)
+    assert model_a.num_timesteps == 4096
+    # Same seed: the same actions and observations in the (last) rollout, the same weights after training.
+    np.testing.assert_array_equal(model_a.rollout_buffer.actions, model_b.rollout_buffer.actions)
+    np.testing.assert_array_equal(model_a.rollout_buffer.observations, model_b.rollout_buffer.observations)
+    for pa, pb in zip(model_a.policy.parameters(), model_b.policy.parameters()):
+        np.testing.assert_array_equal(pa.detach().numpy(), pb.detach().numpy())
+    assert not np.array_equal(model_c.rollout_buffer.actions[:8], model_a.rollout_buffer.actions[:8])
+
+    path = export_mlp(model_a, tmp_path / "intruder.npz", metadata={"seed": 3})
+    mlp = load_mlp(path)
+    assert mlp.metadata["seed"] == 3 and mlp.obs_size == 8 + 7 * params.n_nearest
+    venv = IntruderVecEnv(N_ENVS, params=params)
+    venv.seed(11)
+    obs = venv.reset()
+    np.testing.assert_allclose(mlp.action_numpy(obs), model_a.predict(obs, deterministic=True)[0], atol=1e-5)
+    policy = jax.jit(mlp_intruder(mlp))
+    state = venv._states
+    action = jax.vmap(policy, in_axes=(None, 0, None))(jax.random.PRNGKey(0), state, params)
+    np.testing.assert_allclose(np.asarray(action), model_a.predict(obs, deterministic=True)[0], atol=1e-5)
+    result = evaluate_on_vec_env(lambda o: model_a.predict(o, deterministic=True)[0], venv, N_ENVS, seed=5)
+    assert result["n_forced"].shape == (N_ENVS,) and np.all(result["guarantee_violations"] == 0)
