@@ -109,6 +109,7 @@ def simulate(sc, mp, mode, seed, n_steps: int):
     return np.asarray(arrival), float(dmin)
 
 
+@pytest.mark.slow
 def test_least_restrictive_departs_earlier_and_top_priority_is_unchanged(plans):
     _, out = plans
     central, least = out["centralized"].plan.t_ldt(), out["least_restrictive"].plan.t_ldt()
@@ -118,6 +119,7 @@ def test_least_restrictive_departs_earlier_and_top_priority_is_unchanged(plans):
     assert np.all(least[1:] < central[1:]), (central, least)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["centralized", "least_restrictive"])
 @pytest.mark.parametrize(("mode", "seed"), [("random", 0), ("worst", 0)])
 def test_closed_loop_reaches_targets_by_sta_and_keeps_apart(plans, method, mode, seed):
@@ -128,6 +130,7 @@ def test_closed_loop_reaches_targets_by_sta_and_keeps_apart(plans, method, mode,
     assert dmin > sc.collision_radius, (method, mode, dmin)
 
 
+@pytest.mark.slow
 def test_centralized_obstacle_is_inside_least_restrictive(plans):
     # Q1's induced obstacle: centralized (FRS under the enforced feedback) within least-restrictive (FRS of all
     # controls, both intersected with the BRS), at every common slice.
@@ -170,3 +173,64 @@ def test_slice_feedback_matches_the_planning_controller():
         state = jnp.asarray([grid.coordinate_vector(d)[idx[d]] for d in range(3)], jnp.float32)
         u, _ = planning_control(grid, dyn, times, stack, t, state)
         np.testing.assert_allclose([v[idx], omega[idx]], np.asarray(u), atol=1e-4)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", ["centralized", "least_restrictive"])
+def test_flown_positions_stay_in_the_projected_reachable_set(plans, method):
+    # Q1 flown 32 times in random wind and once in the worst case (its planning controller under the centralized
+    # method; random inside its BRS under the least-restrictive one) stays within one cell of P_1(t) (eqs. 19, 23)
+    # until it arrives: the obstacle table there is at most -R_c - diag + dx (it is -R_c - diag on P_1's nodes).
+    sc, out = plans
+    mp = out[method]
+    grid = sc.grid()
+    times, stacks = _stacked(mp)
+    r = mp.reach[0]
+    n_steps = int(np.ceil((r.obstacle_times[-1] - r.obstacle_times[0]) / DT))
+    x0 = jnp.asarray(sc.starts()[:1], jnp.float32)
+    t_ldt = jnp.asarray(mp.plan.t_ldt()[:1], jnp.float32)
+    tables = jnp.asarray(r.obstacle)
+    plane = hj.Grid.from_bounds(grid.lo[:2], grid.hi[:2], grid.shape[:2])
+
+    def worst_value(seed, worst):
+        positions = _trajectory(jax.random.key(seed), x0, t_ldt, times[:1], stacks[:1], worst,
+                                jnp.asarray(method == "least_restrictive"), grid=grid, dyn=sc.vehicle,
+                                n_steps=n_steps)
+        ts = r.obstacle_times[0] + DT * (1 + np.arange(n_steps))
+        k = np.clip(np.searchsorted(r.obstacle_times, ts), 0, len(r.obstacle_times) - 1)
+        vals = np.asarray(jax.vmap(lambda kk, p: hj.interpolation.interpolate(plane, tables[kk], p))(
+            jnp.asarray(k), positions[:, :2]))
+        # Until arrival: then the vehicle leaves the airspace (it would fly on through its target here).
+        inside = np.hypot(*(np.asarray(positions[:, :2]) - sc.targets()[0]).T) <= sc.vehicles[0].target_radius
+        flying = ~np.maximum.accumulate(inside)
+        assert flying.sum() > n_steps // 2
+        return float(np.max(vals[flying]))
+
+    worst = max([worst_value(s, False) for s in range(32)] + [worst_value(0, True)])
+    diag = np.hypot(*grid.spacing[:2]) / 4
+    assert worst <= -sc.collision_radius - diag + grid.spacing[0], (method, worst)
+
+
+@functools.partial(jax.jit, static_argnames=("grid", "dyn", "n_steps"))
+def _trajectory(key, x0, t_ldt, slice_times, stacks, worst, least_restrictive, *, grid, dyn, n_steps):
+    """One vehicle's positions from its t_LDT, one per step (as :func:`_simulate`, without arrival)."""
+    def step(carry, s):
+        x, key = carry
+        key, sub = jax.random.split(key)
+        t = t_ldt[0] + s * DT
+        u, d = planning_control(grid, dyn, slice_times[0], stacks[0], t, x)
+        k1, k2, k3, k4, k5 = jax.random.split(sub, 5)
+        v = hj.interpolation.interpolate_slices(grid, slice_times[0], stacks[0], t, x)
+        free = jnp.stack([jax.random.uniform(k4, (), minval=dyn.v_min, maxval=dyn.v_max),
+                          jax.random.uniform(k5, (), minval=-dyn.omega_max, maxval=dyn.omega_max)])
+        u = jnp.where(least_restrictive & (v < -LR_MARGIN), free, u)
+        ang = jax.random.uniform(k1, (), minval=-jnp.pi, maxval=jnp.pi)
+        w = jnp.where(worst, d[:2], dyn.wind * jnp.sqrt(jax.random.uniform(k2)) * jnp.array([jnp.cos(ang),
+                                                                                             jnp.sin(ang)]))
+        dth = jnp.where(worst, d[2], jax.random.uniform(k3, (), minval=-dyn.heading_disturbance,
+                                                        maxval=dyn.heading_disturbance))
+        xn = x + DT * jnp.array([u[0] * jnp.cos(x[2]) + w[0], u[0] * jnp.sin(x[2]) + w[1], u[1] + dth])
+        return (xn, key), xn
+
+    _, xs = jax.lax.scan(step, (x0[0], key), jnp.arange(n_steps))
+    return xs
