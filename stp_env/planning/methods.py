@@ -33,7 +33,7 @@ Every higher-priority vehicle's tables have one shape and the feedback tables ar
 each solver loop once.
 
 Measured on the four-vehicle example (81 x 81 x 40, WENO5 + RK2, ``R_c = 0.1``; scripts/four_vehicle_methods.py):
-t_LDT centralized ``[-1.28, -2.17, -2.49, -2.87]``, least-restrictive ``[-1.28, -2.19, -2.56, -3.19]`` (paper:
+t_LDT centralized ``[-1.28, -2.17, -2.56, -2.96]``, least-restrictive ``[-1.28, -2.20, -2.65, -3.31]`` (paper:
 ``[-1.35, -1.37, -1.94, -2.04]`` and ``[-1.35, -1.97, -2.66, -3.39]``, R_c not stated). Q2 departs much earlier
 than in the paper under both methods: Q1 flies head-on toward it, and the latest feasible plan found by the BRS
 passes Q1's start position just before Q1 departs (about -1.3 s), not Q1's in-flight obstacle.
