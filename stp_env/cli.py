@@ -132,8 +132,10 @@ def _add_episode_options(p, *, many: bool) -> None:
                    help="k̄, the number of vehicles the intruder may force to avoid (>= 1); each value uses the "
                         "scenario's plan for that k̄" + (" (several: one configuration each)" if many else ""))
     p.add_argument("--intruder", nargs=nargs, default=["max-k"] if many else "max-k",
-                   help=f"intruder policy: one of {', '.join(INTRUDERS)}, or 'package.module:policy' / "
-                        "'package.module:factory=ARG' for a learned jittable policy (key, state, params) -> (2,)")
+                   help=f"intruder policy: one of {', '.join(INTRUDERS)}; 'learned:NAME_OR_PATH' for a learned "
+                        "intruder (a shipped name or an .npz from stp_env.rl.policy.export_mlp); or "
+                        "'package.module:policy' / 'package.module:factory=ARG' for any jittable policy "
+                        "(key, state, params) -> (2,)")
     p.add_argument("--wind", type=_nonnegative, default=None,
                    help="wind bound d_r of vehicles and intruder [m/s] (None: the scenario's, 6 m/s for town; "
                         "another value computes its own reachability artifacts and plan on first use)")

@@ -22,12 +22,15 @@ SPAWN_CHOICES = ("auto", *SPAWN_MODES)
 vehicle's avoid boundary), ``outside`` for every other intruder."""
 
 EPISODE_CHOICES = ("window", "full")
+LEARNED_PREFIX = "learned:"
 
 
 def resolve_intruder(spec: str) -> Callable:
     """An intruder policy from a name or an import spec.
 
     * a scripted intruder: one of :data:`stp_env.baselines.INTRUDERS`;
+    * ``"learned:NAME_OR_PATH"``: a learned intruder, :func:`stp_env.rl.policy.load_intruder` (a shipped name or
+      an ``.npz`` exported by :func:`stp_env.rl.policy.export_mlp`);
     * ``"package.module:attribute"``: a jittable policy ``(key, state, params) -> (2,)`` defined in an importable
       module (how a learned intruder exported to JAX is evaluated);
     * ``"package.module:factory=ARGUMENT"``: ``factory(ARGUMENT)`` must return such a policy (e.g. a loader
@@ -38,9 +41,14 @@ def resolve_intruder(spec: str) -> Callable:
     """
     if spec in INTRUDERS:
         return INTRUDERS[spec]
+    if spec.startswith(LEARNED_PREFIX):
+        from stp_env.rl.policy import load_intruder
+
+        return load_intruder(spec[len(LEARNED_PREFIX):])
     if ":" not in spec:
-        raise ValueError(f"unknown intruder {spec!r}; allowed: {', '.join(INTRUDERS)}, or 'package.module:policy' "
-                         "or 'package.module:factory=ARGUMENT' for a learned (jittable) intruder.")
+        raise ValueError(f"unknown intruder {spec!r}; allowed: {', '.join(INTRUDERS)}, 'learned:NAME_OR_PATH' "
+                         "(stp_env.rl.policy.load_intruder), or 'package.module:policy' / "
+                         "'package.module:factory=ARGUMENT' for any jittable intruder policy.")
     module_name, _, attribute = spec.partition(":")
     attribute, has_argument, argument = attribute.partition("=")
     try:
