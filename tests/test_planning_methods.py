@@ -135,6 +135,9 @@ def test_centralized_obstacle_is_inside_least_restrictive(plans):
     # Q1's induced obstacle: centralized (FRS under the enforced feedback) within least-restrictive (FRS of all
     # controls, both intersected with the BRS), at every common slice.
     _, out = plans
+    # No fallback on this grid: every higher-priority vehicle's obstacle is its own method's.
+    assert [r.obstacle_method for r in out["centralized"].reach] == ["centralized"] * 3 + [""]
+    assert [r.obstacle_method for r in out["least_restrictive"].reach] == ["least_restrictive"] * 3 + [""]
     c, lr = out["centralized"].reach[0], out["least_restrictive"].reach[0]
     np.testing.assert_allclose(c.obstacle_times, lr.obstacle_times)
     inside_c, inside_lr = c.obstacle <= 0, lr.obstacle <= 0

@@ -5,7 +5,7 @@ SPP paper Section IV-A (centralized control, eqs. 11-19) and Section IV-B (least
 
 1. Vehicle ``j``'s BRS ``V_j(t)`` is the backward reach-avoid tube of its target under the time-varying obstacle
    ``G_j(t)`` of the higher-priority vehicles (double-obstacle VI, eqs. 7, 11-12), solved back from ``t_STA_j``
-   minus an arrival margin of one cell's crossing (as robust tracking does) and stopped once the start is inside;
+   minus an arrival margin of two cells' crossing at ``v_max`` and stopped once the start is inside;
    ``t_LDT`` is read from its time-to-reach; the nominal trajectory follows the planning controller of
    :func:`stp_env.planning.single.planning_control` (eq. 13).
 2. The obstacle ``j`` induces for lower-priority vehicles is computed from a forward reachable set ``W_j(t)``
@@ -44,6 +44,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+import warnings
 from collections.abc import Sequence
 
 import jax
@@ -109,6 +110,10 @@ class SliceFeedback:
 
 
 # --------------------------------------------------------------------------------------------- obstacles
+class EmptyReachableSetError(ValueError):
+    """A reachable set vanished on the grid (too thin for its cells)."""
+
+
 def _linear_upsample_matrix(n: int, m: int) -> np.ndarray:
     """``((n - 1) m + 1, n)`` matrix of linear interpolation onto an ``m`` times finer grid (same end nodes)."""
     fine = np.arange((n - 1) * m + 1) / m
@@ -135,7 +140,7 @@ def projected_obstacle_table(grid: hj.Grid, sets, collision_radius: float, fine:
     ``P``: the obstacle errs on the large side. Returns ``(K, nx, ny)`` (``{<= 0}`` forbidden).
 
     Raises:
-        ValueError: if ``P(t_k)`` has no node at some ``k`` (the set vanished: refine the grid).
+        EmptyReachableSetError: if ``P(t_k)`` has no node at some ``k`` (the set vanished: refine the grid).
     """
     proj = np.asarray(jnp.min(jnp.asarray(sets), axis=-1), np.float64)
     ax = _linear_upsample_matrix(grid.shape[0], fine)
@@ -146,8 +151,8 @@ def projected_obstacle_table(grid: hj.Grid, sets, collision_radius: float, fine:
     for k, plane in enumerate(proj):
         inside = (ax @ plane @ ay.T) <= 0
         if not inside.any():
-            raise ValueError(f"the projected reachable set is empty at slice {k}: the set smeared away on this grid "
-                             "(NUMERICS.md: keep a few cells across it).")
+            raise EmptyReachableSetError(f"the projected reachable set is empty at slice {k}: the set smeared away on "
+                                         "this grid (NUMERICS.md: keep a few cells across it).")
         dist = ndimage.distance_transform_edt(~inside, sampling=(hx, hy))
         out[k] = dist[::fine, ::fine] - diag - collision_radius
     return out
@@ -203,6 +208,8 @@ class VehicleReach:
         brs: ``V_j(t)`` at ``slice_times``, ``(K, *grid.shape)`` (the planning controller's table).
         obstacle_times: FRS slice times ``[t_LDT, t_STA]`` [s] (empty for the lowest-priority vehicle).
         obstacle: its induced obstacle ``dist(p, P_j) - R_c`` at ``obstacle_times``, ``(K_f, nx, ny)``.
+        obstacle_method: the method that made ``obstacle``: the plan's, or ``"least_restrictive"`` where the
+            centralized FRS vanished on the grid (a superset, so still safe; a warning says so).
         seconds: wall time of this vehicle's planning (BRS, trajectory and induced obstacle) [s].
     """
 
@@ -211,6 +218,7 @@ class VehicleReach:
     obstacle_times: np.ndarray
     obstacle: np.ndarray
     seconds: float
+    obstacle_method: str = ""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -372,8 +380,9 @@ def plan_methods(grid: hj.Grid, vehicle: DubinsWind, method: str, collision_radi
         time_step: nominal trajectory sample period [s].
         slice_dt: spacing of the stored BRS slices (default ``horizon / 160``).
         frs_dt: spacing of the induced-obstacle slices (default ``slice_dt``).
-        arrival_margin: each vehicle plans to arrive this much before its STA [s] (default: one cell at
-            ``v_min``, as :func:`stp_env.planning.stp.plan_rtt`): the BRS is exact only up to the grid, and
+        arrival_margin: each vehicle plans to arrive this much before its STA [s] (default: two cells at
+            ``v_max``; one cell at ``v_min`` for the four-vehicle bounds, as robust tracking uses with ``U^p``,
+            but finite when ``v_min = 0``): the BRS is exact only up to the grid, and
             flown under worst-case wind the planning controller arrives up to about a cell's crossing late
             (measured on 61 x 61 x 30: 0.025 s late without a margin). The obstacles stay until the STA itself.
     """
@@ -388,7 +397,7 @@ def plan_methods(grid: hj.Grid, vehicle: DubinsWind, method: str, collision_radi
     slice_dt = slice_dt or horizon / 160
     frs_dt = frs_dt or slice_dt
     if arrival_margin is None:
-        arrival_margin = max(grid.spacing[:2]) / max(vehicle.v_min, 1e-3 * vehicle.v_max)
+        arrival_margin = 2.0 * max(grid.spacing[:2]) / vehicle.v_max
     n_frs = math.ceil(horizon / frs_dt) + 2
     order = sorted(range(n), key=lambda i: priorities[i])
     induced: list = []
@@ -407,14 +416,26 @@ def plan_methods(grid: hj.Grid, vehicle: DubinsWind, method: str, collision_radi
         if rank < n - 1:
             ob_times, sets = induced_frs(grid, vehicle, method, starts[i], single.t_ldt, float(stas[i]),
                                          slice_times, stack, frs_dt, settings)
-            ob_table = projected_obstacle_table(grid, sets, collision_radius)
+            obstacle_method = method
+            try:
+                ob_table = projected_obstacle_table(grid, sets, collision_radius)
+            except EmptyReachableSetError as err:
+                if method != "centralized":
+                    raise
+                # The least-restrictive set contains the centralized one (eqs. 19, 23): a safe, larger obstacle.
+                warnings.warn(f"vehicle {i}: the centralized FRS vanished on this grid ({err}); its induced "
+                              "obstacle is the least-restrictive one instead.", stacklevel=2)
+                obstacle_method = "least_restrictive"
+                ob_times, sets = induced_frs(grid, vehicle, obstacle_method, starts[i], single.t_ldt,
+                                             float(stas[i]), slice_times, stack, frs_dt, settings)
+                ob_table = projected_obstacle_table(grid, sets, collision_radius)
             induced.append((ob_times, ob_table, single.t_ldt, float(stas[i])))
         jax.block_until_ready(stack)
         seconds = time.perf_counter() - t0
         plans[i] = VehiclePlan(index=i, priority=rank, plan=single, obstacle_lags=np.zeros(1),
                                obstacle_radii=np.asarray([collision_radius]))
         reach[i] = VehicleReach(slice_times=slice_times, brs=stack, obstacle_times=ob_times, obstacle=ob_table,
-                                seconds=seconds)
+                                seconds=seconds, obstacle_method=obstacle_method if rank < n - 1 else "")
     plan = Plan(vehicles=tuple(plans[i] for i in range(n)), tracking_bound=0.0,
                 collision_radius=float(collision_radius), kbar=None)
     return MethodPlan(plan=plan, method=method, reach=tuple(reach[i] for i in range(n)))
