@@ -91,8 +91,7 @@ def _pursue(state, params, eligible):
     """HJ-optimal pursuit (eq. 14's minimiser) of the eligible vehicle with the smallest ``V^A``."""
     tau = state.t - state.t_appear
     rel = relative_state(state.x, state.intruder_x[None, :])
-    vals = jax.vmap(lambda r: tables.avoid_value(params, tau, r))(rel)
-    vals = jnp.where(eligible, vals, jnp.inf)
+    vals = jnp.where(eligible, state.avoid_value, jnp.inf)  # V^A per vehicle, kept by the core
     j = jnp.argmin(vals)
     d = tables.pursuit_input(params, tau, rel[j])
     hj_action = control_to_action(d[0], d[1], params.intruder_bounds)

@@ -52,7 +52,7 @@ def safety_filter(policy):
     def filtered(key, state, params):
         a = policy(key, state, params)
         forced = (state.mode == AVOIDING) & (state.intruder_status == PRESENT)
-        return jnp.where(forced[:, None], core.avoidance_actions(params, state), a)
+        return jnp.where(forced[:, None], state.avoid_action, a)
 
     filtered.__name__ = f"safety_filter({getattr(policy, '__name__', 'policy')})"
     return filtered

@@ -154,6 +154,8 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
         t_iat=jnp.asarray(t_iat, f32),
         appear_window=jnp.asarray([lo, hi], f32),
         spawn_radius=jnp.asarray(1.5 * d_a if config.spawn_radius is None else config.spawn_radius, f32),
+        spawn_boundary_probability=jnp.asarray({"outside": 0.0, "boundary": 1.0, "mixed": 0.5}[config.spawn_mode],
+                                               f32),
         avoid_margin=jnp.asarray(margin, f32),
         kbar=jnp.asarray(kbar, jnp.int32),
         d_sense=jnp.asarray(d_sense, f32),
@@ -166,7 +168,6 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
         avoid_dynamics=acfg.relative_dynamics,
         tracking_dynamics=tcfg.error_dynamics,
         wind_model=config.wind_model,
-        spawn_mode=config.spawn_mode,
         safety_filter=config.safety_filter,
         n_nearest=config.n_nearest,
     )

@@ -66,7 +66,7 @@ class EnvConfig:
             the first departure; ``None``: while the most vehicles are in the air (see ``make_params``).
         spawn_mode: ``"outside"`` (uniform within ``spawn_radius`` of a flying vehicle, outside every avoid
             region: Assumption 3) or ``"boundary"`` (on the boundary of a random flying vehicle's avoid region,
-            Observation 1, and outside the others').
+            Observation 1, and outside the others'), or ``"mixed"`` (either, with probability 1/2 per episode).
         spawn_radius: [m] (``None``: 1.5 d^A).
         safety_filter: replace each vehicle's action by ``u^A`` from its avoid-start time until the intruder
             leaves (eq. 38). Off: vehicles do what their policy says (the avoid start is still recorded).

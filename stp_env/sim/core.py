@@ -120,6 +120,7 @@ def reset(key, params: EnvParams) -> EnvState:
         intruder_memory=jnp.concatenate([x_spawn, jnp.zeros((1,), t0.dtype)]),
         intruder_distance=inf,
         avoid_value=jnp.full((n,), tables.FAR, t0.dtype),
+        avoid_action=jnp.zeros((n, 2), t0.dtype),
     )
     return lifecycle(state, params)
 
@@ -141,7 +142,8 @@ def avoid_values(params: EnvParams, state: EnvState):
 
 
 def avoidance_actions(params: EnvParams, state: EnvState):
-    """``u^A`` (eq. 15) of every vehicle against the present intruder, as actions ``(N, 2)``."""
+    """``u^A`` (eq. 15) of every vehicle against the present intruder, as actions ``(N, 2)`` (computed once per
+    step by :func:`lifecycle` into ``state.avoid_action``)."""
     tau = state.t - state.t_appear
     rel = relative_state(state.x, state.intruder_x[None, :])
     u = jax.vmap(lambda r: tables.avoidance_control(params, tau, r))(rel)
@@ -188,6 +190,7 @@ def lifecycle(state: EnvState, params: EnvParams) -> EnvState:
     d_int = jnp.where(flying(state) & intruder_present(state),
                       jnp.hypot(*(state.x[:, :2] - state.intruder_x[None, :2]).T), jnp.inf)
     return replace(state, assumption_ok=assumption_ok, intruder_distance=d_int, avoid_value=vals,
+                   avoid_action=avoidance_actions(params, state),
                    mode=jnp.where(start, AVOIDING, state.mode),
                    avoid_start=jnp.where(start, t, state.avoid_start))
 
@@ -205,7 +208,7 @@ def step(key, state: EnvState, actions, params: EnvParams):
     actions = jnp.clip(actions, -1.0, 1.0)
     a_veh = actions[:n]
     avoiding = fly & present & (state.mode == AVOIDING)
-    a_avoid = avoidance_actions(params, state)
+    a_avoid = state.avoid_action
     use_filter = avoiding & params.safety_filter
     a_veh = jnp.where(use_filter[:, None], a_avoid, a_veh)
     complied = state.complied & ~(avoiding & (jnp.max(jnp.abs(a_veh - a_avoid), axis=1) > COMPLIANCE_TOL))

@@ -3,6 +3,7 @@
 * ``"outside"``: candidates uniform within ``spawn_radius`` of a random flying vehicle (uniform in the domain when
   none flies), random heading; the first candidate inside the domain and outside every flying vehicle's avoid
   region ``{V^A(0, t_IAT) <= margin}`` is taken.
+* ``"mixed"``: either of the two, with probability 1/2 per episode (one compiled program for both).
 * ``"boundary"``: candidates on the boundary of a random flying vehicle's avoid region (a random bearing and
   relative heading, the radius found by bisection of ``V^A(0, t_IAT) = margin + 1 m`` along the bearing), kept if
   inside the domain and outside every other vehicle's avoid region: the most dangerous legal start.
@@ -85,9 +86,11 @@ def spawn(key, x, fly, params: EnvParams):
     The core calls it at reset with the *nominal* states at the appearance time (vehicles track their plans
     within ``r_e`` until then), so candidates keep ``2 r_e`` of extra clearance from the avoid regions; the core
     checks Assumption 3 again against the actual states when the intruder appears."""
-    keys = jax.random.split(key, N_CANDIDATES)
-    make = _candidate_boundary if params.spawn_mode == "boundary" else _candidate_outside
-    cands = jax.vmap(lambda k: make(k, x, fly, params))(keys)
+    k_mode, k_cand = jax.random.split(key)
+    keys = jax.random.split(k_cand, N_CANDIDATES)
+    boundary = jax.random.uniform(k_mode) < params.spawn_boundary_probability
+    cands = jnp.where(boundary, jax.vmap(lambda k: _candidate_boundary(k, x, fly, params))(keys),
+                      jax.vmap(lambda k: _candidate_outside(k, x, fly, params))(keys))
     inside = jnp.all((cands[:, :2] >= params.domain_lo) & (cands[:, :2] <= params.domain_hi), axis=1)
     minv = jax.vmap(lambda c: _min_value(params, x, fly, c))(cands)
     legal = inside & (minv > params.avoid_margin + SPAWN_CLEARANCE * params.tracking_bound)

@@ -32,7 +32,7 @@ PENDING, PRESENT, GONE = 0, 1, 2
 INTRUDER_STATUS_NAMES = ("pending", "present", "gone")
 
 WIND_MODELS = ("uniform", "constant", "gusts", "worst")
-SPAWN_MODES = ("outside", "boundary")
+SPAWN_MODES = ("outside", "boundary", "mixed")
 
 
 def _pytree(cls, meta=()):
@@ -49,7 +49,7 @@ class EnvParams:
     Static (metadata, hashable):
         n_vehicles, avoid_grid, tracking_grid, sdf_grid: sizes and grids.
         avoid_dynamics: eq. (44) with the roles of eq. (14); tracking_dynamics: SPP eqs. (24)-(25).
-        wind_model: one of :data:`WIND_MODELS`. spawn_mode: one of :data:`SPAWN_MODES`.
+        wind_model: one of :data:`WIND_MODELS`.
         safety_filter: override a vehicle's action with ``u^A`` from its avoid-start time (eq. 38).
         n_nearest: vehicles listed in each observation.
     """
@@ -88,6 +88,7 @@ class EnvParams:
     t_iat: jax.Array              # () [s]
     appear_window: jax.Array      # (2,) [s] the intruder appears at t_ ~ U[lo, hi] (lo == hi: fixed)
     spawn_radius: jax.Array       # () [m] "outside" spawns lie within this distance of a flying vehicle
+    spawn_boundary_probability: jax.Array  # () the episode's spawn is "boundary" with this probability, else "outside"
     avoid_margin: jax.Array       # () [m] avoid start when V^A <= margin (one step of the fastest closing)
     kbar: jax.Array               # () int, the bound under test
     d_sense: jax.Array            # () [m] sensing range (>= d^A)
@@ -102,14 +103,13 @@ class EnvParams:
     avoid_dynamics: RelativeDubins
     tracking_dynamics: RelativeDubins
     wind_model: str = "uniform"
-    spawn_mode: str = "outside"
     safety_filter: bool = True
     n_nearest: int = 4
 
 
 EnvParams = _pytree(EnvParams, meta=("n_vehicles", "avoid_grid", "tracking_grid", "sdf_grid", "avoid_dynamics",
                                      "tracking_dynamics", "wind_model",
-                                     "spawn_mode", "safety_filter", "n_nearest"))
+                                     "safety_filter", "n_nearest"))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -138,6 +138,7 @@ class EnvState:
     intruder_memory: jax.Array    # (4,) spawn state (x, y, theta) and 0, drawn at reset (scripted intruders read it)
     intruder_distance: jax.Array  # (N,) [m] distance to the intruder (inf when absent)
     avoid_value: jax.Array        # (N,) [m] V^A(t - t_, t_IAT) of each flying vehicle (FAR when absent)
+    avoid_action: jax.Array       # (N, 2) u^A (eq. 15) of each vehicle against the intruder, as an action
 
 
 EnvState = _pytree(EnvState)

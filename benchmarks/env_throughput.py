@@ -1,0 +1,166 @@
+"""Environment throughput: the PettingZoo adapter and the batched core, side by side with mpe2's simple_tag_v3.
+
+    python benchmarks/env_throughput.py [--scenario city] [--adapter-steps 5000] [--envs 1024] [--long 100000]
+
+Prints one JSON line. Measured in the same run:
+
+* ``mpe2_env_steps_per_s``: mpe2 ``simple_tag_v3.parallel_env()`` (4 agents), random actions (the peer).
+* ``adapter_env_steps_per_s``: :func:`stp_env.env.parallel_env` on the scenario, the vehicles driven by the
+  baseline controllers (``switching``, eq. 38, computed from the core state in one jitted call per step) and a
+  random intruder, i.e. what a user's ``env.step`` loop with baseline agents costs.
+* ``core_env_steps_per_s`` / ``core_agent_steps_per_s``: :func:`stp_env.sim.rollout` over ``--envs`` episodes
+  (``switching`` vehicles, HJ-pursuit intruder), compile excluded.
+* ``--long N``: N adapter steps (zero actions, auto-reset), peak RSS growth and step-function traces.
+
+The ``city`` scenario has no shipped plan yet (planning 50 vehicles takes about 2 minutes each here): its nominal
+trajectories are straight lines from the launch point to each destination at 12 m/s, departures every 5 s
+(throughput only; they are not STP plans).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import resource
+import time
+
+import jax
+import numpy as np
+
+
+def _straight_plan(scenario, spacing: float = 5.0, speed: float = 12.0, dt: float = 1.0):
+    from stp_env.planning.single import SinglePlan
+    from stp_env.planning.stp import Plan, VehiclePlan
+
+    vehicles = []
+    for i, spec in enumerate(scenario.vehicles):
+        start, target = np.asarray(spec.start[:2]), np.asarray(spec.target)
+        dist = float(np.linalg.norm(target - start))
+        heading = math.atan2(*(target - start)[::-1])
+        t0 = spacing * spec.priority
+        times = t0 + np.arange(0.0, dist / speed + dt, dt)
+        frac = np.clip((times - t0) * speed / dist, 0, 1)[:, None]
+        states = np.concatenate([start + frac * (target - start), np.full((len(times), 1), heading)], 1)
+        controls = np.tile([speed, 0.0], (len(times), 1))
+        single = SinglePlan(t_ldt=t0, sta=t0 + dist / speed, times=times, states=states, controls=controls,
+                            arrival_time=t0 + dist / speed, n_steps=0)
+        vehicles.append(VehiclePlan(index=i, priority=spec.priority, plan=single, obstacle_lags=np.zeros(1),
+                                    obstacle_radii=np.zeros(1)))
+    return Plan(vehicles=tuple(vehicles), tracking_bound=4.127, collision_radius=scenario.collision_radius,
+                kbar=scenario.kbar)
+
+
+def _params(name: str):
+    from stp_env import sim
+    from stp_env.scenarios import make
+
+    scenario = make(name)
+    avoid, tracking = sim.load_artifacts(scenario, progress=False)
+    if name == "city":
+        plan = _straight_plan(scenario)
+    else:
+        plan = sim.load_plan(scenario, tracking_bound=tracking.bound, progress=False)
+    return scenario, sim.make_params(scenario, plan, avoid, tracking, sim.EnvConfig())
+
+
+def mpe2_rate(n_steps: int) -> float:
+    from mpe2 import simple_tag_v3
+
+    env = simple_tag_v3.parallel_env(max_cycles=10**9)
+    env.reset(seed=0)
+    spaces = {a: env.action_space(a) for a in env.possible_agents}
+    start = time.perf_counter()
+    for _ in range(n_steps):
+        env.step({a: spaces[a].sample() for a in env.agents})
+    return n_steps / (time.perf_counter() - start)
+
+
+def adapter_rate(scenario, params, n_steps: int) -> float:
+    from stp_env.baselines import switching
+    from stp_env.env import STPParallelEnv
+
+    env = STPParallelEnv(scenario, params=params, max_cycles=10**9)
+    env.reset(seed=0)
+    policy = jax.jit(switching)
+    rng = np.random.default_rng(0)
+    names = env.possible_agents
+    n = params.n_vehicles
+    steps, key = 0, jax.random.key(0)
+    start = None
+    while steps < n_steps + 20:
+        if steps == 20:
+            start = time.perf_counter()
+        if not env.agents:
+            env.reset(seed=steps)
+        key, sub = jax.random.split(key)
+        veh = np.asarray(policy(sub, env.env_state, params))
+        actions = {a: (veh[i] if i < n else rng.uniform(-1, 1, 2).astype(np.float32))
+                   for i, a in enumerate(names) if a in env.agents}
+        env.step(actions)
+        steps += 1
+    return n_steps / (time.perf_counter() - start)
+
+
+def core_rate(params, n_envs: int, n_steps: int) -> tuple[float, float]:
+    from stp_env import sim
+    from stp_env.baselines import INTRUDERS, switching
+
+    out = sim.rollout(jax.random.key(0), params, switching, INTRUDERS["hj"], n_envs, n_steps)
+    jax.block_until_ready(out)
+    start = time.perf_counter()
+    out = sim.rollout(jax.random.key(1), params, switching, INTRUDERS["hj"], n_envs, n_steps)
+    jax.block_until_ready(out)
+    elapsed = time.perf_counter() - start
+    env_steps = n_envs * n_steps / elapsed
+    return env_steps, env_steps * (params.n_vehicles + 1)
+
+
+def long_run(scenario, params, n_steps: int) -> dict:
+    from stp_env.env import TRACE_COUNTS, STPParallelEnv
+
+    env = STPParallelEnv(scenario, params=params)
+    env.reset(seed=0)
+    zero = np.zeros(2, np.float32)
+    env.step(dict.fromkeys(env.agents, zero))
+    traces = TRACE_COUNTS["step"]
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    episode, start = 0, time.perf_counter()
+    for _ in range(n_steps):
+        if not env.agents:
+            episode += 1
+            env.reset(seed=episode)
+        env.step(dict.fromkeys(env.agents, zero))
+    return {"long_steps": n_steps, "long_s": round(time.perf_counter() - start, 1), "long_episodes": episode + 1,
+            "long_rss_growth_mb": round((resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0) / 1024, 1),
+            "long_retraces": TRACE_COUNTS["step"] - traces}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--scenario", default="city")
+    parser.add_argument("--adapter-steps", type=int, default=5000)
+    parser.add_argument("--mpe-steps", type=int, default=5000)
+    parser.add_argument("--envs", type=int, default=1024)
+    parser.add_argument("--core-steps", type=int, default=200)
+    parser.add_argument("--long", type=int, default=0)
+    args = parser.parse_args()
+    scenario, params = _params(args.scenario)
+    result = {"case": "env_throughput", "scenario": args.scenario, "n_agents": params.n_vehicles + 1,
+              "loadavg_1min_before": round(os.getloadavg()[0], 2)}
+    result["mpe2_env_steps_per_s"] = round(mpe2_rate(args.mpe_steps), 1)
+    result["adapter_env_steps_per_s"] = round(adapter_rate(scenario, params, args.adapter_steps), 1)
+    result["adapter_over_mpe2"] = round(result["adapter_env_steps_per_s"] / result["mpe2_env_steps_per_s"], 2)
+    env_steps, agent_steps = core_rate(params, args.envs, args.core_steps)
+    result.update({"core_envs": args.envs, "core_env_steps_per_s": round(env_steps),
+                   "core_agent_steps_per_s": round(agent_steps),
+                   "core_over_mpe2_env_steps": round(env_steps / result["mpe2_env_steps_per_s"], 1)})
+    if args.long:
+        result.update(long_run(scenario, params, args.long))
+    result["jax_devices"] = [str(d) for d in jax.devices()]
+    print(json.dumps(result))
+
+
+if __name__ == "__main__":
+    main()
