@@ -166,7 +166,8 @@ def _add_evaluate_parsers(sub) -> None:
                                     "results.{json,csv,md}, events.{json,npz} (replayable bad episodes) and PNG "
                                     "figures to --out.")
     _add_episode_options(ev, many=True)
-    ev.add_argument("--episodes", type=_positive(int), default=1000, help="episodes per configuration")
+    ev.add_argument("--episodes", type=_positive(int), default=500,
+                    help="episodes per configuration (the default run: 3 k̄ values x 500 = 1500 episodes of town)")
     ev.add_argument("--batch-size", type=_positive(int), default=250,
                     help="episodes per compiled batch (memory grows with it; every batch has this size)")
     ev.add_argument("--confidence", type=_probability, default=0.95,
