@@ -45,9 +45,12 @@ def draw_frame(env, fig=None):
     for b in scenario.buildings:
         ax.add_patch(Polygon(np.asarray(b.vertices), closed=True, color="0.55", zorder=1))
     rc = float(params.collision_radius)
+    targets = {}
     for i, (c, r) in enumerate(zip(np.asarray(params.targets), np.asarray(params.target_radii))):
-        ax.add_patch(Circle(c, r, fill=False, ec="tab:green", lw=1.2, zorder=2))
-        ax.annotate(f"T{i}", c, fontsize=7, color="tab:green", ha="center", va="center")
+        targets.setdefault((float(c[0]), float(c[1]), float(r)), []).append(i)
+    for (cx, cy, r), owners in targets.items():
+        ax.add_patch(Circle((cx, cy), r, fill=False, ec="tab:green", lw=1.2, zorder=2))
+        ax.annotate(",".join(map(str, owners)), (cx, cy), fontsize=7, color="tab:green", ha="center", va="center")
     states = np.asarray(params.nominal_states)
     lengths = np.asarray(params.nominal_len)
     for i in range(params.n_vehicles):
