@@ -26,13 +26,13 @@ N_ENVS = 4
 @pytest.fixture(scope="module")
 def params():
     """``town`` with a short-lived intruder (``t_IAT`` = 3 s; the avoid tables stay those of 10 s) appearing within
-    5 s of the window start and the time limit 7 s after it: intruder episodes end when it leaves (terminated) or
-    at the time limit (truncated), so short runs see both kinds of auto-reset. Only array fields change: the same
-    compiled programs as the default ``town``."""
+    4 s of the window start and the time limit 5 s after it: an intruder appearing in the first 2 s leaves before
+    the limit (terminated), a later one is cut by it (truncated), so short runs see both kinds of auto-reset.
+    Only array fields change: the same compiled programs as the default ``town``."""
     base = sim.params_for("town", sim.EnvConfig(), progress=False)
     lo = base.appear_window[0]
-    return dataclasses.replace(base, t_iat=jnp.asarray(3.0, jnp.float32), appear_window=jnp.stack([lo, lo + 5.0]),
-                               t_end=lo + 7.0)
+    return dataclasses.replace(base, t_iat=jnp.asarray(3.0, jnp.float32), appear_window=jnp.stack([lo, lo + 4.0]),
+                               t_end=lo + 5.0)
 
 
 def test_gym_env_passes_gymnasium_and_sb3_checks(params):
@@ -55,7 +55,7 @@ def test_vec_env_matches_dummy_vec_env_over_the_gym_env(params):
     assert native.reset_infos == dummy.reset_infos
     rng = np.random.default_rng(0)
     kinds = set()
-    for _ in range(70):
+    for _ in range(60):
         actions = rng.uniform(-1.2, 1.2, (N_ENVS, 2)).astype(np.float32)
         obs_d, rew_d, done_d, infos_d = dummy.step(actions)
         obs_n, rew_n, done_n, infos_n = native.step(actions)
@@ -107,8 +107,8 @@ def test_vec_env_sb3_api_and_seeding(params):
         checked.step(np.zeros((N_ENVS, 2), np.float32))
 
 
-def _short_ppo(params, seed: int, steps: int = 2048):
-    config = TrainConfig(n_envs=N_ENVS, n_steps=steps // N_ENVS, batch_size=512, n_epochs=2, seed=seed,
+def _short_ppo(params, seed: int, steps: int):
+    config = TrainConfig(n_envs=N_ENVS, n_steps=256, batch_size=512, n_epochs=2, seed=seed,
                          net_arch=(16, 16))
     model = make_model(config, IntruderVecEnv(N_ENVS, params=params))
     model.learn(total_timesteps=steps)
@@ -116,10 +116,10 @@ def _short_ppo(params, seed: int, steps: int = 2048):
 
 
 def test_short_ppo_run_is_seeded_and_exports_a_jittable_intruder(params, tmp_path):
-    model_a = _short_ppo(params, seed=3, steps=4096)
-    model_b = _short_ppo(params, seed=3, steps=4096)
-    model_c = _short_ppo(params, seed=4, steps=2048)
-    assert model_a.num_timesteps == 4096
+    model_a = _short_ppo(params, seed=3, steps=3072)
+    model_b = _short_ppo(params, seed=3, steps=3072)
+    model_c = _short_ppo(params, seed=4, steps=1024)
+    assert model_a.num_timesteps == 3072
     # Same seed: the same actions and observations in the (last) rollout, the same weights after training.
     np.testing.assert_array_equal(model_a.rollout_buffer.actions, model_b.rollout_buffer.actions)
     np.testing.assert_array_equal(model_a.rollout_buffer.observations, model_b.rollout_buffer.observations)
@@ -140,3 +140,28 @@ def test_short_ppo_run_is_seeded_and_exports_a_jittable_intruder(params, tmp_pat
     np.testing.assert_allclose(np.asarray(action), model_a.predict(obs, deterministic=True)[0], atol=1e-5)
     result = evaluate_on_vec_env(lambda o: model_a.predict(o, deterministic=True)[0], venv, N_ENVS, seed=5)
     assert result["n_forced"].shape == (N_ENVS,) and np.all(result["guarantee_violations"] == 0)
+
+
+def test_shipped_intruder_matches_its_sb3_model(params):
+    from importlib import resources
+
+    from stable_baselines3 import PPO
+
+    from stp_env.rl import functional
+    from stp_env.rl.policy import load_intruder, shipped_intruders
+
+    assert "town-kbar2" in shipped_intruders()
+    policy = load_intruder("town-kbar2")
+    assert load_intruder("town-kbar2") is policy
+    folder = resources.files("stp_env") / "data" / "intruders"
+    mlp = load_mlp(folder / "town-kbar2.npz")
+    assert mlp.metadata["scenario"] == "town" and mlp.metadata["kbar"] == 2
+    model = PPO.load(str(folder / "town-kbar2.zip"), device="cpu")
+    for seed in range(3):
+        _, state, obs = functional.env_reset(functional.key_for_seed(seed), params, "intruder")
+        action = np.asarray(jax.jit(policy)(jax.random.PRNGKey(0), state, params))
+        expected = model.predict(np.asarray(obs), deterministic=True)[0]
+        np.testing.assert_allclose(action, expected, atol=1e-5)
+        np.testing.assert_allclose(mlp.action_numpy(np.asarray(obs)), expected, atol=1e-5)
+    with pytest.raises(ValueError, match="unknown intruder"):
+        load_intruder("no-such-intruder")
