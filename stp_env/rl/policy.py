@@ -6,8 +6,13 @@ back with numpy only and evaluate the deterministic action (the Gaussian mean, c
 ``model.predict(obs, deterministic=True)``) in JAX on :func:`stp_env.sim.observe`'s intruder row, so a learned
 intruder runs inside :func:`stp_env.sim.rollout` and the evaluation library like any scripted one.
 
-Shipped intruders: :func:`load_intruder` ``("town-kbar2")`` (``stp_env/data/intruders/``; reproduced by
-``scripts/train_intruder.py``).
+Shipped intruders: :func:`load_intruder` ``("town-kbar2")`` (``stp_env/data/intruders/``; the SB3 model is the
+``.zip`` beside it; reproduced by ``python scripts/train_intruder.py train --ship``: PPO, 4.2 M steps, seed 0, a
+64 x 64 tanh MLP). Over 1,000 held-out ``town`` episodes (``scripts/train_intruder.py compare``: full core
+episodes, vehicles on ``switching`` with the HJ filter, default ``EnvConfig``) it forces on average 0.528 vehicles
+(95 % interval 0.497-0.559), against 0.048 (0.035-0.061) for the random-Bezier intruder ``bezier3``, 0.508
+(0.477-0.539) for ``greedy`` and 0.488 (0.457-0.519) for the HJ strategy ``max-k``; at most 1 vehicle (k̄ = 2), no
+collision, no guarantee violation.
 """
 
 from __future__ import annotations
