@@ -183,6 +183,9 @@ def _add_evaluate_parsers(sub) -> None:
                                     "is missing).")
     _add_episode_options(rd, many=False)
     rd.add_argument("--index", type=_nonnegative_int, default=0, help="episode index within the run")
+    rd.add_argument("--batch-size", type=_positive(int), default=250,
+                    help="replay the episode in its batch of this size, as `stp-env evaluate --batch-size` ran it "
+                         "(bit for bit the same episode; another size is another compiled program)")
     rd.add_argument("--events", default=None, help="an events.json written by `stp-env evaluate`")
     rd.add_argument("--event", type=_nonnegative_int, default=0, help="which record of --events")
     rd.add_argument("--frame-dt", type=_positive(float), default=0.5, help="simulated time between frames [s]")
@@ -314,15 +317,18 @@ def _render(args) -> int:
         config, seed, index = Configuration(**record["config"]), record["seed"], record["index"]
         params = pad_plan(build_params([config], store=store, progress=not args.no_progress)[0],
                           record["plan_samples"])
-        n_steps = record["n_steps"]
+        n_steps, batch_size, recorded = record["n_steps"], record["batch_size"], record["recorded"]
     else:
         config = _evaluation_configs(args, [args.kbar], [args.intruder])[0]
         seed, index = args.seed, args.index
         params = build_params([config], store=store, progress=not args.no_progress)[0]
-        n_steps = steps_for(params)
+        n_steps, batch_size, recorded = steps_for(params), args.batch_size, True
     start = time.perf_counter()
     vehicle_policy, intruder_policy = config.policies()
-    final, traj = replay(seed, index, params, vehicle_policy, intruder_policy, n_steps)
+    # An evaluation without recording (evaluate(..., showcase=False)) ran another program: drawing needs the
+    # trajectory, so such an episode is replayed alone (the same episode up to float rounding).
+    final, traj = replay(seed, index, params, vehicle_policy, intruder_policy, n_steps,
+                         batch_size=batch_size if recorded else 1)
     title = (f"{config.scenario}, k̄ = {config.kbar}, {config.intruder} intruder\nseed {seed}, episode {index}: "
              f"|N^RP| = {int(final['n_forced'])}")
     files = render_episode(traj, final, params, config.make_scenario(), args.out, frame_dt=args.frame_dt,

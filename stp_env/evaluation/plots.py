@@ -138,7 +138,7 @@ def plot_distance_vs_time(avoid_traj, avoid_final, nominal_traj, nominal_final, 
     ax.set_title(title or "distance to the intruder: avoidance vs nominal control (cf. intruder paper Fig. 5)",
                  fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="upper right")
+    ax.legend(fontsize=8, loc="best", framealpha=0.9)
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path

@@ -84,7 +84,8 @@ class ConfigResult:
     params: object = dataclasses.field(repr=False, default=None)
 
 
-def _events(config: Configuration, seed: int, n_steps: int, plan_samples: int, ep: dict, kbar: int) -> list[dict]:
+def _events(config: Configuration, seed: int, n_steps: int, plan_samples: int, batch_size: int, recorded: bool,
+            ep: dict, kbar: int) -> list[dict]:
     n_forced = ep["n_forced"]
     kinds = {
         "bound_exceeded": n_forced > kbar,
@@ -98,7 +99,7 @@ def _events(config: Configuration, seed: int, n_steps: int, plan_samples: int, e
         collided = np.flatnonzero(ep["status"][j] == COLLIDED)
         out.append({
             "label": config.label, "config": dataclasses.asdict(config), "seed": seed, "index": int(ep["index"][j]),
-            "n_steps": n_steps, "plan_samples": plan_samples,
+            "n_steps": n_steps, "plan_samples": plan_samples, "batch_size": batch_size, "recorded": recorded,
             "kinds": [k for k, v in kinds.items() if v[j]],
             "n_forced": int(n_forced[j]),
             "collided_vehicles": collided.tolist(),
@@ -255,30 +256,40 @@ def _evaluate_one(config, params, vehicle_policy, intruder_policy, key, seed, ep
     summary = summarize(config, ep, params, confidence=confidence)
     summary.update(seed=seed, n_steps=n_steps, batch_size=batch_size, seconds=round(seconds, 2),
                    episodes_per_s=round(episodes / seconds, 2))
-    events = _events(config, seed, n_steps, plan_samples, ep, config.kbar)
+    events = _events(config, seed, n_steps, plan_samples, batch_size, record, ep, config.kbar)
     summary["events_saved"] = min(len(events), max_events)
     return ConfigResult(config=config, seed=seed, n_steps=n_steps, plan_samples=plan_samples, episodes=ep,
                         summary=summary, events=events[:max_events], showcase=showcase, params=params)
 
 
-def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_steps: int, *, record: bool = True):
-    """Episode ``index`` of the run with ``seed``, alone: ``(final state, trajectory)`` as numpy dicts (the
-    trajectory ``None`` without ``record``). The same episode as in :func:`evaluate` when ``params`` (padded the
-    same way) and ``n_steps`` are the same."""
-    final, traj = run_batch(jax.random.key(seed), jnp.asarray([index], jnp.int32), params, vehicle_policy,
-                            intruder_policy, n_steps, record=record)
-    state = {k: v[0] for k, v in host_state(final).items()}
+def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_steps: int, *, batch_size: int = 1,
+           record: bool = True):
+    """Episode ``index`` of the run with ``seed``: ``(final state, trajectory)`` as numpy dicts (the trajectory
+    ``None`` without ``record``).
+
+    The batch of ``batch_size`` episodes that holds ``index`` runs again (the same compiled program and inputs as
+    in :func:`evaluate` when ``params``, ``n_steps``, ``batch_size`` and ``record`` are the same), so the replay
+    is bit for bit the evaluated episode. Another batch size is another compiled program, which XLA may vectorize
+    differently (10 of 10 town episodes of a batch of 250 replayed alone ended identically, BENCHMARKS.md). Either
+    way the reachability artifacts must be the same as in the evaluation.
+    """
+    first = (index // batch_size) * batch_size
+    indices = jnp.arange(first, first + batch_size, dtype=jnp.int32)
+    final, traj = run_batch(jax.random.key(seed), indices, params, vehicle_policy, intruder_policy, n_steps,
+                            record=record)
+    j = index - first
+    state = {k: v[j] for k, v in host_state(final).items()}
     state["n_forced"] = np.sum(np.isfinite(state["avoid_start"]))
-    return state, (None if traj is None else {k: np.asarray(v[0]) for k, v in traj.items()})
+    return state, (None if traj is None else {k: np.asarray(v[j]) for k, v in traj.items()})
 
 
-def replay_event(event: dict, *, store=None, progress: bool = False, record: bool = True):
-    """Replay a saved event (an entry of ``ConfigResult.events`` or of ``events.json``)."""
+def replay_event(event: dict, *, store=None, progress: bool = False):
+    """Replay a saved event (an entry of ``ConfigResult.events`` or of ``events.json``) in its evaluation batch."""
     config = Configuration(**event["config"])
     params = pad_plan(build_params([config], store=store, progress=progress)[0], event["plan_samples"])
     vehicle_policy, intruder_policy = config.policies()
     return replay(event["seed"], event["index"], params, vehicle_policy, intruder_policy, event["n_steps"],
-                  record=record)
+                  batch_size=event["batch_size"], record=event["recorded"])
 
 
 def same_outcome(a: dict, b: dict, *, atol: float = 1e-3) -> bool:
