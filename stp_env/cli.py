@@ -184,8 +184,9 @@ def _add_evaluate_parsers(sub) -> None:
     _add_episode_options(rd, many=False)
     rd.add_argument("--index", type=_nonnegative_int, default=0, help="episode index within the run")
     rd.add_argument("--batch-size", type=_positive(int), default=250,
-                    help="replay the episode in its batch of this size, as `stp-env evaluate --batch-size` ran it "
-                         "(bit for bit the same episode; another size is another compiled program)")
+                    help="replay the episode within the batch of this size that held it in `stp-env evaluate` "
+                         "(a saved event from --events replays bit for bit in its own batch; a --seed/--index episode "
+                         "is the same episode, computed by a program with this config's own step count)")
     rd.add_argument("--events", default=None, help="an events.json written by `stp-env evaluate`")
     rd.add_argument("--event", type=_nonnegative_int, default=0, help="which record of --events")
     rd.add_argument("--frame-dt", type=_positive(float), default=0.5, help="simulated time between frames [s]")
