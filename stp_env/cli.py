@@ -332,10 +332,10 @@ def _render(args) -> int:
                          batch_size=batch_size if recorded else 1)
     title = (f"{config.scenario}, k̄ = {config.kbar}, {config.intruder} intruder\nseed {seed}, episode {index}: "
              f"|N^RP| = {int(final['n_forced'])}")
-    files = render_episode(traj, final, params, config.make_scenario(), args.out, frame_dt=args.frame_dt,
+    files, n_frames = render_episode(traj, final, params, config.make_scenario(), args.out, frame_dt=args.frame_dt,
                            fps=args.fps, title=title)
     print(json.dumps({
-        "files": files if len(files) == 1 else [files[0], "...", files[-1]], "frames": len(files),
+        "files": files if len(files) == 1 else [files[0], "...", files[-1]], "frames": n_frames,
         "seed": seed, "index": index, "label": config.label, "n_forced": int(final["n_forced"]),
         "collided": int((final["status"] == COLLIDED).sum()),
         "guarantee_violations": int(final["guarantee_violation"].sum()),

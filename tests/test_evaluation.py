@@ -180,6 +180,7 @@ def test_render_writes_a_small_gif(tiny_run, tmp_path):
     info = json.loads(stdout.strip().splitlines()[-1])
     record = json.loads((out / "events.json").read_text())[0]
     assert info["index"] == record["index"] and info["n_forced"] == record["n_forced"]
+    assert info["frames"] > 1
     assert gif.read_bytes()[:6] in (b"GIF89a", b"GIF87a")
     assert 1_000 < gif.stat().st_size < 2_000_000
 

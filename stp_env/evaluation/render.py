@@ -15,9 +15,9 @@ from stp_env.sim.types import AVOIDING, COLLIDED, FLYING, PRESENT
 
 
 def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float = 0.5, margin_s: float = 5.0,
-                   fps: int = 8, dpi: int = 70, title: str = "") -> list[str]:
+                   fps: int = 8, dpi: int = 70, title: str = "") -> tuple[list[str], int]:
     """Write the episode to ``path`` (``.gif``); returns the written files (the GIF, or the PNG frames in
-    ``path`` with its suffix removed when pillow is not installed)."""
+    ``path`` with its suffix removed when pillow is not installed) and the number of frames."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -97,7 +97,7 @@ def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float 
         anim = animation.FuncAnimation(fig, draw, frames=list(steps), blit=False)
         anim.save(str(out), writer=animation.PillowWriter(fps=fps), dpi=dpi)
         plt.close(fig)
-        return [str(out)]
+        return [str(out)], len(steps)
     frames_dir = out.with_suffix("")
     frames_dir.mkdir(parents=True, exist_ok=True)
     written = []
@@ -107,4 +107,4 @@ def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float 
         fig.savefig(name, dpi=dpi)
         written.append(str(name))
     plt.close(fig)
-    return written
+    return written, len(steps)
