@@ -1,6 +1,9 @@
 """A cache of computed artifacts (reachability tables, plans): ``.npz`` arrays plus JSON metadata.
 
-Every artifact is keyed by a hash of its *kind*, every parameter that shaped it and :data:`FORMAT_VERSION`.
+Every artifact is keyed by a hash of its *kind*, every parameter that shaped it, :data:`FORMAT_VERSION` and
+:data:`CODE_VERSION` (a hash of the source of the modules that compute artifacts: the solver, the dynamics, the
+sets, the planner and the scenarios; a float32 solve compiled differently can move a boundary node, so results of
+older code are recomputed rather than reused).
 Loading checks all of it, and the content hash of the array file; anything that does not match (a changed
 parameter, another format version, a truncated or tampered file, unreadable JSON) is reported with a warning and
 recomputed, never silently reused. Arrays are read with ``allow_pickle=False``. Writes are atomic (temporary
@@ -26,6 +29,21 @@ import numpy as np
 
 FORMAT_VERSION = 1
 CACHE_ENV_VAR = "STP_ENV_CACHE_DIR"
+_NUMERICS = ("hj", "dynamics.py", "reach", "planning", "scenarios")
+
+
+def _code_version() -> str:
+    root = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for name in _NUMERICS:
+        path = root / name
+        for file in sorted(path.glob("*.py")) if path.is_dir() else [path]:
+            h.update(file.name.encode())
+            h.update(file.read_bytes())
+    return h.hexdigest()[:16]
+
+
+CODE_VERSION = _code_version()
 
 
 class StaleArtifactWarning(UserWarning):
@@ -66,7 +84,8 @@ def to_jsonable(obj: Any) -> Any:
 
 
 def parameter_key(kind: str, params: Any) -> str:
-    text = json.dumps({"kind": kind, "format_version": FORMAT_VERSION, "params": to_jsonable(params)},
+    text = json.dumps({"kind": kind, "format_version": FORMAT_VERSION, "code_version": CODE_VERSION,
+                       "params": to_jsonable(params)},
                       sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
 
@@ -119,6 +138,8 @@ class ArtifactStore:
             meta = json.loads(json_path.read_text())
             if meta.get("format_version") != FORMAT_VERSION:
                 problem = (f"format version {meta.get('format_version')} != {FORMAT_VERSION}")
+            elif meta.get("code_version") != CODE_VERSION:
+                problem = f"computed by other code (code version {meta.get('code_version')} != {CODE_VERSION})"
             elif meta.get("key") != key or meta.get("kind") != kind:
                 problem = "parameters changed"
             elif meta.get("params") != json.loads(json.dumps(to_jsonable(params))):
@@ -155,6 +176,7 @@ class ArtifactStore:
                 "kind": kind,
                 "key": key,
                 "format_version": FORMAT_VERSION,
+                "code_version": CODE_VERSION,
                 "params": to_jsonable(params),
                 "arrays": sorted(arrays),
                 "shapes": {name: list(a.shape) for name, a in arrays.items()},

@@ -93,6 +93,26 @@ def test_format_version_mismatch_recomputes(tmp_path, monkeypatch):
     assert len(calls) == 2
 
 
+def test_artifacts_of_other_code_are_recomputed(tmp_path, monkeypatch):
+    """An artifact computed by another version of the numerics code is not reused (same parameters)."""
+    store = ArtifactStore(tmp_path)
+    calls, compute = _compute_counter()
+    art = store.load_or_compute("demo", Params(), compute)
+    assert json.loads(art.path.with_suffix(".json").read_text())["code_version"] == artifacts.CODE_VERSION
+    monkeypatch.setattr(artifacts, "CODE_VERSION", "0123456789abcdef")
+    again = store.load_or_compute("demo", Params(), compute)  # another key: computed, not loaded
+    assert len(calls) == 2
+    assert again.path != art.path
+    # and metadata claiming other code under the current key is refused
+    meta_path = again.path.with_suffix(".json")
+    meta = json.loads(meta_path.read_text())
+    meta["code_version"] = "fedcba9876543210"
+    meta_path.write_text(json.dumps(meta))
+    with pytest.warns(StaleArtifactWarning, match="other code"):
+        store.load_or_compute("demo", Params(), compute)
+    assert len(calls) == 3
+
+
 def test_edited_metadata_params_detected(tmp_path):
     store = ArtifactStore(tmp_path)
     calls, compute = _compute_counter()

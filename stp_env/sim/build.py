@@ -63,6 +63,7 @@ def _plan_arrays(plan):
         "nominal_len": np.asarray([len(v.plan.times) for v in vehicles], np.int32),
         "departure": np.asarray([v.plan.t_ldt for v in vehicles], np.float32),
         "sta": np.asarray([v.plan.sta for v in vehicles], np.float32),
+        "arrival": np.asarray([v.plan.arrival_time for v in vehicles], np.float32),
         "starts": states[:, 0].copy(),
     }
 
@@ -136,6 +137,7 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
         collision_radius=jnp.asarray(scenario.collision_radius, f32),
         departure=jnp.asarray(arrays["departure"]),
         sta=jnp.asarray(arrays["sta"]),
+        nominal_arrival=jnp.asarray(arrays["arrival"]),
         starts=jnp.asarray(arrays["starts"]),
         targets=jnp.asarray(scenario.targets(), f32),
         target_radii=jnp.asarray(scenario.target_radii(), f32),

@@ -108,7 +108,7 @@ def reset(key, params: EnvParams) -> EnvState:
         assumption_ok=jnp.ones((n,), bool),
         used_filter=jnp.zeros((n,), bool),
         min_separation=inf,
-        arrival_time=jnp.where(arrived, t0, jnp.inf),
+        arrival_time=jnp.where(arrived, jnp.minimum(params.nominal_arrival, t0), jnp.inf),  # before the episode
         collision_time=inf,
         collided_with_intruder=jnp.zeros((n,), bool),
         guarantee_violation=jnp.zeros((n,), bool),

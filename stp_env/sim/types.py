@@ -67,6 +67,7 @@ class EnvParams:
     # --- plans (per vehicle)
     departure: jax.Array          # (N,) [s] departure time (t_LDT)
     sta: jax.Array                # (N,) [s]
+    nominal_arrival: jax.Array    # (N,) [s] arrival time of each plan (inf if none)
     starts: jax.Array             # (N, 3) [m, m, rad] state on the ground
     targets: jax.Array            # (N, 2) [m]
     target_radii: jax.Array       # (N,) [m]
