@@ -9,6 +9,12 @@ with ``--ship`` copies ``model.zip`` and ``intruder.npz`` to ``stp_env/data/intr
 filter, the default ``EnvConfig``) on held-out seeds for the learned intruder and the scripted ones, and prints one
 JSON line per intruder: mean ``|N^RP|`` with its 95 % interval, max ``|N^RP|`` against k̄, collisions and guarantee
 violations; a guarantee violation or ``|N^RP| > k̄`` is a finding, reported with its episode seed and a plot.
+
+Reproducibility: a run is deterministic given the seed and the code (same config in two processes: identical
+rollouts and weights). The shipped ``town-kbar2`` was trained from the tree of commit d1ce834 (06:35, 589 s); the
+simulation core changed after that (commits 5231dfe, 0b2d824), and a 1 M-step re-run on 3bebeed diverges from the
+shipped run's 1 M-step checkpoint from the first update (held-out mean ``|N^RP|`` 0.574 vs 0.531 at that point).
+The shipped weights still give the same held-out numbers on 3bebeed (0.528, 95 % 0.497-0.559, 1,000 episodes).
 """
 
 from __future__ import annotations
