@@ -261,16 +261,18 @@ def step(key, state: EnvState, actions, params: EnvParams):
     newly_forced = jnp.isfinite(new_state.avoid_start) & ~jnp.isfinite(state.avoid_start)
     intruder_hits = collided & (hit_intruder | (hit_vehicle & jnp.isfinite(state.avoid_start)))
     r_int = w[4] * jnp.sum(newly_forced) + w[5] * jnp.sum(intruder_hits)
-    shaping = w[6] * (_potential(state, params) - _potential(new_state, params))
+    # Both potentials over the vehicles unforced *before* the step: forcing one lowers the potential (a positive
+    # shaping reward) instead of removing it from the minimum (which would make the potential jump up).
+    unforced = flying(state) & ~jnp.isfinite(state.avoid_start)
+    shaping = w[6] * (_potential(state, params, unforced) - _potential(new_state, params, unforced))
     r_int = r_int + jnp.where(present & intruder_present(new_state), shaping, 0.0)
     rewards = jnp.concatenate([r_veh, r_int[None]]).astype(jnp.float32)
     return new_state, rewards
 
 
-def _potential(state: EnvState, params: EnvParams):
-    """``min_i V^A_i`` over unforced flying vehicles (the intruder's shaping potential), capped at ``d_sense``."""
-    ok = flying(state) & ~jnp.isfinite(state.avoid_start)
-    return jnp.minimum(jnp.min(jnp.where(ok, state.avoid_value, jnp.inf)), params.d_sense)
+def _potential(state: EnvState, params: EnvParams, mask):
+    """``min_i V^A_i`` over the vehicles in ``mask`` (the intruder's shaping potential), capped at ``d_sense``."""
+    return jnp.minimum(jnp.min(jnp.where(mask & flying(state), state.avoid_value, jnp.inf)), params.d_sense)
 
 
 # ------------------------------------------------------------------------------------------------ observations
