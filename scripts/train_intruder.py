@@ -35,8 +35,7 @@ from stp_env.baselines import INTRUDERS, switching
 from stp_env.rl.policy import load_intruder
 from stp_env.rl.train import TrainConfig, mean_interval, train
 
-# forced_reward > shaping_reward * d_sense (368 m for town): the shaping potential min V^A over *unforced* vehicles
-# jumps up by as much when a vehicle is forced, so a smaller forced reward teaches the intruder to approach and stop.
+# forced_reward 5: one forced vehicle outweighs the shaping of a whole approach (shaping_reward * d_sense = 3.7).
 SHIPPED = TrainConfig(scenario="town", n_envs=256, n_steps=64, batch_size=4096, n_epochs=10, learning_rate=3e-4,
                       forced_reward=5.0, collision_reward=10.0, shaping_reward=0.01, net_arch=(64, 64),
                       total_timesteps=4_194_304, seed=0, eval_every=524_288, eval_episodes=256,

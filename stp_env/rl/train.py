@@ -62,10 +62,10 @@ class TrainConfig:
         horizon: ``"intruder"`` (appearance to departure) or ``"episode"`` (:mod:`stp_env.rl.functional`).
         vehicle_policy: the vehicles' baseline policy (``"switching"``: u* with the safety filter).
         forced_reward: per vehicle newly forced to avoid (eq. 39); collision_reward: per collision the intruder
-            causes; shaping_reward: times the decrease of ``min V^A`` over unforced vehicles [per m]. Keep
-            ``forced_reward > shaping_reward * d_sense``: when a vehicle is forced it leaves the potential's set, so
-            the potential jumps up by up to ``d_sense`` and the shaping pays ``-shaping_reward * jump`` in that step
-            (with ``forced_reward = 1``, ``shaping_reward = 0.01`` the intruder learns to approach and not force).
+            causes; shaping_reward: times the decrease of ``min V^A`` over the vehicles unforced before each step
+            [per m] (both potentials of a step over the same vehicles, so forcing one is rewarded; before that fix
+            the potential jumped by up to ``d_sense`` when a vehicle was forced, and with ``forced_reward = 1`` the
+            intruder learned to approach and not force).
         algo: ``"ppo"`` or ``"a2c"``; net_arch: hidden layer widths of actor and critic (tanh).
         total_timesteps, n_envs, n_steps (per env per rollout), batch_size, n_epochs, learning_rate, gamma,
         gae_lambda, ent_coef, clip_range: the usual PPO settings (A2C uses n_steps, learning_rate, gamma,
