@@ -35,9 +35,8 @@ def _corners(grid: Grid, state):
     return i0, i1, w1
 
 
-def interpolate(grid: Grid, values, state, fill_value=None):
-    """Multilinear interpolation of ``values`` (``grid.shape``, or ``grid.shape + (k,)`` for vector fields)
-    at ``state`` (shape ``(ndim,)``)."""
+def _multilinear(grid: Grid, state, read):
+    """``sum_corners weight * read(corner index)`` over the ``2^ndim`` nodes around ``state``."""
     i0, i1, w1 = _corners(grid, state)
     w0 = 1.0 - w1
     out = 0.0
@@ -46,7 +45,14 @@ def interpolate(grid: Grid, values, state, fill_value=None):
         w = 1.0
         for d, c in enumerate(corner):
             w = w * (w1[d] if c else w0[d])
-        out = out + w * values[idx]
+        out = out + w * read(idx)
+    return out
+
+
+def interpolate(grid: Grid, values, state, fill_value=None):
+    """Multilinear interpolation of ``values`` (``grid.shape``, or ``grid.shape + (k,)`` for vector fields)
+    at ``state`` (shape ``(ndim,)``)."""
+    out = _multilinear(grid, state, lambda idx: values[idx])
     if fill_value is not None:
         out = jnp.where(grid.contains(state), out, fill_value)
     return out
@@ -105,16 +111,7 @@ def interpolate_slices(grid: Grid, slice_times, stack, t, state):
     k = jnp.clip(jnp.searchsorted(slice_times, t, side="right") - 1, 0, slice_times.shape[0] - 2)
     span = slice_times[k + 1] - slice_times[k]
     w = jnp.clip(jnp.where(span > 0, (t - slice_times[k]) / span, 0.0), 0.0, 1.0)
-    i0, i1, w1 = _corners(grid, state)
-    w0 = 1.0 - w1
-    out = 0.0
-    for corner in itertools.product((0, 1), repeat=grid.ndim):
-        idx = tuple(jnp.where(c, i1[d], i0[d]) for d, c in enumerate(corner))
-        weight = 1.0
-        for d, c in enumerate(corner):
-            weight = weight * (w1[d] if c else w0[d])
-        out = out + weight * ((1.0 - w) * stack[(k, *idx)] + w * stack[(k + 1, *idx)])
-    return out
+    return _multilinear(grid, state, lambda idx: (1.0 - w) * stack[(k, *idx)] + w * stack[(k + 1, *idx)])
 
 
 def gradient_slices(grid: Grid, slice_times, stack, t, state):
