@@ -15,7 +15,7 @@ from stp_env.baselines import INTRUDERS, mixture, mixture_index, nominal_trackin
 from stp_env.planning.stp import shipped_plan_for
 from stp_env.sim.physics import dubins_step
 
-N_EPISODES = 1000  # per intruder type
+N_EPISODES = 500  # per intruder type (3,500 in all; a 7,000-episode run, 1,000 each, also passed: see issue 5's note)
 
 
 @functools.lru_cache(maxsize=4)
@@ -45,21 +45,19 @@ def test_dubins_step_is_exact():
 
 @pytest.mark.slow
 def test_switching_controller_keeps_the_guarantee_against_every_scripted_intruder():
-    """About 1,000 episodes of each scripted intruder (a per-episode mixture: one compiled program), half of them
-    appearing on a vehicle's avoid boundary (Observation 1), half anywhere outside the avoid regions."""
+    """About 500 episodes of each scripted intruder, 3,500 in all (a per-episode mixture: one compiled program),
+    half of them appearing on a vehicle's avoid boundary (Observation 1), half anywhere outside the avoid
+    regions."""
     params = _params("mixed")
     names = tuple(INTRUDERS)
     n_steps = sim.steps_for(params)
-    half = N_EPISODES * len(names) // 2
-    runs = [sim.rollout(jax.random.key(seed), params, switching, mixture(names), half, n_steps)[0]
-            for seed in (17, 18)]
-    final = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), *runs)
+    final, _ = sim.rollout(jax.random.key(17), params, switching, mixture(names), N_EPISODES * len(names), n_steps)
     which = np.asarray(jax.vmap(lambda s: mixture_index(s, len(names)))(final))
     forced = np.asarray(jnp.sum(jnp.isfinite(final.avoid_start), axis=1))
     kbar = int(params.kbar)
     assert kbar == 2
     for i, name in enumerate(names):
-        assert (which == i).sum() >= 0.9 * N_EPISODES, name  # about 1,000 episodes of each intruder
+        assert (which == i).sum() >= 0.85 * N_EPISODES, name  # about 500 episodes of each intruder
     assert not np.asarray(final.guarantee_violation).any()
     assert forced.max() <= kbar
     # The intruder is a real threat: it forces vehicles to avoid in many episodes.
