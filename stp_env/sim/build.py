@@ -194,22 +194,31 @@ def load_artifacts(scenario, *, store=None, progress: bool = True):
 def load_plan(scenario, *, tracking_bound: float, store=None, progress: bool = True):
     """The shipped plan when ``scenario`` is a registry default (at its ``kbar``) that ships one
     (:func:`stp_env.planning.stp.shipped_plan_for`), else the cached plan (planned on first use)."""
-    from stp_env.planning.stp import cached_plan, shipped_plan_for
-    from stp_env.scenarios import make, names
+    from stp_env.planning.stp import cached_plan
 
-    if scenario.name in names():
-        for kbar in (scenario.kbar, None):
-            try:
-                default = make(scenario.name) if kbar is None else make(scenario.name, kbar=kbar)
-            except (TypeError, ValueError):
-                continue
-            if default == scenario:
-                for key in dict.fromkeys((scenario.kbar, None)):
-                    try:
-                        return shipped_plan_for(scenario.name, key)
-                    except ValueError:
-                        pass
+    shipped = _shipped_plan(scenario)
+    if shipped is not None:
+        return shipped
     return cached_plan(scenario, tracking_bound=tracking_bound, store=store, progress=progress)
+
+
+def _shipped_plan(scenario):
+    from stp_env.planning.stp import shipped_plan_for
+    from stp_env.scenarios import factory_parameters, make, names
+
+    if scenario.name not in names():
+        return None
+    takes_kbar = "kbar" in factory_parameters(scenario.name)
+    default = make(scenario.name, kbar=scenario.kbar) if takes_kbar and scenario.kbar is not None \
+        else make(scenario.name)
+    if default != scenario:
+        return None
+    for kbar in dict.fromkeys((scenario.kbar, None)):  # "town-kbar2", then a plain "tiny-intruder"
+        try:
+            return shipped_plan_for(scenario.name, kbar)
+        except ValueError:
+            continue  # not shipped under this name
+    return None
 
 
 def params_for(scenario, config: EnvConfig | None = None, *, store=None, progress: bool = True) -> EnvParams:
