@@ -29,46 +29,27 @@ import sys
 import time
 
 
-def _positive(kind):
+def _number(kind, noun: str, ok, requirement: str):
+    """An argparse type: ``kind(text)`` that must satisfy ``ok``; clear messages otherwise."""
     def parse(text: str):
         try:
             value = kind(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a {kind.__name__}, got {text!r}") from None
-        if not value > 0:
-            raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+            raise argparse.ArgumentTypeError(f"expected {noun}, got {text!r}") from None
+        if not ok(value):
+            raise argparse.ArgumentTypeError(f"must be {requirement}, got {text}")
         return value
+
     return parse
 
 
-def _nonnegative(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not value >= 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return value
+def _positive(kind):
+    return _number(kind, f"a {kind.__name__}", lambda v: v > 0, "> 0")
 
 
-def _nonnegative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return value
-
-
-def _probability(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not 0.0 < value < 1.0:
-        raise argparse.ArgumentTypeError(f"must be between 0 and 1 (exclusive), got {text}")
-    return value
+_nonnegative = _number(float, "a number", lambda v: v >= 0, ">= 0")
+_nonnegative_int = _number(int, "an integer", lambda v: v >= 0, ">= 0")
+_probability = _number(float, "a number", lambda v: 0.0 < v < 1.0, "between 0 and 1 (exclusive)")
 
 
 def _build_parser() -> argparse.ArgumentParser:

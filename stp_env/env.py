@@ -100,6 +100,7 @@ from stp_env.sim.types import (
     MODE_NAMES,
     PRESENT,
     STATUS_NAMES,
+    replace,
 )
 
 DEFAULT_SCENARIO = "town"
@@ -239,7 +240,7 @@ class STPParallelEnv(ParallelEnv):
             t = float(options["appear_time"])
             if not np.isfinite(t):
                 raise ValueError(f"appear_time must be finite; got {t}.")
-            params = _replace(params, appear_window=jnp.asarray([t, t], jnp.float32))
+            params = replace(params, appear_window=jnp.asarray([t, t], jnp.float32))
         self._key, self._state, flat = _start_jit(self._key, params)
         self._steps = 0
         self.agents = list(self.possible_agents)
@@ -406,12 +407,6 @@ class STPParallelEnv(ParallelEnv):
     def env_state(self) -> sim.EnvState:
         """The core's :class:`~stp_env.sim.EnvState` (read-only use; for parity checks and custom analysis)."""
         return self._state
-
-
-def _replace(params, **changes):
-    import dataclasses
-
-    return dataclasses.replace(params, **changes)
 
 
 def parallel_env(scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, **kwargs) -> STPParallelEnv:

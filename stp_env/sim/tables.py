@@ -57,11 +57,6 @@ def vehicle_intruder_values(params, state):
     return vals
 
 
-def tracking_error(x, x_ref):
-    """SPP eq. (24) state: the reference relative to the vehicle, in its body frame."""
-    return relative_state(x, x_ref)
-
-
 def tracking_control(params, error):
     """The tracker ``kappa(e)`` (SPP eq. 26): ``(v, omega)``; and the worst wind (world frame is the caller's job:
     returned in the vehicle's body frame, as it enters the error dynamics)."""
