@@ -56,13 +56,7 @@ from tqdm.auto import tqdm
 from stp_env import hj
 from stp_env.dynamics import DubinsWind
 from stp_env.hj.derivatives import central_gradient
-from stp_env.planning.single import (
-    TURN_DEADBAND,
-    InfeasiblePlanError,
-    SinglePlan,
-    _rollout,
-    full_grid_obstacle,
-)
+from stp_env.planning.single import TURN_DEADBAND, plan_single_with_slices
 from stp_env.planning.stp import Plan, VehiclePlan
 
 METHODS = ("centralized", "least_restrictive")
@@ -201,7 +195,7 @@ def _pack_tables(grid: hj.Grid, induced: list, n_slots: int, n_times: int, stati
 # --------------------------------------------------------------------------------------------- reachable sets
 @dataclasses.dataclass(frozen=True)
 class VehicleReach:
-    """What one vehicle's planning computed, beside its :class:`SinglePlan`.
+    """What one vehicle's planning computed, beside its :class:`stp_env.planning.single.SinglePlan`.
 
     Attributes:
         slice_times: ascending times of the BRS slices [s], ``(K,)``.
@@ -248,8 +242,6 @@ def initial_ball(grid: hj.Grid, state, cells: float = 1.5):
     return jnp.broadcast_to((val - cells) * min(sp[:2]), grid.shape)
 
 
-SEGMENT_SLICES = 10
-"""BRS slices per backward segment between checks of whether the start has entered the tube."""
 HEADING_FLOOR_CELLS = 1
 """Half-width [heading cells] below which the centralized FRS may not thin in heading (:func:`heading_floor`)."""
 
@@ -312,50 +304,18 @@ def induced_frs(grid: hj.Grid, vehicle: DubinsWind, method: str, start, t_ldt: f
 
 
 def _plan_vehicle(grid, vehicle, start, target, radius, sta, horizon, settings, slice_dt, time_step, obstacle):
-    """BRS tube with time-to-reach, ``t_LDT`` and the nominal trajectory (zero wind), as
-    :func:`stp_env.planning.single.plan_single` does, but keeping the BRS slices for the induced obstacle."""
+    """:func:`stp_env.planning.single.plan_single_with_slices` (zero wind, early stop) with the BRS slices padded
+    to the whole horizon: the unsolved early part repeats the earliest solved slice (never read: the vehicle
+    departs at ``t_LDT``, later), so that every vehicle's feedback table has one shape and the FRS solver loop
+    compiles once per scenario."""
+    obstacle_fn = None if obstacle is None else tabulated_obstacles
+    single, solved_times, stack = plan_single_with_slices(
+        grid, vehicle, start, target, radius, sta, horizon, obstacle_fn=obstacle_fn, obstacle_params=obstacle,
+        settings=settings, slice_dt=slice_dt, time_step=time_step, wind_mode="zero")
     n_slices = max(2, math.ceil(horizon / slice_dt) + 1)
-    times = sta - np.linspace(0.0, horizon, n_slices)
-    target_fn = hj.shapes.cylinder(grid, (0, 1), target, radius)
-    kwargs = {}
-    if obstacle is not None:
-        kwargs = {"obstacle": obstacle, "obstacle_fn": full_grid_obstacle(tabulated_obstacles, grid.shape[2])}
-    # Backward in segments of SEGMENT_SLICES slices, stopping once the start has entered the tube: t_LDT is then
-    # known (a node's time-to-reach never changes once finite) and the FRS only needs slices from t_LDT on.
-    x0 = jnp.asarray(start, jnp.float32)
-    values, ttr, n_steps, lo = [target_fn], None, 0, 0
-    while lo < n_slices - 1:
-        hi = min(lo + SEGMENT_SLICES, n_slices - 1)
-        seg = hj.solve(settings, vehicle, grid, times[lo:hi + 1], target_fn, tube=True, time_to_reach=True,
-                       initial_values=values[-1], progress=False, **kwargs)
-        shifted = seg.time_to_reach + jnp.float32(sta - times[lo])
-        ttr = shifted if ttr is None else jnp.where(jnp.isfinite(ttr), ttr, shifted)
-        values.extend(seg.values[1:])
-        if lo == 0:
-            values[0] = seg.values[0]  # the target with the obstacle applied at the STA
-        n_steps, lo = n_steps + seg.n_steps, hi
-        if bool(jnp.isfinite(hj.interpolation.time_to_reach_at(grid, ttr, x0))):
-            break
-    t_ldt = float(hj.interpolation.latest_departure_time(grid, ttr, x0, sta))
-    if not math.isfinite(t_ldt):
-        raise InfeasiblePlanError(f"start {tuple(np.round(start, 3))} cannot reach the target {tuple(target)} "
-                                  f"(radius {radius}) by t_STA = {sta} s within a {horizon} s horizon.")
-    # Ascending slices; the unsolved early part of the horizon repeats the earliest solved slice (never read: the
-    # vehicle departs at t_LDT, later), so that every vehicle's table has one shape.
-    slice_times = times[::-1].copy()
-    stack = jnp.stack(values[::-1])
-    stack = jnp.concatenate([jnp.broadcast_to(stack[:1], (n_slices - len(values), *grid.shape)), stack])
-    n_steps = max(1, math.ceil(1.1 * (sta - t_ldt) / time_step) + 1)
-    n_scan = max(n_steps, math.ceil(1.1 * horizon / time_step) + 1)
-    xs, us = _rollout(jax.random.key(0), jnp.asarray(start, jnp.float32), jnp.float32(t_ldt),
-                      jnp.float32(time_step), jnp.asarray(slice_times, jnp.float32), stack, grid=grid,
-                      dynamics=vehicle, n_steps=n_scan, wind_mode="zero")
-    xs, us = np.asarray(xs, np.float64)[:n_steps], np.asarray(us, np.float64)[:n_steps]
-    sample_times = t_ldt + time_step * np.arange(n_steps)
-    inside = np.nonzero(np.hypot(xs[:, 0] - target[0], xs[:, 1] - target[1]) <= radius)[0]
-    arrival = float(sample_times[int(inside[0])]) if inside.size else math.inf
-    single = SinglePlan(t_ldt=t_ldt, sta=float(sta), times=sample_times, states=xs, controls=us,
-                        arrival_time=arrival, n_steps=n_steps)
+    slice_times = (sta - np.linspace(0.0, horizon, n_slices))[::-1].copy()
+    assert np.allclose(slice_times[n_slices - len(solved_times):], solved_times)
+    stack = jnp.concatenate([jnp.broadcast_to(stack[:1], (n_slices - stack.shape[0], *grid.shape)), stack])
     return single, slice_times, stack
 
 

@@ -121,10 +121,22 @@ def _rollout(key, x0, t0, dt, slice_times, stack, *, grid, dynamics, n_steps, wi
 
 
 def plan_single(grid: hj.Grid, dynamics: DubinsWind, start, target_center, target_radius: float, sta: float,
-                horizon: float, *, obstacle_fn=None, obstacle_params=None, settings: hj.SolverSettings | None = None,
-                slice_dt: float | None = None, time_step: float = 0.05, wind_mode: str = "zero", seed: int = 0,
-                depart_at: float | None = None, progress: bool = False, early_stop: bool = True) -> SinglePlan:
-    """Plans one vehicle (intruder paper eqs. 35-37).
+                horizon: float, **kwargs) -> SinglePlan:
+    """Plans one vehicle (intruder paper eqs. 35-37); the arguments are those of :func:`plan_single_with_slices`,
+    which also returns the BRS slices the trajectory controller used."""
+    return plan_single_with_slices(grid, dynamics, start, target_center, target_radius, sta, horizon, **kwargs)[0]
+
+
+def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_center, target_radius: float,
+                            sta: float, horizon: float, *, obstacle_fn=None, obstacle_params=None,
+                            settings: hj.SolverSettings | None = None, slice_dt: float | None = None,
+                            time_step: float = 0.05, wind_mode: str = "zero", seed: int = 0,
+                            depart_at: float | None = None, progress: bool = False,
+                            early_stop: bool = True) -> tuple[SinglePlan, np.ndarray, jnp.ndarray]:
+    """Plans one vehicle (intruder paper eqs. 35-37) and returns ``(plan, slice_times, stack)``: the plan, and the
+    BRS slices ``V(t)`` in ascending time (``(K,)`` and ``(K, *grid.shape)``; with ``early_stop`` only the solved
+    ones, from about ``t_LDT`` to the STA), which the induced obstacles of the centralized and least-restrictive
+    methods are computed from (:mod:`stp_env.planning.methods`).
 
     Args:
         grid: ``(p_x, p_y, theta)`` grid, heading periodic.
@@ -202,8 +214,9 @@ def plan_single(grid: hj.Grid, dynamics: DubinsWind, start, target_center, targe
     arrival = float(sample_times[int(inside[0])]) if inside.size else math.inf
     # The samples go on past the arrival (into the target, with the same controller) until the STA: a tracking
     # vehicle that trails its reference by up to the error bound still has a moving reference to follow.
-    return SinglePlan(t_ldt=t_start, sta=float(sta), times=sample_times, states=xs, controls=us,
+    plan = SinglePlan(t_ldt=t_start, sta=float(sta), times=sample_times, states=xs, controls=us,
                       arrival_time=arrival, n_steps=res.n_steps)
+    return plan, times[::-1].copy(), stack
 
 
 @functools.partial(jax.jit, static_argnames=("grid",))
