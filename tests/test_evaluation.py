@@ -12,6 +12,8 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -133,6 +135,13 @@ def test_evaluate_writes_results(tiny_run):
     assert np.array_equal(np.bincount(n_forced, minlength=len(s["forced_hist"])), s["forced_hist"])
     assert s["collisions"] == int(np.sum(status == COLLIDED))
     assert s["exceed_upper"] == pytest.approx(clopper_pearson_upper(s["exceed"], EPISODES))
+    # what produced it is recorded: the source hash of the package that ran
+    prov = json.loads((out / "results.json").read_text())["provenance"]
+    from stp_env.artifacts import CODE_VERSION
+    from stp_env.evaluation.report import source_hash
+
+    assert prov["source_hash"] == source_hash() and prov["numerics_code_version"] == CODE_VERSION
+    assert prov["git_commit"] is None or re.fullmatch(r"[0-9a-f]{40}(-dirty)?", prov["git_commit"])
     assert (out / "results.csv").read_text().count("\n") == 2
     assert (out / "results.md").read_text().startswith("| intruder |")
     for name in ("forced_histogram.png", "summary.png", "episode.png", "distance_vs_time.png"):
@@ -213,3 +222,19 @@ def test_render_rejects_a_missing_event(tiny_run):
 def test_clopper_pearson_is_monotone():
     ups = [clopper_pearson_upper(k, 50) for k in range(51)]
     assert np.all(np.diff(ups) > 0) and ups[-1] == 1.0
+
+
+def test_source_hash_changes_with_any_source_file(tmp_path, monkeypatch):
+    import shutil
+
+    import stp_env
+    from stp_env.evaluation import report
+
+    copy = tmp_path / "stp_env"
+    shutil.copytree(Path(stp_env.__file__).parent, copy, ignore=shutil.ignore_patterns("data", "__pycache__"))
+    monkeypatch.setattr(stp_env, "__file__", str(copy / "__init__.py"))
+    before = report.source_hash()
+    assert before == report.source_hash()
+    (copy / "sim" / "core.py").write_text((copy / "sim" / "core.py").read_text() + "\n# changed\n")
+    assert report.source_hash() != before
+    assert report.git_commit() is None  # a copy outside any checkout

@@ -4,7 +4,10 @@
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
+import platform
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -53,8 +56,53 @@ def write_csv(summaries: list[dict], path) -> str:
     return str(path)
 
 
+def source_hash() -> str:
+    """SHA-256 (first 16 hex digits) of every ``.py`` file of the installed ``stp_env`` package, in path order: the
+    code that produced a result, whether or not it was installed from a git checkout."""
+    import stp_env
+
+    root = Path(stp_env.__file__).resolve().parent
+    h = hashlib.sha256()
+    for file in sorted(root.rglob("*.py")):
+        h.update(file.relative_to(root).as_posix().encode())
+        h.update(file.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def git_commit() -> str | None:
+    """The commit of the checkout the package is imported from (an editable install), ``"<sha>-dirty"`` with local
+    changes, or ``None`` (a wheel install, or no ``git``)."""
+    import stp_env
+
+    root = Path(stp_env.__file__).resolve().parent
+    try:
+        sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10,
+                             check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "."], cwd=root, capture_output=True,
+                               text=True, timeout=10, check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return f"{sha}-dirty" if dirty else sha
+
+
+def provenance() -> dict:
+    """What produced a result: package version, source hash, git commit (if any), the artifacts' numerics version,
+    and the JAX, NumPy and Python versions. Results of the same seed depend on the code, so every results file
+    records this."""
+    import jax
+
+    import stp_env
+    from stp_env.artifacts import CODE_VERSION
+
+    return {"stp_env_version": stp_env.__version__, "source_hash": source_hash(), "git_commit": git_commit(),
+            "numerics_code_version": CODE_VERSION, "jax_version": jax.__version__, "numpy_version": np.__version__,
+            "python_version": platform.python_version()}
+
+
 def write_json(summaries: list[dict], path, **extra) -> str:
-    Path(path).write_text(json.dumps({**extra, "configurations": summaries}, indent=1) + "\n")
+    """``{"provenance": provenance(), **extra, "configurations": summaries}`` as indented JSON."""
+    record = {"provenance": provenance(), **extra, "configurations": summaries}
+    Path(path).write_text(json.dumps(record, indent=1) + "\n")
     return str(path)
 
 
