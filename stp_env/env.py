@@ -58,7 +58,8 @@ Vehicles: ``status`` (waiting / flying / arrived / collided / out_of_bounds), ``
 after_avoidance), ``avoid_start_time`` (``t_i`` [s], ``None`` if never forced), ``forced``, ``n_forced``
 (``|N^RP|``, eq. 39), ``kbar``, ``collision``, ``guarantee_violation`` (a collision although the intruder
 appeared outside its avoid region and it applied ``u^A`` from ``t_i`` on), ``used_filter``, ``min_separation``
-[m], ``cost`` (1.0 in the step of a collision: the safety-gymnasium convention), ``time`` [s].
+[m], ``cost`` (1.0 in the step of a collision: the safety-gymnasium convention), ``time`` [s], ``sta`` (the
+current STA [s]: a new one after replanning), ``replanned``.
 Intruder: ``status`` (pending / present / gone), ``n_forced``, ``kbar``, ``kbar_exceeded``, ``collisions``,
 ``guarantee_violations``, ``cost`` (0.0), ``time``.
 
@@ -68,14 +69,20 @@ Arguments
 ``scenario`` is a registry name or a :class:`stp_env.scenarios.Scenario`; ``config`` an
 :class:`stp_env.sim.EnvConfig` (``dt`` [s], wind model, spawn mode, safety filter, episode window, rewards);
 ``max_cycles`` caps the steps (default: the episode window ``t_end - t_start`` over ``dt``); ``params``
-bypasses the scenario (prebuilt :class:`stp_env.sim.EnvParams`). ``env(...)`` is the AEC form
+bypasses the scenario (prebuilt :class:`stp_env.sim.EnvParams`). ``replan=True`` runs Algorithm 4 when the
+intruder leaves: every vehicle that was forced to avoid gets a new STA and plan
+(:func:`stp_env.planning.replan.replan`, level-set solves on the host, about 15-25 s per event on ``town`` on 2
+cores; ``env.replan_log`` records each) and tracks it in the nominal mode; without it (the default, and in the
+batched core) it flies the jittable fallback of eq. 40 with no new STA. Use it with
+``EnvConfig(episode="full")``: the default episode window ends 10 s after the intruder leaves. ``env(...)`` is the AEC form
 (``parallel_to_aec``), ``raw_env(...)`` the same without the order-enforcing wrapper.
 Render modes: ``"rgb_array"`` (a top-down map: buildings, targets, vehicles with headings and danger zones,
 the intruder, avoid-region footprints when ``render_avoid_regions=True``) and ``"human"`` (the same in a window).
 
 Version history
 ---------------
-* v0 (``stp_v0``): first release.
+* v0 (``stp_v0``): first release; later additions that leave existing episodes unchanged: the ``replan``
+  argument and the ``sta`` and ``replanned`` infos.
 """
 
 from __future__ import annotations
@@ -94,10 +101,13 @@ from pettingzoo.utils.wrappers import OrderEnforcingWrapper
 from stp_env import sim
 from stp_env.sim import core
 from stp_env.sim.types import (
+    AFTER_AVOIDANCE,
     COLLIDED,
+    FLYING,
     GONE,
     INTRUDER_STATUS_NAMES,
     MODE_NAMES,
+    NOMINAL,
     PRESENT,
     STATUS_NAMES,
     replace,
@@ -142,6 +152,12 @@ def _start(key, params):
 
 
 _start_jit = jax.jit(_start)
+
+
+@jax.jit
+def _observe_flat(state, params):
+    obs_v, obs_i = core.observe(state, params)
+    return jnp.concatenate([obs_v.ravel(), obs_i])
 TRACE_COUNTS = {"step": 0}  # incremented when the step function is traced (tests check it stays at 1)
 
 
@@ -164,7 +180,7 @@ class STPParallelEnv(ParallelEnv):
 
     def __init__(self, scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, *,
                  max_cycles: int | None = None, render_mode: str | None = None, params: sim.EnvParams | None = None,
-                 render_avoid_regions: bool = False, store=None):
+                 render_avoid_regions: bool = False, store=None, replan: bool = False):
         from stp_env.scenarios import Scenario, make
 
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -179,10 +195,24 @@ class STPParallelEnv(ParallelEnv):
             raise ValueError(f"scenario must be a registry name or a Scenario; got {type(scenario).__name__}.")
         self.scenario = scenario
         self.config = config
+        if replan and params is not None:
+            raise ValueError("replan=True replans from the scenario's own plan; it cannot be combined with params= "
+                             "(pass the scenario and config instead).")
         if params is None:
             params = _cached_params(scenario, config) if store is None else sim.params_for(
                 scenario, config, store=store, progress=False)
         self.params = params
+        self._base_params = params
+        self.replan = bool(replan)
+        self._plan0 = None
+        if self.replan:
+            self._plan0 = sim.load_plan(scenario, tracking_bound=float(params.tracking_bound), store=store,
+                                        progress=False)
+        self._plan = self._plan0
+        self._replan_tried = np.zeros(params.n_vehicles, bool)
+        self._replanned = np.zeros(params.n_vehicles, bool)
+        self._sta = np.asarray(params.sta, np.float64)
+        self.replan_log: list[dict] = []
         n = params.n_vehicles
         self.possible_agents = [f"vehicle_{i}" for i in range(n)] + ["intruder"]
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
@@ -230,7 +260,12 @@ class STPParallelEnv(ParallelEnv):
             self._key = jax.random.key(int(seed))
         elif self._key is None:
             self._key = jax.random.key(int(np.random.SeedSequence().entropy % (2 ** 31)))
-        params = self.params
+        params = self.params = self._base_params
+        self._plan = self._plan0
+        self._replan_tried = np.zeros(params.n_vehicles, bool)
+        self._replanned = np.zeros(params.n_vehicles, bool)
+        self._sta = np.asarray(params.sta, np.float64)
+        self.replan_log = []
         options = {} if options is None else dict(options)
         unknown = sorted(set(options) - {"appear_time"})
         if unknown:  # PettingZoo's API test passes arbitrary options and expects them to be ignored
@@ -280,6 +315,8 @@ class STPParallelEnv(ParallelEnv):
         self._key, self._state, flat = _advance_jit(self._key, self._state, arr, self.params)
         self._steps += 1
         obs, rewards, info_arr, (_, trunc) = self._unpack(np.asarray(flat))
+        if self.replan:
+            obs, info_arr = self._maybe_replan(obs, info_arr)
         done_v = info_arr[0] >= sim.ARRIVED
         intruder_done = int(info_arr[7, 1]) == GONE
         truncated_all = bool(trunc) or self._steps >= self.max_cycles
@@ -297,6 +334,51 @@ class STPParallelEnv(ParallelEnv):
         if self.render_mode == "human":
             self.render()
         return obs, rew, terms, truncs, infos
+
+    # ------------------------------------------------------------------------------------------ replanning
+    def _maybe_replan(self, obs, info_arr):
+        """Algorithm 4 after the intruder has left: every flying vehicle in the after-avoidance mode that has not
+        been replanned gets a new STA and plan (:func:`stp_env.planning.replan.replan`, host side), the
+        simulator's nominal tables are updated (:func:`stp_env.sim.with_plan`; same shapes, no retrace) and the
+        vehicle is back in the nominal mode, tracking its new plan. Returns the observations and info arrays of
+        the updated state."""
+        need = (info_arr[1].astype(int) == AFTER_AVOIDANCE) & (info_arr[0].astype(int) == FLYING) & ~self._replan_tried
+        if not need.any():
+            return obs, info_arr
+        import time
+        import warnings
+
+        from stp_env.planning.replan import replan
+
+        idx = [int(i) for i in np.nonzero(need)[0]]
+        self._replan_tried[idx] = True  # one attempt per vehicle and episode
+        x = np.asarray(self._state.x, np.float64)
+        t_bar = float(self._state.t)
+        affected = {i: (x[i, 0], x[i, 1], float((x[i, 2] + np.pi) % (2 * np.pi) - np.pi)) for i in idx}
+        start = time.perf_counter()
+        try:
+            new_plan = replan(self._plan, self.scenario, affected, t_bar)
+        except ValueError as err:
+            warnings.warn(f"replanning vehicles {idx} at t = {t_bar:.1f} s failed ({err}); they keep the fallback "
+                          "control of eq. 40.", stacklevel=3)
+            self.replan_log.append({"time": t_bar, "vehicles": idx, "error": str(err)})
+            return obs, info_arr
+        self._plan = new_plan
+        self.params = sim.with_plan(self.params, new_plan)
+        self._state = replace(self._state, mode=self._state.mode.at[jnp.asarray(idx)].set(NOMINAL))
+        self._replanned[idx] = True
+        self._sta = np.asarray(self.params.sta, np.float64)
+        self.replan_log.append({"time": t_bar, "vehicles": idx,
+                                "sta": [float(new_plan.vehicles[i].plan.sta) for i in idx],
+                                "old_sta": [float(self._base_params.sta[i]) for i in idx],
+                                "seconds": round(time.perf_counter() - start, 2)})
+        flat = np.asarray(_observe_flat(self._state, self.params))
+        n = self.params.n_vehicles
+        obs = {f"vehicle_{i}": flat[i * self._dv:(i + 1) * self._dv] for i in range(n)}
+        obs["intruder"] = flat[n * self._dv:]
+        info_arr = info_arr.copy()
+        info_arr[1, idx] = NOMINAL
+        return obs, info_arr
 
     # ------------------------------------------------------------------------------------------ conversions
     def _unpack(self, flat):
@@ -335,6 +417,8 @@ class STPParallelEnv(ParallelEnv):
                 "collision": bool(collided[i]),
                 "guarantee_violation": bool(violation[i]),
                 "used_filter": bool(used[i]),
+                "replanned": bool(self._replanned[i]),
+                "sta": float(self._sta[i]),
                 "min_separation": float(min_sep[i]),
                 "cost": float(new_collision[i]),
                 "time": t,

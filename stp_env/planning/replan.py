@@ -8,8 +8,13 @@ The vehicles forced to avoid (``N^RP``, eq. 39) end up at states ``x~_i^0`` at `
 2. a new plan from ``x~_i^0`` to its target by that STA (Algorithm 3's planning step, here robust tracking).
 
 The obstacles are the nominal trajectories of every vehicle outside ``N^RP`` (as in Algorithm 4) and, so that the
-replanned vehicles cannot collide with each other either, those already replanned. Plans of the other vehicles
-are returned unchanged (the same objects).
+replanned vehicles cannot collide with each other either, those already replanned, with the disks of the original
+plan; and the buildings, grown as for the original plan (:func:`stp_env.planning.stp.planning_static_obstacle`).
+Plans of the other vehicles are returned unchanged (the same objects).
+
+``replan`` is host-side (level-set solves) and can be called while a simulation runs: ``parallel_env(...,
+replan=True)`` calls it when the intruder leaves and swaps the new plans into the running simulation
+(:func:`stp_env.sim.with_plan`).
 """
 
 from __future__ import annotations
@@ -22,17 +27,18 @@ import numpy as np
 
 from stp_env import hj
 from stp_env.dynamics import DubinsWind
-from stp_env.planning.obstacles import disk_params, moving_disks
+from stp_env.planning.obstacles import disk_params, moving_disks, static_plane
 from stp_env.planning.single import InfeasiblePlanError, full_grid_obstacle, plan_single
-from stp_env.planning.stp import Plan, VehiclePlan
+from stp_env.planning.stp import PLANNING_SETTINGS, Plan, VehiclePlan, planning_static_obstacle
 
 
 def earliest_arrival(grid: hj.Grid, planner: DubinsWind, state, t_bar: float, target_center, target_radius: float,
                      horizon: float, *, obstacle_fn=None, obstacle_params=None, slice_dt: float = 1.0,
-                     settings: hj.SolverSettings | None = None) -> float:
+                     settings: hj.SolverSettings | None = None, segment: int = 10) -> float:
     """``arg inf_t {W^RP(t_bar, t) meets L}`` (eqs. 41-42): the FRS from a ball of about 1.5 cells around
     ``state`` (position and heading), the control covering every input (``"max"``), obstacles enforced at every
-    step; ``inf`` if the target is not reached within ``horizon``."""
+    step; ``inf`` if the target is not reached within ``horizon``. The solve stops after the first group of
+    ``segment`` slices in which the set meets the target (the time returned is that of the first such slice)."""
     settings = settings or hj.SolverSettings.with_accuracy("high")
     x = grid.broadcast_states()
     sp = grid.spacing
@@ -44,11 +50,19 @@ def earliest_arrival(grid: hj.Grid, planner: DubinsWind, state, t_bar: float, ta
     times = t_bar + np.linspace(0.0, horizon, n)
     dyn = planner.with_modes(control_mode="max", disturbance_mode="min")
     full_fn = None if obstacle_fn is None else full_grid_obstacle(obstacle_fn, grid.shape[2])
-    res = hj.solve(settings, dyn, grid, times, init, obstacle=obstacle_params, obstacle_fn=full_fn, progress=False)
     in_target = jnp.broadcast_to(hj.shapes.cylinder(grid, (0, 1), target_center, target_radius) <= 0, grid.shape)
-    reached = np.asarray(jnp.any((res.values <= 0) & in_target, axis=(1, 2, 3)))
-    hits = np.nonzero(reached)[0]
-    return float(times[hits[0]]) if hits.size else math.inf
+    # Forward in segments of ``segment`` slices, stopping at the first segment in which the set meets the target
+    # (each continues from the previous one's last values: the same values as one solve of the whole horizon).
+    values, lo = init, 0
+    while lo < n - 1:
+        hi = min(lo + segment, n - 1)
+        res = hj.solve(settings, dyn, grid, times[lo:hi + 1], init, obstacle=obstacle_params, obstacle_fn=full_fn,
+                       initial_values=values, progress=False)
+        hits = np.nonzero(np.asarray(jnp.any((res.values <= 0) & in_target, axis=(1, 2, 3))))[0]
+        if hits.size:
+            return float(times[lo + hits[0]])
+        values, lo = res.values[-1], hi
+    return math.inf
 
 
 def replan(plan: Plan, scenario, affected: dict[int, tuple[float, float, float]], t_bar: float, *,
@@ -75,6 +89,8 @@ def replan(plan: Plan, scenario, affected: dict[int, tuple[float, float, float]]
             / scenario.planning_v[1] + 1.0
     time_step = scenario.time_step
     margin = max(grid.spacing[:2]) / scenario.planning_v[0]
+    settings = settings or PLANNING_SETTINGS
+    static = planning_static_obstacle(scenario, r_e)
     vehicles = list(plan.vehicles)
     others = [v for v in plan.vehicles if v.index not in affected]
     trajectories = [(*v.plan.flight(), v.plan.t_ldt, v.plan.arrival_time) for v in others]
@@ -82,9 +98,13 @@ def replan(plan: Plan, scenario, affected: dict[int, tuple[float, float, float]]
         spec = scenario.vehicles[i]
         kwargs = {}
         if trajectories:
-            kwargs = {"obstacle_fn": moving_disks,
-                      "obstacle_params": disk_params(grid, trajectories, lags, radii, n_slots=n - 1,
-                                                     n_samples=math.ceil(1.1 * horizon / time_step) + 1)}
+            params = disk_params(grid, trajectories, lags, radii, n_slots=n - 1,
+                                 n_samples=math.ceil(1.1 * horizon / time_step) + 1)
+            if static is not None:
+                params["static"] = jnp.asarray(static, jnp.float32)
+            kwargs = {"obstacle_fn": moving_disks, "obstacle_params": params}
+        elif static is not None:
+            kwargs = {"obstacle_fn": static_plane, "obstacle_params": {"static": jnp.asarray(static, jnp.float32)}}
         shrunk = spec.target_radius - r_e
         sta = earliest_arrival(grid, planner, affected[i], t_bar, spec.target, shrunk, horizon,
                                slice_dt=max(time_step, horizon / 100), settings=settings, **kwargs)

@@ -199,7 +199,7 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
     from stp_env.reach.avoid import compute_avoid_region
     from stp_env.reach.buffer import BufferConfig, buffer_radii, compute_relative_buffer
     from stp_env.reach.defaults import default_avoid_config
-    from stp_env.reach.obstacles import intruder_obstacle_profiles, static_inflation_radius
+    from stp_env.reach.obstacles import intruder_obstacle_profiles
     from stp_env.reach.tracking import default_tracking_bound
 
     if scenario.method != "rtt":
@@ -227,7 +227,6 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
     if horizon is None:
         dist = np.hypot(*(targets - starts[:, :2]).T)
         horizon = 2.0 * float(dist.max()) / scenario.planning_v[1] + 1.0
-    margin = tracking_bound
     aware = {}
     if scenario.kbar is not None:
         avoid_cfg = default_avoid_config(vehicle, scenario.collision_radius, scenario.t_iat)
@@ -239,14 +238,26 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
         aware = {"kbar": scenario.kbar, "buffer_radius": radii.buffer,
                  "obstacle_profiles": intruder_obstacle_profiles(vehicle, tracking_bound, scenario.collision_radius,
                                                                  scenario.t_iat, scenario.kbar)}
-        margin += static_inflation_radius(vehicle, scenario.collision_radius, scenario.t_iat)
-    static = None
-    if scenario.buildings:
-        static = np.asarray(scenario.static_obstacle())[:, :, 0] - margin
+    static = planning_static_obstacle(scenario, tracking_bound)
     return plan_rtt(grid, vehicle, tuple(scenario.planning_v), scenario.planning_omega_max, tracking_bound,
                     scenario.collision_radius, starts, targets, scenario.target_radii(), scenario.stas(),
                     scenario.priorities(), horizon=horizon, static_obstacle=static, settings=settings,
                     time_step=scenario.time_step, progress=progress, **aware)
+
+
+def planning_static_obstacle(scenario, tracking_bound: float):
+    """The buildings as the planner sees them: their signed distance on the position plane minus the tracking
+    bound ``r_e`` and, for intruder-aware scenarios, the static-obstacle augmentation ``V^S`` (eqs. 32-33,
+    :func:`stp_env.reach.obstacles.static_inflation_radius`); ``None`` without buildings. Shape
+    ``scenario.grid().shape[:2]``, ``{<= 0}`` forbidden."""
+    from stp_env.reach.obstacles import static_inflation_radius
+
+    if not scenario.buildings:
+        return None
+    margin = float(tracking_bound)
+    if scenario.kbar is not None:
+        margin += static_inflation_radius(scenario.vehicle, scenario.collision_radius, scenario.t_iat)
+    return np.asarray(scenario.static_obstacle())[:, :, 0] - margin
 
 
 def plan_to_arrays(plan: Plan) -> dict[str, np.ndarray]:

@@ -9,7 +9,7 @@
   :mod:`~stp_env.sim.physics`: wind models, intruder spawning, value-table reads, kinematics.
 """
 
-from stp_env.sim.build import busiest_window, load_artifacts, load_plan, make_params, params_for
+from stp_env.sim.build import busiest_window, load_artifacts, load_plan, make_params, params_for, with_plan
 from stp_env.sim.config import EnvConfig, RewardConfig
 from stp_env.sim.core import episode_over, lifecycle, nominal_reference, observe, reset, step
 from stp_env.sim.rollout import rollout, steps_for
@@ -34,5 +34,5 @@ __all__ = [
     "AFTER_AVOIDANCE", "ARRIVED", "AVOIDING", "COLLIDED", "FLYING", "GONE", "NOMINAL", "OUT_OF_BOUNDS", "PENDING",
     "PRESENT", "WAITING", "EnvConfig", "EnvParams", "EnvState", "RewardConfig", "busiest_window", "episode_over",
     "lifecycle", "load_artifacts", "load_plan", "make_params", "n_forced", "nominal_reference", "observe",
-    "params_for", "reset", "rollout", "step", "steps_for",
+    "params_for", "reset", "rollout", "step", "steps_for", "with_plan",
 ]

@@ -10,7 +10,7 @@ import numpy as np
 
 from stp_env import hj
 from stp_env.sim.config import EnvConfig
-from stp_env.sim.types import EnvParams
+from stp_env.sim.types import EnvParams, replace
 
 
 def flying_counts(plan, times: np.ndarray) -> np.ndarray:
@@ -66,6 +66,32 @@ def _plan_arrays(plan):
         "arrival": np.asarray([v.plan.arrival_time for v in vehicles], np.float32),
         "starts": states[:, 0].copy(),
     }
+
+
+def with_plan(params: EnvParams, plan, *, pad_to: int = 256) -> EnvParams:
+    """``params`` with the nominal trajectories, STAs and planned arrival times of ``plan`` (the departure times
+    and start states stay: they belong to the episode's start), e.g. after replanning (Algorithm 4,
+    :func:`stp_env.planning.replan.replan`), which changes only the affected vehicles' entries.
+
+    The sample tables keep their length ``K`` when every trajectory fits, so the jitted step is not retraced;
+    otherwise they grow to the next multiple of ``pad_to`` samples (one retrace). Raises ``ValueError`` if the
+    plan has another number of vehicles or another sample period."""
+    n = params.n_vehicles
+    if len(plan.vehicles) != n:
+        raise ValueError(f"the plan has {len(plan.vehicles)} vehicles; these params have {n}.")
+    arrays = _plan_arrays(plan)
+    if not math.isclose(float(arrays["nominal_dt"]), float(params.nominal_dt), rel_tol=1e-5):
+        raise ValueError(f"the plan's sample period is {float(arrays['nominal_dt'])} s; the simulator's nominal "
+                         f"tables use {float(params.nominal_dt)} s.")
+    k_old, k_new = params.nominal_states.shape[1], arrays["nominal_states"].shape[1]
+    k = k_old if k_new <= k_old else pad_to * math.ceil(k_new / pad_to)
+    states, controls = arrays["nominal_states"], arrays["nominal_controls"]
+    if k > k_new:  # pad with the last sample, as _plan_arrays does
+        states = np.concatenate([states, np.repeat(states[:, -1:], k - k_new, axis=1)], axis=1)
+        controls = np.concatenate([controls, np.repeat(controls[:, -1:], k - k_new, axis=1)], axis=1)
+    return replace(params, nominal_t0=jnp.asarray(arrays["nominal_t0"]), nominal_states=jnp.asarray(states),
+                   nominal_controls=jnp.asarray(controls), nominal_len=jnp.asarray(arrays["nominal_len"]),
+                   sta=jnp.asarray(arrays["sta"]), nominal_arrival=jnp.asarray(arrays["arrival"]))
 
 
 def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None) -> EnvParams:
