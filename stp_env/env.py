@@ -74,8 +74,8 @@ intruder leaves: every vehicle that was forced to avoid gets a new STA and plan
 (:func:`stp_env.planning.replan.replan`, level-set solves on the host, about 15-25 s per event on ``town`` on 2
 cores; ``env.replan_log`` records each) and tracks it in the nominal mode; without it (the default, and in the
 batched core) it flies the jittable fallback of eq. 40 with no new STA. Use it with
-``EnvConfig(episode="full")``: the default episode window ends 10 s after the intruder leaves. ``env(...)`` is the AEC form
-(``parallel_to_aec``), ``raw_env(...)`` the same without the order-enforcing wrapper.
+``EnvConfig(episode="full")``: the default episode window ends 10 s after the intruder leaves.
+``env(...)`` is the AEC form (``parallel_to_aec``), ``raw_env(...)`` the same without the order-enforcing wrapper.
 Render modes: ``"rgb_array"`` (a top-down map: buildings, targets, vehicles with headings and danger zones,
 the intruder, avoid-region footprints when ``render_avoid_regions=True``) and ``"human"`` (the same in a window).
 

@@ -93,6 +93,13 @@ def test_plan_scenario_tiny_arrives_and_separates():
         assert v.plan.t_ldt < spec.sta
     a, b = (v.plan for v in plan.vehicles)
     assert _min_separation(a, b) >= scenario.collision_radius + 2 * r_e - 0.5 * dx
+    # A horizon long enough for the first vehicle but not for the second, which detours around the first (about
+    # 2.3 s longer): the error names the vehicle and the reason.
+    margin = dx / scenario.planning_v[0]  # plan_rtt's arrival margin
+    need = [v.plan.sta - margin - v.plan.t_ldt for v in plan.vehicles]
+    assert need[1] > need[0] + 1.0
+    with pytest.raises(InfeasiblePlanError, match=r"vehicle 1 \(priority 1\): no feasible departure for its STA"):
+        plan_scenario(scenario, tracking_bound=r_e, horizon=0.5 * (need[0] + need[1]), progress=False)
 
 
 @pytest.mark.slow

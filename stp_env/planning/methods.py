@@ -56,7 +56,7 @@ from tqdm.auto import tqdm
 from stp_env import hj
 from stp_env.dynamics import DubinsWind
 from stp_env.hj.derivatives import central_gradient
-from stp_env.planning.single import TURN_DEADBAND, plan_single_with_slices
+from stp_env.planning.single import TURN_DEADBAND, InfeasiblePlanError, plan_single_with_slices
 from stp_env.planning.stp import Plan, VehiclePlan
 
 METHODS = ("centralized", "least_restrictive")
@@ -368,9 +368,13 @@ def plan_methods(grid: hj.Grid, vehicle: DubinsWind, method: str, collision_radi
         obstacle = None
         if induced or static_obstacle is not None:
             obstacle = _pack_tables(grid, induced, max(n - 1, 1), n_frs, static_obstacle)
-        single, slice_times, stack = _plan_vehicle(grid, vehicle, np.asarray(starts[i], np.float64), targets[i],
-                                                   float(radii[i]), float(stas[i]) - arrival_margin, horizon,
-                                                   settings, slice_dt, time_step, obstacle)
+        try:
+            single, slice_times, stack = _plan_vehicle(grid, vehicle, np.asarray(starts[i], np.float64), targets[i],
+                                                       float(radii[i]), float(stas[i]) - arrival_margin, horizon,
+                                                       settings, slice_dt, time_step, obstacle)
+        except InfeasiblePlanError as err:
+            raise InfeasiblePlanError(f"vehicle {i} (priority {rank}): no feasible departure for its STA "
+                                      f"{float(stas[i])} s: {err}", err.latest_departure) from err
         single = dataclasses.replace(single, sta=float(stas[i]))
         ob_times, ob_table = np.zeros(0), np.zeros((0, *grid.shape[:2]), np.float32)
         if rank < n - 1:

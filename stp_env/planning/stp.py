@@ -33,7 +33,7 @@ from tqdm.auto import tqdm
 from stp_env import hj
 from stp_env.dynamics import DubinsWind
 from stp_env.planning.obstacles import disk_params, moving_disks, static_plane
-from stp_env.planning.single import SinglePlan, plan_single
+from stp_env.planning.single import InfeasiblePlanError, SinglePlan, plan_single
 
 
 @dataclasses.dataclass(frozen=True)
@@ -148,9 +148,13 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
         elif static_obstacle is not None:
             kwargs = {"obstacle_fn": static_plane,
                       "obstacle_params": {"static": jnp.asarray(static_obstacle, jnp.float32)}}
-        single = plan_single(grid, planner, starts[i], targets[i], float(shrunk[i]), float(stas[i]) - arrival_margin,
-                             horizon, settings=settings, time_step=time_step, slice_dt=slice_dt, progress=False,
-                             **kwargs)
+        try:
+            single = plan_single(grid, planner, starts[i], targets[i], float(shrunk[i]),
+                                 float(stas[i]) - arrival_margin, horizon, settings=settings, time_step=time_step,
+                                 slice_dt=slice_dt, progress=False, **kwargs)
+        except InfeasiblePlanError as err:
+            raise InfeasiblePlanError(f"vehicle {i} (priority {rank}): no feasible departure for its STA "
+                                      f"{float(stas[i])} s: {err}", err.latest_departure) from err
         single = dataclasses.replace(single, sta=float(stas[i]))
         end = single.arrival_time if math.isfinite(single.arrival_time) else single.times[-1]
         trajectories.append((*single.flight(), single.t_ldt - pad_before, end + pad_after))
