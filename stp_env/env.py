@@ -57,7 +57,8 @@ Infos (fresh dicts every step)
 Vehicles: ``status`` (waiting / flying / arrived / collided / out_of_bounds), ``mode`` (nominal / avoiding /
 after_avoidance), ``avoid_start_time`` (``t_i`` [s], ``None`` if never forced), ``forced``, ``n_forced``
 (``|N^RP|``, eq. 39), ``kbar``, ``collision``, ``guarantee_violation`` (a collision although the intruder
-appeared outside its avoid region and it applied ``u^A`` from ``t_i`` on), ``used_filter``, ``min_separation``
+appeared outside its avoid region and it applied ``u^A`` from ``t_i`` on; not one in which a vehicle flying the
+after-avoidance fallback takes part, see :mod:`stp_env.sim.core`), ``used_filter``, ``min_separation``
 [m], ``cost`` (1.0 in the step of a collision: the safety-gymnasium convention), ``time`` [s], ``sta`` (the
 current STA [s]: a new one after replanning), ``replanned``.
 Intruder: ``status`` (pending / present / gone), ``n_forced``, ``kbar``, ``kbar_exceeded``, ``collisions``,
