@@ -7,7 +7,8 @@ trajectory tracking (no intruder). ``--vehicles n`` plans only the ``n`` highest
 50-vehicle study (the same vehicles, targets and schedule; the lower-priority ones never influence them), so a
 short run is a prefix of the full one. Writes, in ``--out``:
 
-* ``case{c}.png``: the plan (:func:`stp_env.planning.plots.plot_plan`);
+* ``case{c}.png``: the plan (:func:`stp_env.planning.plots.plot_plan`), and ``case{c}_plan.npz`` its arrays
+  (:func:`stp_env.planning.stp.plan_to_arrays`);
 * ``lanes.png``: all cases side by side, each trajectory coloured by its destination, with the lane measures below;
 
 and prints one JSON line per case: seconds, t_LDT range and two lane measures per destination: ``spread_m``, the
@@ -29,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from stp_env.planning.plots import plot_plan
-from stp_env.planning.stp import plan_scenario
+from stp_env.planning.stp import plan_scenario, plan_to_arrays
 from stp_env.scenarios import CITY_CASES, make
 from stp_env.scenarios.registry import CITY_DESTINATIONS
 
@@ -118,6 +119,7 @@ def main() -> None:
         plan = plan_scenario(scenario, horizon=horizon, progress=True)
         seconds = time.perf_counter() - t0
         plot_plan(plan, scenario, str(args.out / f"case{case}.png"))
+        np.savez_compressed(args.out / f"case{case}_plan.npz", **plan_to_arrays(plan))
         lanes = lane_measures(plan, scenario)
         results.append((case, scenario, plan, lanes))
         late = max(v.plan.arrival_time - s.sta for v, s in zip(plan.vehicles, scenario.vehicles))
