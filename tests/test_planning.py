@@ -265,3 +265,30 @@ def test_shipped_town_buffer_radii_shrink_with_kbar(town_plans):
     # t_BRD = t_IAT / k̄: a larger k̄ allows a smaller relative buffer region (eqs. 22, 46-47).
     radii = [town_plans[k][1].vehicles[0].obstacle_radii[0] for k in TOWN_KBARS]
     assert radii[0] > radii[1] > radii[2] > 2 * 245.0  # beyond the separation region (d^A ~ 246 m, eq. 20)
+
+
+def test_late_extraction_departs_earlier(monkeypatch):
+    """A nominal trajectory that comes out later than its STA (the sampled controller can lose time in a narrow
+    channel; seen on a city case) is extracted again from an earlier departure."""
+    import dataclasses
+
+    import stp_env.planning.stp as stp
+    from stp_env.scenarios import make
+
+    real = stp.plan_single
+    calls = []
+
+    def late_first(*args, depart_at=None, **kwargs):
+        out = real(*args, depart_at=depart_at, **kwargs)
+        calls.append((depart_at, out.t_ldt))
+        if depart_at is None:  # pretend the first extraction arrives 5 s after the STA
+            return dataclasses.replace(out, arrival_time=args[5] + 5.0 + 3.0)
+        return out
+
+    monkeypatch.setattr(stp, "plan_single", late_first)
+    scenario = make("tiny")
+    plan = stp.plan_scenario(scenario, tracking_bound=4.13, progress=False)
+    assert len(calls) == 4  # two vehicles, one retry each
+    for (first_depart, first_ldt), (retry_depart, _), v in zip(calls[::2], calls[1::2], plan.vehicles):
+        assert first_depart is None and retry_depart < first_ldt - 5.0
+        assert v.plan.t_ldt == pytest.approx(retry_depart) and v.plan.arrival_time <= v.plan.sta

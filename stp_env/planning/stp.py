@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Sequence
 
 import jax.numpy as jnp
@@ -66,6 +67,9 @@ class Plan:
     def t_ldt(self) -> np.ndarray:
         return np.asarray([v.plan.t_ldt for v in self.vehicles])
 
+
+LATE_RETRIES = 2
+"""How many times :func:`plan_rtt` re-extracts a nominal trajectory that arrives after its STA, departing earlier."""
 
 PLANNING_SETTINGS = hj.SolverSettings.with_accuracy("medium")
 """Default solver settings of :func:`plan_rtt`: ENO2 + TVD-RK2 (the ``medium`` preset). The planning BRS has no
@@ -148,13 +152,29 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
         elif static_obstacle is not None:
             kwargs = {"obstacle_fn": static_plane,
                       "obstacle_params": {"static": jnp.asarray(static_obstacle, jnp.float32)}}
-        try:
-            single = plan_single(grid, planner, starts[i], targets[i], float(shrunk[i]),
-                                 float(stas[i]) - arrival_margin, horizon, settings=settings, time_step=time_step,
-                                 slice_dt=slice_dt, progress=False, **kwargs)
-        except InfeasiblePlanError as err:
-            raise InfeasiblePlanError(f"vehicle {i} (priority {rank}): no feasible departure for its STA "
-                                      f"{float(stas[i])} s: {err}", err.latest_departure) from err
+        aim = float(stas[i]) - arrival_margin
+        depart_at = None
+        for attempt in range(1 + LATE_RETRIES):
+            try:
+                single = plan_single(grid, planner, starts[i], targets[i], float(shrunk[i]), aim, horizon,
+                                     settings=settings, time_step=time_step, slice_dt=slice_dt, progress=False,
+                                     depart_at=depart_at, **kwargs)
+            except InfeasiblePlanError as err:
+                raise InfeasiblePlanError(f"vehicle {i} (priority {rank}): no feasible departure for its STA "
+                                          f"{float(stas[i])} s: {err}", err.latest_departure) from err
+            late = single.arrival_time - float(stas[i])
+            if not late > 0:
+                break
+            # The tube promised an arrival by ``aim``; the extracted trajectory (a sampled controller following the
+            # BRS gradient) came later, e.g. threading a narrow channel. Depart earlier by the delay (the trajectory
+            # starts inside the tube, with more time to spare) and extract again.
+            earlier = single.t_ldt - late - arrival_margin
+            if attempt == LATE_RETRIES or earlier < aim - horizon:
+                warnings.warn(f"vehicle {i} (priority {rank}): its nominal trajectory arrives {late:.1f} s after its "
+                              f"STA {float(stas[i])} s (departing at {single.t_ldt:.1f} s); a finer grid or a longer "
+                              "horizon may fix it.", stacklevel=2)
+                break
+            depart_at = earlier
         single = dataclasses.replace(single, sta=float(stas[i]))
         end = single.arrival_time if math.isfinite(single.arrival_time) else single.times[-1]
         trajectories.append((*single.flight(), single.t_ldt - pad_before, end + pad_after))
