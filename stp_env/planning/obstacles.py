@@ -94,3 +94,18 @@ def disk_params(grid, trajectories, lags, radii, dtype=np.float32, n_slots: int 
         "start": jnp.asarray(start, dtype),
         "end": jnp.asarray(end, dtype),
     }
+
+
+def planning_obstacles(grid, trajectories, lags, radii, static=None, *, n_slots: int, n_samples: int) -> dict:
+    """Keyword arguments ``obstacle_fn`` / ``obstacle_params`` of :func:`stp_env.planning.single.plan_single` for
+    moving disks around ``trajectories`` (:func:`disk_params`) and the static obstacle ``static`` (position plane,
+    ``{<= 0}`` forbidden), either of which may be absent; ``{}`` if both are."""
+    static_arr = None if static is None else jnp.asarray(static, jnp.float32)
+    if trajectories:
+        params = disk_params(grid, trajectories, lags, radii, n_slots=n_slots, n_samples=n_samples)
+        if static_arr is not None:
+            params["static"] = static_arr
+        return {"obstacle_fn": moving_disks, "obstacle_params": params}
+    if static_arr is not None:
+        return {"obstacle_fn": static_plane, "obstacle_params": {"static": static_arr}}
+    return {}

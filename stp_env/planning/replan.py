@@ -27,7 +27,7 @@ import numpy as np
 
 from stp_env import hj
 from stp_env.dynamics import DubinsWind
-from stp_env.planning.obstacles import disk_params, moving_disks, static_plane
+from stp_env.planning.obstacles import planning_obstacles
 from stp_env.planning.single import InfeasiblePlanError, full_grid_obstacle, plan_single
 from stp_env.planning.stp import PLANNING_SETTINGS, Plan, VehiclePlan, planning_static_obstacle
 
@@ -96,15 +96,8 @@ def replan(plan: Plan, scenario, affected: dict[int, tuple[float, float, float]]
     trajectories = [(*v.plan.flight(), v.plan.t_ldt, v.plan.arrival_time) for v in others]
     for i in sorted(affected, key=lambda k: plan.vehicles[k].priority):
         spec = scenario.vehicles[i]
-        kwargs = {}
-        if trajectories:
-            params = disk_params(grid, trajectories, lags, radii, n_slots=n - 1,
-                                 n_samples=math.ceil(1.1 * horizon / time_step) + 1)
-            if static is not None:
-                params["static"] = jnp.asarray(static, jnp.float32)
-            kwargs = {"obstacle_fn": moving_disks, "obstacle_params": params}
-        elif static is not None:
-            kwargs = {"obstacle_fn": static_plane, "obstacle_params": {"static": jnp.asarray(static, jnp.float32)}}
+        kwargs = planning_obstacles(grid, trajectories, lags, radii, static, n_slots=n - 1,
+                                    n_samples=math.ceil(1.1 * horizon / time_step) + 1)
         shrunk = spec.target_radius - r_e
         sta = earliest_arrival(grid, planner, affected[i], t_bar, spec.target, shrunk, horizon,
                                slice_dt=max(time_step, horizon / 100), settings=settings, **kwargs)

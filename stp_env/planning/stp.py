@@ -27,13 +27,12 @@ import math
 import warnings
 from collections.abc import Sequence
 
-import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
 from stp_env import hj
 from stp_env.dynamics import DubinsWind
-from stp_env.planning.obstacles import disk_params, moving_disks, static_plane
+from stp_env.planning.obstacles import planning_obstacles
 from stp_env.planning.single import InfeasiblePlanError, SinglePlan, plan_single
 
 
@@ -142,16 +141,8 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
     done: dict[int, VehiclePlan] = {}
     trajectories = []
     for rank, i in enumerate(tqdm(order, desc="STP planning", unit="vehicle", disable=not progress)):
-        kwargs = {}
-        if trajectories:
-            params = disk_params(grid, trajectories, lags_arr, rads_arr, n_slots=n - 1,
-                                 n_samples=math.ceil(1.1 * horizon / time_step) + 1)
-            if static_obstacle is not None:
-                params["static"] = jnp.asarray(static_obstacle, jnp.float32)
-            kwargs = {"obstacle_fn": moving_disks, "obstacle_params": params}
-        elif static_obstacle is not None:
-            kwargs = {"obstacle_fn": static_plane,
-                      "obstacle_params": {"static": jnp.asarray(static_obstacle, jnp.float32)}}
+        kwargs = planning_obstacles(grid, trajectories, lags_arr, rads_arr, static_obstacle, n_slots=n - 1,
+                                    n_samples=math.ceil(1.1 * horizon / time_step) + 1)
         aim = float(stas[i]) - arrival_margin
         depart_at = None
         for attempt in range(1 + LATE_RETRIES):
