@@ -82,8 +82,9 @@ the intruder, avoid-region footprints when ``render_avoid_regions=True``) and ``
 
 Version history
 ---------------
-* v0 (``stp_v0``): first release; later additions that leave existing episodes unchanged: the ``replan``
-  argument and the ``sta`` and ``replanned`` infos.
+* v0 (``stp_v0``): first release. Since then, with the same dynamics for the same actions: the ``replan``
+  argument and the ``sta`` and ``replanned`` infos; ``guarantee_violation`` no longer counts a collision that a
+  vehicle flying the after-avoidance fallback takes part in (it still counts as a collision).
 """
 
 from __future__ import annotations
