@@ -90,6 +90,8 @@ Version history
 from __future__ import annotations
 
 import functools
+import time
+import warnings
 from typing import ClassVar
 
 import gymnasium
@@ -347,10 +349,7 @@ class STPParallelEnv(ParallelEnv):
         need = (info_arr[1].astype(int) == AFTER_AVOIDANCE) & (info_arr[0].astype(int) == FLYING) & ~self._replan_tried
         if not need.any():
             return obs, info_arr
-        import time
-        import warnings
-
-        from stp_env.planning.replan import replan
+        from stp_env.planning.replan import replan  # host-side level-set planning: imported on first use
 
         idx = [int(i) for i in np.nonzero(need)[0]]
         self._replan_tried[idx] = True  # one attempt per vehicle and episode
