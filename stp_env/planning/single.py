@@ -128,13 +128,14 @@ def _rollout(key, x0, t0, dt, slice_times, stack, *, grid, dynamics, n_steps, wi
         t = t0 + k * dt
         u0, d = control(t, x)
         w = wind(sub, d)
-        x_new, recorded = x, None
+        x_new = x
         for j in range(substeps):
             tj = t + j * h
             u = u0 if j == 0 else control(tj, x_new)[0]
             xm = x_new + 0.5 * h * f(x_new, u, w)
             um, _ = control(tj + 0.5 * h, xm)
-            recorded = um if recorded is None else recorded
+            if j == 0:
+                recorded = um
             x_new = x_new + h * f(xm, um, w)
             x_new = x_new.at[2].set(jnp.mod(x_new[2] + jnp.pi, 2 * jnp.pi) - jnp.pi)
         return (x_new, key), (x, recorded)
