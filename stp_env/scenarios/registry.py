@@ -283,7 +283,7 @@ def city(*, n_vehicles: int = 50, wind: float = 6.0, sta_spacing: float = 0.0, k
         kbar=kbar,
         t_iat=10.0,
         grid_points=(151, 151, 24),
-        time_step=0.5,
+        time_step=0.1,
         seed=seed,
         description=f"City study (BEACLS Section V, intruder paper Section V-A) on a synthetic downtown: "
                     f"{n_vehicles} vehicles from one origin to four destinations, wind {wind} m/s, "
@@ -347,7 +347,7 @@ def bay_area(*, n_vehicles: int = 200, wind: float = 11.0, sta_spacing: float = 
         kbar=kbar,
         t_iat=10.0,
         grid_points=(251, 189, 24),
-        time_step=1.0,
+        time_step=0.2,
         seed=seed,
         description=f"Multi-city study (BEACLS Section VI): {n_vehicles} vehicles between four cities "
                     f"(Richmond, Berkeley, Oakland, San Francisco), wind {wind} m/s, STA spacing {sta_spacing} s, "
@@ -381,7 +381,7 @@ def tiny(*, wind: float = 6.0, sta_spacing: float = 0.0, kbar: int | None = None
         kbar=kbar,
         t_iat=10.0,
         grid_points=(41, 41, 40),
-        time_step=0.5,
+        time_step=0.1,
         seed=0,
         description=f"Two vehicles crossing in a 2 km square (smoke test), wind {wind} m/s, kbar {kbar}.",
     )
@@ -473,7 +473,7 @@ def town(*, kbar: int = 2, n_vehicles: int = 7, wind: float = 6.0, sta_spacing: 
         kbar=int(kbar),
         t_iat=10.0,
         grid_points=(81, 81, 24),
-        time_step=0.5,
+        time_step=0.1,
         seed=seed,
         description=f"Town (default intruder-aware scenario): {n_vehicles} vehicles from one launch point to three "
                     f"destinations in a 4 km square with two synthetic buildings, kbar {kbar}, wind {wind} m/s, "
