@@ -24,8 +24,7 @@ DT = 0.005
 def setup():
     scenario = make("four-vehicle", method="rtt")
     cfg = TrackingConfig(vehicle=scenario.vehicle, planning_v=scenario.planning_v,
-                         planning_omega_max=scenario.planning_omega_max, half_width=0.6, grid_points=(41, 41, 40),
-                         tol=0.002)
+                         planning_omega_max=scenario.planning_omega_max, half_width=0.6, grid_points=(41, 41, 40))
     bound = compute_tracking_bound(cfg, progress=False)
     plan = plan_scenario(scenario, tracking_bound=bound.bound, horizon=4.0, progress=False)
     return scenario, cfg, bound, plan
