@@ -13,6 +13,8 @@ Subcommands:
   intruders, k̄ values and wind, with exact confidence bounds; prints a markdown table and writes results, replayable
   bad episodes and figures (:mod:`stp_env.evaluation`).
 * ``render``: one episode (from a seed and an episode index, or a saved event) as an animated GIF.
+* ``falsify``: adversarial search through the simulator against a claimed bound (the tracking-error bound, the
+  danger zone under avoidance, k̄), with a replayable counterexample (:mod:`stp_env.falsify`).
 
 * ``train-intruder``: train a learned intruder with Stable-Baselines3 (PPO by default) on the native batched
   VecEnv against vehicles running ``u*`` with the HJ safety filter (:mod:`stp_env.rl.train`; needs the ``rl``
@@ -27,6 +29,8 @@ import argparse
 import json
 import sys
 import time
+
+from stp_env.falsify.cli import add_parser as add_falsify_parser
 
 
 def _number(kind, noun: str, ok, requirement: str):
@@ -97,6 +101,7 @@ def _build_parser() -> argparse.ArgumentParser:
     pre.add_argument("--no-progress", action="store_true", help="hide the progress bars")
 
     _add_evaluate_parsers(sub)
+    add_falsify_parser(sub)
     _add_train_intruder_parser(sub)
     return parser
 
@@ -396,6 +401,10 @@ def main(argv=None) -> int:
             return _evaluate(args)
         if args.command == "render":
             return _render(args)
+        if args.command == "falsify":
+            from stp_env.falsify.cli import run_cli
+
+            return run_cli(args)
     except ValueError as err:
         print(f"stp-env {args.command}: error: {err}", file=sys.stderr)
         return 2
