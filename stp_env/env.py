@@ -32,8 +32,10 @@ Actions
 -------
 ``Box(-1, 1, (2,), float32)`` for every agent: ``a[0]`` maps linearly to the speed ``[v_min, v_max]`` [m/s],
 ``a[1]`` to the turn rate ``[-omega_max, omega_max]`` [rad/s]. Out-of-range actions are clipped. NaN or inf,
-wrong shapes, and actions for unknown or finished agents raise ``ValueError`` and leave the state unchanged.
-A live agent missing from the action dict applies the zero action. With ``EnvConfig(safety_filter=True)`` (the
+anything but real numbers (strings, booleans, complex), wrong shapes, and actions for unknown or finished agents
+raise ``ValueError`` naming the agent and leave the state unchanged; the AEC form checks each action at its
+agent's own ``step`` (the agent is still to act after the error). ``step`` after every agent has finished raises
+``RuntimeError``: call ``reset``. A live agent missing from the action dict applies the zero action. With ``EnvConfig(safety_filter=True)`` (the
 default), a vehicle forced by the intruder (its relative state reached the boundary of ``V^A``, eqs. 17-18) has
 its action replaced by the avoidance control ``u^A`` (eq. 15) until the intruder leaves (eq. 38); the info
 ``used_filter`` says when.
@@ -51,6 +53,15 @@ Rewards
 :class:`stp_env.sim.RewardConfig`: vehicles get progress toward the target, an arrival bonus (smaller after the
 STA) and a collision penalty; the intruder gets ``+forced`` per vehicle newly forced to avoid, a large bonus per
 collision it causes, and optional shaping by the avoid-region value.
+
+Seeds and options
+-----------------
+``reset(seed=s)``: ``s`` an integer in ``[0, 2**63 - 1]`` (:func:`stp_env.seeds.prng_key`: every seed its own
+episode stream, no truncation); booleans, floats, negative or larger seeds raise ``ValueError``. ``options``: a
+dict; ``{"appear_time": t}`` fixes the intruder's appearance time ``t`` [s, plan time], a real number within the
+episode ``[t_start, t_end]``; other keys are ignored with a warning. Everything is checked before anything
+changes: after a failed ``reset`` the key, state and agents are as before. An ``EnvConfig.appear_window`` that
+falls outside the episode raises ``ValueError`` when the environment is built.
 
 Infos (fresh dicts every step)
 ------------------------------
@@ -84,7 +95,9 @@ Version history
 ---------------
 * v0 (``stp_v0``): first release. Since then, with the same dynamics for the same actions: the ``replan``
   argument and the ``sta`` and ``replanned`` infos; ``guarantee_violation`` no longer counts a collision that a
-  vehicle flying the after-avoidance fallback takes part in (it still counts as a collision).
+  vehicle flying the after-avoidance fallback takes part in (it still counts as a collision). Seeds of
+  ``2**32`` and more give their own episodes (they were reduced to their low 32 bits); negative seeds, and
+  actions that are not real numbers, raise ``ValueError``.
 """
 
 from __future__ import annotations

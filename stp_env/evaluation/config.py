@@ -120,12 +120,14 @@ class Configuration:
                                       or self.wind < 0):
             raise ValueError(f"wind must be a finite number >= 0 [m/s]; got {self.wind!r}.")
         if self.wind_model not in WIND_MODELS:
-            raise ValueError(f"wind model {self.wind_model!r} is not known; allowed: {', '.join(WIND_MODELS)}.")
+            raise ValueError(f"wind_model {self.wind_model!r} is not a known wind model; allowed: {', '.join(WIND_MODELS)}.")
         if self.spawn_mode not in SPAWN_CHOICES:
-            raise ValueError(f"spawn mode {self.spawn_mode!r} is not known; allowed: {', '.join(SPAWN_CHOICES)}.")
+            raise ValueError(f"spawn_mode {self.spawn_mode!r} is not a known spawn mode; allowed: {', '.join(SPAWN_CHOICES)}.")
         if self.episode not in EPISODE_CHOICES:
             raise ValueError(f"episode {self.episode!r} is not known; allowed: {', '.join(EPISODE_CHOICES)}.")
-        resolve_vehicle_policy(self.vehicle_policy)
+        if self.vehicle_policy not in VEHICLE_POLICIES:
+            raise ValueError(f"vehicle_policy {self.vehicle_policy!r} is not known; allowed: "
+                             f"{', '.join(VEHICLE_POLICIES)}.")
 
     @property
     def effective_spawn_mode(self) -> str:
