@@ -35,10 +35,10 @@ Actions
 anything but real numbers (strings, booleans, complex), wrong shapes, and actions for unknown or finished agents
 raise ``ValueError`` naming the agent and leave the state unchanged; the AEC form checks each action at its
 agent's own ``step`` (the agent is still to act after the error). ``step`` after every agent has finished raises
-``RuntimeError``: call ``reset``. A live agent missing from the action dict applies the zero action. With ``EnvConfig(safety_filter=True)`` (the
-default), a vehicle forced by the intruder (its relative state reached the boundary of ``V^A``, eqs. 17-18) has
-its action replaced by the avoidance control ``u^A`` (eq. 15) until the intruder leaves (eq. 38); the info
-``used_filter`` says when.
+``RuntimeError``: call ``reset``. A live agent missing from the action dict applies the zero action. With
+``EnvConfig(safety_filter=True)`` (the default), a vehicle forced by the intruder (its relative state reached the
+boundary of ``V^A``, eqs. 17-18) has its action replaced by the avoidance control ``u^A`` (eq. 15) until the
+intruder leaves (eq. 38); the info ``used_filter`` says when.
 
 Observations
 ------------

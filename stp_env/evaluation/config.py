@@ -120,9 +120,11 @@ class Configuration:
                                       or self.wind < 0):
             raise ValueError(f"wind must be a finite number >= 0 [m/s]; got {self.wind!r}.")
         if self.wind_model not in WIND_MODELS:
-            raise ValueError(f"wind_model {self.wind_model!r} is not a known wind model; allowed: {', '.join(WIND_MODELS)}.")
+            raise ValueError(f"wind_model {self.wind_model!r} is not a known wind model; allowed: "
+                             f"{', '.join(WIND_MODELS)}.")
         if self.spawn_mode not in SPAWN_CHOICES:
-            raise ValueError(f"spawn_mode {self.spawn_mode!r} is not a known spawn mode; allowed: {', '.join(SPAWN_CHOICES)}.")
+            raise ValueError(f"spawn_mode {self.spawn_mode!r} is not a known spawn mode; allowed: "
+                             f"{', '.join(SPAWN_CHOICES)}.")
         if self.episode not in EPISODE_CHOICES:
             raise ValueError(f"episode {self.episode!r} is not known; allowed: {', '.join(EPISODE_CHOICES)}.")
         if self.vehicle_policy not in VEHICLE_POLICIES:
