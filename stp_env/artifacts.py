@@ -125,6 +125,14 @@ def _temp_file(root: Path, suffix: str) -> tuple[int, str]:
     return tempfile.mkstemp(dir=root, prefix=TEMP_PREFIX + writer_tag(), suffix=suffix)
 
 
+def probe_writable(directory) -> None:
+    """Create and remove a file in ``directory``: raises ``OSError`` if files cannot be written there (permissions,
+    a read-only file system, a path that is not a directory), whoever the user is."""
+    fd, probe = _temp_file(Path(directory), ".probe")
+    os.close(fd)
+    os.remove(probe)
+
+
 def _metadata_problem(meta: Any) -> str | None:
     """What is wrong with the structure of an artifact's metadata (``None``: nothing)."""
     if not isinstance(meta, dict):
@@ -246,9 +254,7 @@ class ArtifactStore:
         directory exists or can be created and a file can be written in it."""
         try:
             self.root.mkdir(parents=True, exist_ok=True)
-            fd, probe = _temp_file(self.root, ".probe")
-            os.close(fd)
-            os.remove(probe)
+            probe_writable(self.root)
         except OSError as err:
             raise CacheNotWritableError(
                 f"cannot write the artifact cache directory {self.root} ({type(err).__name__}: "

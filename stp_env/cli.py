@@ -57,10 +57,9 @@ _seed = _number(int, "an integer", lambda v: 0 <= v <= 2**63 - 1, "an integer in
 def _check_output_file(path: str, option: str = "--out") -> None:
     """A one-line ``ValueError`` unless ``path`` can be written as a file (checked before computing)."""
     import os
-    import tempfile
     from pathlib import Path
 
-    from stp_env.artifacts import TEMP_PREFIX, writer_tag
+    from stp_env.artifacts import probe_writable
 
     out = Path(path)
     if out.is_dir():
@@ -69,9 +68,7 @@ def _check_output_file(path: str, option: str = "--out") -> None:
     if not parent.is_dir():
         raise ValueError(f"{option} {out}: the directory {parent} does not exist.")
     try:
-        fd, probe = tempfile.mkstemp(dir=parent, prefix=TEMP_PREFIX + writer_tag(), suffix=".probe")
-        os.close(fd)
-        os.remove(probe)
+        probe_writable(parent)
     except OSError as err:
         raise ValueError(f"{option} {out}: cannot write in {parent} ({err.strerror or err}).") from None
     if out.exists() and not os.access(out, os.W_OK):

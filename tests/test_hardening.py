@@ -16,8 +16,6 @@ cache); everything else here is cheap.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import os
 import subprocess
@@ -29,26 +27,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _cli import run_cli as _cli
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stp_env import cli
 from stp_env.artifacts import ArtifactStore, StaleArtifactWarning
 from stp_env.env import env, parallel_env
 from stp_env.evaluation import Configuration, replay_event
 from stp_env.sim import EnvConfig, RewardConfig
 
 SHIPPED_INTRUDER = str(resources.files("stp_env") / "data" / "intruders" / "town-kbar2.npz")
-
-
-def _cli(argv):
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            code = cli.main(argv)
-        except SystemExit as exc:  # argparse errors
-            code = exc.code
-    return code, out.getvalue(), err.getvalue()
 
 
 def _one_line_error(code, stderr, *needles):

@@ -41,16 +41,14 @@ STAGING_PREFIX = ".stp-env-staging-"
 def check_output_dir(out_dir, option: str = "--out") -> Path:
     """``out_dir`` as a ``Path`` if it is (or can be made) a writable directory; a one-line ``ValueError`` naming
     ``option`` and the path otherwise. Called before any computation, so that results are not lost at the end."""
-    from stp_env.artifacts import TEMP_PREFIX, writer_tag
+    from stp_env.artifacts import probe_writable
 
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise ValueError(f"{option} {out}: exists and is not a directory.")
     try:
         out.mkdir(parents=True, exist_ok=True)
-        fd, probe = tempfile.mkstemp(dir=out, prefix=TEMP_PREFIX + writer_tag(), suffix=".probe")
-        os.close(fd)
-        os.remove(probe)
+        probe_writable(out)
     except OSError as err:
         raise ValueError(f"{option} {out}: cannot write there ({type(err).__name__}: {err.strerror or err}).") \
             from None
