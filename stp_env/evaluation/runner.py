@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import numbers
 import time
 
 import jax
@@ -25,8 +26,10 @@ import numpy as np
 from stp_env import sim
 from stp_env.evaluation.config import Configuration
 from stp_env.evaluation.stats import clopper_pearson_upper
+from stp_env.seeds import check_seed, prng_key
 from stp_env.sim.types import ARRIVED, COLLIDED, OUT_OF_BOUNDS
 
+MAX_EPISODES = 2**30  # episode indices are int32 (the last batch runs past the last episode)
 EVENT_KINDS = ("bound_exceeded", "collision", "guarantee_violation", "assumption_failed")
 
 
@@ -209,15 +212,19 @@ def evaluate(configs, *, episodes: int = 1000, seed: int = 0, batch_size: int = 
     if not configs:
         raise ValueError("no configuration to evaluate.")
     for name, value in (("episodes", episodes), ("batch_size", batch_size)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name} must be an integer >= 1; got {value!r}.")
-    if not 0.0 < confidence < 1.0:
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_EPISODES:
+            raise ValueError(f"{name} must be an integer in [1, {MAX_EPISODES}]; got {value!r}.")
+    if isinstance(confidence, bool) or not isinstance(confidence, (int, float)) or not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence must be in (0, 1); got {confidence!r}.")
+    check_seed(seed)
+    for config in configs:
+        if not isinstance(config, Configuration):
+            raise ValueError(f"configurations must be Configuration objects; got {type(config).__name__}.")
     batch_size = min(batch_size, episodes)
     all_params = build_params(configs, store=store, progress=progress) if params is None else list(params)
     plan_samples = max(p.nominal_states.shape[1] for p in all_params)
     n_steps = max(sim.steps_for(p) for p in all_params)
-    key = jax.random.key(seed)
+    key = prng_key(seed)
     results = []
     for config, params_i in zip(configs, all_params):
         params_i = pad_plan(params_i, plan_samples)
@@ -273,9 +280,17 @@ def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_ste
     differently (10 of 10 town episodes of a batch of 250 replayed alone ended identically, BENCHMARKS.md). Either
     way the reachability artifacts must be the same as in the evaluation.
     """
+    check_seed(seed)
+    for name, value, lo, hi in (("index", index, 0, MAX_EPISODES - 1), ("batch_size", batch_size, 1, MAX_EPISODES),
+                                ("n_steps", n_steps, 1, None)):
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < lo or (
+                hi is not None and value > hi):
+            raise ValueError(f"{name} must be an integer >= {lo}" + ("" if hi is None else f" and <= {hi}")
+                             + f"; got {value!r}.")
+    index, batch_size, n_steps = int(index), int(batch_size), int(n_steps)
     first = (index // batch_size) * batch_size
     indices = jnp.arange(first, first + batch_size, dtype=jnp.int32)
-    final, traj = run_batch(jax.random.key(seed), indices, params, vehicle_policy, intruder_policy, n_steps,
+    final, traj = run_batch(prng_key(seed), indices, params, vehicle_policy, intruder_policy, n_steps,
                             record=record)
     j = index - first
     state = {k: v[j] for k, v in host_state(final).items()}
@@ -283,11 +298,29 @@ def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_ste
     return state, (None if traj is None else {k: np.asarray(v[j]) for k, v in traj.items()})
 
 
-def replay_event(event: dict, *, store=None, progress: bool = False):
-    """Replay a saved event (an entry of ``ConfigResult.events`` or of ``events.json``) in its evaluation batch."""
-    config = Configuration(**event["config"])
-    params = pad_plan(build_params([config], store=store, progress=progress)[0], event["plan_samples"])
-    vehicle_policy, intruder_policy = config.policies()
+def prepare_event(event: dict, *, store=None, progress: bool = False, intruder_policy=None,
+                  where: str = "event"):
+    """What replaying a saved event needs: ``(configuration, params, vehicle policy, intruder policy)``.
+
+    The record is untrusted data (:mod:`stp_env.evaluation.events`): it is checked first, and its intruder must be
+    registered or learned; a plug-in spec is refused before any work unless ``intruder_policy`` is given."""
+    from stp_env.evaluation.events import check_replay_sizes, event_configuration
+
+    config, vehicle_policy, intruder_policy = event_configuration(event, intruder_policy=intruder_policy,
+                                                                  where=where)
+    params = build_params([config], store=store, progress=progress)[0]
+    check_replay_sizes(event, params, where)
+    return config, pad_plan(params, event["plan_samples"]), vehicle_policy, intruder_policy
+
+
+def replay_event(event: dict, *, store=None, progress: bool = False, intruder_policy=None):
+    """Replay a saved event (an entry of ``ConfigResult.events`` or of ``events.json``) in its evaluation batch.
+
+    A record whose intruder is a plug-in spec (``package.module:attribute``) is not imported from the record:
+    pass ``intruder_policy`` (e.g. ``resolve_intruder(spec)`` of a spec you trust); see
+    :mod:`stp_env.evaluation.events`."""
+    _, params, vehicle_policy, intruder_policy = prepare_event(event, store=store, progress=progress,
+                                                               intruder_policy=intruder_policy)
     return replay(event["seed"], event["index"], params, vehicle_policy, intruder_policy, event["n_steps"],
                   batch_size=event["batch_size"], record=event["recorded"])
 

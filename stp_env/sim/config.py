@@ -116,7 +116,8 @@ class EnvConfig:
         if self.spawn_mode not in SPAWN_MODES:
             raise ValueError(f"spawn_mode {self.spawn_mode!r} is not known; allowed: {', '.join(SPAWN_MODES)}.")
         if self.appear_window is not None:
-            if len(self.appear_window) != 2:
+            if isinstance(self.appear_window, (str, bytes)) or not hasattr(self.appear_window, "__len__") \
+                    or len(self.appear_window) != 2:
                 raise ValueError(f"appear_window must be (lo, hi) in seconds; got {self.appear_window!r}.")
             lo, hi = (_finite("appear_window", v) for v in self.appear_window)
             if hi < lo:
