@@ -52,6 +52,7 @@ def add_parser(sub) -> None:
 
 
 def run_cli(args) -> int:
+    from stp_env.evaluation.pipeline import check_output_dir
     from stp_env.falsify.counterexample import AttackSpec, replay, run, save
     from stp_env.falsify.search import SearchConfig
 
@@ -66,9 +67,7 @@ def run_cli(args) -> int:
                       control_dt=args.control_dt, options=tuple(args.option))
     config = SearchConfig(method=args.method, budget=args.attacks, population=args.population,
                           restarts=args.restarts, batch=args.batch)
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out}: exists and is not a directory.")
+    out = check_output_dir(args.out)  # before the search, so that its result is not lost at the end
     outcome = run(spec, config, args.seed, progress=not args.no_progress)
     path = save(outcome, out, plot=not args.no_figures)
     summary = outcome.summary()

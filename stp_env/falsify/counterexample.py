@@ -12,8 +12,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
-import tempfile
 import time
 from pathlib import Path
 
@@ -21,6 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from stp_env.evaluation.report import atomic_open
 from stp_env.falsify.search import SearchConfig, search
 
 TARGETS = ("tracking", "avoidance", "kbar")
@@ -203,7 +202,8 @@ def save(outcome: Outcome, directory, *, plot: bool = True) -> Path:
               "z": [float(v) for v in np.asarray(outcome.z, np.float32)], "value": outcome.worst,
               "summary": outcome.summary()}
     path = directory / "counterexample.json"
-    _atomic_write(path, json.dumps(record, indent=1))
+    with atomic_open(path) as fh:
+        fh.write(json.dumps(record, indent=1))
     if plot:
         from stp_env.falsify.plots import plot_attack
 
@@ -237,14 +237,3 @@ def replay(path, *, params=None) -> tuple[float, float]:
     if attack.dim != z.shape[0]:
         raise ValueError(f"{path}: the attack takes {attack.dim} inputs; the file has {z.shape[0]}.")
     return value, canonical_value(attack, z)
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise

@@ -22,6 +22,7 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from stp_env.baselines.intruders import INTRUDERS
 from stp_env.baselines.vehicles import switching
@@ -60,8 +61,10 @@ class KbarAttack:
     @property
     def n_steps(self) -> int:
         """Steps from the episode start to the last possible departure of the intruder."""
-        span = float(self.base.appear_window[1] + self.base.t_iat - self.base.t_start)
-        return round(span / float(self.base.dt)) + 2
+        # on the host: jnp arithmetic here would be staged into the caller's trace when simulate runs under jit
+        base = self.base
+        span = float(np.asarray(base.appear_window)[1]) + float(base.t_iat) - float(base.t_start)
+        return round(span / float(base.dt)) + 2
 
     def _split(self):
         rep = max(1, round(self.segment / float(self.base.dt)))
