@@ -22,7 +22,8 @@ CSV_COLUMNS = (
     "label", "scenario", "kbar", "intruder", "scenario_wind_mps", "wind_model", "spawn_mode", "vehicle_policy",
     "episode", "episodes", "forced_mean", "forced_max", "exceed", "exceed_rate", "exceed_upper", "confidence",
     "collision_episodes", "collisions", "intruder_collisions", "out_of_bounds", "guarantee_violations",
-    "violation_episodes", "violation_upper", "assumption_failures", "due", "on_time_rate", "arrived_rate",
+    "violation_episodes", "violation_upper", "assumption_failures", "tracking_violations", "max_tracking_error_m",
+    "tracking_bound_m", "due", "on_time_rate", "arrived_rate",
     "min_separation_m", "min_separation_p5_m", "min_separation_median_m", "collision_radius_m", "seed", "n_steps",
     "batch_size", "seconds", "episodes_per_s",
 )
@@ -41,14 +42,15 @@ def markdown_table(summaries: list[dict]) -> str:
     conf = summaries[0]["confidence"] if summaries else 0.95
     head = ("| intruder | k̄ | wind [m/s] | episodes | mean \\|N^RP\\| | max \\|N^RP\\| | \\|N^RP\\| > k̄ | "
             f"P(\\|N^RP\\| > k̄) ≤ ({100 * conf:g}%) | collisions (intruder) | guarantee violations | "
-            "on time | min sep. [m] |")
-    rows = [head, "|" + " --- |" * 12]
+            "max tracking error [m] (r_e) | on time | min sep. [m] |")
+    rows = [head, "|" + " --- |" * 13]
     for s in summaries:
         wind = f"{s['scenario_wind_mps']:g} {s['wind_model']}"
         rows.append(
             f"| {s['intruder']} ({s['spawn_mode']}) | {s['kbar']} | {wind} | {s['episodes']} | "
             f"{s['forced_mean']:.2f} | {s['forced_max']} | {s['exceed']} | {_pct(s['exceed_upper'])} | "
             f"{s['collisions']} ({s['intruder_collisions']}) | {s['guarantee_violations']} | "
+            f"{s['max_tracking_error_m']:.2f} ({s['tracking_bound_m']:.2f}) | "
             f"{_pct(s['on_time_rate'])} | {s['min_separation_m']} |")
     return "\n".join(rows)
 

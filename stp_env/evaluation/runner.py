@@ -109,6 +109,7 @@ def _events(config: Configuration, seed: int, n_steps: int, plan_samples: int, b
             "collision_times_s": [round(float(ep["collision_time"][j, i]), 2) for i in collided],
             "with_intruder": [bool(ep["collided_with_intruder"][j, i]) for i in collided],
             "violating_vehicles": np.flatnonzero(ep["guarantee_violation"][j]).tolist(),
+            "tracking_violating_vehicles": np.flatnonzero(ep["tracking_violation"][j]).tolist(),
             "t_appear_s": round(float(ep["t_appear"][j]), 2),
             "state": {k: v[j] for k, v in ep.items() if k not in ("index",)},
         })
@@ -124,8 +125,12 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
     * ``collision_episodes`` (episodes with any collision), ``collisions`` (vehicles), ``intruder_collisions``
       (vehicles hit by the intruder), ``guarantee_violations`` (vehicles that collided although the intruder
       appeared outside their avoid region and they applied ``u^A`` throughout, i.e. a failure of the theory or
-      the numerics), ``violation_episodes`` and its upper bound; ``assumption_failures``: episodes where the
-      intruder appeared inside a vehicle's avoid region (Assumption 3 failed; no guarantee applies).
+      the numerics; a vehicle that tracked its plan with ``kappa`` and still got farther than ``r_e`` from it counts
+      too), ``violation_episodes`` and its upper bound; ``assumption_failures``: episodes where the intruder
+      appeared inside a vehicle's avoid region (Assumption 3 failed; no guarantee applies).
+    * ``tracking_violations``: vehicles farther than ``r_e`` (``tracking_bound_m``) from their nominal position
+      while tracking their plan (SPP eqs. 24-26); ``max_tracking_error_m``: the largest such distance of any
+      vehicle that tracked its plan.
     * ``due``: vehicle-episodes whose STA falls within the simulated time (``<= t_end``), not counting vehicles
       already in their target when the episode starts; ``on_time_rate``: the fraction of them that arrived by their
       STA; ``arrived_rate``: that arrived at all within the episode. A ``"window"`` episode has few due vehicles
@@ -173,6 +178,9 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
         "violation_episodes": violation_eps,
         "violation_upper": clopper_pearson_upper(violation_eps, n_ep, confidence),
         "assumption_failures": int(np.sum(~np.all(ep["assumption_ok"], axis=1))),
+        "tracking_violations": int(ep["tracking_violation"].sum()),
+        "max_tracking_error_m": round(float(np.max(np.where(ep["tracked"], ep["max_tracking_error"], 0.0))), 3),
+        "tracking_bound_m": round(float(params.tracking_bound), 3),
         "due": n_due,
         "on_time_rate": float(on_time.sum() / n_due) if n_due else None,
         "arrived_rate": float(arrived.sum() / n_due) if n_due else None,
