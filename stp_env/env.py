@@ -61,7 +61,9 @@ episode stream, no truncation); booleans, floats, negative or larger seeds raise
 dict; ``{"appear_time": t}`` fixes the intruder's appearance time ``t`` [s, plan time], a real number within the
 episode ``[t_start, t_end]``; other keys are ignored with a warning. Everything is checked before anything
 changes: after a failed ``reset`` the key, state and agents are as before. An ``EnvConfig.appear_window`` that
-falls outside the episode raises ``ValueError`` when the environment is built.
+falls outside the episode raises ``ValueError`` when the environment is built. ``reset`` lists as ``agents`` the
+intruder and every vehicle not done at the episode's first instant (vehicles that arrived earlier are not agents
+of the episode).
 
 Infos (fresh dicts every step)
 ------------------------------
@@ -307,9 +309,14 @@ class STPParallelEnv(ParallelEnv):
         self._sta = np.asarray(params.sta, np.float64)
         self.replan_log = []
         self._steps = 0
-        self.agents = list(self.possible_agents)
         obs, _, info_arr, _ = self._unpack(np.asarray(flat))
+        # Vehicles that arrived before the episode's first instant are not agents of it (they would only be
+        # terminated by the first step); the intruder always is.
+        done_v = info_arr[0] >= sim.ARRIVED
+        self.agents = [a for a in self.possible_agents if a == "intruder" or not done_v[self._index[a]]]
         infos = self._infos(info_arr)
+        obs = {a: obs[a] for a in self.agents}
+        infos = {a: infos[a] for a in self.agents}
         if self.render_mode == "human":
             self.render()
         return obs, infos
