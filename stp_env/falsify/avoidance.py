@@ -24,11 +24,10 @@ import jax.numpy as jnp
 from stp_env.baselines.intruders import hj_pursuit
 from stp_env.baselines.vehicles import switching
 from stp_env.falsify import harness
-from stp_env.sim import core, tables
+from stp_env.sim import core
 from stp_env.sim.physics import control_to_action
+from stp_env.sim.spawn import radius_on_level
 from stp_env.sim.types import EnvParams, replace
-
-N_BISECT = 30
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,10 +60,8 @@ class AvoidanceAttack:
 
     def _split(self):
         dt = float(self.base.dt)
-        rep = max(1, round(self.segment / dt))
-        n_seg = math.ceil(self.n_steps / rep) if self.intruder == "search" else 0
-        w_rep = max(1, round(self.wind_segment / dt))
-        n_wind = math.ceil(self.n_steps / w_rep) if self.wind == "search" else 0
+        rep, n_seg = harness.split(self.n_steps, dt, self.segment, self.intruder == "search")
+        w_rep, n_wind = harness.split(self.n_steps, dt, self.wind_segment, self.wind == "search")
         return rep, n_seg, w_rep, n_wind
 
     @property
@@ -90,20 +87,7 @@ class AvoidanceAttack:
         rel_heading = 2 * jnp.pi * z3[1] - jnp.pi
         level = self.max_level * z3[2]
         direction = jnp.stack([jnp.cos(bearing), jnp.sin(bearing)])
-        grid = self.base.avoid_grid
-        r_hi0 = 0.999 * min(-grid.lo[0], grid.hi[0], -grid.lo[1], grid.hi[1])
-
-        def value(r):
-            rel = jnp.stack([r * direction[0], r * direction[1], rel_heading])
-            return tables.avoid_value(self.base, 0.0, rel)
-
-        def bisect(_, lohi):
-            lo, hi = lohi
-            mid = 0.5 * (lo + hi)
-            inside = value(mid) <= level
-            return jnp.where(inside, mid, lo), jnp.where(inside, hi, mid)
-
-        _, r = jax.lax.fori_loop(0, N_BISECT, bisect, (jnp.zeros(()), jnp.asarray(r_hi0, jnp.float32)))
+        r = radius_on_level(self.base, direction, rel_heading, level)
         return jnp.stack([r * direction[0], r * direction[1], rel_heading])
 
     def simulate(self, z, record: bool = False):

@@ -8,6 +8,7 @@ papers' controllers, the events), so that what is attacked is what the environme
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import jax
 import jax.numpy as jnp
@@ -60,6 +61,13 @@ def reference(x0, controls, dt):
 def with_reference(params: EnvParams, states, controls) -> EnvParams:
     """``params`` (one vehicle) with the plan ``states`` ``(K, 3)``, ``controls`` ``(K, 2)`` from ``t = 0``."""
     return replace(params, nominal_states=states[None], nominal_controls=controls[None], starts=states[:1])
+
+
+def split(n_steps: int, dt: float, segment: float, searched: bool) -> tuple[int, int]:
+    """``(steps per segment, number of segments)`` of an input held piecewise constant over ``segment`` seconds for
+    ``n_steps`` steps of ``dt`` (no segments when the input is not ``searched``)."""
+    rep = max(1, round(segment / dt))
+    return rep, (math.ceil(n_steps / rep) if searched else 0)
 
 
 def segments(z, n_segments: int, repeat: int, lo, hi):

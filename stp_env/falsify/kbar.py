@@ -27,12 +27,12 @@ import numpy as np
 from stp_env.baselines.intruders import INTRUDERS
 from stp_env.baselines.vehicles import switching
 from stp_env.falsify import harness
-from stp_env.sim import core, tables
+from stp_env.sim import core
 from stp_env.sim.physics import control_to_action, rotate, wrap_angle
 from stp_env.sim.reference import nominal_reference
+from stp_env.sim.spawn import radius_on_level
 from stp_env.sim.types import FLYING, EnvParams, replace
 
-N_BISECT = 30
 SCRIPTED = ("max-k", "hj")
 
 
@@ -99,19 +99,7 @@ class KbarAttack:
         rel_heading = 2 * jnp.pi * z5[3] - jnp.pi
         level = params.avoid_margin + 1e-3 + self.max_level * z5[4]
         direction = jnp.stack([jnp.cos(bearing), jnp.sin(bearing)])
-        grid = params.avoid_grid
-        r_hi0 = 0.999 * min(-grid.lo[0], grid.hi[0], -grid.lo[1], grid.hi[1])
-
-        def value(r):
-            return tables.avoid_value(params, 0.0, jnp.stack([r * direction[0], r * direction[1], rel_heading]))
-
-        def bisect(_, lohi):
-            a, b = lohi
-            mid = 0.5 * (a + b)
-            inside = value(mid) <= level
-            return jnp.where(inside, mid, a), jnp.where(inside, b, mid)
-
-        _, r = jax.lax.fori_loop(0, N_BISECT, bisect, (jnp.zeros(()), jnp.asarray(r_hi0, jnp.float32)))
+        r = radius_on_level(params, direction, rel_heading, level)
         p = x_app[j, :2] + rotate(x_app[j, 2], r * direction)
         return t_app, jnp.stack([p[0], p[1], wrap_angle(x_app[j, 2] + rel_heading)])
 

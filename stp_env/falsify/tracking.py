@@ -50,10 +50,8 @@ class TrackingAttack:
 
     def _split(self):
         dt = float(self.base.dt)
-        rep = max(1, round(self.segment / dt))
-        n_seg = math.ceil(self.n_steps / rep)
-        w_rep = max(1, round(self.wind_segment / dt))
-        n_wind = math.ceil(self.n_steps / w_rep) if self.wind == "search" else 0
+        rep, n_seg = harness.split(self.n_steps, dt, self.segment, True)
+        w_rep, n_wind = harness.split(self.n_steps, dt, self.wind_segment, self.wind == "search")
         return rep, n_seg, w_rep, n_wind
 
     @property

@@ -40,6 +40,26 @@ def _random_flying(key, fly):
     return j, jnp.any(fly)
 
 
+def radius_on_level(params: EnvParams, direction, rel_heading, level):
+    """The distance along the unit ``direction`` (vehicle frame) at which an intruder of relative heading
+    ``rel_heading`` is on (just outside) the level ``V^A(0, t_IAT) = level`` of the avoid region: bisection
+    (``N_BISECT`` halvings) between the vehicle and the table's edge on that bearing."""
+    grid = params.avoid_grid
+    r_hi0 = 0.999 * min(-grid.lo[0], grid.hi[0], -grid.lo[1], grid.hi[1])  # inside the table on every bearing
+
+    def value(r):
+        return tables.avoid_value(params, 0.0, jnp.stack([r * direction[0], r * direction[1], rel_heading]))
+
+    def bisect(_, lohi):
+        lo, hi = lohi
+        mid = 0.5 * (lo + hi)
+        inside = value(mid) <= level
+        return jnp.where(inside, mid, lo), jnp.where(inside, hi, mid)
+
+    _, hi = jax.lax.fori_loop(0, N_BISECT, bisect, (jnp.zeros(()), jnp.asarray(r_hi0, jnp.float32)))
+    return hi
+
+
 def _candidate_outside(key, x, fly, params: EnvParams):
     k1, k2, k3, k4 = jax.random.split(key, 4)
     j, any_fly = _random_flying(k1, fly)
@@ -60,20 +80,7 @@ def _candidate_boundary(key, x, fly, params: EnvParams):
     rel_heading = jax.random.uniform(k3, (), minval=-jnp.pi, maxval=jnp.pi)
     direction = jnp.array([jnp.cos(bearing), jnp.sin(bearing)])
     level = params.avoid_margin + SPAWN_CLEARANCE * params.tracking_bound + 1.0
-    grid = params.avoid_grid
-    r_hi0 = 0.999 * min(-grid.lo[0], grid.hi[0], -grid.lo[1], grid.hi[1])  # inside the table on every bearing
-
-    def value(r):
-        return tables.avoid_value(params, 0.0, jnp.array([r * direction[0], r * direction[1], rel_heading]))
-
-    def bisect(_, lohi):
-        lo, hi = lohi
-        mid = 0.5 * (lo + hi)
-        inside = value(mid) <= level
-        return jnp.where(inside, mid, lo), jnp.where(inside, hi, mid)
-
-    _, hi = jax.lax.fori_loop(0, N_BISECT, bisect, (jnp.zeros(()), jnp.asarray(r_hi0, jnp.float32)))
-    p_rel = hi * direction
+    p_rel = radius_on_level(params, direction, rel_heading, level) * direction
     xj = x[j]
     p = xj[:2] + rotate(xj[2], p_rel)
     cand = jnp.array([p[0], p[1], wrap_angle(xj[2] + rel_heading)])
