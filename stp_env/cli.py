@@ -14,6 +14,10 @@ Subcommands:
   bad episodes and figures (:mod:`stp_env.evaluation`).
 * ``render``: one episode (from a seed and an episode index, or a saved event) as an animated GIF.
 
+* ``survivability``: the mission-survivability study (partially known and unknown intruders, four planning
+  policies under receding-horizon control): a resumable scenario sweep, results and figures
+  (:mod:`stp_env.survivability`).
+
 * ``train-intruder``: train a learned intruder with Stable-Baselines3 (PPO by default) on the native batched
   VecEnv against vehicles running ``u*`` with the HJ safety filter (:mod:`stp_env.rl.train`; needs the ``rl``
   extra); prints the last evaluation as JSON and writes the model, logs and ``intruder.npz`` to ``--out``.
@@ -98,6 +102,9 @@ def _build_parser() -> argparse.ArgumentParser:
 
     _add_evaluate_parsers(sub)
     _add_train_intruder_parser(sub)
+    from stp_env.survivability.cli import add_parser as _add_survivability_parser
+
+    _add_survivability_parser(sub)
     return parser
 
 
@@ -396,6 +403,10 @@ def main(argv=None) -> int:
             return _evaluate(args)
         if args.command == "render":
             return _render(args)
+        if args.command == "survivability":
+            from stp_env.survivability.cli import run as _survivability
+
+            return _survivability(args)
     except ValueError as err:
         print(f"stp-env {args.command}: error: {err}", file=sys.stderr)
         return 2

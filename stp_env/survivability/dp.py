@@ -1,0 +1,191 @@
+"""Feasible-trajectory counts and the policies' trajectory values by dynamic programming over the mission graph.
+
+The survivability paper counts the feasible trajectories of every cell by backtracking from the terminal states
+(Section III-A, Algorithms 1-2): each backward-generated state is one feasible trajectory to a terminal state. On
+the lattice of :mod:`stp_env.survivability.network` two backward paths that reach the same state merge, so the same
+count is a sum over the primitives, one backward sweep for all states at once:
+
+    N_k(s) = 1                                         if s is a terminal state at window k
+    N_k(s) = sum_a F(s, a) N_{k+1}(s'(s, a))           otherwise,
+
+with ``F(s, a) = 1`` when the segment of primitive ``a`` is feasible (no known blocked cell). Terminal states are
+absorbing (a trajectory ends where it lands). :mod:`stp_env.survivability.backtrack` runs the paper's algorithm
+literally (lists of states) as the independent check.
+
+The same sweep gives what the policies of Section IV-B need, with ``p(s, a)`` the robustness of a segment:
+
+* ``W_k(s)``, the sum over the trajectories ``l`` from ``s`` of their robustness ``P_l`` (eq. 1 with
+  ``alpha = 1``): ``W = sum_a F p W'``. The average trajectory robustness of ``pi_Avg(R)`` is ``W / N``.
+* ``R_k(s)``, the survivability of ``s``, the probability that at least one trajectory from ``s`` stays feasible:
+  ``R = 1 - prod_a (1 - F p R')``. This is eq. 3 over the *tree* of trajectories from ``s``, in which a segment
+  shared by many trajectories enters once. Eq. 3 over the list of trajectories multiplies a shared segment's risk
+  once per trajectory (its independence assumption fails for trajectories that share segments) and saturates at 1
+  on this network, where the origin has 10^8 trajectories; in the tree form, branches that merge again later are
+  still treated as independent.
+* ``J_k(s)``, the best future term of the policy's receding-horizon objective (eq. 5) over the trajectories from
+  ``s`` that end in the current terminal set ``Omega``: ``J = max_a [r(s, a) + v_{k+1}(s') + J_{k+1}(s')]``,
+  ``J = 0`` at a terminal state of ``Omega`` and ``-inf`` where ``Omega`` is out of reach, with ``(r, v) = (p, 0)``
+  for ``pi_R``, ``(0, N)`` for ``pi_Nf``, ``(0, R)`` for ``pi_S`` and ``(0, W / N)`` for ``pi_Avg(R)``.
+
+``N``, ``W``, ``R`` and the values ``v`` count trajectories to *any* landing site (the set ``c.L`` of Section
+IV-B); ``Omega`` (the goal only, then the goal and the alternative sites once the goal is out of reach) restricts
+which trajectory the policy may pick (constraint 10). All functions are pure and jittable, on the compact graph of
+:mod:`stp_env.survivability.graph` (a few milliseconds per sweep), and ``vmap`` over instances.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from stp_env.survivability.config import POLICIES
+from stp_env.survivability.graph import Graph
+
+NEG = -jnp.inf
+OMEGAS = ("goal", "all")
+
+
+class Tables(NamedTuple):
+    """DP tables over the graph's states, each ``(S,)`` float32."""
+
+    n_goal: jax.Array     # trajectories to the goal only (alternative sites are not terminal)
+    n_all: jax.Array      # trajectories to any landing site (c.N_f)
+    value: jax.Array      # the policy's state value v: N (pi_Nf), R (pi_S), W / N (pi_Avg(R)), 0 (pi_R)
+    future: jax.Array     # J: best future term over trajectories ending in Omega (-inf: Omega out of reach)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Consts:
+    graph: Graph
+    succ: tuple          # per window k < K: (n_k, A) local successor index, sentinel n_{k+1}
+    seg: tuple           # per window: (n_k, A) segment id, sentinel n_seg
+    term_goal: tuple     # per window k <= K: (n_k,) bool
+    term_alt: tuple
+
+
+@functools.lru_cache(maxsize=4)
+def _consts(graph: Graph) -> _Consts:
+    ws = graph.window_start
+    K = graph.net.n_windows
+    succ, seg, tg, ta = [], [], [], []
+    for k in range(K + 1):
+        sl = slice(ws[k], ws[k + 1])
+        tg.append(jnp.asarray(graph.term_goal[sl]))
+        ta.append(jnp.asarray(graph.term_alt[sl]))
+        if k < K:
+            s = graph.succ[sl]
+            n_next = ws[k + 2] - ws[k + 1]
+            succ.append(jnp.asarray(np.where(s >= 0, s - ws[k + 1], n_next), jnp.int32))
+            seg.append(jnp.asarray(np.where(s >= 0, graph.seg[sl], graph.n_segments), jnp.int32))
+    return _Consts(graph, tuple(succ), tuple(seg), tuple(tg), tuple(ta))
+
+
+def _pad(x, fill):
+    return jnp.concatenate([x, jnp.full((1,), fill, x.dtype)])
+
+
+def counts(graph: Graph, feasible, kind: str = "all") -> jax.Array:
+    """``(S,)`` feasible-trajectory counts to the terminal states of ``kind`` (``goal``, ``alt`` or ``all``),
+    given ``feasible`` ``(n_seg,)`` bool."""
+    if kind not in ("goal", "alt", "all"):
+        raise ValueError(f"kind must be 'goal', 'alt' or 'all'; got {kind!r}.")
+    return _counts(_consts(graph), jnp.asarray(feasible, bool), kind)
+
+
+@functools.partial(jax.jit, static_argnums=(0, 2))
+def _counts(c: _Consts, feasible, kind):
+    f_all = _pad(feasible, False)
+    K = c.graph.net.n_windows
+
+    def term(k):
+        return {"goal": c.term_goal[k], "alt": c.term_alt[k], "all": c.term_goal[k] | c.term_alt[k]}[kind]
+
+    nxt = term(K).astype(jnp.float32)
+    out = [nxt]
+    for k in range(K - 1, -1, -1):
+        f = f_all[c.seg[k]]
+        cur = jnp.where(term(k), 1.0, jnp.sum(jnp.where(f, _pad(nxt, 0.0)[c.succ[k]], 0.0), axis=1))
+        out.append(cur)
+        nxt = cur
+    return jnp.concatenate(out[::-1])
+
+
+def tables(graph: Graph, feasible, robustness, policy: str, omega: str) -> Tables:
+    """The DP tables of ``policy`` (``R``, ``Nf``, ``S`` or ``AvgR``) for terminal set ``omega`` (``goal`` or
+    ``all``), given ``feasible`` ``(n_seg,)`` bool and ``robustness`` ``(n_seg,)`` segment robustness ``p``."""
+    if policy not in POLICIES:
+        raise ValueError(f"unknown policy {policy!r}; allowed: {', '.join(POLICIES)}.")
+    if omega not in OMEGAS:
+        raise ValueError(f"omega must be 'goal' or 'all'; got {omega!r}.")
+    return tables_jit(_consts(graph), jnp.asarray(feasible, bool), jnp.asarray(robustness, jnp.float32),
+                      policy, omega)
+
+
+@functools.partial(jax.jit, static_argnums=(0, 3, 4))
+def tables_jit(c: _Consts, feasible, robustness, policy, omega):
+    K = c.graph.net.n_windows
+    f_all = _pad(feasible, False)
+    p_all = _pad(robustness, 0.0)
+
+    def value(n_all, w, r):
+        if policy == "Nf":
+            return n_all
+        if policy == "S":
+            return r
+        if policy == "AvgR":
+            return jnp.where(n_all > 0, w / jnp.maximum(n_all, 1.0), 0.0)
+        return jnp.zeros_like(n_all)
+
+    tg, ta = c.term_goal[K], c.term_goal[K] | c.term_alt[K]
+    n_goal, n_all = tg.astype(jnp.float32), ta.astype(jnp.float32)
+    w = r = n_all
+    v = value(n_all, w, r)
+    j = jnp.where(tg if omega == "goal" else ta, 0.0, NEG)
+    outs = [(n_goal, n_all, v, j)]
+    for k in range(K - 1, -1, -1):
+        succ, seg = c.succ[k], c.seg[k]
+        f, p = f_all[seg], p_all[seg]
+
+        def at(x, fill=0.0, succ=succ):
+            return _pad(x, fill)[succ]
+
+        tg, ta = c.term_goal[k], c.term_goal[k] | c.term_alt[k]
+        n_goal1, n_all1, w1, r1, v1, j1 = n_goal, n_all, w, r, v, j
+        n_goal = jnp.where(tg, 1.0, jnp.sum(jnp.where(f, at(n_goal1), 0.0), axis=1))
+        n_all = jnp.where(ta, 1.0, jnp.sum(jnp.where(f, at(n_all1), 0.0), axis=1))
+        if policy == "AvgR":
+            w = jnp.where(ta, 1.0, jnp.sum(jnp.where(f, p * at(w1), 0.0), axis=1))
+        if policy == "S":
+            log_fail = jnp.sum(jnp.where(f, jnp.log(jnp.maximum(1.0 - p * at(r1), 1e-30)), 0.0), axis=1)
+            r = jnp.where(ta, 1.0, -jnp.expm1(log_fail))
+        v = value(n_all, w, r)
+        n_om, t_om = (n_goal, tg) if omega == "goal" else (n_all, ta)
+        reward = p if policy == "R" else 0.0
+        cand = jnp.where(f, reward + at(v1) + at(j1, NEG), NEG)
+        j = jnp.where(n_om > 0, jnp.where(t_om, 0.0, jnp.max(cand, axis=1)), NEG)
+        outs.append((n_goal, n_all, v, j))
+    outs = outs[::-1]
+    return Tables(*(jnp.concatenate([o[i] for o in outs]) for i in range(4)))
+
+
+def scores(policy: str, beta: float, tables: Tables, succ, first_robustness):
+    """(numpy) The receding-horizon objective (eq. 5) of each primitive, given the successors ``succ`` ``(A,)`` (global
+    state indices; invalid entries are masked by the caller) and the first segments' robustness ``(A,)``:
+
+    * ``pi_R``: ``p(s, a) + beta J(s')`` (``J`` sums the robustness of the later segments),
+    * ``pi_Nf``: ``N(s') + beta J(s')`` (``J`` sums ``N`` over the later waypoints),
+    * ``pi_S``: ``p(s, a) + beta (R(s') + J(s'))``,
+    * ``pi_Avg(R)``: ``p(s, a) + beta (W(s') / N(s') + J(s'))``.
+    """
+    s = np.maximum(succ, 0)
+    fut, val = tables.future[s], tables.value[s]
+    if policy == "R":
+        return first_robustness + beta * fut
+    if policy == "Nf":
+        return val + beta * fut
+    return first_robustness + beta * (val + fut)
