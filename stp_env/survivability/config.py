@@ -116,6 +116,8 @@ class MissionConfig(_Overrides):
             alternative site (paper: {90, 135, 180} and {90, 180, 270}).
         separation_km: a segment is blocked by an intruder in any cell closer than this to the segment (the
             separation radius of Assumption II.2's remark).
+        positions_km: optional ``(x, y)`` [km] of the origin, the goal and each alternative site in the network
+            frame, replacing the projection of their latitude/longitude (for custom and test networks).
     """
 
     origin: Site = SANTA_CLARA
@@ -137,6 +139,7 @@ class MissionConfig(_Overrides):
     goal_headings: tuple[float, ...] = (90.0, 135.0, 180.0)
     alternate_headings: tuple[float, ...] = (90.0, 180.0, 270.0)
     separation_km: float = 0.0
+    positions_km: tuple[tuple[float, float], ...] | None = None
 
     def __post_init__(self) -> None:
         for site in (self.origin, self.goal, *self.alternates):
@@ -148,7 +151,15 @@ class MissionConfig(_Overrides):
             _number(name, getattr(self, name), positive=True)
         for name in ("takeoff_min", "landing_min", "separation_km"):
             _number(name, getattr(self, name), nonneg=True)
-        _integer("n_increments", self.n_increments, minimum=2)
+        _integer("n_increments", self.n_increments, minimum=3)
+        if self.n_increments % 2 == 0:
+            raise ValueError(f"n_increments must be odd (the primitives include 'no change'); got {self.n_increments}.")
+        if self.positions_km is not None:
+            pos = tuple(_pair("positions_km", p, ordered=False) for p in self.positions_km)
+            if len(pos) != 2 + len(self.alternates):
+                raise ValueError(f"positions_km needs {2 + len(self.alternates)} (x, y) pairs (origin, goal, "
+                                 f"alternates); got {len(pos)}.")
+            object.__setattr__(self, "positions_km", pos)
         object.__setattr__(self, "rta_min", _pair("rta_min", self.rta_min))
         object.__setattr__(self, "goal_headings", _headings("goal_headings", self.goal_headings))
         object.__setattr__(self, "alternate_headings", _headings("alternate_headings", self.alternate_headings))
@@ -225,6 +236,15 @@ class MissionConfig(_Overrides):
     def site_positions_km(self) -> dict[str, tuple[float, float]]:
         """Each site's position [km] in the network frame (x east, y north, the area's south-west corner at 0)."""
         sites = (self.origin, self.goal, *self.alternates)
+        if len({s.name for s in sites}) != len(sites):
+            raise ValueError("site names must be distinct.")
+        if self.positions_km is not None:
+            out = {}
+            for s, (x, y) in zip(sites, self.positions_km):
+                if not (0.0 <= x < self.area_km and 0.0 <= y < self.area_km):
+                    raise ValueError(f"site {s.name} lies outside the {self.area_km} km area.")
+                out[s.name] = (x, y)
+            return out
         lat0 = 0.5 * (min(s.lat for s in sites) + max(s.lat for s in sites))
         lon0 = 0.5 * (min(s.lon for s in sites) + max(s.lon for s in sites))
         k = math.pi / 180.0 * EARTH_RADIUS_KM

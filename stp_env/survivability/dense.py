@@ -70,7 +70,7 @@ class Solver:
         for dv in range(1, 2 * half + 1):
             acc = comb(acc, gv[..., dv:dv + nv])
         out = acc
-        for dh in range(-half, half + 1):
+        for dh in sorted({int(d) for d in self.net.primitives[:, 0]}):
             if dh:
                 out = comb(out, jnp.roll(acc, -dh, axis=2))
         return out
@@ -124,3 +124,24 @@ def free_feasibility(net: Network) -> np.ndarray:
     ey = x[None, :, None] + net.moves[None, None, :, 1]
     inside = (ex >= 0) & (ex < n) & (ey >= 0) & (ey < n)
     return np.broadcast_to(inside, (net.n_windows, *inside.shape)).copy()
+
+
+def feasibility_from_blocked(net: Network, blocked) -> np.ndarray:
+    """``(K, X, Y, M)`` bool: segment feasibility given ``blocked`` ``(n_minutes, X, Y)`` bool cells (both ends
+    inside the area; cells outside the area are never blocked)."""
+    blocked = np.asarray(blocked, bool)
+    n = net.n
+    out = free_feasibility(net)
+    pad = net.max_reach + int(np.abs(net.offsets[..., :2]).max()) + 1
+    bp = np.pad(blocked, ((0, 0), (pad, pad), (pad, pad)))
+    x = np.arange(n)
+    for k in range(net.n_windows):
+        t0 = net.window_start_minute(k)
+        for m in range(net.n_moves):
+            hit = np.zeros((n, n), bool)
+            for ox, oy, j in net.offsets[m][net.offset_valid[m]]:
+                t = t0 + j
+                if t < blocked.shape[0]:
+                    hit |= bp[t, pad + ox + x[:, None], pad + oy + x[None, :]]
+            out[k, :, :, m] &= ~hit
+    return out

@@ -35,7 +35,6 @@ which trajectory the policy may pick (constraint 10). All functions are pure and
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from typing import NamedTuple
 
@@ -59,17 +58,18 @@ class Tables(NamedTuple):
     future: jax.Array     # J: best future term over trajectories ending in Omega (-inf: Omega out of reach)
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
-class _Consts:
-    graph: Graph
-    succ: tuple          # per window k < K: (n_k, A) local successor index, sentinel n_{k+1}
-    seg: tuple           # per window: (n_k, A) segment id, sentinel n_seg
-    term_goal: tuple     # per window k <= K: (n_k,) bool
-    term_alt: tuple
+class _Meta(NamedTuple):
+    """Static shape information of a graph (hashable: a static argument of the jitted sweeps)."""
+
+    n_windows: int
+    window_start: tuple
 
 
 @functools.lru_cache(maxsize=4)
-def _consts(graph: Graph) -> _Consts:
+def _consts(graph: Graph):
+    """``(meta, arrays)``: the graph's per-window tables as device arrays, passed to the sweeps as arguments (as
+    constants, XLA would spend seconds folding them at every compilation). ``succ[k]``: ``(n_k, A)`` local index
+    of the successor in window ``k + 1`` (sentinel ``n_{k+1}``); ``seg[k]``: segment id (sentinel ``n_seg``)."""
     ws = graph.window_start
     K = graph.net.n_windows
     succ, seg, tg, ta = [], [], [], []
@@ -82,7 +82,8 @@ def _consts(graph: Graph) -> _Consts:
             n_next = ws[k + 2] - ws[k + 1]
             succ.append(jnp.asarray(np.where(s >= 0, s - ws[k + 1], n_next), jnp.int32))
             seg.append(jnp.asarray(np.where(s >= 0, graph.seg[sl], graph.n_segments), jnp.int32))
-    return _Consts(graph, tuple(succ), tuple(seg), tuple(tg), tuple(ta))
+    arrays = {"succ": tuple(succ), "seg": tuple(seg), "term_goal": tuple(tg), "term_alt": tuple(ta)}
+    return _Meta(K, tuple(int(v) for v in ws)), arrays
 
 
 def _pad(x, fill):
@@ -94,45 +95,60 @@ def counts(graph: Graph, feasible, kind: str = "all") -> jax.Array:
     given ``feasible`` ``(n_seg,)`` bool."""
     if kind not in ("goal", "alt", "all"):
         raise ValueError(f"kind must be 'goal', 'alt' or 'all'; got {kind!r}.")
-    return _counts(_consts(graph), jnp.asarray(feasible, bool), kind)
+    meta, arrays = _consts(graph)
+    return _counts(meta, arrays, jnp.asarray(feasible, bool), kind)
 
 
-@functools.partial(jax.jit, static_argnums=(0, 2))
-def _counts(c: _Consts, feasible, kind):
+@functools.partial(jax.jit, static_argnums=(0, 3))
+def _counts(meta: _Meta, c, feasible, kind):
     f_all = _pad(feasible, False)
-    K = c.graph.net.n_windows
+    K = meta.n_windows
 
     def term(k):
-        return {"goal": c.term_goal[k], "alt": c.term_alt[k], "all": c.term_goal[k] | c.term_alt[k]}[kind]
+        tg, ta = c["term_goal"][k], c["term_alt"][k]
+        return {"goal": tg, "alt": ta, "all": tg | ta}[kind]
 
     nxt = term(K).astype(jnp.float32)
     out = [nxt]
     for k in range(K - 1, -1, -1):
-        f = f_all[c.seg[k]]
-        cur = jnp.where(term(k), 1.0, jnp.sum(jnp.where(f, _pad(nxt, 0.0)[c.succ[k]], 0.0), axis=1))
+        f = f_all[c["seg"][k]]
+        cur = jnp.where(term(k), 1.0, jnp.sum(jnp.where(f, _pad(nxt, 0.0)[c["succ"][k]], 0.0), axis=1))
         out.append(cur)
         nxt = cur
     return jnp.concatenate(out[::-1])
 
 
-def tables(graph: Graph, feasible, robustness, policy: str, omega: str) -> Tables:
+def tables(graph: Graph, feasible, robustness, policy: str, omega: str, start: int = 0) -> Tables:
     """The DP tables of ``policy`` (``R``, ``Nf``, ``S`` or ``AvgR``) for terminal set ``omega`` (``goal`` or
-    ``all``), given ``feasible`` ``(n_seg,)`` bool and ``robustness`` ``(n_seg,)`` segment robustness ``p``."""
-    if policy not in POLICIES:
-        raise ValueError(f"unknown policy {policy!r}; allowed: {', '.join(POLICIES)}.")
+    ``all``), given ``feasible`` ``(n_seg,)`` bool and ``robustness`` ``(n_seg,)`` segment robustness ``p``.
+    Windows before ``start`` are not computed (their entries are 0, and ``-inf`` for ``future``)."""
+    return tables_many(graph, feasible, robustness, (policy,), omega, start)[policy]
+
+
+def tables_many(graph: Graph, feasible, robustness, policies, omega: str, start: int = 0) -> dict[str, Tables]:
+    """:func:`tables` of several policies in one sweep (the counts and values they share are computed once)."""
+    policies = tuple(policies)
+    for policy in policies:
+        if policy not in POLICIES:
+            raise ValueError(f"unknown policy {policy!r}; allowed: {', '.join(POLICIES)}.")
     if omega not in OMEGAS:
         raise ValueError(f"omega must be 'goal' or 'all'; got {omega!r}.")
-    return tables_jit(_consts(graph), jnp.asarray(feasible, bool), jnp.asarray(robustness, jnp.float32),
-                      policy, omega)
+    if not 0 <= start <= graph.net.n_windows:
+        raise ValueError(f"start must be a window in [0, {graph.net.n_windows}]; got {start}.")
+    meta, arrays = _consts(graph)
+    out = tables_jit(meta, arrays, jnp.asarray(feasible, bool), jnp.asarray(robustness, jnp.float32),
+                     policies, omega, int(start))
+    return dict(zip(policies, out))
 
 
-@functools.partial(jax.jit, static_argnums=(0, 3, 4))
-def tables_jit(c: _Consts, feasible, robustness, policy, omega):
-    K = c.graph.net.n_windows
+@functools.partial(jax.jit, static_argnums=(0, 4, 5, 6))
+def tables_jit(meta: _Meta, c, feasible, robustness, policies, omega, start):
+    K = meta.n_windows
     f_all = _pad(feasible, False)
     p_all = _pad(robustness, 0.0)
+    need_w, need_r = "AvgR" in policies, "S" in policies
 
-    def value(n_all, w, r):
+    def value(policy, n_all, w, r):
         if policy == "Nf":
             return n_all
         if policy == "S":
@@ -141,36 +157,46 @@ def tables_jit(c: _Consts, feasible, robustness, policy, omega):
             return jnp.where(n_all > 0, w / jnp.maximum(n_all, 1.0), 0.0)
         return jnp.zeros_like(n_all)
 
-    tg, ta = c.term_goal[K], c.term_goal[K] | c.term_alt[K]
+    tg, ta = c["term_goal"][K], c["term_goal"][K] | c["term_alt"][K]
     n_goal, n_all = tg.astype(jnp.float32), ta.astype(jnp.float32)
     w = r = n_all
-    v = value(n_all, w, r)
-    j = jnp.where(tg if omega == "goal" else ta, 0.0, NEG)
-    outs = [(n_goal, n_all, v, j)]
-    for k in range(K - 1, -1, -1):
-        succ, seg = c.succ[k], c.seg[k]
+    vs = {q: value(q, n_all, w, r) for q in policies}
+    js = {q: jnp.where(tg if omega == "goal" else ta, 0.0, NEG) for q in policies}
+    outs = [(n_goal, n_all, vs, js)]
+    for k in range(K - 1, start - 1, -1):
+        succ, seg = c["succ"][k], c["seg"][k]
         f, p = f_all[seg], p_all[seg]
 
         def at(x, fill=0.0, succ=succ):
             return _pad(x, fill)[succ]
 
-        tg, ta = c.term_goal[k], c.term_goal[k] | c.term_alt[k]
-        n_goal1, n_all1, w1, r1, v1, j1 = n_goal, n_all, w, r, v, j
+        tg, ta = c["term_goal"][k], c["term_goal"][k] | c["term_alt"][k]
+        n_goal1, n_all1, w1, r1, vs1, js1 = n_goal, n_all, w, r, vs, js
         n_goal = jnp.where(tg, 1.0, jnp.sum(jnp.where(f, at(n_goal1), 0.0), axis=1))
         n_all = jnp.where(ta, 1.0, jnp.sum(jnp.where(f, at(n_all1), 0.0), axis=1))
-        if policy == "AvgR":
+        if need_w:
             w = jnp.where(ta, 1.0, jnp.sum(jnp.where(f, p * at(w1), 0.0), axis=1))
-        if policy == "S":
+        if need_r:
             log_fail = jnp.sum(jnp.where(f, jnp.log(jnp.maximum(1.0 - p * at(r1), 1e-30)), 0.0), axis=1)
             r = jnp.where(ta, 1.0, -jnp.expm1(log_fail))
-        v = value(n_all, w, r)
         n_om, t_om = (n_goal, tg) if omega == "goal" else (n_all, ta)
-        reward = p if policy == "R" else 0.0
-        cand = jnp.where(f, reward + at(v1) + at(j1, NEG), NEG)
-        j = jnp.where(n_om > 0, jnp.where(t_om, 0.0, jnp.max(cand, axis=1)), NEG)
-        outs.append((n_goal, n_all, v, j))
+        vs, js = {}, {}
+        for q in policies:
+            vs[q] = value(q, n_all, w, r)
+            reward = p if q == "R" else 0.0
+            cand = jnp.where(f, reward + at(vs1[q]) + at(js1[q], NEG), NEG)
+            js[q] = jnp.where(n_om > 0, jnp.where(t_om, 0.0, jnp.max(cand, axis=1)), NEG)
+        outs.append((n_goal, n_all, vs, js))
+    skipped = meta.window_start[start]
     outs = outs[::-1]
-    return Tables(*(jnp.concatenate([o[i] for o in outs]) for i in range(4)))
+
+    def cat(parts, fill):
+        return jnp.concatenate([jnp.full((skipped,), fill, jnp.float32), *parts])
+
+    n_goal_all = cat([o[0] for o in outs], 0.0)
+    n_all_all = cat([o[1] for o in outs], 0.0)
+    return tuple(Tables(n_goal_all, n_all_all, cat([o[2][q] for o in outs], 0.0), cat([o[3][q] for o in outs], NEG))
+                 for q in policies)
 
 
 def scores(policy: str, beta: float, tables: Tables, succ, first_robustness):

@@ -148,3 +148,10 @@ def build_graph(net: Network | None = None) -> Graph:
     for arr in arrays:
         arr.setflags(write=False)
     return Graph(net, *arrays)
+
+
+def feasible_from_blocked(graph: Graph, blocked) -> np.ndarray:
+    """``(n_seg,)`` bool segment feasibility given ``blocked`` ``(n_minutes, X, Y)`` bool cells."""
+    blocked = np.asarray(blocked, bool)
+    cell_blocked = np.append(blocked[graph.cells[:, 2], graph.cells[:, 0], graph.cells[:, 1]], False)
+    return ~cell_blocked[graph.seg_cells].any(axis=1)

@@ -115,9 +115,11 @@ def choose(graph: Graph, g: int, policy: str, beta: float, tables, feasible, rob
     return int(ties[0] if len(ties) == 1 else rng.choice(ties))
 
 
-def run_mission(graph: Graph, instance: Instance, policy: str, planner: PlannerConfig, seed=0) -> MissionResult:
+def run_mission(graph: Graph, instance: Instance, policy: str, planner: PlannerConfig, seed=0,
+                initial_tables: dp.Tables | None = None) -> MissionResult:
     """Fly one mission of ``policy`` through ``instance``'s traffic (see the module docstring); ``seed`` drives
-    the tie-breaking."""
+    the tie-breaking. ``initial_tables``: the policy's tables with nothing revealed and ``Omega`` = goal (numpy),
+    if already computed (:func:`initial_tables`)."""
     if policy not in POLICIES:
         raise ValueError(f"unknown policy {policy!r}; allowed: {', '.join(POLICIES)}.")
     rng = np.random.default_rng(seed)
@@ -128,9 +130,9 @@ def run_mission(graph: Graph, instance: Instance, policy: str, planner: PlannerC
     def compute():
         nonlocal n_dp
         n_dp += 1
-        return _numpy(dp.tables(graph, know.feasible, instance.robustness, policy, omega))
+        return _numpy(dp.tables(graph, know.feasible, instance.robustness, policy, omega, graph.window_of(g)))
 
-    tables = compute()
+    tables = compute() if initial_tables is None else initial_tables
     while True:
         if graph.term_goal[g] or (omega == "all" and graph.term_alt[g]):
             outcome = "G" if graph.term_goal[g] else "A"
@@ -154,6 +156,12 @@ def run_mission(graph: Graph, instance: Instance, policy: str, planner: PlannerC
 
 def _numpy(t: dp.Tables) -> dp.Tables:
     return dp.Tables(*(np.asarray(x) for x in t))
+
+
+def initial_tables(graph: Graph, instance: Instance, policies) -> dict[str, dp.Tables]:
+    """Every policy's tables before any conflict (``Omega`` = goal), in one sweep."""
+    out = dp.tables_many(graph, np.ones(graph.n_segments, bool), instance.robustness, tuple(policies), "goal")
+    return {q: _numpy(t) for q, t in out.items()}
 
 
 def default_graph(mission: MissionConfig | None = None) -> Graph:

@@ -169,9 +169,10 @@ def build_network(mission: MissionConfig | None = None) -> Network:
     H, V, n, W = m.n_headings, m.n_speeds, m.n_cells, m.minutes_per_window
     half = (m.n_increments - 1) // 2
     steps = np.arange(m.n_increments) - half
-    if m.n_increments % 2 == 0:
-        raise ValueError("n_increments must be odd (the primitives include 'no change').")
-    primitives = np.array([(dh, dv) for dh in steps for dv in steps], dtype=np.int32)
+    # Two heading changes equal modulo 360 deg are one primitive (they lead to the same state).
+    dhs = sorted({int(dh) % H for dh in steps}, key=lambda d: (d if d <= H // 2 else d - H))
+    dhs = [d if d <= H // 2 else d - H for d in dhs]
+    primitives = np.array([(dh, dv) for dh in dhs for dv in steps], dtype=np.int32)
     heads = np.radians(np.arange(H) * m.heading_step)
     speeds = np.arange(V) * m.speed_step
     dist_cells = speeds * m.window_min * 60.0 / 1000.0 / m.cell_km          # (V,)

@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env.survivability.graph import Graph
-from stp_env.survivability.traffic import Traffic, bernstein, sample_times
+from stp_env.survivability.traffic import Traffic, bernstein, curve_points, present_samples, sample_times
 
 CHUNK = 64   # realisations per block of the Monte Carlo program (a multiple of 8)
 
@@ -66,19 +66,16 @@ def candidate_points(graph: Graph, traffic: Traffic, uncertainty_km: float, samp
     k = traffic.nominal.shape[1] - 1
     n_p = traffic.n_partial
     idx = np.arange(n_p) if include is None else np.nonzero(np.asarray(include)[:n_p])[0]
-    times, minute = sample_times(mission, samples_per_min)
-    s = (times[None, :] - traffic.t_in[idx, None]) / traffic.duration[idx, None]
-    present = (s >= 0.0) & (s <= 1.0)
-    basis = bernstein(k, np.clip(s, 0.0, 1.0))                               # (n, T, k + 1)
-    nominal = np.einsum("ntk,nkd->ntd", basis, traffic.nominal[idx])
+    who, t, s = present_samples(traffic.t_in[idx], traffic.duration[idx], mission, samples_per_min)
+    nominal, basis = curve_points(traffic.nominal[idx], who, s)
+    _, minute = sample_times(mission, samples_per_min)
     reach = interior_reach(k) * uncertainty_km / mission.cell_km
     near = _near_mask(graph, math.ceil(reach) + 1)
     n = mission.n_cells
     c = np.clip(np.floor(nominal / mission.cell_km).astype(np.int64), 0, n - 1)
-    keep = present & near[np.broadcast_to(minute, s.shape), c[..., 0], c[..., 1]]
-    i, t = np.nonzero(keep)
-    return (nominal[i, t].astype(np.float32), basis[i, t, 1:k].astype(np.float32), idx[i].astype(np.int32),
-            minute[t].astype(np.int32))
+    keep = near[minute[t], c[:, 0], c[:, 1]]
+    return (nominal[keep].astype(np.float32), basis[keep, 1:k].astype(np.float32), idx[who[keep]].astype(np.int32),
+            minute[t[keep]].astype(np.int32))
 
 
 def segment_robustness(rng: np.random.Generator, graph: Graph, traffic: Traffic, *, uncertainty_km: float,

@@ -27,7 +27,7 @@ from stp_env.survivability.config import (
     _Overrides,
 )
 from stp_env.survivability.graph import build_graph
-from stp_env.survivability.mission import make_instance, run_mission
+from stp_env.survivability.mission import initial_tables, make_instance, run_mission
 from stp_env.survivability.network import build_network
 
 LEVELS = (50, 100, 150, 200, 250, 300)
@@ -111,14 +111,15 @@ def run_instance(graph, config: StudyConfig, n_partial: int, n_unknown: int, i: 
     t0 = time.perf_counter()
     traffic = config.traffic.with_overrides(n_partial=n_partial, n_unknown=n_unknown)
     inst = make_instance(graph, traffic, config.planner, (config.seed, i))
+    first = initial_tables(graph, inst, config.policies)
     t_inst = time.perf_counter() - t0
     rows = []
     for policy in config.policies:
         t1 = time.perf_counter()
-        res = run_mission(graph, inst, policy, config.planner, seed=(config.seed, i))
+        res = run_mission(graph, inst, policy, config.planner, seed=(config.seed, i), initial_tables=first[policy])
         rows.append({"n_partial": n_partial, "n_unknown": n_unknown, "instance": i, "policy": policy,
                      "outcome": res.outcome, "reveals": len(res.revealed),
-                     "omega_switch": -1 if res.omega_switch is None else res.omega_switch, "n_dp": res.n_dp,
+                     "omega_switch": -1 if res.omega_switch is None else res.omega_switch, "n_dp": res.n_dp + 1,
                      "windows": len(res.path) - 1, "instance_s": round(t_inst, 4),
                      "mission_s": round(time.perf_counter() - t1, 4)})
     return rows
@@ -135,7 +136,7 @@ def run_study(config: StudyConfig, out: str | os.PathLike, *, progress: bool = T
             old = json.loads(meta_path.read_text())
         except json.JSONDecodeError:
             raise ValueError(f"{meta_path} is not valid JSON; remove it or choose another --out.") from None
-        if old.get("fingerprint") != config.fingerprint():
+        if not _same_config(old.get("fingerprint"), config.fingerprint()):
             raise ValueError(f"{out} holds a study with a different configuration; choose another --out "
                              f"(or the same options as {meta_path}).")
     _atomic_write(meta_path, json.dumps({"fingerprint": config.fingerprint(),
@@ -166,6 +167,15 @@ def run_study(config: StudyConfig, out: str | os.PathLike, *, progress: bool = T
             bar.set_postfix_str(f"instance {i}, (N_p, N_u) = ({p}, {u})", refresh=False)
         bar.close()
     return path
+
+
+def _same_config(old, new) -> bool:
+    """Equal fingerprints, up to fields added since ``old`` was written that are unset (``None``) in ``new``."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        extra = set(new) - set(old)
+        return (set(old) <= set(new) and all(new[k] is None for k in extra)
+                and all(_same_config(old[k], new[k]) for k in old))
+    return old == new
 
 
 def _repair(path: Path, rows) -> None:

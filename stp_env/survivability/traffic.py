@@ -46,11 +46,14 @@ class Traffic(NamedTuple):
 
 
 def bernstein(degree: int, s) -> np.ndarray:
-    """``(..., degree + 1)`` Bernstein basis at parameters ``s`` (works for numpy and JAX arrays)."""
-    i = np.arange(degree + 1)
-    binom = np.array([math.comb(degree, j) for j in i], np.float64)
-    s = s[..., None]
-    return binom * s ** i * (1.0 - s) ** (degree - i)
+    """``(..., degree + 1)`` Bernstein basis at parameters ``s``."""
+    s = np.asarray(s, np.float64)
+    u = 1.0 - s
+    sp, up = [np.ones_like(s)], [np.ones_like(s)]
+    for _ in range(degree):
+        sp.append(sp[-1] * s)
+        up.append(up[-1] * u)
+    return np.stack([math.comb(degree, i) * sp[i] * up[degree - i] for i in range(degree + 1)], -1)
 
 
 def curve_length(ctrl: np.ndarray, n: int = 129) -> np.ndarray:
@@ -102,26 +105,41 @@ def sample_times(mission: MissionConfig, samples_per_min: int) -> tuple[np.ndarr
     return (minute + np.tile(q, n_min)) * mission.cell_min, minute
 
 
-def occupied_cells(ctrl, t_in, duration, mission: MissionConfig, samples_per_min: int, cell_id: np.ndarray):
-    """For each curve, the ids (``cell_id``: dense ``(minute, x, y) -> id``, ``-1`` = not tracked) of the cells it
-    occupies: an ``(N, n_samples)`` int array, ``-1`` where the intruder is absent or the cell not tracked."""
-    times, minute = sample_times(mission, samples_per_min)
-    s = (times[None, :] - t_in[:, None]) / duration[:, None]               # (N, T)
-    present = (s >= 0.0) & (s <= 1.0)
-    basis = bernstein(ctrl.shape[1] - 1, np.clip(s, 0.0, 1.0))             # (N, T, k + 1)
-    pts = np.einsum("ntk,nkd->ntd", basis, ctrl)
-    c = np.floor(pts / mission.cell_km).astype(np.int64)
-    n = mission.n_cells
-    inside = present & (c[..., 0] >= 0) & (c[..., 0] < n) & (c[..., 1] >= 0) & (c[..., 1] < n)
-    ids = cell_id[np.broadcast_to(minute, s.shape), np.clip(c[..., 0], 0, n - 1), np.clip(c[..., 1], 0, n - 1)]
-    return np.where(inside, ids, -1)
+def present_samples(t_in, duration, mission: MissionConfig, samples_per_min: int):
+    """The (intruder, instant) pairs at which each curve is flying: intruder index, instant index into
+    :func:`sample_times` and the curve parameter ``s`` in ``[0, 1]``."""
+    times, _ = sample_times(mission, samples_per_min)
+    step = mission.cell_min / samples_per_min
+    first = np.clip(np.ceil((t_in - times[0]) / step - 1e-9), 0, len(times)).astype(np.int64)
+    last = np.clip(np.floor((t_in + duration - times[0]) / step + 1e-9), -1, len(times) - 1).astype(np.int64)
+    count = np.maximum(last - first + 1, 0)
+    who = np.repeat(np.arange(len(t_in)), count)
+    offset = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+    t = first[who] + offset
+    s = np.clip((times[t] - t_in[who]) / duration[who], 0.0, 1.0)
+    return who, t, s
+
+
+def curve_points(ctrl, who, s) -> tuple[np.ndarray, np.ndarray]:
+    """Positions ``(P, 2)`` on curves ``ctrl[who]`` at parameters ``s``, and the basis ``(P, k + 1)``."""
+    basis = bernstein(ctrl.shape[1] - 1, s)
+    pts = np.zeros((len(s), 2))
+    for i in range(ctrl.shape[1]):
+        pts += basis[:, i, None] * ctrl[who, i]
+    return pts, basis
 
 
 def occupancy(traffic: Traffic, mission: MissionConfig, samples_per_min: int, cell_id: np.ndarray,
               n_cells: int) -> np.ndarray:
-    """``(n_cells, N)`` bool: which intruder's *actual* path occupies each tracked cell."""
-    ids = occupied_cells(traffic.actual, traffic.t_in, traffic.duration, mission, samples_per_min, cell_id)
+    """``(n_cells, N)`` bool: which intruder's *actual* path occupies each tracked cell (``cell_id``: dense
+    ``(minute, x, y) -> id``, ``-1`` = not tracked)."""
+    who, t, s = present_samples(traffic.t_in, traffic.duration, mission, samples_per_min)
+    pts, _ = curve_points(traffic.actual, who, s)
+    _, minute = sample_times(mission, samples_per_min)
+    c = np.floor(pts / mission.cell_km).astype(np.int64)
+    n = mission.n_cells
+    inside = (c[:, 0] >= 0) & (c[:, 0] < n) & (c[:, 1] >= 0) & (c[:, 1] < n)
+    ids = cell_id[minute[t[inside]], c[inside, 0], c[inside, 1]]
     occ = np.zeros((n_cells + 1, traffic.n), bool)
-    rows = np.where(ids >= 0, ids, n_cells)
-    occ[rows, np.broadcast_to(np.arange(traffic.n)[:, None], rows.shape)] = True
+    occ[np.where(ids >= 0, ids, n_cells), who[inside]] = True
     return occ[:n_cells]
