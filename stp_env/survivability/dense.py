@@ -9,8 +9,8 @@ a check of the compact-graph programs.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -21,65 +21,67 @@ from stp_env.survivability.network import Network
 NEG = -jnp.inf
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
-class Solver:
-    """Jitted DP sweeps over a :class:`Network` (built once per network by :func:`solver`)."""
+class _Static(NamedTuple):
+    """Hashable shape information (a static argument: networks of the same shapes share compiled sweeps)."""
 
-    net: Network
+    n_headings: int
+    n_speeds: int
+    n_windows: int
+    half: int              # speed-change steps each way
+    dh: tuple              # the distinct heading changes
+    goal_windows: tuple
+    pad: int
+
+
+class _Arrays(NamedTuple):
     ix: jax.Array          # (X, 1, H, V) padded-grid x index of each state's successor under (h, v)
     iy: jax.Array          # (1, Y, H, V)
     move_of: jax.Array     # (H, V)
-    pad: int
     goal_cell: jax.Array   # (X, Y) bool
     alt_cell: jax.Array    # (X, Y) bool
     goal_h: jax.Array      # (H,) bool
     alt_h: jax.Array       # (H,) bool
 
-    def terminal(self, k, kind: str) -> jax.Array:
-        """``(X, Y, H, V)`` bool: terminal states at window ``k`` (``kind``: ``goal``, ``alt`` or ``all``)."""
-        net = self.net
-        v0 = jnp.arange(net.n_speeds) == 0
-        g0, g1 = net.goal_windows
-        goal = (self.goal_cell[:, :, None, None] & self.goal_h[None, None, :, None] & v0
-                & (k >= g0) & (k <= g1))
-        alt = self.alt_cell[:, :, None, None] & self.alt_h[None, None, :, None] & v0 & (k >= 1) & (k <= net.n_windows)
-        return {"goal": goal, "alt": alt, "all": goal | alt}[kind]
 
-    # ---- one backward step ------------------------------------------------------------------------------------
-    def successor_values(self, table_next, fill=0.0):
-        """``(X, Y, H, V)``: ``table_next`` at the successor of each (cell, new heading, new speed)."""
-        p = self.pad
-        padded = jnp.pad(table_next, ((p, p), (p, p), (0, 0), (0, 0)), constant_values=fill)
-        h = jnp.arange(self.net.n_headings)[None, None, :, None]
-        v = jnp.arange(self.net.n_speeds)[None, None, None, :]
-        return padded[self.ix, self.iy, h, v]
-
-    def per_new_state(self, seg_table):
-        """``(X, Y, M)`` segment table -> ``(X, Y, H, V)`` by the (new heading, new speed) of each move."""
-        return seg_table[:, :, self.move_of]
-
-    def over_actions(self, g, op: str):
-        """Combine ``g[x, y, h', v']`` over the primitives reaching ``(h', v')`` from each ``(h, v)``: ``op`` is
-        ``sum`` or ``max`` (empty: 0 or -inf)."""
-        half = (self.net.mission.n_increments - 1) // 2
-        fill = 0.0 if op == "sum" else NEG
-        comb = jnp.add if op == "sum" else jnp.maximum
-        gv = jnp.pad(g, ((0, 0), (0, 0), (0, 0), (half, half)), constant_values=fill)
-        nv = self.net.n_speeds
-        acc = gv[..., 0:nv]
-        for dv in range(1, 2 * half + 1):
-            acc = comb(acc, gv[..., dv:dv + nv])
-        out = acc
-        for dh in sorted({int(d) for d in self.net.primitives[:, 0]}):
-            if dh:
-                out = comb(out, jnp.roll(acc, -dh, axis=2))
-        return out
+def terminal(st: _Static, a: _Arrays, k, kind: str) -> jax.Array:
+    """``(X, Y, H, V)`` bool: terminal states at window ``k`` (``kind``: ``goal``, ``alt`` or ``all``)."""
+    v0 = jnp.arange(st.n_speeds) == 0
+    g0, g1 = st.goal_windows
+    goal = a.goal_cell[:, :, None, None] & a.goal_h[None, None, :, None] & v0 & (k >= g0) & (k <= g1)
+    alt = a.alt_cell[:, :, None, None] & a.alt_h[None, None, :, None] & v0 & (k >= 1) & (k <= st.n_windows)
+    return {"goal": goal, "alt": alt, "all": goal | alt}[kind]
 
 
-@functools.lru_cache(maxsize=4)
-def solver(net: Network) -> Solver:
-    H, V, n = net.n_headings, net.n_speeds, net.n
-    pad = net.max_reach
+def successor_values(st: _Static, a: _Arrays, table_next, fill=0.0):
+    """``(X, Y, H, V)``: ``table_next`` at the successor of each (cell, new heading, new speed)."""
+    p = st.pad
+    padded = jnp.pad(table_next, ((p, p), (p, p), (0, 0), (0, 0)), constant_values=fill)
+    h = jnp.arange(st.n_headings)[None, None, :, None]
+    v = jnp.arange(st.n_speeds)[None, None, None, :]
+    return padded[a.ix, a.iy, h, v]
+
+
+def over_actions(st: _Static, g, op: str):
+    """Combine ``g[x, y, h', v']`` over the primitives reaching ``(h', v')`` from each ``(h, v)``: ``op`` is
+    ``sum`` or ``max`` (empty: 0 or -inf). Separable in (heading change, speed change)."""
+    half = st.half
+    fill = 0.0 if op == "sum" else NEG
+    comb = jnp.add if op == "sum" else jnp.maximum
+    gv = jnp.pad(g, ((0, 0), (0, 0), (0, 0), (half, half)), constant_values=fill)
+    nv = st.n_speeds
+    acc = gv[..., 0:nv]
+    for dv in range(1, 2 * half + 1):
+        acc = comb(acc, gv[..., dv:dv + nv])
+    out = acc
+    for dh in st.dh:
+        if dh:
+            out = comb(out, jnp.roll(acc, -dh, axis=2))
+    return out
+
+
+@functools.lru_cache(maxsize=8)
+def solver(net: Network) -> tuple[_Static, _Arrays]:
+    n, pad = net.n, net.max_reach
     xs = np.arange(n)
     ix = xs[:, None, None, None] + pad + net.disp[None, None, :, :, 0]
     iy = xs[None, :, None, None] + pad + net.disp[None, None, :, :, 1]
@@ -88,30 +90,34 @@ def solver(net: Network) -> Solver:
     alt_cell = np.zeros((n, n), bool)
     for c in net.alternates:
         alt_cell[c] = True
-    del H, V
-    return Solver(net=net, ix=jnp.asarray(ix, jnp.int32), iy=jnp.asarray(iy, jnp.int32),
-                  move_of=jnp.asarray(net.move_of), pad=pad, goal_cell=jnp.asarray(goal_cell),
-                  alt_cell=jnp.asarray(alt_cell), goal_h=jnp.asarray(net.goal_heading_mask),
-                  alt_h=jnp.asarray(net.alt_heading_mask))
+    st = _Static(net.n_headings, net.n_speeds, net.n_windows, (net.mission.n_increments - 1) // 2,
+                 tuple(sorted({int(d) for d in net.primitives[:, 0]})), tuple(net.goal_windows), pad)
+    arrays = _Arrays(jnp.asarray(ix, jnp.int32), jnp.asarray(iy, jnp.int32), jnp.asarray(net.move_of),
+                     jnp.asarray(goal_cell), jnp.asarray(alt_cell), jnp.asarray(net.goal_heading_mask),
+                     jnp.asarray(net.alt_heading_mask))
+    return st, arrays
 
 
 def counts(net: Network, feasible, kind: str = "all"):
     """``(K + 1, X, Y, H, V)`` numbers of feasible trajectories to the terminal states of ``kind`` (``goal``,
     ``alt`` or ``all``), given ``feasible`` ``(K, X, Y, M)`` bool segment feasibility."""
-    return _counts(solver(net), jnp.asarray(feasible), kind)
+    if kind not in ("goal", "alt", "all"):
+        raise ValueError(f"kind must be 'goal', 'alt' or 'all'; got {kind!r}.")
+    st, arrays = solver(net)
+    return _counts(st, arrays, jnp.asarray(feasible), kind)
 
 
-@functools.partial(jax.jit, static_argnums=(0, 2))
-def _counts(sv: Solver, feasible, kind):
-    K = sv.net.n_windows
+@functools.partial(jax.jit, static_argnums=(0, 3))
+def _counts(st: _Static, a: _Arrays, feasible, kind):
+    K = st.n_windows
 
     def step(nxt, k):
-        term = sv.terminal(k, kind)
-        g = sv.per_new_state(feasible[k]) * sv.successor_values(nxt)
-        cur = jnp.where(term, 1.0, sv.over_actions(g, "sum"))
+        term = terminal(st, a, k, kind)
+        g = feasible[k][:, :, a.move_of] * successor_values(st, a, nxt)
+        cur = jnp.where(term, 1.0, over_actions(st, g, "sum"))
         return cur, cur
 
-    last = sv.terminal(K, kind).astype(jnp.float32)
+    last = terminal(st, a, K, kind).astype(jnp.float32)
     _, out = jax.lax.scan(step, last, jnp.arange(K - 1, -1, -1))
     return jnp.concatenate([out[::-1], last[None]], 0)
 

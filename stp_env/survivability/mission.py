@@ -33,6 +33,7 @@ from stp_env.survivability.robustness import segment_robustness
 from stp_env.survivability.traffic import Traffic, occupancy, sample_traffic
 
 OUTCOMES = ("G", "A", "L")
+SWEEP_FROM_CURRENT_ABOVE = 20_000   # graph states
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -130,7 +131,10 @@ def run_mission(graph: Graph, instance: Instance, policy: str, planner: PlannerC
     def compute():
         nonlocal n_dp
         n_dp += 1
-        return _numpy(dp.tables(graph, know.feasible, instance.robustness, policy, omega, graph.window_of(g)))
+        # Windows before the current one do not matter; on small graphs a full sweep is cheaper than compiling
+        # one program per starting window.
+        start = graph.window_of(g) if graph.n_states > SWEEP_FROM_CURRENT_ABOVE else 0
+        return _numpy(dp.tables(graph, know.feasible, instance.robustness, policy, omega, start))
 
     tables = compute() if initial_tables is None else initial_tables
     while True:
