@@ -47,6 +47,16 @@ def _hours(text: str) -> float:
     return v
 
 
+def _worker(text: str) -> tuple[int, int]:
+    try:
+        i, n = (int(v) for v in text.split("/"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected I/N (e.g. 0/2), got {text!r}") from None
+    if not 0 <= i < n:
+        raise argparse.ArgumentTypeError(f"need 0 <= I < N, got {text}")
+    return i, n
+
+
 def add_parser(sub) -> None:
     """Add the ``survivability`` subcommand to an argparse subparsers object."""
     from stp_env.survivability.config import POLICIES
@@ -73,6 +83,9 @@ def add_parser(sub) -> None:
                     help="Monte Carlo realisations per segment robustness")
     sp.add_argument("--max-hours", type=_hours, default=None,
                     help="stop after this much wall time (rerun the same command to resume)")
+    sp.add_argument("--worker", type=_worker, default=(0, 1), metavar="I/N",
+                    help="run every N-th remaining instance starting at the I-th (I = 0 .. N-1), so that N processes "
+                         "with the same options share the study")
     sp.add_argument("--bootstrap", type=_positive_int, default=2000, help="bootstrap resamples for thresholds")
     sp.add_argument("--report-only", action="store_true", help="only (re)write results and figures from OUT")
     sp.add_argument("--no-figures", action="store_true", help="skip the figures")
@@ -96,7 +109,7 @@ def run(args) -> int:
     config = config_from_args(args)
     if not args.report_only:
         run_study(config, args.out, progress=not args.no_progress,
-                  max_seconds=None if args.max_hours is None else 3600.0 * args.max_hours)
+                  max_seconds=None if args.max_hours is None else 3600.0 * args.max_hours, worker=args.worker)
     report = build_report(config, args.out, n_boot=args.bootstrap)
     if not args.no_figures:
         import matplotlib

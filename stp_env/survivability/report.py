@@ -11,7 +11,7 @@ from pathlib import Path
 
 from stp_env.survivability import analysis
 from stp_env.survivability.config import POLICIES
-from stp_env.survivability.study import StudyConfig, read_missions
+from stp_env.survivability.study import StudyConfig, read_study
 
 LABEL = {"R": "π_R", "Nf": "π_Nf", "S": "π_S", "AvgR": "π_Avg(R)"}
 COLOR = {"Nf": "tab:blue", "S": "tab:orange", "R": "tab:green", "AvgR": "tab:purple"}
@@ -27,9 +27,9 @@ def build_report(config: StudyConfig, out, n_boot: int = 2000) -> dict:
     """Summaries, thresholds and the paper comparison of the study in ``out`` (a dict, also written to
     ``results.json``, ``results.csv`` and ``results.md``)."""
     out = Path(out)
-    rows = read_missions(out / "missions.csv")
+    rows = read_study(out)
     if not rows:
-        raise ValueError(f"{out / 'missions.csv'} has no completed missions yet.")
+        raise ValueError(f"{out} has no completed missions yet (missions*.csv).")
     policies = config.policies
     summary = analysis.summarize(rows, policies)
     thr = analysis.thresholds(rows, policies, config.n_partial, config.n_unknown, n_boot=n_boot)
@@ -147,7 +147,7 @@ def figures(config: StudyConfig, out, report: dict | None = None) -> list[Path]:
     import numpy as np
 
     out = Path(out)
-    rows = read_missions(out / "missions.csv")
+    rows = read_study(out)
     policies = config.policies
     summary = analysis.summarize(rows, policies)
     report = report or build_report(config, out)

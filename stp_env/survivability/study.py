@@ -1,6 +1,7 @@
 """The traffic-scenario study of the survivability paper (Sections V-VI): every policy flies the mission through the
 same traffic instances of every scenario ``(N_p, N_u)``; outcomes are appended to ``missions.csv`` as they finish,
-so an interrupted study resumes where it stopped.
+so an interrupted study resumes where it stopped (several worker processes may share a study, each with its own
+``missions-{i}of{n}.csv``).
 
 Instances are visited round-robin (instance 0 of every scenario, then instance 1, ...), so a study stopped early
 has the same number of instances in every scenario. Instance ``i`` uses the same random streams in every scenario
@@ -80,8 +81,14 @@ class StudyConfig(_Overrides):
         return json.loads(json.dumps(d))
 
 
+def read_study(out) -> list[dict]:
+    """Every mission of the study directory ``out`` (``missions.csv`` and the workers' ``missions-*.csv``)."""
+    out = Path(out)
+    return [r for path in sorted(out.glob("missions*.csv")) for r in read_missions(path)]
+
+
 def read_missions(path: Path) -> list[dict]:
-    """Rows of a ``missions.csv`` (a trailing partial line from an interrupted write is ignored)."""
+    """Rows of one missions file (a trailing partial line from an interrupted write is ignored)."""
     if not path.exists():
         return []
     rows = []
@@ -125,9 +132,15 @@ def run_instance(graph, config: StudyConfig, n_partial: int, n_unknown: int, i: 
     return rows
 
 
-def run_study(config: StudyConfig, out: str | os.PathLike, *, progress: bool = True, max_seconds=None) -> Path:
-    """Run (or resume) the study into directory ``out``; returns the path of ``missions.csv``.
-    ``max_seconds``: stop cleanly after this much wall time (the study can be resumed)."""
+def run_study(config: StudyConfig, out: str | os.PathLike, *, progress: bool = True, max_seconds=None,
+              worker: tuple[int, int] = (0, 1)) -> Path:
+    """Run (or resume) the study into directory ``out``; returns the path of the missions file written.
+    ``max_seconds``: stop cleanly after this much wall time (the study can be resumed). ``worker = (i, n)``: run
+    every ``n``-th remaining (scenario, instance), starting at the ``i``-th, into ``missions-{i}of{n}.csv`` (``n``
+    processes with ``i = 0 .. n - 1`` share a study; run them with the same options)."""
+    i_worker, n_workers = worker
+    if not (isinstance(n_workers, int) and n_workers >= 1 and isinstance(i_worker, int) and 0 <= i_worker < n_workers):
+        raise ValueError(f"worker must be (i, n) with 0 <= i < n; got {worker!r}.")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     meta_path = out / "study.json"
@@ -141,10 +154,11 @@ def run_study(config: StudyConfig, out: str | os.PathLike, *, progress: bool = T
                              f"(or the same options as {meta_path}).")
     _atomic_write(meta_path, json.dumps({"fingerprint": config.fingerprint(),
                                          "n_instances": config.n_instances}, indent=1))
-    path = out / "missions.csv"
+    path = out / ("missions.csv" if n_workers == 1 else f"missions-{i_worker}of{n_workers}.csv")
     rows = read_missions(path)
-    done = completed(rows, config.policies)
+    done = completed(read_study(out), config.policies)
     todo = [(p, u, i) for i in range(config.n_instances) for (p, u) in config.scenarios if (p, u, i) not in done]
+    todo = todo[i_worker::n_workers]
     if not todo:
         return path
     graph = build_graph(build_network(config.mission))
@@ -154,8 +168,9 @@ def run_study(config: StudyConfig, out: str | os.PathLike, *, progress: bool = T
     start = time.perf_counter()
     with open(path, "a", newline="") as f:
         writer = csv.DictWriter(f, FIELDS)
-        bar = tqdm(total=len(todo) + len(done), initial=len(done), disable=not progress, unit="instance",
-                   desc="survivability", smoothing=0.05)
+        bar = tqdm(total=len(todo), disable=not progress, unit="instance",
+                   desc="survivability" if n_workers == 1 else f"survivability {i_worker}/{n_workers}",
+                   smoothing=0.05)
         for p, u, i in todo:
             if max_seconds is not None and time.perf_counter() - start > max_seconds:
                 break
