@@ -307,3 +307,33 @@ def test_mission_with_no_way_out_fails_and_never_flies_into_traffic():
                 cells = g.seg_cells[seg][g.seg_cells[seg] >= 0]
                 assert not inst.occupancy[cells].any()
     assert revealed > 0
+
+
+@pytest.mark.slow
+def test_gym_env_passes_check_env_and_reveals_on_conflict():
+    from gymnasium.utils.env_checker import check_env
+
+    from stp_env.survivability.gym_env import SurvivabilityEnv, observation_size
+
+    traffic, planner = TrafficConfig(reach_km=4), PlannerConfig(n_mc=64)
+    env = SurvivabilityEnv(((4, 4), (8, 8)), mission=small(), traffic=traffic, planner=planner)
+    assert env.observation_space.shape == (observation_size(env.action_space.n),) == (12 + 5 * 9,)
+    check_env(env, skip_render_check=True)
+    # An invalid primitive ends the mission as an emergency landing; the first valid one keeps it going.
+    obs, info = env.reset(seed=0, options={"scenario": (0, 0)})
+    bad = int(np.flatnonzero(~info["valid"])[0])
+    assert env.step(bad)[1:3] == (0.0, True) and env.outcome == "L"
+    # A pool of prepared instances: the valid flags in the observation match the info's mask.
+    g = env.graph
+    pool = [((8, 8), make_instance(g, traffic.with_overrides(n_partial=8, n_unknown=8), planner, s)) for s in range(3)]
+    env = SurvivabilityEnv(((8, 8),), mission=small(), traffic=traffic, planner=planner, graph=g, pool=pool)
+    outcomes = set()
+    for seed in range(6):
+        obs, info = env.reset(seed=seed)
+        done = False
+        while not done:
+            assert np.array_equal(obs[12::5] > 0.5, info["valid"])
+            obs, _, term, trunc, info = env.step(int(np.flatnonzero(info["valid"])[-1]))
+            done = term or trunc
+        outcomes.add(info["outcome"])
+    assert outcomes <= {"G", "A", "L"} and outcomes

@@ -26,9 +26,11 @@ info            ``outcome`` (``G``, ``A``, ``L`` or ``None``), ``window``, ``rev
                 ``scenario`` ``(N_p, N_u)``, ``valid`` (the action mask, numpy bool)
 ==============  ===================================================================================================
 
-Each reset draws the scenario uniformly from ``scenarios`` (or ``options={"scenario": (N_p, N_u)}``) and the
-instance from the environment's generator (or ``options={"instance_seed": ...}``, for evaluation on given
-instances).
+With ``pool`` (a list of ``(scenario, Instance)``, prepared once: faster resets for training), each reset picks
+one of them at random. Otherwise each reset draws the scenario uniformly from ``scenarios`` (or
+``options={"scenario": (N_p, N_u)}``) and the instance from the environment's generator as seed ``(1, n)`` (or
+``options={"instance_seed": ...}``, or a prepared :class:`stp_env.survivability.mission.Instance` as
+``options={"instance": ...}``, for evaluation on given instances).
 """
 
 from __future__ import annotations
@@ -61,7 +63,7 @@ class SurvivabilityEnv(gym.Env):
     def __init__(self, scenarios=((100, 100),), *, mission: MissionConfig | None = None,
                  traffic: TrafficConfig | None = None, planner: PlannerConfig | None = None,
                  reward_goal: float = 1.0, reward_alternate: float = 0.5, reward_failure: float = 0.0,
-                 max_steps: int = 200, graph: Graph | None = None):
+                 max_steps: int = 200, graph: Graph | None = None, pool=None):
         scenarios = tuple((int(p), int(u)) for p, u in scenarios)
         if not scenarios or any(p < 0 or u < 0 for p, u in scenarios):
             raise ValueError(f"scenarios must be a non-empty list of (N_p, N_u) >= 0; got {scenarios!r}.")
@@ -74,20 +76,29 @@ class SurvivabilityEnv(gym.Env):
         A = self.graph.net.n_actions
         self.action_space = gym.spaces.Discrete(A)
         self.observation_space = gym.spaces.Box(-1.0, 1.0, (observation_size(A),), np.float32)
-        self._state = None
+        self.pool = None if pool is None else list(pool)
+        if self.pool is not None and not self.pool:
+            raise ValueError("pool must be None or a non-empty list of (scenario, Instance).")
 
     # ---- Gymnasium API -------------------------------------------------------------------------------------------
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
         options = options or {}
         scenario = options.get("scenario")
+        if options.get("instance") is not None:
+            self.instance = options["instance"]
+        elif self.pool is not None and options.get("instance_seed") is None:
+            scenario, self.instance = self.pool[int(self.np_random.integers(len(self.pool)))]
+        else:
+            if scenario is None:
+                scenario = self.scenarios[int(self.np_random.integers(len(self.scenarios)))]
+            instance_seed = options.get("instance_seed")
+            if instance_seed is None:
+                instance_seed = (1, int(self.np_random.integers(2**62)))
+            traffic = self.traffic.with_overrides(n_partial=int(scenario[0]), n_unknown=int(scenario[1]))
+            self.instance = make_instance(self.graph, traffic, self.planner, instance_seed)
         if scenario is None:
-            scenario = self.scenarios[int(self.np_random.integers(len(self.scenarios)))]
-        instance_seed = options.get("instance_seed")
-        if instance_seed is None:
-            instance_seed = (1, int(self.np_random.integers(2**62)))
-        traffic = self.traffic.with_overrides(n_partial=int(scenario[0]), n_unknown=int(scenario[1]))
-        self.instance = make_instance(self.graph, traffic, self.planner, instance_seed)
+            scenario = (self.instance.traffic.n_partial, self.instance.traffic.n - self.instance.traffic.n_partial)
         self.scenario = tuple(scenario)
         self.know = Knowledge(self.graph, self.instance)
         self.g, self.omega, self.steps, self.outcome = self.graph.origin, "goal", 0, None
