@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 
 def _positive_int(text: str) -> int:
@@ -108,6 +109,13 @@ def run(args) -> int:
 
     config = config_from_args(args)
     if not args.report_only:
+        import jax
+
+        # Compiled programs persist next to the results: workers and restarts of a study reuse them.
+        cache = Path(args.out) / "jax-cache"
+        cache.mkdir(parents=True, exist_ok=True)
+        jax.config.update("jax_compilation_cache_dir", str(cache))
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
         run_study(config, args.out, progress=not args.no_progress,
                   max_seconds=None if args.max_hours is None else 3600.0 * args.max_hours, worker=args.worker)
     report = build_report(config, args.out, n_boot=args.bootstrap)

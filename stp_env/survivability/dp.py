@@ -137,12 +137,14 @@ def tables_many(graph: Graph, feasible, robustness, policies, omega: str, start:
         raise ValueError(f"start must be a window in [0, {graph.net.n_windows}]; got {start}.")
     meta, arrays = _consts(graph)
     out = tables_jit(meta, arrays, jnp.asarray(feasible, bool), jnp.asarray(robustness, jnp.float32),
-                     policies, omega, int(start))
+                     jnp.int32(start), policies, omega)
     return dict(zip(policies, out))
 
 
-@functools.partial(jax.jit, static_argnums=(0, 4, 5, 6))
-def tables_jit(meta: _Meta, c, feasible, robustness, policies, omega, start):
+@functools.partial(jax.jit, static_argnums=(0, 5, 6))
+def tables_jit(meta: _Meta, c, feasible, robustness, start, policies, omega):
+    """The sweep; windows before ``start`` (a traced integer: one compiled program for every start) are skipped
+    by ``lax.cond``."""
     K = meta.n_windows
     f_all = _pad(feasible, False)
     p_all = _pad(robustness, 0.0)
@@ -157,23 +159,18 @@ def tables_jit(meta: _Meta, c, feasible, robustness, policies, omega, start):
             return jnp.where(n_all > 0, w / jnp.maximum(n_all, 1.0), 0.0)
         return jnp.zeros_like(n_all)
 
-    tg, ta = c["term_goal"][K], c["term_goal"][K] | c["term_alt"][K]
-    n_goal, n_all = tg.astype(jnp.float32), ta.astype(jnp.float32)
-    w = r = n_all
-    vs = {q: value(q, n_all, w, r) for q in policies}
-    js = {q: jnp.where(tg if omega == "goal" else ta, 0.0, NEG) for q in policies}
-    outs = [(n_goal, n_all, vs, js)]
-    for k in range(K - 1, start - 1, -1):
+    def step(k, carry):
+        n_goal1, n_all1, w1, r1, vs1, js1 = carry
         succ, seg = c["succ"][k], c["seg"][k]
         f, p = f_all[seg], p_all[seg]
 
-        def at(x, fill=0.0, succ=succ):
+        def at(x, fill=0.0):
             return _pad(x, fill)[succ]
 
         tg, ta = c["term_goal"][k], c["term_goal"][k] | c["term_alt"][k]
-        n_goal1, n_all1, w1, r1, vs1, js1 = n_goal, n_all, w, r, vs, js
         n_goal = jnp.where(tg, 1.0, jnp.sum(jnp.where(f, at(n_goal1), 0.0), axis=1))
         n_all = jnp.where(ta, 1.0, jnp.sum(jnp.where(f, at(n_all1), 0.0), axis=1))
+        w = r = jnp.zeros_like(n_all)
         if need_w:
             w = jnp.where(ta, 1.0, jnp.sum(jnp.where(f, p * at(w1), 0.0), axis=1))
         if need_r:
@@ -186,17 +183,27 @@ def tables_jit(meta: _Meta, c, feasible, robustness, policies, omega, start):
             reward = p if q == "R" else 0.0
             cand = jnp.where(f, reward + at(vs1[q]) + at(js1[q], NEG), NEG)
             js[q] = jnp.where(n_om > 0, jnp.where(t_om, 0.0, jnp.max(cand, axis=1)), NEG)
-        outs.append((n_goal, n_all, vs, js))
-    skipped = meta.window_start[start]
+        return n_goal, n_all, w, r, vs, js
+
+    def skip(k):
+        n = meta.window_start[k + 1] - meta.window_start[k]
+        zero, neg = jnp.zeros(n, jnp.float32), jnp.full(n, NEG, jnp.float32)
+        return zero, zero, zero, zero, {q: zero for q in policies}, {q: neg for q in policies}
+
+    tg, ta = c["term_goal"][K], c["term_goal"][K] | c["term_alt"][K]
+    n_goal, n_all = tg.astype(jnp.float32), ta.astype(jnp.float32)
+    carry = (n_goal, n_all, n_all, n_all, {q: value(q, n_all, n_all, n_all) for q in policies},
+             {q: jnp.where(tg if omega == "goal" else ta, 0.0, NEG) for q in policies})
+    outs = [carry]
+    for k in range(K - 1, -1, -1):
+        carry = jax.lax.cond(k >= start, functools.partial(step, k), lambda _, k=k: skip(k), carry)
+        outs.append(carry)
     outs = outs[::-1]
 
-    def cat(parts, fill):
-        return jnp.concatenate([jnp.full((skipped,), fill, jnp.float32), *parts])
+    def cat(i, q=None):
+        return jnp.concatenate([o[i] if q is None else o[i][q] for o in outs])
 
-    n_goal_all = cat([o[0] for o in outs], 0.0)
-    n_all_all = cat([o[1] for o in outs], 0.0)
-    return tuple(Tables(n_goal_all, n_all_all, cat([o[2][q] for o in outs], 0.0), cat([o[3][q] for o in outs], NEG))
-                 for q in policies)
+    return tuple(Tables(cat(0), cat(1), cat(4, q), cat(5, q)) for q in policies)
 
 
 def scores(policy: str, beta: float, tables: Tables, succ, first_robustness):
