@@ -8,44 +8,13 @@ import json
 from pathlib import Path
 
 
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return v
+def _types():
+    """The option types (built on the main CLI's checked-number factory)."""
+    from stp_env.cli import _number, _positive
 
-
-def _count(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return v
-
-
-def _unit(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not 0.0 <= v <= 1.0:
-        raise argparse.ArgumentTypeError(f"must be in [0, 1], got {text}")
-    return v
-
-
-def _hours(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number of hours, got {text!r}") from None
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return v
+    return {"positive_int": _positive(int), "count": _number(int, "an integer", lambda v: v >= 0, ">= 0"),
+            "unit": _number(float, "a number", lambda v: 0.0 <= v <= 1.0, "in [0, 1]"),
+            "hours": _positive(float)}
 
 
 def _worker(text: str) -> tuple[int, int]:
@@ -63,6 +32,8 @@ def add_parser(sub) -> None:
     from stp_env.survivability.config import POLICIES
     from stp_env.survivability.study import LEVELS
 
+    t = _types()
+
     sp = sub.add_parser(
         "survivability", help="mission survivability under partially known and unknown intruders (scenario sweep)",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
@@ -73,21 +44,21 @@ def add_parser(sub) -> None:
                     "(rates with 95 % Clopper-Pearson intervals, the switching thresholds phi and eta with "
                     "bootstrap intervals, the paper's findings next to ours) and the figures OUT/fig7..fig12*.png.")
     sp.add_argument("--out", default="survivability", help="study directory")
-    sp.add_argument("--instances", type=_positive_int, default=2401, help="traffic instances per scenario")
-    sp.add_argument("--partial", type=_count, nargs="+", default=list(LEVELS), help="values of N_p")
-    sp.add_argument("--unknown", type=_count, nargs="+", default=list(LEVELS), help="values of N_u")
+    sp.add_argument("--instances", type=t["positive_int"], default=2401, help="traffic instances per scenario")
+    sp.add_argument("--partial", type=t["count"], nargs="+", default=list(LEVELS), help="values of N_p")
+    sp.add_argument("--unknown", type=t["count"], nargs="+", default=list(LEVELS), help="values of N_u")
     sp.add_argument("--policies", nargs="+", choices=POLICIES, default=list(POLICIES),
                     help="R: pi_R, Nf: pi_Nf, S: pi_S, AvgR: pi_Avg(R)")
-    sp.add_argument("--seed", type=_count, default=0, help="base seed (traffic, Monte Carlo, tie-breaking)")
-    sp.add_argument("--beta", type=_unit, default=0.5, help="discount of the objective's future term (eq. 5)")
-    sp.add_argument("--n-mc", type=_positive_int, default=2500,
+    sp.add_argument("--seed", type=t["count"], default=0, help="base seed (traffic, Monte Carlo, tie-breaking)")
+    sp.add_argument("--beta", type=t["unit"], default=0.5, help="discount of the objective's future term (eq. 5)")
+    sp.add_argument("--n-mc", type=t["positive_int"], default=2500,
                     help="Monte Carlo realisations per segment robustness")
-    sp.add_argument("--max-hours", type=_hours, default=None,
+    sp.add_argument("--max-hours", type=t["hours"], default=None,
                     help="stop after this much wall time (rerun the same command to resume)")
     sp.add_argument("--worker", type=_worker, default=(0, 1), metavar="I/N",
                     help="run every N-th remaining instance starting at the I-th (I = 0 .. N-1), so that N processes "
                          "with the same options share the study")
-    sp.add_argument("--bootstrap", type=_positive_int, default=2000, help="bootstrap resamples for thresholds")
+    sp.add_argument("--bootstrap", type=t["positive_int"], default=2000, help="bootstrap resamples for thresholds")
     sp.add_argument("--report-only", action="store_true", help="only (re)write results and figures from OUT")
     sp.add_argument("--no-figures", action="store_true", help="skip the figures")
     sp.add_argument("--no-progress", action="store_true", help="hide the progress bar")
