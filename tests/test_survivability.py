@@ -260,6 +260,34 @@ def test_dp_values_and_choice_match_brute_force():
         assert first[int(g.succ[gi, a])] == pytest.approx(max(first.values()), rel=1e-5)
 
 
+def test_survivability_from_realisations_matches_brute_force():
+    """R(s) from the realisations' bit sets (one sweep, 64 realisations at once) equals, state by state, the fraction
+    of realisations in which a trajectory from s stays free (reachability computed realisation by realisation);
+    the tree recursion of eq. 3 overestimates it on average (shared segments counted as independent)."""
+    g = build_graph(build_network(small()))
+    rng = np.random.default_rng(0)
+    words = 2
+    bits = rng.integers(0, 2**32, size=(g.n_segments, words), dtype=np.uint64).astype(np.uint32)
+    for _ in range(2):                                       # each realisation blocks a segment w.p. 1/8
+        bits &= rng.integers(0, 2**32, size=(g.n_segments, words), dtype=np.uint64).astype(np.uint32)
+    feasible = np.ones(g.n_segments, bool)
+    p = (1.0 - np.bitwise_count(bits).sum(axis=1) / (32 * words)).astype(np.float32)
+    exact = np.asarray(dp.tables(g, feasible, p, "S", "all", blocked_bits=bits).value)
+    term = g.term_goal | g.term_alt
+    brute = np.zeros(g.n_states)
+    for j in range(32 * words):
+        free = ((bits[:, j // 32] >> np.uint32(j % 32)) & 1) == 0
+        reach = term.copy()
+        for gi in range(g.window_start[-2] - 1, -1, -1):
+            ok = g.succ[gi] >= 0
+            reach[gi] |= bool((free[g.seg[gi][ok]] & reach[g.succ[gi][ok]]).any())
+        brute += reach
+    inner = slice(0, g.window_start[-2])
+    assert np.allclose(exact[inner], brute[inner] / (32 * words))
+    tree = np.asarray(dp.tables(g, feasible, p, "S", "all").value)
+    assert (tree - exact)[inner].mean() > 0.05
+
+
 def _instance(g, occupancy=None, p=None):
     n = 0 if occupancy is None else occupancy.shape[1]
     empty = Traffic(np.zeros((n, 4, 2)), np.zeros((n, 4, 2)), np.zeros(n), np.ones(n), 0)
@@ -295,7 +323,7 @@ def test_mission_with_no_way_out_fails_and_never_flies_into_traffic():
     res = run_mission(g, _instance(g, occ), "S", PlannerConfig())
     assert res.outcome == "L" and res.path == (g.origin,)
     # Dense random traffic: conflicts reveal intruders, and no flown segment crosses an actual path.
-    planner = PlannerConfig(n_mc=64)
+    planner = PlannerConfig(n_mc=64, n_survival=64)
     revealed = 0
     for seed in range(6):
         inst = make_instance(g, TrafficConfig(n_partial=8, n_unknown=8, reach_km=4), planner, seed)
@@ -315,7 +343,7 @@ def test_gym_env_passes_check_env_and_reveals_on_conflict():
 
     from stp_env.survivability.gym_env import SurvivabilityEnv, observation_size
 
-    traffic, planner = TrafficConfig(reach_km=4), PlannerConfig(n_mc=64)
+    traffic, planner = TrafficConfig(reach_km=4), PlannerConfig(n_mc=64, n_survival=64)
     env = SurvivabilityEnv(((4, 4), (8, 8)), mission=small(), traffic=traffic, planner=planner)
     assert env.observation_space.shape == (observation_size(env.action_space.n),) == (12 + 5 * 9,)
     check_env(env, skip_render_check=True)

@@ -302,17 +302,21 @@ class PlannerConfig(_Overrides):
     Attributes:
         beta: discount of the future term of the receding-horizon objective (eq. 5), in ``[0, 1]``.
         n_mc: Monte Carlo traffic realisations for a candidate segment's robustness (Section III-B; paper: 2,500).
-        n_mc_network: realisations for the cell blocking probabilities behind the robustness of every other
-            segment of the network (see :mod:`stp_env.survivability.robustness`).
+        n_survival: how many of the ``n_mc`` realisations give ``pi_S``'s survivability ``R`` (the fraction of
+            them in which some trajectory stays feasible, :mod:`stp_env.survivability.dp`); a multiple of 64, at
+            most ``n_mc``; 0: the tree recursion ``R = 1 - prod (1 - p R')`` instead.
     """
 
     beta: float = 0.5
     n_mc: int = 2500
-    n_mc_network: int = 256
+    n_survival: int = 256
 
     def __post_init__(self) -> None:
         beta = _number("beta", self.beta)
         if not 0.0 <= beta <= 1.0:
             raise ValueError(f"beta must be in [0, 1]; got {beta}.")
         _integer("n_mc", self.n_mc, minimum=1)
-        _integer("n_mc_network", self.n_mc_network, minimum=1)
+        _integer("n_survival", self.n_survival)
+        if self.n_survival % 64 or self.n_survival > self.n_mc:
+            raise ValueError(f"n_survival must be a multiple of 64 and at most n_mc = {self.n_mc}; got "
+                             f"{self.n_survival}.")

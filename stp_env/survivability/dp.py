@@ -118,14 +118,19 @@ def _counts(meta: _Meta, c, feasible, kind):
     return jnp.concatenate(out[::-1])
 
 
-def tables(graph: Graph, feasible, robustness, policy: str, omega: str, start: int = 0) -> Tables:
+def tables(graph: Graph, feasible, robustness, policy: str, omega: str, start: int = 0,
+           blocked_bits=None) -> Tables:
     """The DP tables of ``policy`` (``R``, ``Nf``, ``S`` or ``AvgR``) for terminal set ``omega`` (``goal`` or
     ``all``), given ``feasible`` ``(n_seg,)`` bool and ``robustness`` ``(n_seg,)`` segment robustness ``p``.
-    Windows before ``start`` are not computed (their entries are 0, and ``-inf`` for ``future``)."""
-    return tables_many(graph, feasible, robustness, (policy,), omega, start)[policy]
+    Windows before ``start`` are not computed (their entries are 0, and ``-inf`` for ``future``).
+    ``blocked_bits``: ``(n_seg, W)`` uint32 bit sets of the Monte Carlo realisations blocking each segment; given,
+    ``pi_S``'s survivability ``R`` is the fraction of those ``32 W`` realisations in which some trajectory stays
+    feasible (exact up to Monte Carlo error); ``None``: the tree recursion ``R = 1 - prod_a (1 - F p R')``."""
+    return tables_many(graph, feasible, robustness, (policy,), omega, start, blocked_bits)[policy]
 
 
-def tables_many(graph: Graph, feasible, robustness, policies, omega: str, start: int = 0) -> dict[str, Tables]:
+def tables_many(graph: Graph, feasible, robustness, policies, omega: str, start: int = 0,
+                blocked_bits=None) -> dict[str, Tables]:
     """:func:`tables` of several policies in one sweep (the counts and values they share are computed once)."""
     policies = tuple(policies)
     for policy in policies:
@@ -136,19 +141,25 @@ def tables_many(graph: Graph, feasible, robustness, policies, omega: str, start:
     if not 0 <= start <= graph.net.n_windows:
         raise ValueError(f"start must be a window in [0, {graph.net.n_windows}]; got {start}.")
     meta, arrays = _consts(graph)
+    exact = blocked_bits is not None and "S" in policies
+    bits = jnp.asarray(blocked_bits if exact else np.zeros((1, 1), np.uint32), jnp.uint32)
     out = tables_jit(meta, arrays, jnp.asarray(feasible, bool), jnp.asarray(robustness, jnp.float32),
-                     jnp.int32(start), policies, omega)
+                     jnp.int32(start), bits, policies, omega, exact)
     return dict(zip(policies, out))
 
 
-@functools.partial(jax.jit, static_argnums=(0, 5, 6))
-def tables_jit(meta: _Meta, c, feasible, robustness, start, policies, omega):
+@functools.partial(jax.jit, static_argnums=(0, 6, 7, 8))
+def tables_jit(meta: _Meta, c, feasible, robustness, start, bits, policies, omega, exact):
     """The sweep; windows before ``start`` (a traced integer: one compiled program for every start) are skipped
     by ``lax.cond``."""
     K = meta.n_windows
     f_all = _pad(feasible, False)
     p_all = _pad(robustness, 0.0)
     need_w, need_r = "AvgR" in policies, "S" in policies
+    ones = jnp.uint32(0xFFFFFFFF)
+    n_words = bits.shape[1]
+    # Free realisations of each segment (the padding segment is never free).
+    free_bits = jnp.concatenate([~bits, jnp.zeros((1, n_words), jnp.uint32)]) if exact else None
 
     def value(policy, n_all, w, r):
         if policy == "Nf":
@@ -160,7 +171,7 @@ def tables_jit(meta: _Meta, c, feasible, robustness, start, policies, omega):
         return jnp.zeros_like(n_all)
 
     def step(k, carry):
-        n_goal1, n_all1, w1, r1, vs1, js1 = carry
+        n_goal1, n_all1, w1, r1, vs1, js1, reach1 = carry
         succ, seg = c["succ"][k], c["seg"][k]
         f, p = f_all[seg], p_all[seg]
 
@@ -171,9 +182,18 @@ def tables_jit(meta: _Meta, c, feasible, robustness, start, policies, omega):
         n_goal = jnp.where(tg, 1.0, jnp.sum(jnp.where(f, at(n_goal1), 0.0), axis=1))
         n_all = jnp.where(ta, 1.0, jnp.sum(jnp.where(f, at(n_all1), 0.0), axis=1))
         w = r = jnp.zeros_like(n_all)
+        reach = words(n_all.shape[0])
         if need_w:
             w = jnp.where(ta, 1.0, jnp.sum(jnp.where(f, p * at(w1), 0.0), axis=1))
-        if need_r:
+        if need_r and exact:
+            # Realisations in which some trajectory from the state stays free: OR over the primitives of
+            # (segment free AND continuation free).
+            nxt = jnp.concatenate([reach1, jnp.zeros((1, n_words), jnp.uint32)])[succ]     # (n_k, A, W)
+            both = jnp.where(f[..., None], free_bits[seg] & nxt, jnp.uint32(0))
+            reach = jax.lax.reduce(both, np.uint32(0), jax.lax.bitwise_or, (1,))
+            reach = jnp.where(ta[:, None], ones, reach)
+            r = jnp.sum(jax.lax.population_count(reach), axis=1).astype(jnp.float32) / (32.0 * n_words)
+        elif need_r:
             log_fail = jnp.sum(jnp.where(f, jnp.log(jnp.maximum(1.0 - p * at(r1), 1e-30)), 0.0), axis=1)
             r = jnp.where(ta, 1.0, -jnp.expm1(log_fail))
         n_om, t_om = (n_goal, tg) if omega == "goal" else (n_all, ta)
@@ -183,17 +203,24 @@ def tables_jit(meta: _Meta, c, feasible, robustness, start, policies, omega):
             reward = p if q == "R" else 0.0
             cand = jnp.where(f, reward + at(vs1[q]) + at(js1[q], NEG), NEG)
             js[q] = jnp.where(n_om > 0, jnp.where(t_om, 0.0, jnp.max(cand, axis=1)), NEG)
-        return n_goal, n_all, w, r, vs, js
+        return n_goal, n_all, w, r, vs, js, reach
+
+    def words(n, ta=None):
+        if not exact:
+            return jnp.zeros((n, 1), jnp.uint32)
+        if ta is None:
+            return jnp.zeros((n, n_words), jnp.uint32)
+        return jnp.broadcast_to(jnp.where(ta[:, None], ones, jnp.uint32(0)), (n, n_words))
 
     def skip(k):
         n = meta.window_start[k + 1] - meta.window_start[k]
         zero, neg = jnp.zeros(n, jnp.float32), jnp.full(n, NEG, jnp.float32)
-        return zero, zero, zero, zero, {q: zero for q in policies}, {q: neg for q in policies}
+        return zero, zero, zero, zero, {q: zero for q in policies}, {q: neg for q in policies}, words(n)
 
     tg, ta = c["term_goal"][K], c["term_goal"][K] | c["term_alt"][K]
     n_goal, n_all = tg.astype(jnp.float32), ta.astype(jnp.float32)
     carry = (n_goal, n_all, n_all, n_all, {q: value(q, n_all, n_all, n_all) for q in policies},
-             {q: jnp.where(tg if omega == "goal" else ta, 0.0, NEG) for q in policies})
+             {q: jnp.where(tg if omega == "goal" else ta, 0.0, NEG) for q in policies}, words(len(n_all), ta))
     outs = [carry]
     for k in range(K - 1, -1, -1):
         carry = jax.lax.cond(k >= start, functools.partial(step, k), lambda _, k=k: skip(k), carry)

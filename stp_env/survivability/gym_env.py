@@ -146,7 +146,8 @@ class SurvivabilityEnv(gym.Env):
         self.valid = ok & self.know.feasible[np.where(ok, seg, 0)] & (n_om[s] > 0)
 
     def _compute(self) -> dp.Tables:
-        t = dp.tables(self.graph, self.know.feasible, self.instance.robustness, "S", self.omega)
+        t = dp.tables(self.graph, self.know.feasible, self.instance.robustness, "S", self.omega,
+                      blocked_bits=self.instance.blocked_bits)
         return dp.Tables(*(np.asarray(x) for x in t))
 
     def _end(self, outcome):

@@ -44,6 +44,7 @@ class Instance:
     traffic: Traffic
     robustness: np.ndarray     # (n_seg,) float32
     occupancy: np.ndarray      # (n_cells, N) bool: cells of each intruder's actual path
+    blocked_bits: np.ndarray | None = None   # (n_seg, W) uint32: realisations blocking each segment (pi_S's R)
 
 
 def make_instance(graph: Graph, traffic_config: TrafficConfig, planner: PlannerConfig, seed) -> Instance:
@@ -53,10 +54,12 @@ def make_instance(graph: Graph, traffic_config: TrafficConfig, planner: PlannerC
     traffic_seq, mc_seq = seq.spawn(2)
     mission = graph.net.mission
     traffic = sample_traffic(traffic_seq, mission, traffic_config)
-    p = segment_robustness(np.random.default_rng(mc_seq), graph, traffic, uncertainty_km=traffic_config.uncertainty_km,
-                           n_mc=planner.n_mc, samples_per_min=traffic_config.samples_per_min)
+    out = segment_robustness(np.random.default_rng(mc_seq), graph, traffic,
+                             uncertainty_km=traffic_config.uncertainty_km, n_mc=planner.n_mc,
+                             samples_per_min=traffic_config.samples_per_min, keep=planner.n_survival)
+    p, bits = out if planner.n_survival else (out, None)
     occ = occupancy(traffic, mission, traffic_config.samples_per_min, graph.cell_id, graph.n_cells)
-    return Instance(traffic, p, occ)
+    return Instance(traffic, p, occ, bits)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -134,7 +137,8 @@ def run_mission(graph: Graph, instance: Instance, policy: str, planner: PlannerC
         # Windows before the current one do not matter; on small graphs a full sweep is cheaper than compiling
         # one program per starting window.
         start = graph.window_of(g) if graph.n_states > SWEEP_FROM_CURRENT_ABOVE else 0
-        return _numpy(dp.tables(graph, know.feasible, instance.robustness, policy, omega, start))
+        return _numpy(dp.tables(graph, know.feasible, instance.robustness, policy, omega, start,
+                                instance.blocked_bits))
 
     tables = compute() if initial_tables is None else initial_tables
     while True:
@@ -164,7 +168,8 @@ def _numpy(t: dp.Tables) -> dp.Tables:
 
 def initial_tables(graph: Graph, instance: Instance, policies) -> dict[str, dp.Tables]:
     """Every policy's tables before any conflict (``Omega`` = goal), in one sweep."""
-    out = dp.tables_many(graph, np.ones(graph.n_segments, bool), instance.robustness, tuple(policies), "goal")
+    out = dp.tables_many(graph, np.ones(graph.n_segments, bool), instance.robustness, tuple(policies), "goal",
+                         blocked_bits=instance.blocked_bits)
     return {q: _numpy(t) for q, t in out.items()}
 
 

@@ -79,15 +79,22 @@ def candidate_points(graph: Graph, traffic: Traffic, uncertainty_km: float, samp
 
 
 def segment_robustness(rng: np.random.Generator, graph: Graph, traffic: Traffic, *, uncertainty_km: float,
-                       n_mc: int, samples_per_min: int, include=None) -> np.ndarray:
+                       n_mc: int, samples_per_min: int, include=None, keep: int = 0):
     """``(n_seg,)`` Monte Carlo robustness of every segment of ``graph`` under the partially known intruders of
-    ``traffic`` (``include``: which of them, default all), from ``n_mc`` realisations drawn with ``rng``."""
+    ``traffic`` (``include``: which of them, default all), from ``n_mc`` realisations drawn with ``rng``.
+
+    ``keep > 0`` (a multiple of 64, at most ``n_mc``): also return ``(n_seg, keep / 32)`` uint32, the bit set of
+    the first ``keep`` realisations that block each segment (the same bit of every segment is the same
+    realisation), for the exact survivability of :mod:`stp_env.survivability.dp`."""
+    if keep and (keep % 64 or keep > n_mc):
+        raise ValueError(f"keep must be a multiple of 64 and at most n_mc = {n_mc}; got {keep}.")
     k = traffic.nominal.shape[1] - 1
     if k < 2 or uncertainty_km == 0:
         n_mc = 1        # no uncertainty: the one realisation is the nominal traffic
     pts, weights, who, minute = candidate_points(graph, traffic, uncertainty_km, samples_per_min, include)
     if len(pts) == 0:
-        return np.ones(graph.n_segments, np.float32)
+        p = np.ones(graph.n_segments, np.float32)
+        return (p, np.zeros((graph.n_segments, keep // 32), np.uint32)) if keep else p
     if weights.shape[1] == 0:
         weights = np.zeros((len(pts), 1), np.float32)                           # degree 1: no interior point
     used, who = np.unique(who, return_inverse=True)
@@ -105,25 +112,35 @@ def segment_robustness(rng: np.random.Generator, graph: Graph, traffic: Traffic,
     bits = np.asarray(_cell_bits(_graph_arrays(graph), jnp.asarray(u), jnp.asarray(pts), jnp.asarray(weights),
                                  jnp.asarray(who.astype(np.int32)), jnp.asarray(minute), int(n_mc),
                                  jnp.float32(uncertainty_km), jnp.float32(graph.net.mission.cell_km)))
-    return (1.0 - blocked_counts(graph, bits) / n_mc).astype(np.float32)
+    counts, first = blocked_counts(graph, bits, keep)
+    p = (1.0 - counts / n_mc).astype(np.float32)
+    if not keep:
+        return p
+    if n_mc == 1:         # deterministic traffic: every kept realisation is the nominal one
+        first = np.where(counts[:, None] > 0, np.uint32(0xFFFFFFFF), np.uint32(0)) * np.ones((1, keep // 32), np.uint32)
+    return p, first
 
 
-def blocked_counts(graph: Graph, bits: np.ndarray) -> np.ndarray:
+def blocked_counts(graph: Graph, bits: np.ndarray, keep: int = 0):
     """``(n_seg,)`` number of realisations blocking each segment, from ``bits`` ``(n_cells, n_bytes)`` uint8, bit
-    ``j`` set when realisation ``j`` blocks the cell: the popcount of the OR over the segment's cells."""
+    ``j`` set when realisation ``j`` blocks the cell: the popcount of the OR over the segment's cells; and the
+    OR's first ``keep`` bits per segment as ``(n_seg, keep / 32)`` uint32."""
     seg_all, cell_all = _segment_cell_pairs(graph)
     ever = bits.any(axis=1)
-    keep = ever[cell_all]
-    seg, cell = seg_all[keep], cell_all[keep]
+    hit = ever[cell_all]
+    seg, cell = seg_all[hit], cell_all[hit]
     out = np.zeros(graph.n_segments, np.int64)
+    first = np.zeros((graph.n_segments, keep // 32), np.uint32)
     if seg.size == 0:
-        return out
+        return out, first
     pad = -bits.shape[1] % 8
     words = np.pad(bits, ((0, 0), (0, pad))).view(np.uint64)
     starts = np.flatnonzero(np.r_[True, seg[1:] != seg[:-1]])
     ored = np.bitwise_or.reduceat(words[cell], starts, axis=0)
     out[seg[starts]] = np.bitwise_count(ored).sum(axis=1)
-    return out
+    if keep:
+        first[seg[starts]] = np.ascontiguousarray(ored[:, :keep // 64]).view(np.uint32)
+    return out, first
 
 
 @functools.lru_cache(maxsize=4)
