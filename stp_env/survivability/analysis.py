@@ -104,8 +104,9 @@ def threshold(table, keys, x, a: str = "Nf", b: str = "S", n_boot: int = 2000, s
         c = first_crossing(x, diff[:, idx].mean(axis=1))
         boots.append(np.inf if c is None else c)
     boots = np.array(boots)
-    lo, hi = np.percentile(boots, [2.5, 97.5])
-    return {"value": value, "ci95": [float(lo), None if np.isinf(hi) else float(hi)], "n": n,
+    lo, hi = np.quantile(boots, [0.025, 0.975], method="inverted_cdf")     # no interpolation: inf stays inf
+    return {"value": value, "ci95": [None if np.isinf(lo) else float(lo), None if np.isinf(hi) else float(hi)],
+            "n": n, "at_or_below_grid": bool(value is not None and value == float(x[0])),
             "no_crossing_fraction": float(np.isinf(boots).mean()),
             "differences": [float(v) for v in diff.mean(axis=1)], "x": [float(v) for v in x]}
 

@@ -184,7 +184,7 @@ def figures(config: StudyConfig, out, report: dict | None = None) -> list[Path]:
         ax.set_xlabel("intruders N_total (N_p, N_u)")
         ax.set_ylabel("rate [%]")
         ax.set_title("Mission success (solid) and survival (light) per policy")
-        ax.legend(ncol=4, fontsize=7, loc="lower left")
+        ax.legend(ncol=4, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2))
         ax.grid(axis="y", alpha=0.3)
         fig.text(0.99, 0.01, note, ha="right", fontsize=7)
         paths.append(_save(fig, out / "fig7_success_survival.png"))
@@ -231,11 +231,15 @@ def figures(config: StudyConfig, out, report: dict | None = None) -> list[Path]:
                                config.n_partial[0] - 25, config.n_partial[-1] + 25])
         fig.colorbar(im, ax=ax, label="survival π_Nf − π_S [points]")
         phis = [(int(k), v) for k, v in report["thresholds"]["phi"].items() if v["value"] is not None]
+        edge = config.n_unknown[-1] + 25
         if phis:
+            def ci(v, i):
+                return v["ci95"][i] if v["ci95"][i] is not None else edge
+
             ax.errorbar([v["value"] for _, v in phis], [k for k, _ in phis],
-                        xerr=[[v["value"] - v["ci95"][0] for _, v in phis],
-                              [(v["ci95"][1] if v["ci95"][1] is not None else config.n_unknown[-1] + 25) - v["value"]
-                               for _, v in phis]], fmt="o-", color="red", capsize=3, label="φ(N_p), 95 % bootstrap")
+                        xerr=[[max(v["value"] - ci(v, 0), 0) for _, v in phis],
+                              [max(ci(v, 1) - v["value"], 0) for _, v in phis]],
+                        fmt="o-", color="red", capsize=3, label="φ(N_p), 95 % bootstrap (open: beyond the grid)")
             ax.legend(loc="upper left", fontsize=8)
         ax.set_xlabel("unknown intruders N_u")
         ax.set_ylabel("partially known intruders N_p")
@@ -267,14 +271,17 @@ def figures(config: StudyConfig, out, report: dict | None = None) -> list[Path]:
         fig, ax = plt.subplots(figsize=(6.4, 4.2))
         pts = [(k, v) for k, v in etas if v["value"] is not None]
         if pts:
+            lo = [v["ci95"][0] if v["ci95"][0] is not None else 1.0 for _, v in pts]
+            hi = [v["ci95"][1] if v["ci95"][1] is not None else 1.0 for _, v in pts]
             ax.errorbar([k for k, _ in pts], [100 * v["value"] for _, v in pts],
-                        yerr=[[100 * (v["value"] - v["ci95"][0]) for _, v in pts],
-                              [100 * ((v["ci95"][1] if v["ci95"][1] is not None else 1.0) - v["value"])
-                               for _, v in pts]], fmt="o-", color="red", capsize=3, label="ours, 95 % bootstrap")
+                        yerr=[[100 * max(v["value"] - a, 0) for (_, v), a in zip(pts, lo)],
+                              [100 * max(b - v["value"], 0) for (_, v), b in zip(pts, hi)]],
+                        fmt="o-", color="red", capsize=3, label="ours, 95 % bootstrap")
         none = [k for k, v in etas if v["value"] is None]
         if none:
             ax.plot(none, [100] * len(none), "x", color="gray", label="no crossing on the grid")
-        ax.plot([100, 600], [64, 38], "k--", lw=1, label="paper (64 % to 38 %)")
+        ax.plot([300], [64.4], "k*", ms=10, label="paper: η(300) = 64.4 %")
+        ax.axhline(38, color="k", ls=":", lw=1, label="paper: lowest η, 38 % (most intruders)")
         ax.set_xlabel("intruders N_total")
         ax.set_ylabel("η: unknown share where π_Nf overtakes π_S [%]")
         ax.set_ylim(0, 105)
