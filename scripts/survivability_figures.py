@@ -78,9 +78,14 @@ def network_figure(out: Path) -> dict:
     k_of = np.repeat(np.arange(net.n_windows + 1), np.diff(g.window_start))
     arrivals = {int(k): float(fwd[g.term_goal & (k_of == k)].sum()) for k in range(net.goal_windows[0],
                                                                                   net.goal_windows[1] + 1)}
+    # Every policy with no traffic at all.
+    planner = PlannerConfig()
+    empty = make_instance(g, TrafficConfig(n_partial=0, n_unknown=0), planner, 0)
+    flown = {q: run_mission(g, empty, q, planner) for q in POLICIES}
     origin = {"trajectories to the goal": float(n_goal[g.origin]), "to any site": float(n_all[g.origin]),
               "goal arrivals by cruise window": arrivals, "graph states": g.n_states, "segments": g.n_segments,
-              "tracked cells": g.n_cells}
+              "tracked cells": g.n_cells,
+              "no-traffic missions": {q: f"{r.outcome} after {len(r.path) - 1} windows" for q, r in flown.items()}}
     return origin
 
 
