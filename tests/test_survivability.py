@@ -365,3 +365,24 @@ def test_gym_env_passes_check_env_and_reveals_on_conflict():
             done = term or trunc
         outcomes.add(info["outcome"])
     assert outcomes <= {"G", "A", "L"} and outcomes
+
+
+@pytest.mark.slow
+def test_exported_ppo_policy_matches_sb3(tmp_path):
+    """The exported actor (numpy weights, no pickle) picks the same primitive as SB3's deterministic predict."""
+    pytest.importorskip("stable_baselines3")
+    import torch
+    from stable_baselines3 import PPO
+
+    from stp_env.rl.policy import export_mlp
+    from stp_env.survivability.gym_env import SurvivabilityEnv
+    from stp_env.survivability.learned import load_policy
+
+    env = SurvivabilityEnv(((0, 0),), mission=small(), planner=PlannerConfig(n_mc=64, n_survival=64))
+    model = PPO("MlpPolicy", env, n_steps=64, batch_size=64, seed=0, device="cpu",
+                policy_kwargs={"net_arch": [16, 16], "activation_fn": torch.nn.Tanh})
+    policy = load_policy(str(export_mlp(model, tmp_path / "p.npz")))
+    obs = np.random.default_rng(0).uniform(-1, 1, (50, env.observation_space.shape[0])).astype(np.float32)
+    assert [policy(o) for o in obs] == [int(a) for a in model.predict(obs, deterministic=True)[0]]
+    with pytest.raises(ValueError, match="unknown policy"):
+        load_policy("nonexistent")
