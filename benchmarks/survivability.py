@@ -12,8 +12,8 @@
   shared by the policies; then the missions), at (N_p, N_u) = (50, 50), (175, 175) ~ the grid's mean, (300, 300);
   peer: the same instances with every DP sweep restarted from the first window.
 
-Times exclude compilation (a warm-up pass over the same instances first); ``cpu_s`` is this process's user + system time, ``loadavg`` the
-machine's 1-minute load average before the case (the machine is shared).
+Times exclude compilation (a warm-up pass over the same instances first); ``cpu_s`` is this process's user +
+system time, ``loadavg`` the machine's 1-minute load average before the case (the machine is shared).
 """
 
 from __future__ import annotations
