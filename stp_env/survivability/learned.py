@@ -40,13 +40,24 @@ class DiscretePolicy:
         return int(np.argmax(self.logits(obs)))
 
 
-def load_policy(name_or_path: str = SHIPPED) -> DiscretePolicy:
-    """The shipped policy (``"ppo"``) or an exported ``.npz``."""
+def load_policy(name_or_path: str = SHIPPED, n_actions: int = 25) -> DiscretePolicy:
+    """The shipped policy (``"ppo"``) or an exported ``.npz``, for a mission with ``n_actions`` motion primitives
+    (25 on the paper's network): its action layer must have ``n_actions`` outputs and its input layer the
+    environment's observation size (:func:`stp_env.survivability.gym_env.observation_size`)."""
+    from stp_env.survivability.gym_env import observation_size
+
     path = Path(name_or_path)
     if path.suffix != ".npz":
         if name_or_path != SHIPPED:
             raise ValueError(f"unknown policy {name_or_path!r}; shipped: {SHIPPED!r} (or the path of an .npz).")
         path = Path(str(resources.files("stp_env") / "data" / "survivability" / f"{SHIPPED}.npz"))
+        if not path.exists():
+            raise ValueError(f"no policy is shipped in this installation ({path} is missing); train one with "
+                             "'python scripts/survivability_ppo.py train --ship' or pass the path of an .npz.")
     if not path.exists():
         raise ValueError(f"{path} does not exist.")
-    return DiscretePolicy(load_mlp(path))
+    policy = DiscretePolicy(load_mlp(path, n_outputs=n_actions))
+    if policy.obs_size != observation_size(n_actions):
+        raise ValueError(f"{path}: the policy takes {policy.obs_size} observations; the mission environment with "
+                         f"{n_actions} primitives gives {observation_size(n_actions)}.")
+    return policy
