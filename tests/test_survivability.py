@@ -289,11 +289,15 @@ def test_survivability_from_realisations_matches_brute_force():
     assert (tree - exact)[inner].mean() > 0.05
 
 
-def _instance(g, occupancy=None, p=None):
+def _instance(g, occupancy=None):
+    """Intruders known only through ``occupancy`` (unknown, revealed on conflict): every segment's robustness is 1
+    and none of 64 realisations blocks anything (the realisations' shape is that of ``PlannerConfig(n_survival=64)``,
+    so that these missions share their compiled sweeps with the other tests)."""
     n = 0 if occupancy is None else occupancy.shape[1]
     empty = Traffic(np.zeros((n, 4, 2)), np.zeros((n, 4, 2)), np.zeros(n), np.ones(n), 0)
-    return Instance(empty, np.ones(g.n_segments, np.float32) if p is None else p,
-                    np.zeros((g.n_cells, n), bool) if occupancy is None else occupancy)
+    return Instance(empty, np.ones(g.n_segments, np.float32),
+                    np.zeros((g.n_cells, n), bool) if occupancy is None else occupancy,
+                    blocked_bits=np.zeros((g.n_segments, 2), np.uint32))
 
 
 @pytest.mark.slow
@@ -382,8 +386,10 @@ def test_exported_ppo_policy_matches_sb3(tmp_path):
     env = SurvivabilityEnv(((0, 0),), mission=small(), planner=PlannerConfig(n_mc=64, n_survival=64))
     model = PPO("MlpPolicy", env, n_steps=64, batch_size=64, seed=0, device="cpu",
                 policy_kwargs={"net_arch": [16, 16], "activation_fn": torch.nn.Tanh})
-    policy = load_policy(str(export_mlp(model, tmp_path / "p.npz")))
+    policy = load_policy(str(export_mlp(model, tmp_path / "p.npz")), n_actions=env.action_space.n)
     obs = np.random.default_rng(0).uniform(-1, 1, (50, env.observation_space.shape[0])).astype(np.float32)
     assert [policy(o) for o in obs] == [int(a) for a in model.predict(obs, deterministic=True)[0]]
     with pytest.raises(ValueError, match="unknown policy"):
         load_policy("nonexistent")
+    with pytest.raises(ValueError, match="9 outputs; expected 25"):      # exported for another network
+        load_policy(str(tmp_path / "p.npz"))
