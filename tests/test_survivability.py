@@ -3,7 +3,9 @@ backtracking; segment robustness against an analytic blocking probability; the p
 
 from __future__ import annotations
 
+import csv
 import itertools
+import json
 import math
 
 import numpy as np
@@ -15,6 +17,7 @@ from stp_env.survivability.graph import build_graph, feasible_from_blocked
 from stp_env.survivability.mission import Instance, choose, initial_tables, make_instance, run_mission
 from stp_env.survivability.network import build_network, segment_box_distance
 from stp_env.survivability.robustness import interior_reach, segment_robustness
+from stp_env.survivability.study import FIELDS
 from stp_env.survivability.traffic import Traffic, bernstein, sample_traffic
 
 ONE_CELL = 1000.0 / 300.0       # m/s: one 1 km cell per 5-minute window
@@ -393,3 +396,50 @@ def test_exported_ppo_policy_matches_sb3(tmp_path):
         load_policy("nonexistent")
     with pytest.raises(ValueError, match="9 outputs; expected 25"):      # exported for another network
         load_policy(str(tmp_path / "p.npz"))
+
+
+def _write_missions(path, outcomes):
+    """A study's missions file from ``{(n_p, n_u): {policy: [outcome per instance]}}``."""
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, FIELDS)
+        w.writeheader()
+        for (p, u), per in outcomes.items():
+            for policy, outs in per.items():
+                for i, o in enumerate(outs):
+                    w.writerow({"n_partial": p, "n_unknown": u, "instance": i, "policy": policy, "outcome": o,
+                                "reveals": 0, "omega_switch": -1, "n_dp": 1, "windows": 9, "instance_s": 1.0,
+                                "mission_s": 0.25})
+
+
+def test_report_thresholds_rates_and_cli_on_a_hand_built_study(tmp_path):
+    """Survival of pi_Nf minus pi_S at N_p = 100 is -0.2, -0.1, +0.1 at N_u = 50, 100, 150: phi(100) = 125 (linear
+    interpolation); at N_p = 50 pi_S stays ahead (no crossing). The CLI writes the results and figures from the
+    missions file alone, and refuses bad options with one line."""
+    from _cli import run_cli
+
+    g, a, lost = "G", "A", "L"
+    outcomes = {}
+    for u, (n_nf, n_s) in zip((50, 100, 150), ((8, 10), (9, 10), (10, 9))):
+        outcomes[(100, u)] = {"Nf": [g] * n_nf + [lost] * (10 - n_nf),
+                              "S": [a] * 2 + [g] * (n_s - 2) + [lost] * (10 - n_s)}
+        outcomes[(50, u)] = {"Nf": [g] * 5 + [lost] * 5, "S": [g] * 10}
+    _write_missions(tmp_path / "missions.csv", outcomes)
+    argv = ["survivability", "--out", str(tmp_path), "--report-only", "--partial", "50", "100", "--unknown", "50",
+            "100", "150", "--policies", "Nf", "S", "--bootstrap", "200"]
+    code, _, err = run_cli(argv)
+    assert code == 0, err
+    report = json.loads((tmp_path / "results.json").read_text())
+    phi = report["thresholds"]["phi"]
+    assert phi["100"]["value"] == pytest.approx(125.0) and phi["50"]["value"] is None
+    assert phi["100"]["differences"] == pytest.approx([-0.2, -0.1, 0.1])
+    cell = next(s for s in report["scenarios"] if (s["n_partial"], s["n_unknown"]) == (100, 50))
+    assert cell["S"]["survival"]["rate"] == 1.0 and cell["S"]["success"]["rate"] == 0.8
+    lo, hi = cell["Nf"]["survival"]["ci95"]
+    assert lo < 0.8 < hi and hi < 1.0                             # Clopper-Pearson for 8 of 10
+    assert report["comparisons"]["100,50"]["survival-success[S]"]["diff"] == pytest.approx(0.2)
+    assert report["timing"]["mean_instance_setup_s"] == 1.0 and report["timing"]["mean_mission_s"] == 0.25
+    assert (tmp_path / "results.md").exists() and (tmp_path / "fig9_survival_vs_nu.png").exists()
+    code, _, err = run_cli(["survivability", "--out", str(tmp_path), "--worker", "2/2"])
+    assert code == 2 and "0 <= I < N" in err
+    code, _, err = run_cli(["survivability", "--out", str(tmp_path / "empty"), "--report-only"])
+    assert code == 2 and err.count("\n") == 1 and "no completed missions" in err
