@@ -12,24 +12,13 @@ import math
 
 import numpy as np
 
+from stp_env.sim.config import _finite as _number
+
 POLICIES = ("R", "Nf", "S", "AvgR")
 """The planning policies of the survivability paper, Section IV-B: ``pi_R`` (segment robustness), ``pi_Nf``
 (number of feasible trajectories), ``pi_S`` (survivability) and ``pi_Avg(R)`` (average trajectory robustness)."""
 
 EARTH_RADIUS_KM = 6371.0
-
-
-def _number(name: str, value, *, positive: bool = False, nonneg: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"{name} must be a number; got {value!r}.")
-    value = float(value)
-    if not math.isfinite(value):
-        raise ValueError(f"{name} must be finite; got {value}.")
-    if positive and value <= 0:
-        raise ValueError(f"{name} must be > 0; got {value}.")
-    if nonneg and value < 0:
-        raise ValueError(f"{name} must be >= 0; got {value}.")
-    return value
 
 
 def _integer(name: str, value, *, minimum: int = 0) -> int:
