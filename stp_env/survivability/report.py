@@ -186,7 +186,7 @@ def figures(config: StudyConfig, out, report: dict | None = None) -> list[Path]:
         ax.set_xlabel("intruders N_total (N_p, N_u)")
         ax.set_ylabel("rate [%]")
         ax.set_title("Mission success (solid) and survival (light) per policy")
-        ax.legend(ncol=4, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2))
+        ax.legend(ncol=4, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.3))
         ax.grid(axis="y", alpha=0.3)
         fig.text(0.99, 0.01, note, ha="right", fontsize=7)
         paths.append(_save(fig, out / "fig7_success_survival.png"))
