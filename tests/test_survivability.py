@@ -373,6 +373,9 @@ def test_gym_env_passes_check_env_and_reveals_on_conflict():
             done = term or trunc
         outcomes.add(info["outcome"])
     assert outcomes <= {"G", "A", "L"} and outcomes
+    # A given instance (evaluation on held-out instances) is flown as given, whatever the pool.
+    obs, info = env.reset(seed=0, options={"instance": pool[1][1]})
+    assert env.instance is pool[1][1] and info["scenario"] == (8, 8)
 
 
 @pytest.mark.slow
