@@ -165,6 +165,20 @@ def test_distinct_seeds_give_distinct_keys(a, b):
         assert np.array_equal(jax.random.key_data(prng_key(a)), jax.random.key_data(jax.random.key(a)))
 
 
+@settings(max_examples=25)
+@given(a=st.integers(0, 2**63 - 1), b=st.integers(0, 2**63 - 1))
+def test_rl_env_seeds_are_not_truncated_either(a, b):
+    """The Gymnasium/SB3 envs' raw keys: the same data as :func:`stp_env.seeds.prng_key`, checked the same way."""
+    from stp_env.rl import key_for_seed
+    from stp_env.seeds import prng_key
+
+    assert np.array_equal(key_for_seed(a), jax.random.key_data(prng_key(a)))
+    assert np.array_equal(key_for_seed(a), key_for_seed(b)) == (a == b)
+    for bad in (-1, 2**63, 1.0, True):
+        with pytest.raises(ValueError, match="seed"):
+            key_for_seed(bad)
+
+
 def test_seeds_are_not_truncated(par):
     """``2**32 + 5`` is accepted, so it must be another episode than ``5``."""
     par.reset(seed=5)

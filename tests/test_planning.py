@@ -22,7 +22,8 @@ def test_straight_path_latest_departure_time():
     exact = -(2.0 - r) / PLANNER.v_max
     dx = GRID.spacing[0]
     assert plan.t_ldt == pytest.approx(exact, abs=dx / PLANNER.v_max)
-    assert plan.arrival_time <= 0.0 + 0.05
+    # the rollout is exact, so it arrives when the exact path does, shifted by the value's error, at a sample
+    assert plan.arrival_time <= 0.05 + (plan.t_ldt - exact) + 1e-6
     assert np.all(np.abs(plan.flight()[1][:, 1]) < dx)  # stays on the line
     assert np.all((plan.controls[:, 0] >= 0.5 - 1e-6) & (plan.controls[:, 0] <= 0.6 + 1e-6))
 

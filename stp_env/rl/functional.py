@@ -29,6 +29,7 @@ import jax.numpy as jnp
 
 from stp_env import sim
 from stp_env.baselines import VEHICLE_POLICIES
+from stp_env.seeds import check_seed
 from stp_env.sim import core
 from stp_env.sim.types import COLLIDED, GONE, EnvParams, EnvState, replace
 
@@ -36,9 +37,12 @@ HORIZONS = ("intruder", "episode")
 
 
 def key_for_seed(seed: int):
-    """The env key of an integer seed (a raw ``uint32`` key, so that batches of keys and states can be selected
-    with ``jnp.where``)."""
-    return jax.random.PRNGKey(int(seed) % 2**32)
+    """The env key of an integer seed in ``[0, 2**63 - 1]`` (checked: ``ValueError`` otherwise): a raw ``uint32``
+    key, so that batches of keys and states can be selected with ``jnp.where``. Its data are those of
+    :func:`stp_env.seeds.prng_key` (``(seed >> 32, seed & 0xFFFFFFFF)``; for seeds below ``2**32`` the key
+    ``jax.random.PRNGKey(seed)``), so distinct seeds give distinct keys: nothing is truncated."""
+    value = check_seed(seed)
+    return jnp.asarray([value >> 32, value & 0xFFFFFFFF], jnp.uint32)
 
 
 def check_horizon(horizon: str) -> str:

@@ -78,11 +78,12 @@ class IntruderEnv(gym.Env):
         self.state: sim.EnvState | None = None
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        super().reset(seed=seed)
         if options:
             raise ValueError(f"IntruderEnv.reset takes no options; got {sorted(options)}.")
-        if seed is not None:
-            self._key = F.key_for_seed(seed)
+        key = F.key_for_seed(seed) if seed is not None else None  # checked before anything changes
+        super().reset(seed=seed)
+        if key is not None:
+            self._key = key
         elif self._key is None:
             self._key = F.key_for_seed(int(self.np_random.integers(0, 2**32)))
         self._key, self.state, obs = F.env_reset(self._key, self.params, self.horizon)

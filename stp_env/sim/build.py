@@ -21,6 +21,15 @@ def flying_counts(plan, times: np.ndarray) -> np.ndarray:
     return ((times[:, None] >= dep[None, :]) & (times[:, None] < arr[None, :])).sum(axis=1)
 
 
+PERIOD_DECIMALS = 6
+"""Sample periods are compared to the microsecond: sample times are sums of float32 and float64 offsets (a replanned
+vehicle's times differ from ``k * dt`` in the ninth digit)."""
+
+
+def _period(times) -> float:
+    return round(float(times[1] - times[0]), PERIOD_DECIMALS)
+
+
 def busiest_window(plan, step: float = 0.5) -> tuple[float, float]:
     """The first longest time interval during which the most vehicles of ``plan`` are in the air [s]."""
     dep = min(v.plan.t_ldt for v in plan.vehicles)
@@ -43,7 +52,7 @@ def busiest_window(plan, step: float = 0.5) -> tuple[float, float]:
 
 def _plan_arrays(plan):
     vehicles = plan.vehicles
-    steps = {round(float(np.diff(v.plan.times[:2])[0]), 9) for v in vehicles if len(v.plan.times) > 1}
+    steps = {_period(v.plan.times) for v in vehicles if len(v.plan.times) > 1}
     if len(steps) > 1:
         raise ValueError(f"The plan's vehicles use different sample periods {sorted(steps)}; the simulator needs one.")
     dt = steps.pop() if steps else 1.0
@@ -246,8 +255,8 @@ def plan_mismatch(plan, scenario, tracking_bound: float) -> str | None:
     if plan.tracking_bound < tracking_bound - BOUND_TOLERANCE:
         return (f"it was made with the tracking-error bound r_e = {plan.tracking_bound:.3f} m, smaller than the "
                 f"current {tracking_bound:.3f} m")
-    periods = {round(float(v.plan.times[1] - v.plan.times[0]), 9) for v in plan.vehicles if len(v.plan.times) > 1}
-    if periods and periods != {round(float(scenario.time_step), 9)}:
+    periods = {_period(v.plan.times) for v in plan.vehicles if len(v.plan.times) > 1}
+    if periods and periods != {round(float(scenario.time_step), PERIOD_DECIMALS)}:
         return f"its sample period is {sorted(periods)} s, the scenario's {scenario.time_step} s"
     return None
 
