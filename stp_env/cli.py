@@ -15,6 +15,9 @@ Subcommands:
 * ``render``: one episode (from a seed and an episode index, or a saved event) as an animated GIF.
 * ``falsify``: adversarial search through the simulator against a claimed bound (the tracking-error bound, the
   danger zone under avoidance, k̄), with a replayable counterexample (:mod:`stp_env.falsify`).
+* ``survivability``: the mission-survivability study (partially known and unknown intruders, four planning
+  policies under receding-horizon control): a resumable scenario sweep, results and figures
+  (:mod:`stp_env.survivability`).
 
 * ``train-intruder``: train a learned intruder with Stable-Baselines3 (PPO by default) on the native batched
   VecEnv against vehicles running ``u*`` with the HJ safety filter (:mod:`stp_env.rl.train`; needs the ``rl``
@@ -126,6 +129,9 @@ def _build_parser() -> argparse.ArgumentParser:
     _add_evaluate_parsers(sub)
     add_falsify_parser(sub)
     _add_train_intruder_parser(sub)
+    from stp_env.survivability.cli import add_parser as _add_survivability_parser
+
+    _add_survivability_parser(sub)
     return parser
 
 
@@ -450,6 +456,10 @@ def main(argv=None) -> int:
             return _evaluate(args)
         if args.command == "render":
             return _render(args)
+        if args.command == "survivability":
+            from stp_env.survivability.cli import run as _survivability
+
+            return _survivability(args)
         if args.command == "falsify":
             from stp_env.falsify.cli import run_cli
 

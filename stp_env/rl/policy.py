@@ -87,12 +87,13 @@ def export_mlp(model, path, metadata: dict | None = None) -> Path:
     return path
 
 
-def load_mlp(path) -> MLPIntruder:
+def load_mlp(path, n_outputs: int = 2) -> MLPIntruder:
     """Read an :func:`export_mlp` file (numpy only, ``allow_pickle=False``: reading it never runs code).
 
     Everything is checked before the policy is built: the metadata (a JSON object with this module's format
     version, a known activation and ``n_layers``), every layer's weights ``w{i}`` ``(out, in)`` and bias ``b{i}``
-    ``(out,)`` as real arrays whose shapes chain, an action layer of 2 outputs, and finite values (a NaN weight
+    ``(out,)`` as real arrays whose shapes chain, an action layer of ``n_outputs`` outputs (2 for an intruder's
+    action; other users of the format, e.g. a discrete policy's logits, pass their own), and finite values (a NaN weight
     would give the intruder a NaN action, and a NaN state, in every episode). Any problem is a ``ValueError``
     naming the file and what is wrong."""
     try:
@@ -110,10 +111,10 @@ def load_mlp(path) -> MLPIntruder:
             arrays = {name: data[name] for name in data.files}
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as err:
         raise ValueError(f"{path}: unreadable ({type(err).__name__}: {err}).") from None
-    return _mlp_from_arrays(arrays, path)
+    return _mlp_from_arrays(arrays, path, n_outputs)
 
 
-def _mlp_from_arrays(arrays: dict, path) -> MLPIntruder:
+def _mlp_from_arrays(arrays: dict, path, n_outputs: int = 2) -> MLPIntruder:
     def bad(what):
         return ValueError(f"{path}: not a valid learned-intruder file: {what}.")
 
@@ -151,8 +152,9 @@ def _mlp_from_arrays(arrays: dict, path) -> MLPIntruder:
                       f"{width} outputs")
         width = w.shape[0]
         pairs.append((w.astype(np.float32), b.astype(np.float32)))
-    if width != 2:
-        raise bad(f"the action layer has {width} outputs; an intruder action has 2 (speed, turn rate)")
+    if width != n_outputs:
+        what = "an intruder action has 2 (speed, turn rate)" if n_outputs == 2 else f"expected {n_outputs}"
+        raise bad(f"the action layer has {width} outputs; {what}")
     return MLPIntruder(hidden=tuple(pairs[:-1]), action=pairs[-1], activation=activation, metadata=meta)
 
 

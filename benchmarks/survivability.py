@@ -1,0 +1,151 @@
+"""Survivability study throughput, one JSON line per case, each with a peer measured in the same run.
+
+    python benchmarks/survivability.py [--instances 12] [--segments 300]
+
+* ``counts``: trajectory counts to any landing site with no traffic, on the compact mission graph
+  (:func:`stp_env.survivability.dp.counts`) against the dense network of every cell, heading and speed
+  (:func:`stp_env.survivability.dense.counts`); both give the same count at the origin.
+* ``robustness``: the robustness of every segment from 2,500 Monte Carlo realisations in one jitted program
+  (bit sets per cell, OR per segment) against the direct evaluation of the same realisations, segment by segment,
+  in numpy (timed on ``--segments`` random segments and scaled to all of them); both give the same values.
+* ``instance``: one traffic instance flown by the four policies (set-up: traffic, robustness, the first DP sweep
+  shared by the policies; then the missions), at (N_p, N_u) = (50, 50), (175, 175) ~ the grid's mean, (300, 300);
+  peer: the same instances with every DP sweep restarted from the first window.
+
+Times exclude compilation (a warm-up pass over the same instances first); ``cpu_s`` is this process's user +
+system time, ``loadavg`` the machine's 1-minute load average before the case (the machine is shared).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import time
+
+import numpy as np
+
+
+def cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def timed(fn, repeats=3):
+    fn()
+    best, c0 = np.inf, cpu()
+    for _ in range(repeats):
+        t = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t)
+    return out, best, (cpu() - c0) / repeats
+
+
+def case_counts(graph) -> dict:
+    from stp_env.survivability import dense, dp
+
+    load = os.getloadavg()[0]
+    free = np.ones(graph.n_segments, bool)
+    full = dense.free_feasibility(graph.net)
+    a, t_a, c_a = timed(lambda: np.asarray(dp.counts(graph, free, "all")))
+    b, t_b, c_b = timed(lambda: np.asarray(dense.counts(graph.net, full, "all")))
+    assert np.isclose(a[graph.origin], b[(0, *graph.net.origin_state())], rtol=1e-6)   # float32 sums
+    return {"case": "counts", "graph_s": round(t_a, 4), "dense_s": round(t_b, 4), "ratio": round(t_b / t_a, 1),
+            "cpu_s": [round(c_a, 4), round(c_b, 4)], "graph_states": graph.n_states,
+            "dense_states": int(np.prod(b.shape)), "origin_count": float(a[graph.origin]), "loadavg": load}
+
+
+def case_robustness(graph, n_segments: int) -> dict:
+    import jax.numpy as jnp
+
+    from stp_env.survivability import robustness as R
+    from stp_env.survivability.config import TrafficConfig
+    from stp_env.survivability.traffic import sample_traffic
+
+    load = os.getloadavg()[0]
+    mission = graph.net.mission
+    traffic = sample_traffic(7, mission, TrafficConfig(n_partial=175, n_unknown=175))
+    n_mc, spm, radius = 2500, 6, 5.0
+    p, t_all, c_all = timed(lambda: R.segment_robustness(np.random.default_rng(0), graph, traffic,
+                                                         uncertainty_km=radius, n_mc=n_mc, samples_per_min=spm))
+    # Peer: the same realisations (same generator draws), segment by segment in numpy.
+    pts, weights, who, minute = R.candidate_points(graph, traffic, radius, spm)
+    used, who = np.unique(who, return_inverse=True)
+    n_used = -(-len(used) // 16) * 16
+    n_chunks = -(-n_mc // R.CHUNK)
+    u = np.random.default_rng(0).random((n_chunks, R.CHUNK, n_used, weights.shape[1], 2), dtype=np.float32)
+    u = u.reshape(-1, n_used, weights.shape[1], 2)[:n_mc]
+    del jnp
+    rng = np.random.default_rng(1)
+    segs = rng.choice(graph.n_segments, n_segments, replace=False)
+
+    def peer():
+        r = radius * np.sqrt(u[..., 0])
+        a = 2 * np.pi * u[..., 1]
+        off = np.stack([r * np.cos(a), r * np.sin(a)], -1)[:, who]              # (n_mc, P, k - 1, 2)
+        xy = np.floor(pts[None] + np.einsum("pi,jpid->jpd", weights, off)).astype(np.int64)
+        n = graph.net.n
+        inside = (xy[..., 0] >= 0) & (xy[..., 0] < n) & (xy[..., 1] >= 0) & (xy[..., 1] < n)
+        ids = np.where(inside, graph.cell_id[np.broadcast_to(minute, inside.shape), np.clip(xy[..., 0], 0, n - 1),
+                                             np.clip(xy[..., 1], 0, n - 1)], -1)
+        out = []
+        for s in segs:
+            cells = graph.seg_cells[s][graph.seg_cells[s] >= 0]
+            out.append(1.0 - np.isin(ids, cells).any(axis=1).mean())
+        return np.array(out)
+
+    q, t_peer, c_peer = timed(peer, repeats=1)
+    assert np.allclose(p[segs], q, atol=1e-6), float(np.abs(p[segs] - q).max())
+    scaled = t_peer * graph.n_segments / n_segments
+    return {"case": "robustness", "n_mc": n_mc, "segments": graph.n_segments, "batched_s": round(t_all, 3),
+            "per_segment_numpy_s_scaled": round(scaled, 1), "ratio": round(scaled / t_all, 1),
+            "cpu_s": [round(c_all, 3), round(c_peer * graph.n_segments / n_segments, 1)],
+            "checked_segments": n_segments, "max_abs_diff": float(np.abs(p[segs] - q).max()),
+            "candidate_points": len(pts), "scenario": [175, 175], "loadavg": load}
+
+
+def case_instance(graph, n_instances: int, scenario) -> dict:
+    from stp_env.survivability import mission
+    from stp_env.survivability.study import StudyConfig, run_instance
+
+    load = os.getloadavg()[0]
+    config = StudyConfig()
+    for i in range(n_instances):                                                # warm-up: compile every shape
+        run_instance(graph, config, *scenario, 20_000 + i)
+    out = {}
+    for name, threshold in (("skip", mission.SWEEP_FROM_CURRENT_ABOVE), ("full", 10**12)):
+        mission.SWEEP_FROM_CURRENT_ABOVE = threshold
+        c0, t0 = cpu(), time.perf_counter()
+        rows = [r for i in range(n_instances) for r in run_instance(graph, config, *scenario, 20_000 + i)]
+        out[name] = (time.perf_counter() - t0, cpu() - c0, rows)
+    mission.SWEEP_FROM_CURRENT_ABOVE = 20_000
+    wall, c, rows = out["skip"]
+    setup = float(np.mean([r["instance_s"] for r in rows[::4]]))
+    per_mission = float(np.mean([r["mission_s"] for r in rows]))
+    same = [r["outcome"] for r in rows] == [r["outcome"] for r in out["full"][2]]
+    return {"case": "instance", "scenario": list(scenario), "instances": n_instances,
+            "wall_s_per_instance": round(wall / n_instances, 3), "cpu_s_per_instance": round(c / n_instances, 3),
+            "setup_s": round(setup, 3), "mission_s": round(per_mission, 4),
+            "dp_sweeps_per_mission": round(float(np.mean([r["n_dp"] for r in rows])) - 0.75, 2),
+            "reveals_per_mission": round(float(np.mean([r["reveals"] for r in rows])), 2),
+            "peer_full_sweeps_wall_s_per_instance": round(out["full"][0] / n_instances, 3),
+            "ratio": round(out["full"][0] / wall, 2), "same_outcomes": same, "loadavg": load}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--instances", type=int, default=12)
+    ap.add_argument("--segments", type=int, default=300)
+    args = ap.parse_args()
+    from stp_env.survivability.graph import build_graph
+
+    graph = build_graph()
+    print(json.dumps(case_counts(graph)), flush=True)
+    print(json.dumps(case_robustness(graph, args.segments)), flush=True)
+    for scenario in ((50, 50), (175, 175), (300, 300)):
+        print(json.dumps(case_instance(graph, args.instances, scenario)), flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,251 @@
+"""Feasible-trajectory counts and the policies' trajectory values by dynamic programming over the mission graph.
+
+The survivability paper counts the feasible trajectories of every cell by backtracking from the terminal states
+(Section III-A, Algorithms 1-2): each backward-generated state is one feasible trajectory to a terminal state. On
+the lattice of :mod:`stp_env.survivability.network` two backward paths that reach the same state merge, so the same
+count is a sum over the primitives, one backward sweep for all states at once:
+
+    N_k(s) = 1                                         if s is a terminal state at window k
+    N_k(s) = sum_a F(s, a) N_{k+1}(s'(s, a))           otherwise,
+
+with ``F(s, a) = 1`` when the segment of primitive ``a`` is feasible (no known blocked cell). Terminal states are
+absorbing (a trajectory ends where it lands). :mod:`stp_env.survivability.backtrack` runs the paper's algorithm
+literally (lists of states) as the independent check.
+
+The same sweep gives what the policies of Section IV-B need, with ``p(s, a)`` the robustness of a segment:
+
+* ``W_k(s)``, the sum over the trajectories ``l`` from ``s`` of their robustness ``P_l`` (eq. 1 with
+  ``alpha = 1``): ``W = sum_a F p W'``. The average trajectory robustness of ``pi_Avg(R)`` is ``W / N``.
+* ``R_k(s)``, the survivability of ``s``, the probability that at least one trajectory from ``s`` stays feasible:
+  ``R = 1 - prod_a (1 - F p R')``. This is eq. 3 over the *tree* of trajectories from ``s``, in which a segment
+  shared by many trajectories enters once. Eq. 3 over the list of trajectories multiplies a shared segment's risk
+  once per trajectory (its independence assumption fails for trajectories that share segments) and saturates at 1
+  on this network, where the origin has 10^8 trajectories; in the tree form, branches that merge again later are
+  still treated as independent.
+* ``J_k(s)``, the best future term of the policy's receding-horizon objective (eq. 5) over the trajectories from
+  ``s`` that end in the current terminal set ``Omega``: ``J = max_a [r(s, a) + v_{k+1}(s') + J_{k+1}(s')]``,
+  ``J = 0`` at a terminal state of ``Omega`` and ``-inf`` where ``Omega`` is out of reach, with ``(r, v) = (p, 0)``
+  for ``pi_R``, ``(0, N)`` for ``pi_Nf``, ``(0, R)`` for ``pi_S`` and ``(0, W / N)`` for ``pi_Avg(R)``.
+
+``N``, ``W``, ``R`` and the values ``v`` count trajectories to *any* landing site (the set ``c.L`` of Section
+IV-B); ``Omega`` (the goal only, then the goal and the alternative sites once the goal is out of reach) restricts
+which trajectory the policy may pick (constraint 10). All functions are pure and jittable, on the compact graph of
+:mod:`stp_env.survivability.graph` (a few milliseconds per sweep), and ``vmap`` over instances.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from stp_env.survivability.config import POLICIES
+from stp_env.survivability.graph import Graph
+
+NEG = -jnp.inf
+OMEGAS = ("goal", "all")
+
+
+class Tables(NamedTuple):
+    """DP tables over the graph's states, each ``(S,)`` float32."""
+
+    n_goal: jax.Array     # trajectories to the goal only (alternative sites are not terminal)
+    n_all: jax.Array      # trajectories to any landing site (c.N_f)
+    value: jax.Array      # the policy's state value v: N (pi_Nf), R (pi_S), W / N (pi_Avg(R)), 0 (pi_R)
+    future: jax.Array     # J: best future term over trajectories ending in Omega (-inf: Omega out of reach)
+
+
+class _Meta(NamedTuple):
+    """Static shape information of a graph (hashable: a static argument of the jitted sweeps)."""
+
+    n_windows: int
+    window_start: tuple
+
+
+@functools.lru_cache(maxsize=4)
+def _consts(graph: Graph):
+    """``(meta, arrays)``: the graph's per-window tables as device arrays, passed to the sweeps as arguments (as
+    constants, XLA would spend seconds folding them at every compilation). ``succ[k]``: ``(n_k, A)`` local index
+    of the successor in window ``k + 1`` (sentinel ``n_{k+1}``); ``seg[k]``: segment id (sentinel ``n_seg``)."""
+    ws = graph.window_start
+    K = graph.net.n_windows
+    succ, seg, tg, ta = [], [], [], []
+    for k in range(K + 1):
+        sl = slice(ws[k], ws[k + 1])
+        tg.append(jnp.asarray(graph.term_goal[sl]))
+        ta.append(jnp.asarray(graph.term_alt[sl]))
+        if k < K:
+            s = graph.succ[sl]
+            n_next = ws[k + 2] - ws[k + 1]
+            succ.append(jnp.asarray(np.where(s >= 0, s - ws[k + 1], n_next), jnp.int32))
+            seg.append(jnp.asarray(np.where(s >= 0, graph.seg[sl], graph.n_segments), jnp.int32))
+    arrays = {"succ": tuple(succ), "seg": tuple(seg), "term_goal": tuple(tg), "term_alt": tuple(ta)}
+    return _Meta(K, tuple(int(v) for v in ws)), arrays
+
+
+def _pad(x, fill):
+    return jnp.concatenate([x, jnp.full((1,), fill, x.dtype)])
+
+
+def counts(graph: Graph, feasible, kind: str = "all") -> jax.Array:
+    """``(S,)`` feasible-trajectory counts to the terminal states of ``kind`` (``goal``, ``alt`` or ``all``),
+    given ``feasible`` ``(n_seg,)`` bool."""
+    if kind not in ("goal", "alt", "all"):
+        raise ValueError(f"kind must be 'goal', 'alt' or 'all'; got {kind!r}.")
+    meta, arrays = _consts(graph)
+    return _counts(meta, arrays, jnp.asarray(feasible, bool), kind)
+
+
+@functools.partial(jax.jit, static_argnums=(0, 3))
+def _counts(meta: _Meta, c, feasible, kind):
+    f_all = _pad(feasible, False)
+    K = meta.n_windows
+
+    def term(k):
+        tg, ta = c["term_goal"][k], c["term_alt"][k]
+        return {"goal": tg, "alt": ta, "all": tg | ta}[kind]
+
+    nxt = term(K).astype(jnp.float32)
+    out = [nxt]
+    for k in range(K - 1, -1, -1):
+        f = f_all[c["seg"][k]]
+        cur = jnp.where(term(k), 1.0, jnp.sum(jnp.where(f, _pad(nxt, 0.0)[c["succ"][k]], 0.0), axis=1))
+        out.append(cur)
+        nxt = cur
+    return jnp.concatenate(out[::-1])
+
+
+def tables(graph: Graph, feasible, robustness, policy: str, omega: str, start: int = 0,
+           blocked_bits=None) -> Tables:
+    """The DP tables of ``policy`` (``R``, ``Nf``, ``S`` or ``AvgR``) for terminal set ``omega`` (``goal`` or
+    ``all``), given ``feasible`` ``(n_seg,)`` bool and ``robustness`` ``(n_seg,)`` segment robustness ``p``.
+    Windows before ``start`` are not computed (their entries are 0, and ``-inf`` for ``future``).
+    ``blocked_bits``: ``(n_seg, W)`` uint32 bit sets of the Monte Carlo realisations blocking each segment; given,
+    ``pi_S``'s survivability ``R`` is the fraction of those ``32 W`` realisations in which some trajectory stays
+    feasible (exact up to Monte Carlo error); ``None``: the tree recursion ``R = 1 - prod_a (1 - F p R')``."""
+    return tables_many(graph, feasible, robustness, (policy,), omega, start, blocked_bits)[policy]
+
+
+def tables_many(graph: Graph, feasible, robustness, policies, omega: str, start: int = 0,
+                blocked_bits=None) -> dict[str, Tables]:
+    """:func:`tables` of several policies in one sweep (the counts and values they share are computed once)."""
+    policies = tuple(policies)
+    for policy in policies:
+        if policy not in POLICIES:
+            raise ValueError(f"unknown policy {policy!r}; allowed: {', '.join(POLICIES)}.")
+    if omega not in OMEGAS:
+        raise ValueError(f"omega must be 'goal' or 'all'; got {omega!r}.")
+    if not 0 <= start <= graph.net.n_windows:
+        raise ValueError(f"start must be a window in [0, {graph.net.n_windows}]; got {start}.")
+    meta, arrays = _consts(graph)
+    exact = blocked_bits is not None and "S" in policies
+    bits = jnp.asarray(blocked_bits if exact else np.zeros((1, 1), np.uint32), jnp.uint32)
+    out = tables_jit(meta, arrays, jnp.asarray(feasible, bool), jnp.asarray(robustness, jnp.float32),
+                     jnp.int32(start), bits, policies, omega, exact)
+    return dict(zip(policies, out))
+
+
+@functools.partial(jax.jit, static_argnums=(0, 6, 7, 8))
+def tables_jit(meta: _Meta, c, feasible, robustness, start, bits, policies, omega, exact):
+    """The sweep; windows before ``start`` (a traced integer: one compiled program for every start) are skipped
+    by ``lax.cond``."""
+    K = meta.n_windows
+    f_all = _pad(feasible, False)
+    p_all = _pad(robustness, 0.0)
+    need_w, need_r = "AvgR" in policies, "S" in policies
+    ones = jnp.uint32(0xFFFFFFFF)
+    n_words = bits.shape[1]
+    # Free realisations of each segment (the padding segment is never free).
+    free_bits = jnp.concatenate([~bits, jnp.zeros((1, n_words), jnp.uint32)]) if exact else None
+
+    def value(policy, n_all, w, r):
+        if policy == "Nf":
+            return n_all
+        if policy == "S":
+            return r
+        if policy == "AvgR":
+            return jnp.where(n_all > 0, w / jnp.maximum(n_all, 1.0), 0.0)
+        return jnp.zeros_like(n_all)
+
+    def step(k, carry):
+        n_goal1, n_all1, w1, r1, vs1, js1, reach1 = carry
+        succ, seg = c["succ"][k], c["seg"][k]
+        f, p = f_all[seg], p_all[seg]
+
+        def at(x, fill=0.0):
+            return _pad(x, fill)[succ]
+
+        tg, ta = c["term_goal"][k], c["term_goal"][k] | c["term_alt"][k]
+        n_goal = jnp.where(tg, 1.0, jnp.sum(jnp.where(f, at(n_goal1), 0.0), axis=1))
+        n_all = jnp.where(ta, 1.0, jnp.sum(jnp.where(f, at(n_all1), 0.0), axis=1))
+        w = r = jnp.zeros_like(n_all)
+        reach = words(n_all.shape[0])
+        if need_w:
+            w = jnp.where(ta, 1.0, jnp.sum(jnp.where(f, p * at(w1), 0.0), axis=1))
+        if need_r and exact:
+            # Realisations in which some trajectory from the state stays free: OR over the primitives of
+            # (segment free AND continuation free).
+            nxt = jnp.concatenate([reach1, jnp.zeros((1, n_words), jnp.uint32)])[succ]     # (n_k, A, W)
+            both = jnp.where(f[..., None], free_bits[seg] & nxt, jnp.uint32(0))
+            reach = jax.lax.reduce(both, np.uint32(0), jax.lax.bitwise_or, (1,))
+            reach = jnp.where(ta[:, None], ones, reach)
+            r = jnp.sum(jax.lax.population_count(reach), axis=1).astype(jnp.float32) / (32.0 * n_words)
+        elif need_r:
+            log_fail = jnp.sum(jnp.where(f, jnp.log(jnp.maximum(1.0 - p * at(r1), 1e-30)), 0.0), axis=1)
+            r = jnp.where(ta, 1.0, -jnp.expm1(log_fail))
+        n_om, t_om = (n_goal, tg) if omega == "goal" else (n_all, ta)
+        vs, js = {}, {}
+        for q in policies:
+            vs[q] = value(q, n_all, w, r)
+            reward = p if q == "R" else 0.0
+            cand = jnp.where(f, reward + at(vs1[q]) + at(js1[q], NEG), NEG)
+            js[q] = jnp.where(n_om > 0, jnp.where(t_om, 0.0, jnp.max(cand, axis=1)), NEG)
+        return n_goal, n_all, w, r, vs, js, reach
+
+    def words(n, ta=None):
+        if not exact:
+            return jnp.zeros((n, 1), jnp.uint32)
+        if ta is None:
+            return jnp.zeros((n, n_words), jnp.uint32)
+        return jnp.broadcast_to(jnp.where(ta[:, None], ones, jnp.uint32(0)), (n, n_words))
+
+    def skip(k):
+        n = meta.window_start[k + 1] - meta.window_start[k]
+        zero, neg = jnp.zeros(n, jnp.float32), jnp.full(n, NEG, jnp.float32)
+        return zero, zero, zero, zero, {q: zero for q in policies}, {q: neg for q in policies}, words(n)
+
+    tg, ta = c["term_goal"][K], c["term_goal"][K] | c["term_alt"][K]
+    n_goal, n_all = tg.astype(jnp.float32), ta.astype(jnp.float32)
+    carry = (n_goal, n_all, n_all, n_all, {q: value(q, n_all, n_all, n_all) for q in policies},
+             {q: jnp.where(tg if omega == "goal" else ta, 0.0, NEG) for q in policies}, words(len(n_all), ta))
+    outs = [carry]
+    for k in range(K - 1, -1, -1):
+        carry = jax.lax.cond(k >= start, functools.partial(step, k), lambda _, k=k: skip(k), carry)
+        outs.append(carry)
+    outs = outs[::-1]
+
+    def cat(i, q=None):
+        return jnp.concatenate([o[i] if q is None else o[i][q] for o in outs])
+
+    return tuple(Tables(cat(0), cat(1), cat(4, q), cat(5, q)) for q in policies)
+
+
+def scores(policy: str, beta: float, tables: Tables, succ, first_robustness):
+    """(numpy) The receding-horizon objective (eq. 5) of each primitive, given the successors ``succ`` ``(A,)`` (global
+    state indices; invalid entries are masked by the caller) and the first segments' robustness ``(A,)``:
+
+    * ``pi_R``: ``p(s, a) + beta J(s')`` (``J`` sums the robustness of the later segments),
+    * ``pi_Nf``: ``N(s') + beta J(s')`` (``J`` sums ``N`` over the later waypoints),
+    * ``pi_S``: ``p(s, a) + beta (R(s') + J(s'))``,
+    * ``pi_Avg(R)``: ``p(s, a) + beta (W(s') / N(s') + J(s'))``.
+    """
+    s = np.maximum(succ, 0)
+    fut, val = tables.future[s], tables.value[s]
+    if policy == "R":
+        return first_robustness + beta * fut
+    if policy == "Nf":
+        return val + beta * fut
+    return first_robustness + beta * (val + fut)

@@ -1,0 +1,180 @@
+"""One mission under receding-horizon control (survivability paper, Section IV-A, eqs. 5-12).
+
+At each decision point the ownship knows the partially known intruders' nominal paths and uncertainty (through the
+segment robustness ``p``, :mod:`stp_env.survivability.robustness`) and the actual paths of the intruders revealed so
+far (their cells are blocked for the counts). It
+
+1. recomputes the DP tables (:mod:`stp_env.survivability.dp`) if its knowledge changed;
+2. widens the terminal set ``Omega`` from the goal to the goal and the alternative sites if no known-feasible
+   trajectory reaches the goal any more (the paper's rule after constraint 12); the widening is permanent;
+3. keeps the primitives whose segment is known-feasible and whose successor can still reach ``Omega``; if none is
+   left the mission fails (outcome ``L``, an emergency landing);
+4. picks the primitive with the best objective (:func:`stp_env.survivability.dp.scores`; ties are broken at random);
+5. checks the chosen segment against the actual traffic: if an intruder's actual path blocks one of its cells, the
+   conflict reveals that intruder (its whole actual path becomes known, Section III-B: an unknown intruder is
+   unseen "until the ownship encounters a conflict"; a partially known intruder's actual path is revealed the same
+   way) and the decision is made again with the new knowledge; otherwise the ownship flies the segment.
+
+It lands as soon as it reaches a terminal state of ``Omega``: the goal (outcome ``G``, success) or an alternative
+site (``A``, survival). A mission never flies into a blocked cell, so the outcome is decided by whether some
+known-feasible way to ``Omega`` remains at every decision.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from stp_env.survivability import dp
+from stp_env.survivability.config import POLICIES, MissionConfig, PlannerConfig, TrafficConfig
+from stp_env.survivability.graph import Graph
+from stp_env.survivability.robustness import segment_robustness
+from stp_env.survivability.traffic import Traffic, occupancy, sample_traffic
+
+OUTCOMES = ("G", "A", "L")
+SWEEP_FROM_CURRENT_ABOVE = 20_000   # graph states
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Instance:
+    """One traffic instance and what every policy's mission shares: the segment robustness and the actual paths'
+    cells."""
+
+    traffic: Traffic
+    robustness: np.ndarray     # (n_seg,) float32
+    occupancy: np.ndarray      # (n_cells, N) bool: cells of each intruder's actual path
+    blocked_bits: np.ndarray | None = None   # (n_seg, W) uint32: realisations blocking each segment (pi_S's R)
+
+
+def make_instance(graph: Graph, traffic_config: TrafficConfig, planner: PlannerConfig, seed) -> Instance:
+    """Draw the traffic of ``seed`` (see :func:`stp_env.survivability.traffic.sample_traffic`) and compute its
+    segment robustness with ``planner.n_mc`` realisations."""
+    seq = np.random.SeedSequence(seed)
+    traffic_seq, mc_seq = seq.spawn(2)
+    mission = graph.net.mission
+    traffic = sample_traffic(traffic_seq, mission, traffic_config)
+    out = segment_robustness(np.random.default_rng(mc_seq), graph, traffic,
+                             uncertainty_km=traffic_config.uncertainty_km, n_mc=planner.n_mc,
+                             samples_per_min=traffic_config.samples_per_min, keep=planner.n_survival)
+    p, bits = out if planner.n_survival else (out, None)
+    occ = occupancy(traffic, mission, traffic_config.samples_per_min, graph.cell_id, graph.n_cells)
+    return Instance(traffic, p, occ, bits)
+
+
+@dataclasses.dataclass(frozen=True)
+class MissionResult:
+    outcome: str                  # "G" (goal), "A" (alternative site) or "L" (no way left: emergency landing)
+    path: tuple[int, ...]         # graph state indices flown, from the origin
+    revealed: tuple[int, ...]     # intruders revealed by conflicts, in order
+    omega_switch: int | None      # window at which Omega was widened to the alternative sites (None: never)
+    n_dp: int                     # DP sweeps computed
+
+    @property
+    def success(self) -> bool:
+        return self.outcome == "G"
+
+    @property
+    def survival(self) -> bool:
+        return self.outcome in ("G", "A")
+
+
+class Knowledge:
+    """What the ownship knows of the blocked cells: the actual paths of the revealed intruders."""
+
+    def __init__(self, graph: Graph, instance: Instance):
+        self.graph, self.instance = graph, instance
+        self.blocked = np.zeros(graph.n_cells + 1, bool)      # last entry: the padding cell, never blocked
+        self.revealed: list[int] = []
+        self.feasible = np.ones(graph.n_segments, bool)
+
+    def reveal(self, intruders) -> None:
+        for i in intruders:
+            self.revealed.append(int(i))
+        self.blocked[:-1] |= self.instance.occupancy[:, list(intruders)].any(axis=1)
+        self.feasible = ~self.blocked[self.graph.seg_cells].any(axis=1)
+
+    def conflicts(self, segment: int) -> np.ndarray:
+        """Intruders whose actual path blocks a cell of ``segment``."""
+        cells = self.graph.seg_cells[segment]
+        cells = cells[cells >= 0]
+        return np.nonzero(self.instance.occupancy[cells].any(axis=0))[0]
+
+
+def choose(graph: Graph, g: int, policy: str, beta: float, tables, feasible, robustness, omega: str,
+           rng: np.random.Generator) -> int | None:
+    """The primitive of ``policy`` at state ``g`` (``None``: no known-feasible primitive keeps ``Omega`` in
+    reach). ``tables``: numpy :class:`stp_env.survivability.dp.Tables`."""
+    succ, seg = graph.succ[g], graph.seg[g]
+    ok = succ >= 0
+    s = np.where(ok, succ, 0)
+    n_om = tables.n_goal if omega == "goal" else tables.n_all
+    ok &= feasible[np.where(ok, seg, 0)] & (n_om[s] > 0)
+    if not ok.any():
+        return None
+    p1 = np.where(ok, robustness[np.where(ok, seg, 0)], 0.0)
+    score = np.where(ok, dp.scores(policy, beta, tables, s, p1), -np.inf)
+    best = score.max()
+    ties = np.flatnonzero(ok & (score >= best - 1e-6 * max(1.0, abs(best))))
+    return int(ties[0] if len(ties) == 1 else rng.choice(ties))
+
+
+def run_mission(graph: Graph, instance: Instance, policy: str, planner: PlannerConfig, seed=0,
+                initial_tables: dp.Tables | None = None) -> MissionResult:
+    """Fly one mission of ``policy`` through ``instance``'s traffic (see the module docstring); ``seed`` drives
+    the tie-breaking. ``initial_tables``: the policy's tables with nothing revealed and ``Omega`` = goal (numpy),
+    if already computed (:func:`initial_tables`)."""
+    if policy not in POLICIES:
+        raise ValueError(f"unknown policy {policy!r}; allowed: {', '.join(POLICIES)}.")
+    rng = np.random.default_rng(seed)
+    know = Knowledge(graph, instance)
+    omega, switch, n_dp = "goal", None, 0
+    g, path = graph.origin, [graph.origin]
+
+    def compute():
+        nonlocal n_dp
+        n_dp += 1
+        # Windows before the current one do not matter; on small graphs a full sweep is cheaper than compiling
+        # one program per starting window.
+        start = graph.window_of(g) if graph.n_states > SWEEP_FROM_CURRENT_ABOVE else 0
+        return _numpy(dp.tables(graph, know.feasible, instance.robustness, policy, omega, start,
+                                instance.blocked_bits))
+
+    tables = compute() if initial_tables is None else initial_tables
+    while True:
+        if graph.term_goal[g] or (omega == "all" and graph.term_alt[g]):
+            outcome = "G" if graph.term_goal[g] else "A"
+            break
+        if omega == "goal" and tables.n_goal[g] == 0:
+            omega, switch = "all", graph.window_of(g)
+            tables = compute()
+        a = choose(graph, g, policy, planner.beta, tables, know.feasible, instance.robustness, omega, rng)
+        if a is None:
+            outcome = "L"
+            break
+        hit = know.conflicts(graph.seg[g, a])
+        if hit.size:
+            know.reveal(hit)
+            tables = compute()
+            continue
+        g = int(graph.succ[g, a])
+        path.append(g)
+    return MissionResult(outcome, tuple(path), tuple(know.revealed), switch, n_dp)
+
+
+def _numpy(t: dp.Tables) -> dp.Tables:
+    return dp.Tables(*(np.asarray(x) for x in t))
+
+
+def initial_tables(graph: Graph, instance: Instance, policies) -> dict[str, dp.Tables]:
+    """Every policy's tables before any conflict (``Omega`` = goal), in one sweep."""
+    out = dp.tables_many(graph, np.ones(graph.n_segments, bool), instance.robustness, tuple(policies), "goal",
+                         blocked_bits=instance.blocked_bits)
+    return {q: _numpy(t) for q, t in out.items()}
+
+
+def default_graph(mission: MissionConfig | None = None) -> Graph:
+    from stp_env.survivability.graph import build_graph
+    from stp_env.survivability.network import build_network
+
+    return build_graph(build_network(mission))

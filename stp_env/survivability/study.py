@@ -1,0 +1,211 @@
+"""The traffic-scenario study of the survivability paper (Sections V-VI): every policy flies the mission through the
+same traffic instances of every scenario ``(N_p, N_u)``; outcomes are appended to ``missions.csv`` as they finish,
+so an interrupted study resumes where it stopped (several worker processes may share a study, each with its own
+``missions-{i}of{n}.csv``).
+
+Instances are visited round-robin (instance 0 of every scenario, then instance 1, ...), so a study stopped early
+has the same number of instances in every scenario. Instance ``i`` uses the same random streams in every scenario
+(see :func:`stp_env.survivability.traffic.sample_traffic`): scenario ``(N_p, N_u)`` contains the intruders of
+every smaller scenario's instance ``i``, and all policies fly the same traffic (common random numbers: differences
+between policies and between neighbouring scenarios are estimated with much less noise than the rates).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import os
+import time
+from pathlib import Path
+
+from stp_env.survivability.config import (
+    POLICIES,
+    MissionConfig,
+    PlannerConfig,
+    TrafficConfig,
+    _integer,
+    _Overrides,
+)
+from stp_env.survivability.graph import build_graph
+from stp_env.survivability.mission import initial_tables, make_instance, run_mission
+from stp_env.survivability.network import build_network
+
+LEVELS = (50, 100, 150, 200, 250, 300)
+FIELDS = ("n_partial", "n_unknown", "instance", "policy", "outcome", "reveals", "omega_switch", "n_dp", "windows",
+          "instance_s", "mission_s")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class StudyConfig(_Overrides):
+    """The scenario sweep.
+
+    Attributes:
+        n_partial, n_unknown: the scenario grid (paper: {50, ..., 300} each, 36 scenarios).
+        n_instances: traffic instances per scenario (paper: 2,500; 2,401 bound every 95 % half-width by 2 %).
+        seed: base seed of the traffic, the Monte Carlo realisations and the tie-breaking.
+        policies: which of ``R``, ``Nf``, ``S``, ``AvgR`` fly.
+        mission, traffic, planner: the configurations (``traffic.n_partial``/``n_unknown`` are set per scenario).
+    """
+
+    n_partial: tuple[int, ...] = LEVELS
+    n_unknown: tuple[int, ...] = LEVELS
+    n_instances: int = 2401
+    seed: int = 0
+    policies: tuple[str, ...] = POLICIES
+    mission: MissionConfig = dataclasses.field(default_factory=MissionConfig)
+    traffic: TrafficConfig = dataclasses.field(default_factory=TrafficConfig)
+    planner: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
+
+    def __post_init__(self) -> None:
+        for name in ("n_partial", "n_unknown"):
+            values = tuple(_integer(name, v) for v in getattr(self, name))
+            if not values or len(set(values)) != len(values):
+                raise ValueError(f"{name} must be a non-empty list of distinct integers; got {values!r}.")
+            object.__setattr__(self, name, values)
+        _integer("n_instances", self.n_instances, minimum=1)
+        _integer("seed", self.seed)
+        pols = tuple(self.policies)
+        if not pols or any(p not in POLICIES for p in pols) or len(set(pols)) != len(pols):
+            raise ValueError(f"policies must be distinct names among {', '.join(POLICIES)}; got {pols!r}.")
+        object.__setattr__(self, "policies", pols)
+
+    @property
+    def scenarios(self) -> list[tuple[int, int]]:
+        return [(p, u) for p in self.n_partial for u in self.n_unknown]
+
+    def fingerprint(self) -> dict:
+        """What must match for a study directory to be resumed (everything but ``n_instances``)."""
+        d = dataclasses.asdict(self)
+        d.pop("n_instances")
+        return json.loads(json.dumps(d))
+
+
+def read_study(out) -> list[dict]:
+    """Every mission of the study directory ``out`` (``missions.csv`` and the workers' ``missions-*.csv``)."""
+    out = Path(out)
+    return [r for path in sorted(out.glob("missions*.csv")) for r in read_missions(path)]
+
+
+def read_missions(path: Path) -> list[dict]:
+    """Rows of one missions file (a trailing partial line from an interrupted write is ignored)."""
+    if not path.exists():
+        return []
+    rows = []
+    with open(path, newline="") as f:
+        for row in csv.DictReader(f):
+            if None in row.values() or set(row) != set(FIELDS):
+                continue
+            try:
+                rows.append({**row, **{k: int(row[k]) for k in ("n_partial", "n_unknown", "instance", "reveals",
+                                                                  "omega_switch", "n_dp", "windows")},
+                             "instance_s": float(row["instance_s"]), "mission_s": float(row["mission_s"])})
+            except ValueError:
+                continue
+    return rows
+
+
+def completed(rows, policies) -> set[tuple[int, int, int]]:
+    """(n_partial, n_unknown, instance) with a row for every policy."""
+    seen: dict[tuple[int, int, int], set] = {}
+    for r in rows:
+        seen.setdefault((r["n_partial"], r["n_unknown"], r["instance"]), set()).add(r["policy"])
+    return {key for key, pols in seen.items() if set(policies) <= pols}
+
+
+def run_instance(graph, config: StudyConfig, n_partial: int, n_unknown: int, i: int) -> list[dict]:
+    """Every policy's mission through instance ``i`` of scenario ``(n_partial, n_unknown)``."""
+    t0 = time.perf_counter()
+    traffic = config.traffic.with_overrides(n_partial=n_partial, n_unknown=n_unknown)
+    inst = make_instance(graph, traffic, config.planner, (config.seed, i))
+    first = initial_tables(graph, inst, config.policies)
+    t_inst = time.perf_counter() - t0
+    rows = []
+    for policy in config.policies:
+        t1 = time.perf_counter()
+        res = run_mission(graph, inst, policy, config.planner, seed=(config.seed, i), initial_tables=first[policy])
+        rows.append({"n_partial": n_partial, "n_unknown": n_unknown, "instance": i, "policy": policy,
+                     "outcome": res.outcome, "reveals": len(res.revealed),
+                     "omega_switch": -1 if res.omega_switch is None else res.omega_switch, "n_dp": res.n_dp + 1,
+                     "windows": len(res.path) - 1, "instance_s": round(t_inst, 4),
+                     "mission_s": round(time.perf_counter() - t1, 4)})
+    return rows
+
+
+def run_study(config: StudyConfig, out: str | os.PathLike, *, progress: bool = True, max_seconds=None,
+              worker: tuple[int, int] = (0, 1)) -> Path:
+    """Run (or resume) the study into directory ``out``; returns the path of the missions file written.
+    ``max_seconds``: stop cleanly after this much wall time (the study can be resumed). ``worker = (i, n)``: run
+    every ``n``-th remaining (scenario, instance), starting at the ``i``-th, into ``missions-{i}of{n}.csv`` (``n``
+    processes with ``i = 0 .. n - 1`` share a study; run them with the same options)."""
+    i_worker, n_workers = worker
+    if not (isinstance(n_workers, int) and n_workers >= 1 and isinstance(i_worker, int) and 0 <= i_worker < n_workers):
+        raise ValueError(f"worker must be (i, n) with 0 <= i < n; got {worker!r}.")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    meta_path = out / "study.json"
+    if meta_path.exists():
+        try:
+            old = json.loads(meta_path.read_text())
+        except json.JSONDecodeError:
+            raise ValueError(f"{meta_path} is not valid JSON; remove it or choose another --out.") from None
+        if not _same_config(old.get("fingerprint"), config.fingerprint()):
+            raise ValueError(f"{out} holds a study with a different configuration; choose another --out "
+                             f"(or the same options as {meta_path}).")
+    _atomic_write(meta_path, json.dumps({"fingerprint": config.fingerprint(),
+                                         "n_instances": config.n_instances}, indent=1))
+    path = out / ("missions.csv" if n_workers == 1 else f"missions-{i_worker}of{n_workers}.csv")
+    rows = read_missions(path)
+    done = completed(read_study(out), config.policies)
+    todo = [(p, u, i) for i in range(config.n_instances) for (p, u) in config.scenarios if (p, u, i) not in done]
+    todo = todo[i_worker::n_workers]
+    if not todo:
+        return path
+    graph = build_graph(build_network(config.mission))
+    _repair(path, rows)
+    from tqdm.auto import tqdm
+
+    start = time.perf_counter()
+    with open(path, "a", newline="") as f:
+        writer = csv.DictWriter(f, FIELDS)
+        bar = tqdm(total=len(todo), disable=not progress, unit="instance",
+                   desc="survivability" if n_workers == 1 else f"survivability {i_worker}/{n_workers}",
+                   smoothing=0.05)
+        for p, u, i in todo:
+            if max_seconds is not None and time.perf_counter() - start > max_seconds:
+                break
+            for row in run_instance(graph, config, p, u, i):
+                writer.writerow(row)
+            f.flush()
+            os.fsync(f.fileno())
+            bar.update(1)
+            bar.set_postfix_str(f"instance {i}, (N_p, N_u) = ({p}, {u})", refresh=False)
+        bar.close()
+    return path
+
+
+def _same_config(old, new) -> bool:
+    """Equal fingerprints, up to fields added since ``old`` was written that are unset (``None``) in ``new``."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        extra = set(new) - set(old)
+        return (set(old) <= set(new) and all(new[k] is None for k in extra)
+                and all(_same_config(old[k], new[k]) for k in old))
+    return old == new
+
+
+def _repair(path: Path, rows) -> None:
+    """Rewrite ``missions.csv`` with its valid rows only (drops a torn last line) and the header."""
+    tmp = path.with_suffix(".csv.tmp")
+    with open(tmp, "w", newline="") as f:
+        writer = csv.DictWriter(f, FIELDS)
+        writer.writeheader()
+        writer.writerows(rows)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)

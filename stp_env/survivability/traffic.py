@@ -1,0 +1,145 @@
+"""Intruder traffic: random Bezier curves in (x, y, t) (survivability paper, Section III-B) and their cells.
+
+Each intruder flies a Bezier curve of degree ``k``: its first control point (where it enters) is uniform in the
+operating area and the other ``k`` are uniform in the disk of radius ``reach_km`` around it (the convention of this
+project's random-Bezier intruder, :func:`stp_env.baselines.intruders.bezier_intruder`). Its time is linear in the
+curve parameter (the control points' times are equally spaced), so it flies the
+curve in ``D = L / v`` minutes, ``L`` the curve's length and ``v`` a mean speed uniform in ``speed_range``. Its
+entry time is uniform in ``[-D, T]`` (``T`` = the endurance), so that the traffic is stationary over the mission:
+about ``N D / (T + D)`` intruders are in the air at any minute, and some are already flying at departure.
+
+A **partially known** intruder's nominal curve and uncertainty radius ``r`` are known to the ownship; its actual
+curve has the same end points and times and its interior control points displaced by independent offsets uniform
+in the disk of radius ``r``. A point of a Bezier curve is a convex combination of its control points, so the
+actual path stays within ``r`` of the nominal one at all times (inside the tube ``V(l^B, r)``) and starts and ends
+where the nominal one does, as the paper's uncertainty model requires. An **unknown** intruder's curve is drawn the
+same way and is never shown to the ownship until a conflict reveals it.
+
+A curve blocks the cell it is in at each of ``samples_per_min`` instants per minute (Assumption II.1); the
+separation radius is applied on the ownship's side (:mod:`stp_env.survivability.network`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from stp_env.survivability.config import MissionConfig, TrafficConfig
+
+KM_PER_MIN_PER_MS = 0.06   # 1 m/s = 0.06 km/min
+
+
+class Traffic(NamedTuple):
+    """One traffic instance (numpy). Intruders ``0 .. n_partial - 1`` are partially known, the rest unknown."""
+
+    nominal: np.ndarray    # (N, k + 1, 2) control points [km], what the ownship knows of a partially known one
+    actual: np.ndarray     # (N, k + 1, 2) control points of the path actually flown
+    t_in: np.ndarray       # (N,) entry time [min since departure]
+    duration: np.ndarray   # (N,) [min]
+    n_partial: int
+
+    @property
+    def n(self) -> int:
+        return int(self.t_in.shape[0])
+
+
+def bernstein(degree: int, s) -> np.ndarray:
+    """``(..., degree + 1)`` Bernstein basis at parameters ``s``."""
+    s = np.asarray(s, np.float64)
+    u = 1.0 - s
+    sp, up = [np.ones_like(s)], [np.ones_like(s)]
+    for _ in range(degree):
+        sp.append(sp[-1] * s)
+        up.append(up[-1] * u)
+    return np.stack([math.comb(degree, i) * sp[i] * up[degree - i] for i in range(degree + 1)], -1)
+
+
+def curve_length(ctrl: np.ndarray, n: int = 129) -> np.ndarray:
+    """Polyline length of Bezier curves ``(..., k + 1, 2)`` at ``n`` parameter values."""
+    basis = bernstein(ctrl.shape[-2] - 1, np.linspace(0.0, 1.0, n))        # (n, k + 1)
+    pts = np.einsum("sk,...kd->...sd", basis, ctrl)
+    return np.linalg.norm(np.diff(pts, axis=-2), axis=-1).sum(-1)
+
+
+def disk_offsets(rng: np.random.Generator, shape, radius: float) -> np.ndarray:
+    """``shape + (2,)`` points uniform in the disk of ``radius`` (one draw of ``shape + (2,)`` uniforms, so that
+    a prefix of the first axis does not depend on its length)."""
+    u = rng.uniform(size=(*shape, 2))
+    r = radius * np.sqrt(u[..., 0])
+    a = 2.0 * np.pi * u[..., 1]
+    return np.stack([r * np.cos(a), r * np.sin(a)], -1)
+
+
+def sample_traffic(seed, mission: MissionConfig, config: TrafficConfig) -> Traffic:
+    """A traffic instance of ``config`` in ``mission``'s area, from ``seed`` (an int, a sequence of ints or a
+    ``numpy.random.SeedSequence``).
+
+    Every random quantity of each intruder class has its own stream, so the first ``n`` intruders of a class do not
+    depend on how many are drawn: instance ``i`` of scenario ``(N_p, N_u)`` contains the intruders of instance
+    ``i`` of every smaller scenario (common random numbers across scenarios)."""
+    seq = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    k = config.degree
+    parts = []
+    for cls, (n, child) in enumerate(zip((config.n_partial, config.n_unknown), seq.spawn(2))):
+        entry_rng, ctrl_rng, speed_rng, time_rng, actual_rng = (np.random.default_rng(s) for s in child.spawn(5))
+        entry = entry_rng.uniform(0.0, mission.area_km, size=(n, 1, 2))
+        nominal = np.concatenate([entry, entry + disk_offsets(ctrl_rng, (n, k), config.reach_km)], axis=1)
+        speed = speed_rng.uniform(*config.speed_range, size=n)
+        duration = np.maximum(curve_length(nominal), 1e-6) / (speed * KM_PER_MIN_PER_MS)
+        t_in = -duration + time_rng.uniform(size=n) * (mission.endurance_min + duration)
+        actual = nominal.copy()
+        if cls == 0 and k >= 2:
+            actual[:, 1:k] += disk_offsets(actual_rng, (n, k - 1), config.uncertainty_km)
+        parts.append((nominal, actual, t_in, duration))
+    nominal, actual, t_in, duration = (np.concatenate([a[i] for a in parts]) for i in range(4))
+    return Traffic(nominal, actual, t_in, duration, config.n_partial)
+
+
+def sample_times(mission: MissionConfig, samples_per_min: int) -> tuple[np.ndarray, np.ndarray]:
+    """The rasterisation instants [min] and the time cell of each: ``samples_per_min`` per cell, mid-interval."""
+    n_min = mission.n_minutes
+    q = (np.arange(samples_per_min) + 0.5) / samples_per_min
+    minute = np.repeat(np.arange(n_min), samples_per_min)
+    return (minute + np.tile(q, n_min)) * mission.cell_min, minute
+
+
+def present_samples(t_in, duration, mission: MissionConfig, samples_per_min: int):
+    """The (intruder, instant) pairs at which each curve is flying: intruder index, instant index into
+    :func:`sample_times` and the curve parameter ``s`` in ``[0, 1]``."""
+    times, _ = sample_times(mission, samples_per_min)
+    step = mission.cell_min / samples_per_min
+    first = np.clip(np.ceil((t_in - times[0]) / step - 1e-9), 0, len(times)).astype(np.int64)
+    last = np.clip(np.floor((t_in + duration - times[0]) / step + 1e-9), -1, len(times) - 1).astype(np.int64)
+    count = np.maximum(last - first + 1, 0)
+    who = np.repeat(np.arange(len(t_in)), count)
+    offset = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+    t = first[who] + offset
+    s = np.clip((times[t] - t_in[who]) / duration[who], 0.0, 1.0)
+    return who, t, s
+
+
+def curve_points(ctrl, who, s) -> tuple[np.ndarray, np.ndarray]:
+    """Positions ``(P, 2)`` on curves ``ctrl[who]`` at parameters ``s``, and the basis ``(P, k + 1)``."""
+    basis = bernstein(ctrl.shape[1] - 1, s)
+    pts = np.zeros((len(s), 2))
+    for i in range(ctrl.shape[1]):
+        pts += basis[:, i, None] * ctrl[who, i]
+    return pts, basis
+
+
+def occupancy(traffic: Traffic, mission: MissionConfig, samples_per_min: int, cell_id: np.ndarray,
+              n_cells: int) -> np.ndarray:
+    """``(n_cells, N)`` bool: which intruder's *actual* path occupies each tracked cell (``cell_id``: dense
+    ``(minute, x, y) -> id``, ``-1`` = not tracked)."""
+    who, t, s = present_samples(traffic.t_in, traffic.duration, mission, samples_per_min)
+    pts, _ = curve_points(traffic.actual, who, s)
+    _, minute = sample_times(mission, samples_per_min)
+    c = np.floor(pts / mission.cell_km).astype(np.int64)
+    n = mission.n_cells
+    inside = (c[:, 0] >= 0) & (c[:, 0] < n) & (c[:, 1] >= 0) & (c[:, 1] < n)
+    ids = cell_id[minute[t[inside]], c[inside, 0], c[inside, 1]]
+    occ = np.zeros((n_cells + 1, traffic.n), bool)
+    occ[np.where(ids >= 0, ids, n_cells), who[inside]] = True
+    return occ[:n_cells]

@@ -1,0 +1,448 @@
+"""Mission survivability (stp_env.survivability): counts against closed forms, brute force and the paper's
+backtracking; segment robustness against an analytic blocking probability; the policies' choices; missions."""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import json
+import math
+
+import numpy as np
+import pytest
+
+from stp_env.survivability import backtrack, dense, dp
+from stp_env.survivability.config import POLICIES, SFO, MissionConfig, PlannerConfig, TrafficConfig
+from stp_env.survivability.graph import build_graph, feasible_from_blocked
+from stp_env.survivability.mission import Instance, choose, initial_tables, make_instance, run_mission
+from stp_env.survivability.network import build_network, segment_box_distance
+from stp_env.survivability.robustness import interior_reach, segment_robustness
+from stp_env.survivability.study import FIELDS
+from stp_env.survivability.traffic import Traffic, bernstein, sample_traffic
+
+ONE_CELL = 1000.0 / 300.0       # m/s: one 1 km cell per 5-minute window
+
+
+def corridor(n_windows: int = 6, goal_x: float = 20.5) -> MissionConfig:
+    """One heading (east; a heading change of 360 deg is no change), speeds 0..3 cells per window: a 1-D corridor.
+    The goal lands exactly ``n_windows`` windows after the start of cruise."""
+    t = 10.0 + 5.0 * n_windows
+    return MissionConfig(area_km=30, dh_max=360, dv_max=ONE_CELL, v_max=3 * ONE_CELL, n_increments=3,
+                         rta_min=(t, t), endurance_min=t, departure_heading=0, goal_headings=(0,),
+                         alternate_headings=(0,), alternates=(), positions_km=((0.5, 10.5), (goal_x, 10.5)))
+
+
+def small(**kw) -> MissionConfig:
+    """A 12 x 12 km mission with 8 headings and speeds 0..2 cells per window, one alternative site 2 km from the
+    goal, two windows of endurance after the RTA."""
+    base = dict(area_km=12, dh_max=45, n_increments=3, dv_max=ONE_CELL, v_max=2 * ONE_CELL, rta_min=(25, 35),
+                endurance_min=50, departure_heading=0, goal_headings=(0, 45), alternate_headings=(0, 90, 180, 270),
+                alternates=(SFO,), positions_km=((1.5, 1.5), (6.5, 4.5), (7.5, 6.5)))
+    return MissionConfig(**{**base, **kw})
+
+
+MOTZKIN = [1, 1, 2, 4, 9, 21, 51, 127]
+
+
+def test_config_validation():
+    with pytest.raises(ValueError, match="beta"):
+        PlannerConfig(beta=1.5)
+    with pytest.raises(ValueError, match="n_increments"):
+        MissionConfig(n_increments=4)
+    with pytest.raises(ValueError, match="unknown MissionConfig"):
+        MissionConfig().with_overrides(speed=3)
+    with pytest.raises(ValueError, match="positions_km"):
+        MissionConfig(positions_km=((1, 1),))
+    with pytest.raises(ValueError, match="outside"):
+        MissionConfig(area_km=10).site_positions_km()
+
+
+def test_paper_network_and_zero_traffic_feasibility():
+    net = build_network()
+    assert (net.n, net.n_headings, net.n_speeds, net.n_actions, net.n_windows) == (85, 24, 9, 25, 10)
+    assert net.goal_windows == (6, 9)
+    # 40 m/s for a 5-minute window is 12 km.
+    assert sorted(np.abs(net.moves).max(axis=1))[-1] == 12
+    # UCSF is 55.7 km from Santa Clara; with speed 0 at both ends of cruise, 9 windows reach at most 60 km.
+    (ox, oy), (gx, gy) = net.site_km[net.mission.origin.name], net.site_km[net.mission.goal.name]
+    assert 55 < math.hypot(gx - ox, gy - oy) < 60
+
+
+def test_corridor_counts_motzkin_and_by_area():
+    """In the 1-D corridor a trajectory of n windows is a speed path 0 -> 0 with steps in {-1, 0, 1} (speeds 0..3
+    cells per window). From a start L cells before the goal, the trajectories are the paths of area L (enumerated
+    here); summed over all starts, their number is the Motzkin number M_n."""
+    n = 6
+    net = build_network(corridor(n))
+    assert net.n_headings == 1 and net.n_actions == 3
+    counts = np.asarray(dense.counts(net, dense.free_feasibility(net), "goal"))
+    (gx, y) = net.goal
+    assert counts[0, :, y, 0, 0].sum() == MOTZKIN[n]
+    by_area = {}
+    for steps in itertools.product((-1, 0, 1), repeat=n):
+        v = np.cumsum(steps)
+        if v[-1] == 0 and v.min() >= 0 and v.max() <= 3:
+            by_area[int(v.sum())] = by_area.get(int(v.sum()), 0) + 1
+    assert sum(by_area.values()) == MOTZKIN[n]
+    for area in range(gx + 1):
+        assert counts[0, gx - area, y, 0, 0] == by_area.get(area, 0)
+    # The compact graph from the origin (20 cells before the goal: too far for 6 windows).
+    g = build_graph(build_network(corridor(n, goal_x=6.5)))
+    assert float(dp.counts(g, np.ones(g.n_segments, bool), "goal")[g.origin]) == by_area[6]
+
+
+def test_dp_matches_literal_backtracking_with_blocked_cells():
+    net = build_network(small())
+    rng = np.random.default_rng(3)
+    blocked = rng.random((net.mission.n_minutes, net.n, net.n)) < 0.05
+    blocked_set = {(int(x), int(y), int(t)) for t, x, y in zip(*np.nonzero(blocked))}
+    states, cells = backtrack.backtrack_counts(net, blocked_set, kind="all")
+    full = np.asarray(dense.counts(net, dense.feasibility_from_blocked(net, blocked), "all"))
+    assert states and all(full[k, x, y, h, v] == c for (k, x, y, h, v), c in states.items())
+    # Every state with trajectories that inequality 4 keeps was generated by the backtracking.
+    reach = net.mission.v_max * 0.3
+    kept = [(k, x, y, h, v) for k, x, y, h, v in zip(*np.nonzero(full))
+            if math.hypot(x - net.origin[0], y - net.origin[1]) <= reach * k + 1e-9]
+    assert all((k, x, y, h, v) in states for k, x, y, h, v in kept)
+    assert sum(cells.values()) == sum(states.values())
+    # The compact graph, from the origin.
+    g = build_graph(net)
+    compact = np.asarray(dp.counts(g, feasible_from_blocked(g, blocked), "all"))
+    for gi in range(0, g.n_states, 7):
+        k = g.window_of(gi)
+        assert compact[gi] == full[(k, *g.states[gi])]
+    assert compact[g.origin] == states[(0, *net.origin_state())] > 0
+
+
+def test_segment_cells_and_separation():
+    net = build_network()
+    # A hover occupies its own cell for the 5 minutes of the window, nothing else without separation.
+    hover = int(np.flatnonzero((net.moves == 0).all(axis=1))[0])
+    cells = net.segment_cells(10, 20, 0, hover)
+    assert sorted(map(tuple, cells)) == [(10, 20, 5 + j) for j in range(5)]
+    assert segment_box_distance([0.5, 0.5], [3.5, 0.5], np.array([[1.0, 1.0], [5.0, 0.0]])).tolist() == [0.5, 1.5]
+    # With separation: the 4 side neighbours are 0.5 km from the centre, the diagonal ones 0.71 km.
+    assert len(build_network(MissionConfig(separation_km=0.6)).segment_cells(10, 20, 0, hover)) == 5 * 5
+    assert len(build_network(MissionConfig(separation_km=0.75)).segment_cells(10, 20, 0, hover)) == 5 * 9
+
+
+def _hit_probability_radial(c, square_lo, r, n=400_001):
+    """P that the segment from c to c + d/2, d uniform in the disk of radius r, meets the unit square at
+    square_lo: the ray of angle theta enters the square at distance e(theta); it gets there when |d| / 2 >= e."""
+    theta = np.linspace(0.0, 2 * np.pi, n)[:-1]
+    d = np.stack([np.cos(theta), np.sin(theta)], 1)
+    lo, hi = np.asarray(square_lo, float) - c, np.asarray(square_lo, float) + 1.0 - c
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = lo / d, hi / d
+    t_enter = np.nanmax(np.minimum(t1, t2), axis=1)
+    t_exit = np.nanmin(np.maximum(t1, t2), axis=1)
+    hit = (t_exit >= np.maximum(t_enter, 0.0))
+    e = np.maximum(t_enter, 0.0)
+    return float(np.mean(np.where(hit, np.clip(1.0 - (2.0 * e / r) ** 2, 0.0, 1.0), 0.0)))
+
+
+def test_segment_robustness_against_analytic_blocking_probability():
+    """A partially known intruder hovering at c (degree-2 curve, all control points at c) actually flies out and
+    back along c + 2 s (1 - s) d, d uniform in the disk of radius r: it blocks a hovering ownship's cell with a
+    probability given by one integral over the direction of d."""
+    net = build_network(small())
+    g = build_graph(net)
+    hover = int(np.flatnonzero((net.moves == 0).all(axis=1))[0])
+    k, x, y, _ = g.segments[np.flatnonzero(g.segments[:, 3] == hover)[-1]]
+    t0 = net.window_start_minute(int(k))
+    c = np.array([x + 0.5 + 1.3, y + 0.5 + 0.4])
+    r = 4.0
+    one = Traffic(nominal=np.repeat(c[None, None], 3, 1), actual=np.repeat(c[None, None], 3, 1),
+                  t_in=np.array([t0 + 0.2]), duration=np.array([4.5]), n_partial=1)
+    seg_id = int(np.flatnonzero((g.segments == [k, x, y, hover]).all(axis=1))[0])
+    n_mc = 2500
+    p = segment_robustness(np.random.default_rng(0), g, one, uncertainty_km=r, n_mc=n_mc, samples_per_min=60)
+    p_true = 1.0 - _hit_probability_radial(c, (x, y), r)
+    assert 0.85 < p_true < 0.97                        # a non-trivial probability
+    se = math.sqrt(p_true * (1 - p_true) / n_mc)
+    assert abs(p[seg_id] - p_true) < 4 * se + 0.005
+    # Two independent copies of the intruder: robustness multiplies.
+    two = Traffic(*(np.concatenate([a, a]) for a in one[:4]), n_partial=2)
+    p2 = segment_robustness(np.random.default_rng(1), g, two, uncertainty_km=r, n_mc=n_mc, samples_per_min=60)
+    assert abs(p2[seg_id] - p_true**2) < 4 * math.sqrt(p_true**2 * (1 - p_true**2) / n_mc) + 0.005
+    # Segments of other windows never meet the intruder (it flies within window k only).
+    assert p[g.segments[:, 0] != k].min() == 1.0 and p[g.segments[:, 0] == k].min() < 1.0
+
+
+def test_bezier_tube_and_traffic_prefixes():
+    assert interior_reach(1) == 0 and abs(interior_reach(2) - 0.5) < 1e-6 and abs(interior_reach(3) - 0.75) < 1e-6
+    assert np.allclose(bernstein(3, np.linspace(0, 1, 7)).sum(-1), 1.0)
+    mission = MissionConfig()
+    big = sample_traffic(5, mission, TrafficConfig(n_partial=30, n_unknown=20))
+    few = sample_traffic(5, mission, TrafficConfig(n_partial=10, n_unknown=5))
+    assert np.array_equal(big.nominal[:10], few.nominal[:10])
+    assert np.array_equal(big.nominal[30:35], few.nominal[10:15])
+    assert np.array_equal(big.t_in[:10], few.t_in[:10])
+    # Actual paths stay in the tube and keep their end points; unknown intruders fly their nominal path.
+    dev = np.linalg.norm(big.actual - big.nominal, axis=-1)
+    assert dev[:30, 1:-1].max() <= 5.0 and dev[:30, [0, -1]].max() == 0 and dev[30:].max() == 0
+
+
+def _tables(policy="S", **kw):
+    n = 3
+    base = dict(n_goal=np.ones(n), n_all=np.array([100.0, 10.0, 1.0]), value=np.zeros(n), future=np.zeros(n))
+    base.update(kw)
+    return dp.Tables(**{k: np.asarray(v, float) for k, v in base.items()})
+
+
+def test_policy_scores_on_a_hand_built_case():
+    """Three successors: many trajectories but a risky first segment, fewer and safer, one and safest."""
+    succ = np.array([0, 1, 2])
+    p1 = np.array([0.2, 0.9, 1.0])
+    nf = _tables(value=[100.0, 10.0, 1.0], future=[50.0, 40.0, 0.0])
+    assert np.argmax(dp.scores("Nf", 0.5, nf, succ, p1)) == 0           # most trajectories
+    r = _tables(future=[3.0, 2.9, 2.0])                                # sum of later robustness
+    assert np.argmax(dp.scores("R", 0.5, r, succ, p1)) == 1            # 0.9 + 1.45 > 0.2 + 1.5, 1.0 + 1.0
+    s = _tables(value=[0.99, 0.6, 0.3], future=[5.0, 3.0, 1.0])        # survivability R and its future sum
+    assert np.argmax(dp.scores("S", 0.5, s, succ, p1)) == 0
+    assert np.argmax(dp.scores("S", 0.01, s, succ, p1)) == 2           # small beta: the first segment decides
+
+
+def _enumerate(g, gi, feasible, terminal, limit=10_000):
+    """All trajectories (lists of (state, segment)) from graph state gi to a state of ``terminal`` (brute force)."""
+    out = []
+
+    def rec(s, path):
+        if terminal[s]:
+            out.append(path)
+            return
+        for a in range(g.succ.shape[1]):
+            nxt, seg = g.succ[s, a], g.seg[s, a]
+            if nxt >= 0 and feasible[seg]:
+                rec(int(nxt), [*path, (int(nxt), int(seg))])
+        if len(out) > limit:
+            raise RuntimeError("too many trajectories")
+
+    rec(gi, [])
+    return out
+
+
+@pytest.mark.slow
+def test_dp_values_and_choice_match_brute_force():
+    """At states a few windows from the end: N, W / N and the policies' choices by enumerating every trajectory;
+    each policy picks the argmax of eq. 5 evaluated on the enumerated trajectories."""
+    net = build_network(small())
+    g = build_graph(net)
+    rng = np.random.default_rng(7)
+    feasible = rng.random(g.n_segments) < 0.9
+    p = rng.uniform(0.3, 1.0, g.n_segments).astype(np.float32)
+    many = dp.tables_many(g, feasible, p, POLICIES, "all")
+    term = g.term_goal | g.term_alt
+    n_all = np.asarray(many["S"].n_all)
+    starts = [gi for gi in range(g.window_start[3], g.window_start[4]) if n_all[gi] > 1 and not term[gi]][:4]
+    assert starts
+    beta = 0.5
+    for policy, gi in itertools.product(POLICIES, starts):
+        t = dp.Tables(*(np.asarray(a, np.float64) for a in many[policy]))
+        paths = _enumerate(g, gi, feasible, term)
+        assert len(paths) == t.n_all[gi]
+        if policy == "AvgR":      # the average robustness of the trajectories (eq. 1)
+            w = sum(np.prod([float(p[s]) for _, s in path]) for path in paths)
+            assert t.value[gi] == pytest.approx(w / len(paths), rel=1e-4)
+        if policy == "Nf":
+            assert t.value[gi] == len(paths)
+
+        def later(path, policy=policy, t=t):      # eq. 5's future term along a trajectory, from its second state on
+            if policy == "R":
+                return sum(float(p[s]) for _, s in path[1:])
+            return sum(float(t.value[st]) for st, _ in path[1:])
+
+        first = {}
+        for path in paths:
+            (s1, seg1) = path[0]
+            head = float(p[seg1]) if policy != "Nf" else 0.0
+            v1 = float(t.value[s1]) if policy != "R" else 0.0
+            score = head + beta * (later(path) + v1) if policy != "Nf" else v1 + beta * later(path)
+            first[s1] = max(first.get(s1, -np.inf), score)
+        a = choose(g, gi, policy, beta, t, feasible, p, "all", np.random.default_rng(0))
+        assert first[int(g.succ[gi, a])] == pytest.approx(max(first.values()), rel=1e-5)
+
+
+def test_survivability_from_realisations_matches_brute_force():
+    """R(s) from the realisations' bit sets (one sweep, 64 realisations at once) equals, state by state, the fraction
+    of realisations in which a trajectory from s stays free (reachability computed realisation by realisation);
+    the tree recursion of eq. 3 overestimates it on average (shared segments counted as independent)."""
+    g = build_graph(build_network(small()))
+    rng = np.random.default_rng(0)
+    words = 2
+    bits = rng.integers(0, 2**32, size=(g.n_segments, words), dtype=np.uint64).astype(np.uint32)
+    for _ in range(2):                                       # each realisation blocks a segment w.p. 1/8
+        bits &= rng.integers(0, 2**32, size=(g.n_segments, words), dtype=np.uint64).astype(np.uint32)
+    feasible = np.ones(g.n_segments, bool)
+    p = (1.0 - np.bitwise_count(bits).sum(axis=1) / (32 * words)).astype(np.float32)
+    exact = np.asarray(dp.tables(g, feasible, p, "S", "all", blocked_bits=bits).value)
+    term = g.term_goal | g.term_alt
+    brute = np.zeros(g.n_states)
+    for j in range(32 * words):
+        free = ((bits[:, j // 32] >> np.uint32(j % 32)) & 1) == 0
+        reach = term.copy()
+        for gi in range(g.window_start[-2] - 1, -1, -1):
+            ok = g.succ[gi] >= 0
+            reach[gi] |= bool((free[g.seg[gi][ok]] & reach[g.succ[gi][ok]]).any())
+        brute += reach
+    inner = slice(0, g.window_start[-2])
+    assert np.allclose(exact[inner], brute[inner] / (32 * words))
+    # (All four policies in one sweep: the same compiled program as the brute-force test of the policies' values.)
+    tree = np.asarray(dp.tables_many(g, feasible, p, POLICIES, "all")["S"].value)
+    assert (tree - exact)[inner].mean() > 0.05
+
+
+def _instance(g, occupancy=None):
+    """Intruders known only through ``occupancy`` (unknown, revealed on conflict): every segment's robustness is 1
+    and none of 64 realisations blocks anything (the realisations' shape is that of ``PlannerConfig(n_survival=64)``,
+    so that these missions share their compiled sweeps with the other tests)."""
+    n = 0 if occupancy is None else occupancy.shape[1]
+    empty = Traffic(np.zeros((n, 4, 2)), np.zeros((n, 4, 2)), np.zeros(n), np.ones(n), 0)
+    return Instance(empty, np.ones(g.n_segments, np.float32),
+                    np.zeros((g.n_cells, n), bool) if occupancy is None else occupancy,
+                    blocked_bits=np.zeros((g.n_segments, 2), np.uint32))
+
+
+@pytest.mark.slow
+def test_missions_without_traffic_reach_the_goal():
+    g = build_graph(build_network(small()))
+    inst = _instance(g)
+    first = initial_tables(g, inst, POLICIES)
+    for policy in POLICIES:
+        res = run_mission(g, inst, policy, PlannerConfig(), initial_tables=first[policy])
+        assert res.outcome == "G" and res.revealed == () and res.omega_switch is None and res.n_dp == 0
+        assert g.term_goal[res.path[-1]]
+
+
+@pytest.mark.slow
+def test_unknown_intruder_on_the_goal_sends_the_mission_to_the_alternative_site():
+    g = build_graph(build_network(small()))
+    goal = np.flatnonzero((g.cells[:, 0] == g.net.goal[0]) & (g.cells[:, 1] == g.net.goal[1]))
+    occ = np.zeros((g.n_cells, 1), bool)
+    occ[goal, 0] = True
+    res = run_mission(g, _instance(g, occ), "S", PlannerConfig())
+    assert res.outcome == "A" and res.revealed == (0,) and res.omega_switch is not None
+    assert g.term_alt[res.path[-1]]
+
+
+def test_mission_with_no_way_out_fails_and_never_flies_into_traffic():
+    g = build_graph(build_network(small()))
+    occ = np.ones((g.n_cells, 1), bool)                               # every cell of every minute
+    res = run_mission(g, _instance(g, occ), "S", PlannerConfig())
+    assert res.outcome == "L" and res.path == (g.origin,)
+    # Dense random traffic: conflicts reveal intruders, and no flown segment crosses an actual path.
+    planner = PlannerConfig(n_mc=64, n_survival=64)
+    revealed = 0
+    for seed in range(6):
+        inst = make_instance(g, TrafficConfig(n_partial=8, n_unknown=8, reach_km=4), planner, seed)
+        for policy in ("S",):
+            res = run_mission(g, inst, policy, planner, seed=seed)
+            revealed += len(res.revealed)
+            for a, b in itertools.pairwise(res.path):
+                seg = g.seg[a][np.flatnonzero(g.succ[a] == b)[0]]
+                cells = g.seg_cells[seg][g.seg_cells[seg] >= 0]
+                assert not inst.occupancy[cells].any()
+    assert revealed > 0
+
+
+@pytest.mark.slow
+def test_gym_env_passes_check_env_and_reveals_on_conflict():
+    from gymnasium.utils.env_checker import check_env
+
+    from stp_env.survivability.gym_env import SurvivabilityEnv, observation_size
+
+    traffic, planner = TrafficConfig(reach_km=4), PlannerConfig(n_mc=64, n_survival=64)
+    env = SurvivabilityEnv(((4, 4), (8, 8)), mission=small(), traffic=traffic, planner=planner)
+    assert env.observation_space.shape == (observation_size(env.action_space.n),) == (12 + 5 * 9,)
+    check_env(env, skip_render_check=True)
+    # An invalid primitive ends the mission as an emergency landing; the first valid one keeps it going.
+    obs, info = env.reset(seed=0, options={"scenario": (0, 0)})
+    bad = int(np.flatnonzero(~info["valid"])[0])
+    assert env.step(bad)[1:3] == (0.0, True) and env.outcome == "L"
+    # A pool of prepared instances: the valid flags in the observation match the info's mask.
+    g = env.graph
+    pool = [((8, 8), make_instance(g, traffic.with_overrides(n_partial=8, n_unknown=8), planner, s)) for s in range(3)]
+    env = SurvivabilityEnv(((8, 8),), mission=small(), traffic=traffic, planner=planner, graph=g, pool=pool)
+    outcomes = set()
+    for seed in range(6):
+        obs, info = env.reset(seed=seed)
+        done = False
+        while not done:
+            assert np.array_equal(obs[12::5] > 0.5, info["valid"])
+            obs, _, term, trunc, info = env.step(int(np.flatnonzero(info["valid"])[-1]))
+            done = term or trunc
+        outcomes.add(info["outcome"])
+    assert outcomes <= {"G", "A", "L"} and outcomes
+    # A given instance (evaluation on held-out instances) is flown as given, whatever the pool.
+    obs, info = env.reset(seed=0, options={"instance": pool[1][1]})
+    assert env.instance is pool[1][1] and info["scenario"] == (8, 8)
+
+
+@pytest.mark.slow
+def test_exported_ppo_policy_matches_sb3(tmp_path):
+    """The exported actor (numpy weights, no pickle) picks the same primitive as SB3's deterministic predict."""
+    pytest.importorskip("stable_baselines3")
+    import torch
+    from stable_baselines3 import PPO
+
+    from stp_env.rl.policy import export_mlp
+    from stp_env.survivability.gym_env import SurvivabilityEnv
+    from stp_env.survivability.learned import load_policy
+
+    env = SurvivabilityEnv(((0, 0),), mission=small(), planner=PlannerConfig(n_mc=64, n_survival=64))
+    model = PPO("MlpPolicy", env, n_steps=64, batch_size=64, seed=0, device="cpu",
+                policy_kwargs={"net_arch": [16, 16], "activation_fn": torch.nn.Tanh})
+    policy = load_policy(str(export_mlp(model, tmp_path / "p.npz")), n_actions=env.action_space.n)
+    obs = np.random.default_rng(0).uniform(-1, 1, (50, env.observation_space.shape[0])).astype(np.float32)
+    assert [policy(o) for o in obs] == [int(a) for a in model.predict(obs, deterministic=True)[0]]
+    with pytest.raises(ValueError, match="unknown policy"):
+        load_policy("nonexistent")
+    with pytest.raises(ValueError, match="9 outputs; expected 25"):      # exported for another network
+        load_policy(str(tmp_path / "p.npz"))
+
+
+def _write_missions(path, outcomes):
+    """A study's missions file from ``{(n_p, n_u): {policy: [outcome per instance]}}``."""
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, FIELDS)
+        w.writeheader()
+        for (p, u), per in outcomes.items():
+            for policy, outs in per.items():
+                for i, o in enumerate(outs):
+                    w.writerow({"n_partial": p, "n_unknown": u, "instance": i, "policy": policy, "outcome": o,
+                                "reveals": 0, "omega_switch": -1, "n_dp": 1, "windows": 9, "instance_s": 1.0,
+                                "mission_s": 0.25})
+
+
+def test_report_thresholds_rates_and_cli_on_a_hand_built_study(tmp_path):
+    """Survival of pi_Nf minus pi_S at N_p = 100 is -0.2, -0.1, +0.1 at N_u = 50, 100, 150: phi(100) = 125 (linear
+    interpolation); at N_p = 50 pi_S stays ahead (no crossing). The CLI writes the results and figures from the
+    missions file alone, and refuses bad options with one line."""
+    from _cli import run_cli
+
+    g, a, lost = "G", "A", "L"
+    outcomes = {}
+    for u, (n_nf, n_s) in zip((50, 100, 150), ((8, 10), (9, 10), (10, 9))):
+        outcomes[(100, u)] = {"Nf": [g] * n_nf + [lost] * (10 - n_nf),
+                              "S": [a] * 2 + [g] * (n_s - 2) + [lost] * (10 - n_s)}
+        outcomes[(50, u)] = {"Nf": [g] * 5 + [lost] * 5, "S": [g] * 10}
+    _write_missions(tmp_path / "missions.csv", outcomes)
+    argv = ["survivability", "--out", str(tmp_path), "--report-only", "--partial", "50", "100", "--unknown", "50",
+            "100", "150", "--policies", "Nf", "S", "--bootstrap", "200"]
+    code, _, err = run_cli(argv)
+    assert code == 0, err
+    report = json.loads((tmp_path / "results.json").read_text())
+    phi = report["thresholds"]["phi"]
+    assert phi["100"]["value"] == pytest.approx(125.0) and phi["50"]["value"] is None
+    assert phi["100"]["differences"] == pytest.approx([-0.2, -0.1, 0.1])
+    cell = next(s for s in report["scenarios"] if (s["n_partial"], s["n_unknown"]) == (100, 50))
+    assert cell["S"]["survival"]["rate"] == 1.0 and cell["S"]["success"]["rate"] == 0.8
+    lo, hi = cell["Nf"]["survival"]["ci95"]
+    assert lo < 0.8 < hi and hi < 1.0                             # Clopper-Pearson for 8 of 10
+    assert report["comparisons"]["100,50"]["survival-success[S]"]["diff"] == pytest.approx(0.2)
+    assert report["timing"]["mean_instance_setup_s"] == 1.0 and report["timing"]["mean_mission_s"] == 0.25
+    assert (tmp_path / "results.md").exists() and (tmp_path / "fig9_survival_vs_nu.png").exists()
+    code, _, err = run_cli(["survivability", "--out", str(tmp_path), "--worker", "2/2"])
+    assert code == 2 and "0 <= I < N" in err
+    code, _, err = run_cli(["survivability", "--out", str(tmp_path / "empty"), "--report-only"])
+    assert code == 2 and err.count("\n") == 1 and "no completed missions" in err
