@@ -80,6 +80,10 @@ class ExplorationCost:
         smooth_max = self.temperature * jax.nn.logsumexp(p / self.temperature)
         return smooth_max + self.mean_weight * jnp.mean(p)
 
+    def mean_variance(self, q) -> float:
+        """The mean final variance over the points of interest."""
+        return float(jnp.mean(self.variances(jnp.asarray(q, jnp.float32))[-1]))
+
     def max_variance(self, q) -> float:
         """The largest final variance (the quantity the paper minimises)."""
         return float(jnp.max(self.variances(jnp.asarray(q, jnp.float32))[-1]))
