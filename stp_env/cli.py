@@ -14,6 +14,7 @@ Subcommands:
   bad episodes and figures (:mod:`stp_env.evaluation`).
 * ``render``: one episode (from a seed and an episode index, or a saved event) as an animated GIF.
 
+* ``coobservation``: attacks on co-observation schedules by a compromised vehicle (:mod:`stp_env.coobservation.cli`).
 * ``train-intruder``: train a learned intruder with Stable-Baselines3 (PPO by default) on the native batched
   VecEnv against vehicles running ``u*`` with the HJ safety filter (:mod:`stp_env.rl.train`; needs the ``rl``
   extra); prints the last evaluation as JSON and writes the model, logs and ``intruder.npz`` to ``--out``.
@@ -98,6 +99,9 @@ def _build_parser() -> argparse.ArgumentParser:
 
     _add_evaluate_parsers(sub)
     _add_train_intruder_parser(sub)
+    from stp_env.coobservation.cli import add_parser as _add_coobservation_parser
+
+    _add_coobservation_parser(sub)
     return parser
 
 
@@ -396,6 +400,8 @@ def main(argv=None) -> int:
             return _evaluate(args)
         if args.command == "render":
             return _render(args)
+        if args.command == "coobservation":
+            return args.run(args)
     except ValueError as err:
         print(f"stp-env {args.command}: error: {err}", file=sys.stderr)
         return 2

@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 
 E1 = jnp.array([1.0, 0.0, 0.0])
-_BISECTION_STEPS = 64
+_BISECTION_STEPS = 32
 B_FLOOR = 0.2
 _TINY = 1e-12
 
