@@ -1,5 +1,6 @@
-"""Scripted attackers of a compromised vehicle: jittable ``policy(key, state, params, threat) -> (2,)`` actions in
-``[-1, 1]`` (see :mod:`stp_env.coobservation.threat`).
+"""Scripted attackers of a compromised vehicle: jittable ``policy(key, state, params, threat, planned) -> (2,)``
+actions in ``[-1, 1]`` (see :mod:`stp_env.coobservation.threat`); ``planned`` is the action the vehicle's tracker
+would apply (its plan), which an attacker may fall back to.
 
 Both go for the *entry point* (a point just inside a forbidden zone, :attr:`ThreatParams.entry_points`) that
 minimises the detour ``|p - e| + |e - o|`` from the vehicle's position ``p`` to its next observation point ``o``
@@ -19,7 +20,6 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from stp_env.baselines import nominal_tracking
 from stp_env.sim import core
 from stp_env.sim.physics import control_to_action, wrap_angle
 
@@ -54,7 +54,7 @@ def steer(x, point, speed, bounds):
     return control_to_action(speed, omega, bounds)
 
 
-def _attack_action(key, state, params, threat, go):
+def _attack_action(state, params, threat, planned, go):
     """The shared strategy; ``go``: whether to head for the zone now (before entering)."""
     c = jnp.maximum(state.compromised, 0)
     sim = state.sim
@@ -66,7 +66,7 @@ def _attack_action(key, state, params, threat, go):
     to_zone = steer(x, entry, b[1], b)
     dist_aim = jnp.linalg.norm(aim - x[:2])
     back = steer(x, aim, jnp.clip(dist_aim / ARRIVE_TIME, b[0], b[1]), b)
-    track = nominal_tracking(key, sim, params)[c]
+    track = planned
     x_ref, _ = core.nominal_reference(params, t)
     rejoined = jnp.linalg.norm(x_ref[c, :2] - x[:2]) < REJOIN_DISTANCE
     entered = state.entered[c]
@@ -75,15 +75,17 @@ def _attack_action(key, state, params, threat, go):
     return jnp.where(entered, after, before)
 
 
-def reckless(key, state, params, threat):
+def reckless(key, state, params, threat, planned):
     """Straight for the zone at once, then straight back to the next observation point."""
-    return _attack_action(key, state, params, threat, jnp.asarray(True))
+    del key
+    return _attack_action(state, params, threat, planned, jnp.asarray(True))
 
 
 def opportunistic(slack: float = 5.0):
     """Only when ``detour / (v_max - wind) <= t_next - t - slack`` (see the module docstring)."""
 
-    def policy(key, state, params, threat):
+    def policy(key, state, params, threat, planned):
+        del key
         c = jnp.maximum(state.compromised, 0)
         x = state.sim.x[c]
         t_next, aim = next_observation(state, params, threat, c, state.sim.t)
@@ -91,17 +93,16 @@ def opportunistic(slack: float = 5.0):
         b = params.vehicle_bounds
         speed = jnp.maximum(b[1] - b[3], 1e-3)
         go = detour / speed <= t_next - state.sim.t - slack
-        return _attack_action(key, state, params, threat, go)
+        return _attack_action(state, params, threat, planned, go)
 
     policy.__name__ = "opportunistic"
     return policy
 
 
-def honest(key, state, params, threat):
+def honest(key, state, params, threat, planned):
     """No attack: the compromised vehicle keeps flying its plan (the false-alarm baseline)."""
-    del threat
-    c = jnp.maximum(state.compromised, 0)
-    return nominal_tracking(key, state.sim, params)[c]
+    del key, state, params, threat
+    return planned
 
 
 ATTACKERS = {"reckless": reckless, "opportunistic": opportunistic(), "honest": honest}

@@ -19,41 +19,23 @@ SCHEDULES = ("secured", "unsecured", "exact")
 
 def add_parser(sub) -> None:
     """Register the ``coobservation`` subcommand on an argparse sub-parser collection."""
+    from stp_env.cli import _positive  # the command line's number checks (same messages)
+
     p = sub.add_parser("coobservation", help="attack co-observation schedules in the UAV simulator (success rate "
                                              "with exact bounds, detection rate and delay)",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter, description=__doc__.split("\n\n")[1])
-    p.add_argument("--episodes", type=_positive_int, default=10_000, help="episodes per (schedule, attacker)")
-    p.add_argument("--batch", type=_positive_int, default=1000, help="episodes per batched rollout")
+    p.add_argument("--episodes", type=_positive(int), default=10_000, help="episodes per (schedule, attacker)")
+    p.add_argument("--batch", type=_positive(int), default=1000, help="episodes per batched rollout")
     p.add_argument("--attackers", nargs="+", default=["honest", "reckless", "opportunistic"],
                    help="honest, reckless, opportunistic, or learned:<attacker.npz>")
     p.add_argument("--schedules", nargs="+", choices=SCHEDULES, default=["secured", "unsecured"],
                    help="which schedules to attack (exact: secured with the exact regions, a level-set solve on "
                         "first use, about 10 minutes on 2 cores)")
-    p.add_argument("--period", type=_positive_float, default=90.0, help="the unsecured schedule's period [s]")
+    p.add_argument("--period", type=_positive(float), default=90.0, help="the unsecured schedule's period [s]")
     p.add_argument("--seed", type=int, default=0, help="seed of the episodes (the same for every pair)")
     p.add_argument("--out", default="coobservation-eval", help="output folder")
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")
     p.set_defaults(run=run)
-
-
-def _positive_int(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {text}")
-    return v
-
-
-def _positive_float(text):
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return v
 
 
 def resolve_attackers(names):

@@ -118,6 +118,8 @@ def make_vec_env(n_envs: int, params, tp, t_window, *, action_repeat: int = 5, g
             self._states = None
             self._actions = None
             self.window = jnp.asarray(t_window, jnp.float32)
+            self._returns = np.zeros(n_envs)
+            self._lengths = np.zeros(n_envs, int)
 
         def reset(self):
             self._keys, self._states, obs = batch_reset(self._keys, params, tp, self.window)
@@ -131,10 +133,14 @@ def make_vec_env(n_envs: int, params, tp, t_window, *, action_repeat: int = 5, g
                              gamma, shaping)
             self._keys, self._states = out[0], out[1]
             obs, rew, done, term_obs, stats = jax.device_get(out[2:])
+            self._returns += rew
+            self._lengths += 1
             infos = [{} for _ in range(n_envs)]
-            for i in np.flatnonzero(done):
+            for i in np.flatnonzero(done):  # "episode": SB3's Monitor convention (logged as rollout/ep_rew_mean)
                 infos[i] = {"terminal_observation": term_obs[i], "TimeLimit.truncated": False,
-                            "entered": bool(stats[i, 0]), "detected": bool(stats[i, 1])}
+                            "entered": bool(stats[i, 0]), "detected": bool(stats[i, 1]),
+                            "episode": {"r": float(self._returns[i]), "l": int(self._lengths[i])}}
+                self._returns[i], self._lengths[i] = 0.0, 0
             return np.asarray(obs), rew.astype(np.float32), done.astype(bool), infos
 
         def close(self):
@@ -201,7 +207,8 @@ def train(params, tp, t_window, config: AttackerTrainConfig, out_dir, progress: 
 
 
 def mlp_attacker(path, name: str = "learned"):
-    """The exported MLP as a jittable attacker ``(key, state, params, threat) -> (2,)`` (deterministic action)."""
+    """The exported MLP as a jittable attacker ``(key, state, params, threat, planned) -> (2,)`` (the deterministic
+    action)."""
     from stp_env.rl.policy import load_mlp
 
     mlp = load_mlp(path)
@@ -212,8 +219,8 @@ def mlp_attacker(path, name: str = "learned"):
     hidden = [(jnp.asarray(w), jnp.asarray(b)) for w, b in mlp.hidden]
     w_out, b_out = jnp.asarray(mlp.action[0]), jnp.asarray(mlp.action[1])
 
-    def policy(key, state, params, tp):
-        del key
+    def policy(key, state, params, tp, planned):
+        del key, planned
         h = attackers.attacker_observation(state, params, tp)
         for w, b in hidden:
             h = act(w @ h + b)

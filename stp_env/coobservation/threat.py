@@ -36,12 +36,7 @@ INF = jnp.inf
 NEVER = 1e9  # [s] time of the placeholder observations that pad a schedule
 
 
-def _pytree(cls, meta=()):
-    fields = [f.name for f in dataclasses.fields(cls)]
-    return jax.tree_util.register_dataclass(cls, data_fields=[f for f in fields if f not in meta],
-                                            meta_fields=list(meta))
-
-
+@jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class ThreatParams:
     """Forbidden zones and the observation schedule (``P`` zones of up to ``K`` edges, ``M`` observations,
@@ -57,9 +52,7 @@ class ThreatParams:
     entry_points: jax.Array   # (B, 2) [m]: points just inside the zones, along their boundaries (attackers' aims)
 
 
-ThreatParams = _pytree(ThreatParams)
-
-
+@jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class ThreatState:
     """The core's state and the threat's bookkeeping (``N`` vehicles, ``M`` scheduled observations)."""
@@ -76,9 +69,6 @@ class ThreatState:
     detect_time: jax.Array    # () [s] first missed observation of the compromised vehicle after t_compromise
     false_alarms: jax.Array   # () int: missed observations not involving it (or before t_compromise)
     max_track_error: jax.Array  # (N,) [m] largest distance from the nominal position while honest
-
-
-ThreatState = _pytree(ThreatState)
 
 
 def threat_params(observations, forbidden, radius: float, entry_depth: float = 20.0,
@@ -226,7 +216,7 @@ def rollout(key, params: EnvParams, threat: ThreatParams, attacker, n_envs: int,
         def body(ts, k):
             k_v, k_a, k_s = jax.random.split(k, 3)
             a_v = vehicle_policy(k_v, ts.sim, params)
-            a_att = attacker(k_a, ts, params, threat)
+            a_att = attacker(k_a, ts, params, threat, a_v[jnp.maximum(ts.compromised, 0)])
             new = step(k_s, ts, a_v, a_att, params, threat)
             over = episode_done(ts, params)
             new = jax.tree.map(lambda a, b: jnp.where(over, a, b), ts, new)
@@ -259,7 +249,9 @@ def outcomes(final: ThreatState) -> dict:
     detect_time = np.asarray(final.detect_time)
     detected = attacked & np.isfinite(detect_time)
     t_entry = entry_time[np.arange(n_ep), idx]
-    delay = np.where(entered & detected, detect_time - t_entry, np.nan)
+    both = entered & detected
+    delay = np.full(n_ep, np.nan)
+    delay[both] = detect_time[both] - t_entry[both]
     others = entered_all & ~((np.arange(n)[None, :] == c[:, None]) & attacked[:, None])
     return {
         "attacked": attacked, "entered": entered, "detected": detected, "success": entered & ~detected,
