@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stp_env.coobservation import admm, checkpoints, flows, paper, plots, rrt
+from stp_env.coobservation import admm, paper, plots
 from stp_env.coobservation.schedule import segments
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -82,31 +82,11 @@ def flow_study(out: Path) -> dict:
     import matplotlib.pyplot as plt
 
     task = paper.SurveyTask()
-    routes = task.routes()
-    secure = checkpoints.ellipse_test(task.forbidden, task.v_max, task.radius)
-    cps = [checkpoints.secure_checkpoints(r, secure) for r in routes]
-    greedy = [checkpoints.greedy_checkpoints(r, secure) for r in routes]
-    obs = rrt.Obstacles2D.from_polygons(task.forbidden, margin=0.05)
     t = time.time()
-    graph = checkpoints.checkpoint_graph(routes, cps, secure, obs, task.lo, task.hi, task.v_max,
-                                         rrt_iterations=600, rrt_step=0.8, progress=True)
-    t_graph = time.time() - t
-    prob = flows.FlowProblem.from_graph(graph, task.w_c, task.w_t, task.rho)
-    sweep = flows.sweep(prob, k_max=8)
-    rows = []
-    for sol in sweep:
-        cross = [sum(graph.vertices[a].route != graph.vertices[b].route for a, b in itertools.pairwise(p))
-                 for p in sol.paths]
-        milp = flows.solve_flows_milp(prob, sol.k)
-        rows.append({"K": sol.k, "status": sol.status, "cost": sol.cost, "flows_used": sol.n_used,
-                     "empty_flows": sol.empty_flows, "cross_edges_per_flow": cross, "lp_integral": sol.integral,
-                     "milp_cost": milp.cost})
-    result = {"route_steps": int(routes.shape[1] - 1), "checkpoints_algorithm1": [len(c) for c in cps],
-              "checkpoints_greedy": [len(c) for c in greedy], "vertices": len(graph.vertices),
-              "route_edges": sum(e[2] == "route" for e in graph.edges),
-              "cross_edges": sum(e[2] == "cross" for e in graph.edges), "graph_seconds": round(t_graph, 1),
-              "sweep": rows}
-    feasible = [s for s in sweep if s.status == "optimal"]
+    study = paper.survey_flows(task, progress=True)
+    result = {**study["result"], "seconds": round(time.time() - t, 1)}
+    routes, graph = study["routes"], study["graph"]
+    feasible = [s for s in study["sweep"] if s.status == "optimal"]
     shown = feasible[:2]  # the smallest feasible K and the next (the paper's Figs. 12-15: K = 3 and 4)
     fig, axes = plt.subplots(2, len(shown), figsize=(6 * len(shown), 10.5), squeeze=False)
     for col, sol in enumerate(shown):

@@ -136,12 +136,21 @@ class ExactRegions:
 
 @jax.jit
 def _sum_times(f, f_rev, lo, dx, q1, q2, points):
-    def interp(field, p):  # bilinear on one heading slice, index space
-        idx = ((p - lo) / dx).T
-        return jax.scipy.ndimage.map_coordinates(field, list(idx), order=1, mode="constant", cval=FAR)
+    def lower(field, p):
+        """The smallest of the four nodes around each point (not the bilinear value): the region may grow by up
+        to a cell, never shrink. A first-arrival time jumps across the observation disk's rim with the heading
+        (0 inside; a turn-around loop just outside for a heading pointing back in), and bilinear values there would
+        cut up to a cell off the region."""
+        idx = (p - lo) / dx
+        n = jnp.asarray(field.shape)
+        i0 = jnp.floor(idx).astype(jnp.int32)
+        inside = jnp.all((i0 >= 0) & (i0 <= n - 2), axis=-1)
+        i0 = jnp.clip(i0, 0, n - 2)
+        corners = [field[i0[:, 0] + a, i0[:, 1] + b] for a in (0, 1) for b in (0, 1)]
+        return jnp.where(inside, jnp.min(jnp.stack(corners), axis=0), FAR)
 
-    a = jax.vmap(lambda fk: interp(fk, points - q1))(f)
-    b = jax.vmap(lambda fk: interp(fk, points - q2))(f_rev)
+    a = jax.vmap(lambda fk: lower(fk, points - q1))(f)
+    b = jax.vmap(lambda fk: lower(fk, points - q2))(f_rev)
     return jnp.min(a + b, axis=0)
 
 

@@ -13,6 +13,7 @@ reachability constraints; :func:`survey_routes` plans the longer unsecured route
 from __future__ import annotations
 
 import dataclasses
+import itertools
 
 import numpy as np
 
@@ -200,3 +201,40 @@ def verify(task: MapExplorationTask, q) -> dict:
                       and out["waypoint_in_zone"] < 0 and out["starts_goals"] < 1e-5)
     out["all_ellipses_clear"] = all(d["clear"] for d in depths)
     return out
+
+
+def survey_flows(task: SurveyTask, secure=None, *, k_max: int = 8, rrt_iterations: int = 600, seed: int = 0,
+                 progress: bool = False) -> dict:
+    """Section III-F end to end: Algorithm-1 checkpoints of the survey routes, the checkpoint graph (Algorithm 2,
+    RRT*), the multi-flow LP (60) for ``K = 1, 2, ...`` until a flow stays empty (each ``K`` also solved as the MILP),
+    with the reachability test ``secure`` (default: the ellipse of Def. 3 grown by the checkpoint radius).
+    Returns the numbers (``"result"``) and the ``routes``, ``graph`` and ``sweep`` for figures."""
+    from stp_env.coobservation import checkpoints, flows
+    from stp_env.coobservation.rrt import Obstacles2D
+
+    routes = task.routes()
+    if secure is None:
+        secure = checkpoints.ellipse_test(task.forbidden, task.v_max, task.radius)
+    cps = [checkpoints.secure_checkpoints(r, secure) for r in routes]
+    greedy = [checkpoints.greedy_checkpoints(r, secure) for r in routes]
+    obs = Obstacles2D.from_polygons(task.forbidden, margin=0.05)
+    graph = checkpoints.checkpoint_graph(routes, cps, secure, obs, task.lo, task.hi, task.v_max,
+                                         rrt_iterations=rrt_iterations, rrt_step=0.8, seed=seed, progress=progress)
+    prob = flows.FlowProblem.from_graph(graph, task.w_c, task.w_t, task.rho)
+    sweep = flows.sweep(prob, k_max=k_max)
+    rows = []
+    for sol in sweep:
+        cross = [sum(graph.vertices[a].route != graph.vertices[b].route for a, b in itertools.pairwise(p))
+                 for p in sol.paths]
+        milp = flows.solve_flows_milp(prob, sol.k)
+        rows.append({"K": sol.k, "status": sol.status, "cost": round(sol.cost, 6), "flows_used": sol.n_used,
+                     "empty_flows": sol.empty_flows, "cross_edges_per_flow": cross, "lp_integral": sol.integral,
+                     "milp_cost": round(milp.cost, 6)})
+    stop = next((s.k for s in sweep if s.status == "optimal" and s.empty_flows > 0), None)
+    result = {"route_steps": int(routes.shape[1] - 1), "checkpoints_algorithm1": [len(c) for c in cps],
+              "checkpoints_greedy": [len(c) for c in greedy], "vertices": len(graph.vertices),
+              "route_edges": sum(e[2] == "route" for e in graph.edges),
+              "cross_edges": sum(e[2] == "cross" for e in graph.edges),
+              "max_single_flow_gain": round(flows.max_single_flow_gain(prob), 4),
+              "robots_needed": None if stop is None else stop - 1, "sweep": rows}
+    return {"result": result, "routes": routes, "graph": graph, "sweep": sweep}
