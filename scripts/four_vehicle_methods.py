@@ -36,7 +36,7 @@ def run(method: str):
         from stp_env.reach.tracking import TrackingConfig, compute_tracking_bound
 
         cfg = TrackingConfig(vehicle=sc.vehicle, planning_v=sc.planning_v, planning_omega_max=sc.planning_omega_max,
-                             half_width=0.6, grid_points=(41, 41, 40), tol=0.002)  # as tests/test_four_vehicle.py
+                             half_width=0.15, grid_points=(41, 41, 40))  # as tests/test_four_vehicle.py
         bound = compute_tracking_bound(cfg, progress=False).bound
         t1 = time.perf_counter()
         plan = plan_scenario(sc, tracking_bound=bound, horizon=HORIZON, progress=False)

@@ -3,9 +3,10 @@
     python scripts/generate_plans.py [--names tiny tiny-intruder town-kbar1 town-kbar2 town-kbar3]
 
 Each file holds the arrays of :func:`stp_env.planning.stp.plan_to_arrays` for a registered scenario planned with
-robust trajectory tracking and the default tracking bound; ``tests/test_planning.py`` regenerates the small one
-and compares it bit for bit. ``town-kbar{k}`` is ``make("town", kbar=k)`` (load it with
-:func:`stp_env.planning.stp.shipped_plan_for`); the three take about 2 minutes each on 2 cores.
+robust trajectory tracking and the scenario's default tracking bound (:func:`stp_env.sim.build.load_artifacts`,
+computed into the artifact cache on first use); ``tests/test_planning.py`` regenerates the small one and compares
+it bit for bit. ``town-kbar{k}`` is ``make("town", kbar=k)`` (load it with
+:func:`stp_env.planning.stp.shipped_plan_for`); the three take a few minutes each on 2 cores.
 """
 
 from __future__ import annotations
@@ -19,10 +20,9 @@ import numpy as np
 
 from stp_env.planning.stp import plan_scenario, plan_to_arrays
 from stp_env.scenarios import make
+from stp_env.sim.build import load_artifacts
 
 DATA = Path(__file__).resolve().parents[1] / "stp_env" / "data" / "plans"
-# The default robust-tracking bound for the papers' vehicle in 6 m/s wind (stp-env precompute; 61^3 error grid).
-TRACKING_BOUND = 4.127
 SHIPPED: dict[str, tuple[str, dict]] = {
     "tiny": ("tiny", {}),
     "tiny-intruder": ("tiny-intruder", {"sta_spacing": 90}),
@@ -34,7 +34,8 @@ SHIPPED: dict[str, tuple[str, dict]] = {
 def generate(name: str) -> dict[str, np.ndarray]:
     scenario_name, overrides = SHIPPED[name]
     scenario = make(scenario_name, **overrides)
-    return plan_to_arrays(plan_scenario(scenario, tracking_bound=TRACKING_BOUND, progress=False))
+    _, tracking = load_artifacts(scenario, progress=False)
+    return plan_to_arrays(plan_scenario(scenario, tracking_bound=tracking.bound, progress=False))
 
 
 def main() -> None:

@@ -6,8 +6,13 @@ sets, the planner and the scenarios; a float32 solve compiled differently can mo
 older code are recomputed rather than reused).
 Loading checks all of it, and the content hash of the array file; anything that does not match (a changed
 parameter, another format version, a truncated or tampered file, unreadable JSON) is reported with a warning and
-recomputed, never silently reused. Arrays are read with ``allow_pickle=False``. Writes are atomic (temporary
-file, then rename), so an interrupted computation leaves no half-written artifact behind.
+recomputed, never silently reused. The metadata must be a JSON object of the expected structure (array names,
+shapes, which arrays may hold non-finite values); the arrays must match it. Arrays are read with
+``allow_pickle=False``: loading a cache file never runs code. Writes are atomic (temporary file, then rename), so
+an interrupted computation leaves no half-written artifact behind; temporary files are named after their writer's
+process (``.stp-tmp-<pid>-<host>-*``) and those of writers that are no longer running are removed on the next use
+of the cache. Before computing an artifact that is not cached, the store checks that it can write the cache
+directory (:class:`CacheNotWritableError`), so that a long computation is not lost at the end.
 
 The cache directory is ``$STP_ENV_CACHE_DIR`` if set, else the user cache directory of ``platformdirs``.
 """
@@ -18,9 +23,12 @@ import dataclasses
 import hashlib
 import json
 import os
+import shutil
+import socket
 import tempfile
 import time
 import warnings
+import zipfile
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -48,6 +56,118 @@ CODE_VERSION = _code_version()
 
 class StaleArtifactWarning(UserWarning):
     """A cached artifact was missing, stale or corrupted and is being recomputed."""
+
+
+class CacheNotWritableError(OSError):
+    """The artifact cache directory cannot be written, and an artifact that is not cached must be computed."""
+
+
+TEMP_PREFIX = ".stp-tmp-"
+LEGACY_TEMP_SUFFIXES = (".npz.tmp", ".json.tmp")  # temporary files of earlier versions (no writer recorded)
+LEGACY_TEMP_AGE_S = 3600.0
+
+
+def _host() -> str:
+    return "".join(c if c.isalnum() else "_" for c in socket.gethostname())[:40] or "host"
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return True
+    return True
+
+
+def writer_tag() -> str:
+    """``"<pid>-<host>-"``: what a temporary file's name records about its writer (see
+    :func:`remove_stale_temporaries`)."""
+    return f"{os.getpid()}-{_host()}-"
+
+
+def remove_stale_temporaries(root: Path, prefix: str = TEMP_PREFIX) -> list[Path]:
+    """Remove the temporary files (or directories) that writers which are no longer running (killed mid-write)
+    left in ``root``: ``<prefix><pid>-<host>-*`` of this host whose process is gone and, for the cache's own
+    prefix, unnamed ``*.npz.tmp`` / ``*.json.tmp`` of earlier versions older than an hour. Returns the removed
+    paths (errors are ignored: a read-only directory keeps them)."""
+    removed = []
+    try:
+        entries = list(Path(root).iterdir())
+    except OSError:
+        return removed
+    host, now = _host(), time.time()
+    for path in entries:
+        name = path.name
+        stale = False
+        if name.startswith(prefix):
+            pid, _, rest = name[len(prefix):].partition("-")
+            stale = pid.isdigit() and rest.startswith(host + "-") and not _pid_alive(int(pid))
+        elif prefix == TEMP_PREFIX and name.endswith(LEGACY_TEMP_SUFFIXES):
+            try:
+                stale = now - path.stat().st_mtime > LEGACY_TEMP_AGE_S
+            except OSError:
+                stale = False
+        if stale:
+            try:
+                if path.is_dir() and not path.is_symlink():
+                    shutil.rmtree(path)
+                else:
+                    path.unlink()
+                removed.append(path)
+            except OSError:
+                pass
+    return removed
+
+
+def _temp_file(root: Path, suffix: str) -> tuple[int, str]:
+    return tempfile.mkstemp(dir=root, prefix=TEMP_PREFIX + writer_tag(), suffix=suffix)
+
+
+def probe_writable(directory) -> None:
+    """Create and remove a file in ``directory``: raises ``OSError`` if files cannot be written there (permissions,
+    a read-only file system, a path that is not a directory), whoever the user is."""
+    fd, probe = _temp_file(Path(directory), ".probe")
+    os.close(fd)
+    os.remove(probe)
+
+
+def _metadata_problem(meta: Any) -> str | None:
+    """What is wrong with the structure of an artifact's metadata (``None``: nothing)."""
+    if not isinstance(meta, dict):
+        return f"metadata is a JSON {type(meta).__name__}, not an object"
+    arrays = meta.get("arrays")
+    if not isinstance(arrays, list) or not all(isinstance(a, str) for a in arrays):
+        return "metadata 'arrays' is not a list of array names"
+    shapes = meta.get("shapes", {})
+    if not isinstance(shapes, dict) or not all(
+            isinstance(v, list) and all(isinstance(d, int) and not isinstance(d, bool) and d >= 0 for d in v)
+            for v in shapes.values()):
+        return "metadata 'shapes' is not a map of array names to shapes"
+    nonfinite = meta.get("nonfinite", [])
+    if not isinstance(nonfinite, list) or not all(isinstance(a, str) for a in nonfinite):
+        return "metadata 'nonfinite' is not a list of array names"
+    if not isinstance(meta.get("content_sha256"), str):
+        return "metadata has no content hash"
+    return None
+
+
+def _arrays_problem(arrays: dict[str, np.ndarray], meta: dict) -> str | None:
+    """What is wrong with loaded arrays against their metadata (``None``: nothing)."""
+    if sorted(arrays) != sorted(meta["arrays"]):
+        return "array names differ from the metadata"
+    shapes = meta.get("shapes", {})
+    allowed_nonfinite = set(meta.get("nonfinite", [])) if "nonfinite" in meta else None
+    for name, a in arrays.items():
+        if a.dtype.kind not in "biufc":
+            return f"array {name!r} has dtype {a.dtype}; only numeric arrays are stored"
+        if name in shapes and list(a.shape) != shapes[name]:
+            return f"array {name!r} has shape {list(a.shape)}, the metadata says {shapes[name]}"
+        if allowed_nonfinite is not None and name not in allowed_nonfinite and a.dtype.kind in "fc" \
+                and not np.all(np.isfinite(a)):
+            return f"array {name!r} has non-finite values that were not computed"
+    return None
 
 
 def default_cache_dir() -> Path:
@@ -121,6 +241,25 @@ class ArtifactStore:
 
     def __init__(self, root: str | os.PathLike | None = None):
         self.root = Path(root) if root is not None else default_cache_dir()
+        self._swept = False
+
+    def _sweep(self) -> None:
+        """Remove dead writers' temporary files, once per store."""
+        if not self._swept:
+            self._swept = True
+            remove_stale_temporaries(self.root)
+
+    def check_writable(self, what: str = "an artifact") -> None:
+        """Raise :class:`CacheNotWritableError` (naming the directory and ``STP_ENV_CACHE_DIR``) unless the cache
+        directory exists or can be created and a file can be written in it."""
+        try:
+            self.root.mkdir(parents=True, exist_ok=True)
+            probe_writable(self.root)
+        except OSError as err:
+            raise CacheNotWritableError(
+                f"cannot write the artifact cache directory {self.root} ({type(err).__name__}: "
+                f"{err.strerror or err}), where {what} must be saved; set {CACHE_ENV_VAR} (or --cache-dir) to a "
+                "writable directory.") from None
 
     def paths(self, kind: str, params: Any) -> tuple[Path, Path, str]:
         key = parameter_key(kind, params)
@@ -136,7 +275,10 @@ class ArtifactStore:
         problem = None
         try:
             meta = json.loads(json_path.read_text())
-            if meta.get("format_version") != FORMAT_VERSION:
+            problem = _metadata_problem(meta)
+            if problem is not None:
+                pass
+            elif meta.get("format_version") != FORMAT_VERSION:
                 problem = (f"format version {meta.get('format_version')} != {FORMAT_VERSION}")
             elif meta.get("code_version") != CODE_VERSION:
                 problem = f"computed by other code (code version {meta.get('code_version')} != {CODE_VERSION})"
@@ -147,13 +289,17 @@ class ArtifactStore:
             elif meta.get("content_sha256") != _file_sha256(npz_path):
                 problem = "array file does not match its content hash (corrupted or modified)"
             else:
-                with np.load(npz_path, allow_pickle=False) as data:
-                    arrays = {name: data[name] for name in data.files}
-                if sorted(arrays) != sorted(meta.get("arrays", [])):
-                    problem = "array names differ from the metadata"
+                data = np.load(npz_path, allow_pickle=False)
+                if not isinstance(data, np.lib.npyio.NpzFile):
+                    problem = "the array file is not an .npz archive"
                 else:
-                    return Artifact(arrays=arrays, metadata=meta, path=npz_path, from_cache=True)
-        except (OSError, ValueError, KeyError, json.JSONDecodeError) as err:
+                    with data:
+                        arrays = {name: data[name] for name in data.files}
+                    problem = _arrays_problem(arrays, meta)
+                    if problem is None:
+                        return Artifact(arrays=arrays, metadata=meta, path=npz_path, from_cache=True)
+        except (OSError, ValueError, KeyError, TypeError, AttributeError, EOFError, zipfile.BadZipFile,
+                json.JSONDecodeError) as err:
             problem = f"unreadable ({type(err).__name__}: {err})"
         warnings.warn(f"Recomputing {kind} artifact {npz_path.name}: {problem}.", StaleArtifactWarning,
                       stacklevel=3)
@@ -167,8 +313,10 @@ class ArtifactStore:
         for name, a in arrays.items():
             if a.dtype == object:
                 raise TypeError(f"Artifact array {name!r} has dtype object; only numeric arrays are stored.")
-        fd, tmp_npz = tempfile.mkstemp(dir=self.root, suffix=".npz.tmp")
+        self._sweep()
+        fd, tmp_npz = _temp_file(self.root, ".npz")
         os.close(fd)
+        tmp_json = None
         try:
             with open(tmp_npz, "wb") as fh:
                 np.savez(fh, **arrays)
@@ -180,25 +328,31 @@ class ArtifactStore:
                 "params": to_jsonable(params),
                 "arrays": sorted(arrays),
                 "shapes": {name: list(a.shape) for name, a in arrays.items()},
+                "nonfinite": sorted(name for name, a in arrays.items()
+                                    if a.dtype.kind in "fc" and not np.all(np.isfinite(a))),
                 "content_sha256": _file_sha256(Path(tmp_npz)),
                 "library_versions": _library_versions(),
                 "created_unix": time.time(),
                 **(to_jsonable(dict(extra_metadata)) if extra_metadata else {}),
             }
-            fd, tmp_json = tempfile.mkstemp(dir=self.root, suffix=".json.tmp")
+            fd, tmp_json = _temp_file(self.root, ".json")
             with os.fdopen(fd, "w") as fh:
                 json.dump(meta, fh, indent=1, sort_keys=True)
             os.replace(tmp_npz, npz_path)
             os.replace(tmp_json, json_path)
         finally:
-            if os.path.exists(tmp_npz):
-                os.remove(tmp_npz)
+            for tmp in (tmp_npz, tmp_json):
+                if tmp is not None and os.path.exists(tmp):
+                    os.remove(tmp)
         return Artifact(arrays=arrays, metadata=meta, path=npz_path, from_cache=False)
 
     def load_or_compute(self, kind: str, params: Any, compute: Callable[[], Mapping[str, np.ndarray]],
                         extra_metadata: Mapping[str, Any] | None = None) -> Artifact:
-        """The cached artifact if valid, else ``compute()`` saved and returned."""
+        """The cached artifact if valid, else ``compute()`` saved and returned. The cache directory is checked
+        to be writable before ``compute()`` runs (:class:`CacheNotWritableError`)."""
+        self._sweep()
         cached = self.load(kind, params)
         if cached is not None:
             return cached
+        self.check_writable(f"the {kind} artifact")
         return self.save(kind, params, compute(), extra_metadata)

@@ -13,13 +13,15 @@ Subcommands:
   intruders, k̄ values and wind, with exact confidence bounds; prints a markdown table and writes results, replayable
   bad episodes and figures (:mod:`stp_env.evaluation`).
 * ``render``: one episode (from a seed and an episode index, or a saved event) as an animated GIF.
-
+* ``falsify``: adversarial search through the simulator against a claimed bound (the tracking-error bound, the
+  danger zone under avoidance, k̄), with a replayable counterexample (:mod:`stp_env.falsify`).
 * ``coobservation``: attacks on co-observation schedules by a compromised vehicle (:mod:`stp_env.coobservation.cli`).
 * ``train-intruder``: train a learned intruder with Stable-Baselines3 (PPO by default) on the native batched
   VecEnv against vehicles running ``u*`` with the HJ safety filter (:mod:`stp_env.rl.train`; needs the ``rl``
   extra); prints the last evaluation as JSON and writes the model, logs and ``intruder.npz`` to ``--out``.
 
-Exit codes: 0 on success, 2 on bad options (with a message saying what is allowed).
+Exit codes: 0 on success, 2 on bad options, unreadable input files or unwritable outputs (with a one-line message
+naming the option or file and saying what is wrong). Output locations are checked before any computation.
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ import argparse
 import json
 import sys
 import time
+
+from stp_env.falsify.cli import add_parser as add_falsify_parser
 
 
 def _number(kind, noun: str, ok, requirement: str):
@@ -51,6 +55,28 @@ def _positive(kind):
 _nonnegative = _number(float, "a number", lambda v: v >= 0, ">= 0")
 _nonnegative_int = _number(int, "an integer", lambda v: v >= 0, ">= 0")
 _probability = _number(float, "a number", lambda v: 0.0 < v < 1.0, "between 0 and 1 (exclusive)")
+_seed = _number(int, "an integer", lambda v: 0 <= v <= 2**63 - 1, "an integer in [0, 2**63 - 1]")
+
+
+def _check_output_file(path: str, option: str = "--out") -> None:
+    """A one-line ``ValueError`` unless ``path`` can be written as a file (checked before computing)."""
+    import os
+    from pathlib import Path
+
+    from stp_env.artifacts import probe_writable
+
+    out = Path(path)
+    if out.is_dir():
+        raise ValueError(f"{option} {out}: is a directory; expected a file name.")
+    parent = out.parent
+    if not parent.is_dir():
+        raise ValueError(f"{option} {out}: the directory {parent} does not exist.")
+    try:
+        probe_writable(parent)
+    except OSError as err:
+        raise ValueError(f"{option} {out}: cannot write in {parent} ({err.strerror or err}).") from None
+    if out.exists() and not os.access(out, os.W_OK):
+        raise ValueError(f"{option} {out}: exists and is not writable.")
 
 
 def _build_parser() -> argparse.ArgumentParser:
@@ -98,6 +124,7 @@ def _build_parser() -> argparse.ArgumentParser:
     pre.add_argument("--no-progress", action="store_true", help="hide the progress bars")
 
     _add_evaluate_parsers(sub)
+    add_falsify_parser(sub)
     _add_train_intruder_parser(sub)
     from stp_env.coobservation.cli import add_parser as _add_coobservation_parser
 
@@ -116,11 +143,13 @@ def _add_episode_options(p, *, many: bool) -> None:
     p.add_argument("--kbar", type=_positive(int), nargs=nargs, default=[1, 2, 3] if many else 2,
                    help="k̄, the number of vehicles the intruder may force to avoid (>= 1); each value uses the "
                         "scenario's plan for that k̄" + (" (several: one configuration each)" if many else ""))
-    p.add_argument("--intruder", nargs=nargs, default=["max-k"] if many else "max-k",
+    p.add_argument("--intruder", nargs=nargs, default=["max-k"] if many else None,
                    help=f"intruder policy: one of {', '.join(INTRUDERS)}; 'learned:NAME_OR_PATH' for a learned "
                         "intruder (a shipped name or an .npz from stp_env.rl.policy.export_mlp); or "
                         "'package.module:policy' / 'package.module:factory=ARG' for any jittable policy "
-                        "(key, state, params) -> (2,)")
+                        "(key, state, params) -> (2,)" + ("" if many else
+                        " (default: max-k; with --events: the record's intruder, and a plug-in spec in the record "
+                        "is only used when typed here)"))
     p.add_argument("--wind", type=_nonnegative, default=None,
                    help="wind bound d_r of vehicles and intruder [m/s] (None: the scenario's, 6 m/s for town; "
                         "another value computes its own reachability artifacts and plan on first use)")
@@ -135,7 +164,8 @@ def _add_episode_options(p, *, many: bool) -> None:
     p.add_argument("--episode", choices=EPISODE_CHOICES, default="window",
                    help="window: from 5 s before the intruder's appearance window to 10 s after it can leave; "
                         "full: first departure to the last STA (slower)")
-    p.add_argument("--seed", type=_nonnegative_int, default=0, help="run seed; episode i replays from (seed, i)")
+    p.add_argument("--seed", type=_seed, default=0, help="run seed in [0, 2**63 - 1]; episode i replays from "
+                   "(seed, i)")
     p.add_argument("--cache-dir", default=None,
                    help="artifact cache directory (None: $STP_ENV_CACHE_DIR or the user cache directory)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bars")
@@ -183,6 +213,7 @@ def _avoid_region(args) -> int:
     from stp_env.dynamics import DubinsWind
     from stp_env.reach.avoid import AvoidRegionConfig, compute_avoid_region, plot_avoid_region
 
+    _check_output_file(args.out)
     vehicle = DubinsWind(v_min=0.0, v_max=args.v_max, omega_max=args.omega_max, wind=args.wind)
     config = AvoidRegionConfig(vehicle=vehicle, intruder=vehicle, collision_radius=args.collision_radius,
                                t_iat=args.t_iat, half_width=args.half_width,
@@ -216,6 +247,7 @@ def _plan(args) -> int:
         overrides["kbar"] = args.kbar
     if args.sta_spacing is not None:
         overrides["sta_spacing"] = args.sta_spacing
+    _check_output_file(args.out)
     scenario = make(args.scenario, **overrides)
     if scenario.method != "rtt":
         scenario = scenario.with_overrides(method="rtt")
@@ -234,19 +266,17 @@ def _plan(args) -> int:
 
 
 def _precompute(args) -> int:
-    from pathlib import Path
-
     from stp_env.artifacts import ArtifactStore
+    from stp_env.evaluation.pipeline import check_output_dir
     from stp_env.reach.defaults import build_reach_artifacts
     from stp_env.reach.plots import plot_buffer_regions, plot_sets
 
+    out = check_output_dir(args.figures, "--figures")
     start = time.perf_counter()
     arts = build_reach_artifacts(args.wind, tuple(sorted(set(args.kbar))), store=ArtifactStore(args.cache_dir),
                                  progress=not args.no_progress)
     summary = arts.summary()
     summary["seconds"] = round(time.perf_counter() - start, 1)
-    out = Path(args.figures)
-    out.mkdir(parents=True, exist_ok=True)
     k_show = 3 if 3 in arts.buffers else max(arts.buffers)
     summary["figures"] = [
         plot_sets(arts.avoid, arts.tracking.bound, arts.buffers[k_show], str(out / f"sets_wind{args.wind:g}.png")),
@@ -286,31 +316,25 @@ def _evaluate(args) -> int:
 
 
 def _render(args) -> int:
-    import json as json_lib
-    from pathlib import Path
-
     from stp_env.artifacts import ArtifactStore
-    from stp_env.evaluation import Configuration, build_params, pad_plan, replay
+    from stp_env.evaluation import build_params, replay
     from stp_env.evaluation.render import render_episode
     from stp_env.sim import COLLIDED, steps_for
 
+    _check_output_file(args.out)
     store = ArtifactStore(args.cache_dir)
     if args.events is not None:
-        records = json_lib.loads(Path(args.events).read_text())
-        if not 0 <= args.event < len(records):
-            raise ValueError(f"--event {args.event}: {args.events} has {len(records)} record(s).")
-        record = records[args.event]
-        config, seed, index = Configuration(**record["config"]), record["seed"], record["index"]
-        params = pad_plan(build_params([config], store=store, progress=not args.no_progress)[0],
-                          record["plan_samples"])
+        config, params, vehicle_policy, intruder_policy, record = _event_to_render(args, store)
+        seed, index = record["seed"], record["index"]
         n_steps, batch_size, recorded = record["n_steps"], record["batch_size"], record["recorded"]
     else:
-        config = _evaluation_configs(args, [args.kbar], [args.intruder])[0]
+        intruder = "max-k" if args.intruder is None else args.intruder
+        config = _evaluation_configs(args, [args.kbar], [intruder])[0]
         seed, index = args.seed, args.index
         params = build_params([config], store=store, progress=not args.no_progress)[0]
         n_steps, batch_size, recorded = steps_for(params), args.batch_size, True
+        vehicle_policy, intruder_policy = config.policies()
     start = time.perf_counter()
-    vehicle_policy, intruder_policy = config.policies()
     # An evaluation without recording (evaluate(..., showcase=False)) ran another program: drawing needs the
     # trajectory, so such an episode is replayed alone (the same episode up to float rounding).
     final, traj = replay(seed, index, params, vehicle_policy, intruder_policy, n_steps,
@@ -326,6 +350,32 @@ def _render(args) -> int:
         "guarantee_violations": int(final["guarantee_violation"].sum()),
         "seconds": round(time.perf_counter() - start, 1)}))
     return 0
+
+
+def _event_to_render(args, store):
+    """The configuration, params and policies of record ``--event`` of ``--events`` (untrusted data: see
+    :mod:`stp_env.evaluation.events`). A plug-in intruder spec in the record is only imported when the user typed
+    the same spec as ``--intruder``."""
+    from stp_env.evaluation import resolve_intruder
+    from stp_env.evaluation.events import is_plugin_spec, load_events
+    from stp_env.evaluation.runner import prepare_event
+
+    records = load_events(args.events)
+    if not 0 <= args.event < len(records):
+        raise ValueError(f"--event {args.event}: {args.events} has {len(records)} record(s).")
+    record = records[args.event]
+    where = f"{args.events}, record {args.event}"
+    recorded_intruder = record["config"].get("intruder", "hj")
+    intruder_policy = None
+    if args.intruder is not None:
+        if args.intruder != recorded_intruder:
+            raise ValueError(f"--intruder {args.intruder!r} differs from the intruder of {where} "
+                             f"({recorded_intruder!r}); a saved event replays with its own intruder.")
+        if is_plugin_spec(args.intruder):
+            intruder_policy = resolve_intruder(args.intruder)  # typed by the user: trusted
+    config, params, vehicle_policy, intruder_policy = prepare_event(
+        record, store=store, progress=not args.no_progress, intruder_policy=intruder_policy, where=where)
+    return config, params, vehicle_policy, intruder_policy, record
 
 
 def _env_steps(text: str) -> int:
@@ -372,6 +422,9 @@ def _train_intruder(args) -> int:
     except ImportError as err:
         raise ValueError(f"train-intruder needs the rl extra (pip install 'stp-env[rl]'): {err}") from None
 
+    from stp_env.evaluation.pipeline import check_output_dir
+
+    check_output_dir(args.out)
     formats = ("stdout", "csv", "tensorboard") if args.tensorboard else ("stdout", "csv")
     config = TrainConfig(scenario=args.scenario, kbar=args.kbar, algo=args.algo, total_timesteps=args.timesteps,
                          n_envs=args.n_envs, n_steps=args.n_steps, batch_size=args.batch_size, seed=args.seed,
@@ -400,10 +453,15 @@ def main(argv=None) -> int:
             return _evaluate(args)
         if args.command == "render":
             return _render(args)
+        if args.command == "falsify":
+            from stp_env.falsify.cli import run_cli
+
+            return run_cli(args)
         if args.command == "coobservation":
             return args.run(args)
-    except ValueError as err:
-        print(f"stp-env {args.command}: error: {err}", file=sys.stderr)
+    except (ValueError, OSError) as err:  # bad options, unreadable inputs, unwritable outputs: one line, no traceback
+        message = " ".join(str(err).split())
+        print(f"stp-env {args.command}: error: {message}", file=sys.stderr)
         return 2
     parser.error(f"unknown command {args.command!r}")
     return 2

@@ -32,11 +32,13 @@ Actions
 -------
 ``Box(-1, 1, (2,), float32)`` for every agent: ``a[0]`` maps linearly to the speed ``[v_min, v_max]`` [m/s],
 ``a[1]`` to the turn rate ``[-omega_max, omega_max]`` [rad/s]. Out-of-range actions are clipped. NaN or inf,
-wrong shapes, and actions for unknown or finished agents raise ``ValueError`` and leave the state unchanged.
-A live agent missing from the action dict applies the zero action. With ``EnvConfig(safety_filter=True)`` (the
-default), a vehicle forced by the intruder (its relative state reached the boundary of ``V^A``, eqs. 17-18) has
-its action replaced by the avoidance control ``u^A`` (eq. 15) until the intruder leaves (eq. 38); the info
-``used_filter`` says when.
+anything but real numbers (strings, booleans, complex), wrong shapes, and actions for unknown or finished agents
+raise ``ValueError`` naming the agent and leave the state unchanged; the AEC form checks each action at its
+agent's own ``step`` (the agent is still to act after the error). ``step`` after every agent has finished raises
+``RuntimeError``: call ``reset``. A live agent missing from the action dict applies the zero action. With
+``EnvConfig(safety_filter=True)`` (the default), a vehicle forced by the intruder (its relative state reached the
+boundary of ``V^A``, eqs. 17-18) has its action replaced by the avoidance control ``u^A`` (eq. 15) until the
+intruder leaves (eq. 38); the info ``used_filter`` says when.
 
 Observations
 ------------
@@ -51,6 +53,17 @@ Rewards
 :class:`stp_env.sim.RewardConfig`: vehicles get progress toward the target, an arrival bonus (smaller after the
 STA) and a collision penalty; the intruder gets ``+forced`` per vehicle newly forced to avoid, a large bonus per
 collision it causes, and optional shaping by the avoid-region value.
+
+Seeds and options
+-----------------
+``reset(seed=s)``: ``s`` an integer in ``[0, 2**63 - 1]`` (:func:`stp_env.seeds.prng_key`: every seed its own
+episode stream, no truncation); booleans, floats, negative or larger seeds raise ``ValueError``. ``options``: a
+dict; ``{"appear_time": t}`` fixes the intruder's appearance time ``t`` [s, plan time], a real number within the
+episode ``[t_start, t_end]``; other keys are ignored with a warning. Everything is checked before anything
+changes: after a failed ``reset`` the key, state and agents are as before. An ``EnvConfig.appear_window`` that
+falls outside the episode raises ``ValueError`` when the environment is built. ``reset`` lists as ``agents`` the
+intruder and every vehicle not done at the episode's first instant (vehicles that arrived earlier are not agents
+of the episode).
 
 Infos (fresh dicts every step)
 ------------------------------
@@ -84,12 +97,16 @@ Version history
 ---------------
 * v0 (``stp_v0``): first release. Since then, with the same dynamics for the same actions: the ``replan``
   argument and the ``sta`` and ``replanned`` infos; ``guarantee_violation`` no longer counts a collision that a
-  vehicle flying the after-avoidance fallback takes part in (it still counts as a collision).
+  vehicle flying the after-avoidance fallback takes part in (it still counts as a collision). Seeds of
+  ``2**32`` and more give their own episodes (they were reduced to their low 32 bits); negative seeds, and
+  actions that are not real numbers, raise ``ValueError``.
 """
 
 from __future__ import annotations
 
 import functools
+import numbers
+import reprlib
 import time
 import warnings
 from typing import ClassVar
@@ -103,6 +120,7 @@ from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 from pettingzoo.utils.wrappers import OrderEnforcingWrapper
 
 from stp_env import sim
+from stp_env.seeds import prng_key
 from stp_env.sim import core
 from stp_env.sim.types import (
     AFTER_AVOIDANCE,
@@ -176,6 +194,17 @@ def _count_traces(fn):
 _advance_jit = jax.jit(_count_traces(_advance))
 
 
+def _check_appear_window(params) -> None:
+    """The intruder's appearance window must lie within the episode ``[t_start, t_end]``."""
+    lo, hi = (float(v) for v in np.asarray(params.appear_window))
+    t0, t1 = float(params.t_start), float(params.t_end)
+    if not (np.isfinite(lo) and np.isfinite(hi) and t0 - 1e-3 <= lo <= hi <= t1 + 1e-3):
+        raise ValueError(f"the intruder's appearance window [{lo:.2f}, {hi:.2f}] s (plan time; "
+                         "EnvConfig.appear_window is relative to the first departure) is not within the episode "
+                         f"[{t0:.2f}, {t1:.2f}] s: the intruder would appear before the episode starts or after it "
+                         "ends.")
+
+
 class STPParallelEnv(ParallelEnv):
     """PettingZoo ParallelEnv of STP vehicles and an intruder; see the module docstring (the user's manual)."""
 
@@ -205,6 +234,7 @@ class STPParallelEnv(ParallelEnv):
         if params is None:
             params = _cached_params(scenario, config) if store is None else sim.params_for(
                 scenario, config, store=store, progress=False)
+        _check_appear_window(params)
         self.params = params
         self._base_params = params
         self.replan = bool(replan)
@@ -260,58 +290,103 @@ class STPParallelEnv(ParallelEnv):
 
     # ------------------------------------------------------------------------------------------ reset / step
     def reset(self, seed: int | None = None, options: dict | None = None):
-        if seed is not None:
-            self._key = jax.random.key(int(seed))
-        elif self._key is None:
-            self._key = jax.random.key(int(np.random.SeedSequence().entropy % (2 ** 31)))
-        params = self.params = self._base_params
+        # Everything is checked before anything changes: a failed reset leaves the key, state and agents as they
+        # were (the next episode is the one it would have been without the failed call).
+        key = prng_key(seed) if seed is not None else self._key
+        appear_time = self._check_options(options)
+        if key is None:
+            key = prng_key(int(np.random.SeedSequence().entropy % (2 ** 31)))
+        params = self._base_params
+        start_params = params
+        if appear_time is not None:
+            start_params = replace(params, appear_window=jnp.asarray([appear_time, appear_time], jnp.float32))
+        key, state, flat = _start_jit(key, start_params)
+        self._key, self._state = key, state
+        self.params = params
         self._plan = self._plan0
         self._replan_tried = np.zeros(params.n_vehicles, bool)
         self._replanned = np.zeros(params.n_vehicles, bool)
         self._sta = np.asarray(params.sta, np.float64)
         self.replan_log = []
-        options = {} if options is None else dict(options)
-        unknown = sorted(set(options) - {"appear_time"})
-        if unknown:  # PettingZoo's API test passes arbitrary options and expects them to be ignored
-            gymnasium.logger.warn(f"ignoring unknown reset option(s) {unknown}; known: ['appear_time'] (seconds, "
-                                  "plan time).")
-        if "appear_time" in options:
-            t = float(options["appear_time"])
-            if not np.isfinite(t):
-                raise ValueError(f"appear_time must be finite; got {t}.")
-            params = replace(params, appear_window=jnp.asarray([t, t], jnp.float32))
-        self._key, self._state, flat = _start_jit(self._key, params)
         self._steps = 0
-        self.agents = list(self.possible_agents)
         obs, _, info_arr, _ = self._unpack(np.asarray(flat))
+        # Vehicles that arrived before the episode's first instant are not agents of it (they would only be
+        # terminated by the first step); the intruder always is.
+        done_v = info_arr[0] >= sim.ARRIVED
+        self.agents = [a for a in self.possible_agents if a == "intruder" or not done_v[self._index[a]]]
         infos = self._infos(info_arr)
+        obs = {a: obs[a] for a in self.agents}
+        infos = {a: infos[a] for a in self.agents}
         if self.render_mode == "human":
             self.render()
         return obs, infos
 
+    def _check_options(self, options) -> float | None:
+        """The ``appear_time`` option (``None`` if not given), checked; unknown options are warned about."""
+        if options is None:
+            return None
+        if not isinstance(options, dict):
+            raise ValueError(f"options must be a dict (e.g. {{'appear_time': seconds}}) or None; got "
+                             f"{type(options).__name__}.")
+        unknown = sorted(map(repr, set(options) - {"appear_time"}))
+        if unknown:  # PettingZoo's API test passes arbitrary options and expects them to be ignored
+            gymnasium.logger.warn(f"ignoring unknown reset option(s) {', '.join(unknown)}; known: 'appear_time' "
+                                  "(seconds, plan time).")
+        if "appear_time" not in options:
+            return None
+        t = options["appear_time"]
+        if isinstance(t, (bool, np.bool_)) or not isinstance(t, numbers.Real):
+            raise ValueError(f"appear_time must be a real number of seconds (plan time); got {t!r} "
+                             f"({type(t).__name__}).")
+        t = float(t)
+        if not np.isfinite(t):
+            raise ValueError(f"appear_time must be finite; got {t}.")
+        lo, hi = float(self._base_params.t_start), float(self._base_params.t_end)
+        if not lo <= t <= hi:
+            raise ValueError(f"appear_time {t} s is outside the episode [{lo:.2f}, {hi:.2f}] s (plan time): the "
+                             "intruder would appear before the episode starts or after it ends.")
+        return t
+
+    def _check_action(self, agent, a) -> np.ndarray | None:
+        """The action of a live ``agent`` as a clipped float32 ``(2,)`` array (``None``: the zero action);
+        ``ValueError`` naming the agent for anything else."""
+        if agent not in self._index:
+            raise ValueError(f"action for unknown agent {agent!r}; agents are {self.possible_agents}.")
+        if agent not in self.agents:
+            raise ValueError(f"action for {agent!r}, which has finished (terminated or truncated); "
+                             f"live agents: {self.agents}.")
+        if a is None:
+            return None
+        try:
+            arr = np.asarray(a)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"action for {agent!r} is not an array of numbers ({err}).") from None
+        if arr.dtype.kind not in "iuf":
+            raise ValueError(f"action for {agent!r} must be real numbers (speed, turn rate in [-1, 1]); got "
+                             f"{reprlib.repr(a)} (dtype {arr.dtype}).")
+        if arr.shape != (2,):
+            raise ValueError(f"action for {agent!r} must have shape (2,) (speed, turn rate in [-1, 1]); got "
+                             f"shape {arr.shape}.")
+        arr = arr.astype(np.float64)
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"action for {agent!r} is not finite: {arr.tolist()}; actions must be finite numbers "
+                             "in [-1, 1] (out-of-range values are clipped).")
+        return np.clip(arr, -1.0, 1.0).astype(np.float32)
+
     def _parse_actions(self, actions) -> np.ndarray:
         if self._state is None:
             raise RuntimeError("call reset() before step().")
+        if not self.agents:
+            raise RuntimeError("the episode is over (every agent has terminated or been truncated); call reset() "
+                               "before step().")
         if not isinstance(actions, dict):
             raise ValueError(f"actions must be a dict {{agent: action}}; got {type(actions).__name__}.")
         n = self.params.n_vehicles
         arr = np.zeros((n + 1, 2), np.float32)
         for agent, a in actions.items():
-            if agent not in self._index:
-                raise ValueError(f"action for unknown agent {agent!r}; agents are {self.possible_agents}.")
-            if agent not in self.agents:
-                raise ValueError(f"action for {agent!r}, which has finished (terminated or truncated); "
-                                 f"live agents: {self.agents}.")
-            if a is None:
-                continue
-            a = np.asarray(a, dtype=np.float64)
-            if a.shape != (2,):
-                raise ValueError(f"action for {agent!r} must have shape (2,) (speed, turn rate in [-1, 1]); got "
-                                 f"shape {a.shape}.")
-            if not np.all(np.isfinite(a)):
-                raise ValueError(f"action for {agent!r} is not finite: {a.tolist()}; actions must be finite numbers "
-                                 "in [-1, 1] (out-of-range values are clipped).")
-            arr[self._index[agent]] = np.clip(a, -1.0, 1.0)
+            checked = self._check_action(agent, a)
+            if checked is not None:
+                arr[self._index[agent]] = checked
         return arr
 
     def step(self, actions):
@@ -499,9 +574,28 @@ def parallel_env(scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None,
     return STPParallelEnv(scenario, config, **kwargs)
 
 
+class STPAECEnv(parallel_to_aec_wrapper):
+    """PettingZoo's ``parallel_to_aec`` conversion that checks each action when its agent steps.
+
+    The conversion buffers the actions of one cycle and steps the parallel env when the last agent has acted; a bad
+    action of an earlier agent would only be rejected then, and every later call would fail on the same buffered
+    action. Here a bad action raises ``ValueError`` at its agent's own ``step`` and is not buffered: the agent is
+    still the one to act, and nothing else changed."""
+
+    def step(self, action):
+        agent = self.agent_selection
+        if self.terminations[agent] or self.truncations[agent]:
+            if action is not None:
+                raise ValueError(f"{agent!r} has finished (terminated or truncated): its step takes None; got "
+                                 f"{action!r}.")
+        elif action is not None:
+            action = self.env._check_action(agent, action)
+        super().step(action)
+
+
 def raw_env(scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, **kwargs):
     """The AEC form without the order-enforcing wrapper."""
-    return parallel_to_aec_wrapper(parallel_env(scenario, config, **kwargs))
+    return STPAECEnv(parallel_env(scenario, config, **kwargs))
 
 
 def env(scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, **kwargs):

@@ -9,18 +9,16 @@ of another size is another compile); see the evaluation section of BENCHMARKS.md
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import re
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _cli import run_cli as _cli
 from scipy import special
 from scipy.stats import beta
 
-from stp_env import cli
 from stp_env.evaluation import (
     Configuration,
     beta_ppf,
@@ -101,16 +99,6 @@ def test_configuration_rejects_bad_fields():
 
 
 # ------------------------------------------------------------------------------------------------ subcommands
-def _cli(argv):
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            code = cli.main(argv)
-        except SystemExit as exc:     # argparse errors
-            code = exc.code
-    return code, out.getvalue(), err.getvalue()
-
-
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("evaluation")

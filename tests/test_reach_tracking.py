@@ -22,7 +22,7 @@ VEHICLE = DubinsWind(v_min=0.0, v_max=1.0, omega_max=2.0, wind=0.1)
 
 def config(**kw):
     base = dict(vehicle=VEHICLE, planning_v=(0.4, 0.5), planning_omega_max=1.0, half_width=1.0,
-                grid_points=(41, 41, 40), max_horizon=30.0, tol=0.005)
+                grid_points=(41, 41, 40), max_horizon=30.0)
     base.update(kw)
     return TrackingConfig(**base)
 

@@ -79,7 +79,7 @@ def test_four_vehicle_matches_spp_eqs_28_to_30():
         assert math.isclose(math.sin(spec.start[2]), math.sin(x0[2]), abs_tol=1e-12)
         assert spec.target == c and spec.target_radius == 0.1 and spec.sta == 0.0 and spec.priority == k
     assert s.collision_radius == 0.1 and s.method == "centralized"
-    assert s.planning_v == (0.7, 0.8) and s.planning_omega_max == 0.5
+    assert s.planning_v == (0.6, 0.7) and s.planning_omega_max == 0.2
     assert max(s.grid_spacing[:2]) <= 0.03
 
 

@@ -97,7 +97,7 @@ def test_wind_models_respect_their_bounds():
     from stp_env.sim import wind as wind_lib
 
     base = _params("outside")
-    for model in ("uniform", "constant", "gusts", "worst"):
+    for model in ("uniform", "constant", "gusts"):
         params = dataclasses.replace(base, wind_model=model)
         state = sim.reset(jax.random.key(0), params)
         sample = jax.jit(wind_lib.sample)
@@ -106,6 +106,12 @@ def test_wind_models_respect_their_bounds():
             speed = np.linalg.norm(np.asarray(w), axis=1)
             assert (speed <= float(params.vehicle_bounds[3]) * (1 + 1e-5)).all(), model
             state = dataclasses.replace(state, wind=new_wind)
+    # The worst case (state-dependent, re-evaluated at every inner step) blows at full strength.
+    params = dataclasses.replace(base, wind_model="worst")
+    state = sim.reset(jax.random.key(0), params)
+    speed = np.linalg.norm(np.asarray(wind_lib.worst(state, params))[:-1], axis=1)
+    bound = float(params.vehicle_bounds[3])
+    assert (speed <= bound * (1 + 1e-5)).all() and speed.max() >= 0.99 * bound
 
 
 def test_impossible_configs_are_rejected():
@@ -119,50 +125,24 @@ def test_impossible_configs_are_rejected():
         sim.EnvConfig(dtt=0.1)
 
 
-def _tracking_errors(params, key, n_episodes, dt, wind_mode):
-    """Largest position error of every vehicle tracking its whole plan with the sampled tracker
-    (``tables.tracking_control``, as the ``u^PP`` baseline does) under i.i.d. uniform or the tracking game's
-    worst-case wind, no intruder; ``(n_episodes, N)`` [m]."""
-    from stp_env.sim import core, tables
-    from stp_env.sim.physics import disk_sample, relative_state, rotate
-
-    n = params.n_vehicles
-    t0, t1 = float(params.departure.min()), float(params.nominal_arrival.max())
-
-    def episode(key):
-        def step(carry, k):
-            x, key, worst = carry
-            t = t0 + k * dt
-            ref, _ = core.nominal_reference(params, t)
-            x = jnp.where(((t >= params.departure) & (t - dt < params.departure))[:, None], ref, x)
-            fly = (t >= params.departure) & (t <= params.nominal_arrival)
-            e = relative_state(x, ref)
-            u, d_body = jax.vmap(lambda err: tables.tracking_control(params, err))(e)
-            key, sub = jax.random.split(key)
-            if wind_mode == "uniform":
-                wind = disk_sample(jax.random.uniform(sub, (n, 2)), params.vehicle_bounds[3])
-            else:
-                wind = rotate(x[:, 2], d_body)
-            x = jnp.where(fly[:, None], dubins_step(x, u[:, 0], u[:, 1], wind, dt), x)
-            return (x, key, jnp.maximum(worst, jnp.where(fly, jnp.hypot(e[:, 0], e[:, 1]), 0.0))), None
-
-        steps = int((t1 - t0) / dt)
-        (_, _, worst), _ = jax.lax.scan(step, (params.starts, key, jnp.zeros(n)), jnp.arange(steps))
-        return worst
-
-    return np.asarray(jax.jit(jax.vmap(episode))(jax.random.split(key, n_episodes)))
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize("wind_mode", ["uniform", "worst"])
-def test_sampled_tracker_keeps_every_town_plan(wind_mode):
-    """The seven town plans flown in full: the tracker never loses its reference at the simulator's step (the
-    bang-bang eq. 26 did in 6 % of such episodes under uniform wind), stays within r_e + 1 m there (a sampled-data
-    excess: 4.85 m measured against r_e = 4.13 m), and within r_e itself at a fine step (the continuous-time
-    bound of SPP eqs. 24-26)."""
-    params = _params("outside")
+@pytest.mark.parametrize("wind_model", ["uniform", "worst"])
+def test_every_town_plan_is_tracked_within_r_e(wind_model):
+    """The seven town plans flown in full through the core (the tracker ``kappa`` at the inner control rate) under
+    uniform wind and under the tracking game's worst-case wind (the model the core re-evaluates at every inner
+    step): no vehicle on its plan ever gets farther than ``r_e`` from its nominal position. (The boundary-layer
+    tracker held for a whole step, and the wind applied with the helpful sign, once passed a weaker version of
+    this test while the simulator's own worst wind threw vehicles a kilometre off.)"""
+    plan = shipped_plan_for("town", 2)
+    first = min(v.plan.t_ldt for v in plan.vehicles)
+    last = max(v.plan.sta for v in plan.vehicles)
+    cfg = sim.EnvConfig(wind_model=wind_model, episode="full", appear_window=(last - first + 30.0,) * 2)
+    params = sim.params_for("town", cfg, progress=False)
+    final, _ = sim.rollout(jax.random.key(5), params, switching, INTRUDERS["hover"], 8, sim.steps_for(params))
     r_e = float(params.tracking_bound)
-    coarse = _tracking_errors(params, jax.random.key(1), 16, float(params.dt), wind_mode)
-    assert coarse.max() <= r_e + 1.0, coarse.max(axis=0)
-    fine = _tracking_errors(params, jax.random.key(2), 4, 0.02, wind_mode)
-    assert fine.max() <= r_e, fine.max(axis=0)
+    err = np.asarray(final.max_tracking_error)
+    assert not np.asarray(final.tracking_violation).any()
+    assert err.max() <= r_e, (err.max(axis=0), r_e)
+    assert err.max() > 0.3 * r_e  # the wind does push: the bound is not vacuous
+    assert (np.asarray(final.status) == sim.ARRIVED).all()
+    assert (np.asarray(final.arrival_time) <= np.asarray(params.sta)[None, :] + 1e-4).all()

@@ -208,9 +208,52 @@ def test_solve_until_converged_with_walls():
     assert low.converged and low.horizon <= 2.0
     np.testing.assert_allclose(np.asarray(low.values), exact, atol=1e-4)
 
-    never = hj.solve_until_converged(VERY_HIGH, dyn, GRID1, target, check_interval=0.1, max_horizon=0.3,
-                                     tol=1e-4, progress=False)
+    with pytest.warns(RuntimeWarning, match="not converged after 0.3"):
+        never = hj.solve_until_converged(VERY_HIGH, dyn, GRID1, target, check_interval=0.1, max_horizon=0.3,
+                                         tol=1e-4, progress=False)
     assert not never.converged and never.horizon == pytest.approx(0.3) and len(never.changes) == 3
+    assert never.rate == pytest.approx(never.changes[-1] / 0.1)
+
+
+def test_convergence_never_passes_on_an_empty_comparison_set():
+    """A band that every node's value has left compares nothing: that must not count as convergence.
+
+    Target ``|x| + 2`` (no zero level) in a tube that keeps growing: every value exceeds the band of 1 from the
+    start, so the old rule (the largest change over an empty set is 0) reported convergence on the first check
+    while the values were still changing by 0.25 per check."""
+    dyn = SingleIntegrator(dim=1, speed=1.0)
+    target = jnp.asarray(np.abs(X1) + 2.0, jnp.float32)
+    with pytest.warns(RuntimeWarning, match="not converged"):
+        out = hj.solve_until_converged(VERY_HIGH, dyn, GRID1, target, check_interval=0.25, max_horizon=0.5,
+                                       tol=1e-3, band=1.0, progress=False)
+    assert not out.converged
+    assert out.compared == (0, 0) and all(math.isinf(c) for c in out.changes)
+    # Over the whole grid the same solve is visibly still moving, which is what the band hid.
+    loose = hj.solve_until_converged(VERY_HIGH, dyn, GRID1, target, check_interval=0.25, max_horizon=0.5,
+                                     tol=1e-3, progress=False, warn=False)
+    assert not loose.converged and min(loose.changes) > 0.2
+
+
+def test_convergence_watches_what_users_consume():
+    """A watched quantity that still moves keeps the loop going although the compared band has settled; a
+    relative tolerance scales with the watched quantity.
+
+    The walls problem of the test above: the band ``|V| <= 0.1`` settles within 1 s, but WENO5 keeps pushing the
+    plateau below ``min l = -0.2`` by 3e-4 to 1e-3 per 0.5 s (the plateau lies outside the band)."""
+    dyn = SingleIntegrator(dim=1, speed=1.0)
+    target = jnp.asarray(np.abs(X1) - 0.2, jnp.float32)
+    walls = jnp.asarray(0.6 - np.abs(X1), jnp.float32)
+    kwargs = dict(obstacle=walls, check_interval=0.5, max_horizon=3.0, band=0.1, progress=False)
+    banded = hj.solve_until_converged(VERY_HIGH, dyn, GRID1, target, tol=1e-4, **kwargs)
+    assert banded.converged and banded.horizon <= 1.0
+    watched = hj.solve_until_converged(VERY_HIGH, dyn, GRID1, target, tol=1e-4, watch=jnp.min, warn=False,
+                                       **kwargs)
+    assert not watched.converged
+    plateau = [w[0] for w in watched.watched]
+    assert plateau[-1] < plateau[0] < -0.2
+    relative = hj.solve_until_converged(VERY_HIGH, dyn, GRID1, target, tol=0.0, rtol=0.01, watch=jnp.min,
+                                        **kwargs)
+    assert relative.converged and relative.horizon <= 1.0
 
 
 def test_progress_bar_runs():
@@ -345,7 +388,8 @@ def test_presets_and_unknown_preset():
     [
         ({"check_interval": 0.0}, "check_interval > 0"),
         ({"check_interval": 2.0, "max_horizon": 1.0}, "max_horizon >= check_interval"),
-        ({"tol": 0.0}, "tol > 0"),
+        ({"tol": 0.0}, "tol \\+ rtol > 0"),
+        ({"tol": -1.0}, "tol >= 0"),
     ],
 )
 def test_bad_convergence_loop_arguments(kwargs, pattern):

@@ -16,11 +16,9 @@ documented faster substitute: fly at the fastest planning speed toward the targe
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 
-from stp_env.sim import core, tables
-from stp_env.sim.physics import control_to_action, relative_state, wrap_angle
+from stp_env.sim.physics import control_to_action, wrap_angle
 from stp_env.sim.types import AFTER_AVOIDANCE, AVOIDING, PRESENT
 
 HEADING_GAIN = 2.0  # [1/s] fallback turn rate per radian of heading error
@@ -36,14 +34,11 @@ def fallback_control(state, params):
 
 
 def nominal_tracking(key, state, params):
-    """``u^PP``: track the nominal trajectory with ``kappa`` (SPP eq. 26); fallback after an avoidance."""
+    """``u^PP``: track the nominal trajectory with ``kappa`` (SPP eq. 26, computed by the core into
+    ``state.track_action`` at every inner control step); fallback after an avoidance."""
     del key
-    x_ref, _ = core.nominal_reference(params, state.t)
-    err = relative_state(state.x, x_ref)
-    u = jax.vmap(lambda e: tables.tracking_control(params, e)[0])(err)
-    track = control_to_action(u[:, 0], u[:, 1], params.vehicle_bounds)
     after = state.mode == AFTER_AVOIDANCE
-    return jnp.where(after[:, None], fallback_control(state, params), track)
+    return jnp.where(after[:, None], fallback_control(state, params), state.track_action)
 
 
 def safety_filter(policy):

@@ -25,7 +25,7 @@ EPISODE_CHOICES = ("window", "full")
 LEARNED_PREFIX = "learned:"
 
 
-def resolve_intruder(spec: str) -> Callable:
+def resolve_intruder(spec: str, *, allow_plugins: bool = True) -> Callable:
     """An intruder policy from a name or an import spec.
 
     * a scripted intruder: one of :data:`stp_env.baselines.INTRUDERS`;
@@ -38,7 +38,13 @@ def resolve_intruder(spec: str) -> Callable:
 
     The policy is a static argument of the compiled rollout: the same object must be passed for every batch (a
     factory is called once here), or each batch would compile again.
+
+    An import spec runs code (it imports the module and may call the factory): it is for specs the user typed
+    (the command line) or wrote (their own code), never for names read from a file. ``allow_plugins=False``
+    refuses them (how saved events are replayed, :mod:`stp_env.evaluation.events`).
     """
+    if not isinstance(spec, str) or not spec:
+        raise ValueError(f"an intruder is a non-empty name or spec string; got {spec!r}.")
     if spec in INTRUDERS:
         return INTRUDERS[spec]
     if spec.startswith(LEARNED_PREFIX):
@@ -49,6 +55,9 @@ def resolve_intruder(spec: str) -> Callable:
         raise ValueError(f"unknown intruder {spec!r}; allowed: {', '.join(INTRUDERS)}, 'learned:NAME_OR_PATH' "
                          "(stp_env.rl.policy.load_intruder), or 'package.module:policy' / "
                          "'package.module:factory=ARGUMENT' for any jittable intruder policy.")
+    if not allow_plugins:
+        raise ValueError(f"intruder {spec!r} is a plug-in spec (code to import), which is not accepted here; "
+                         f"allowed: {', '.join(INTRUDERS)} or 'learned:NAME_OR_PATH'.")
     module_name, _, attribute = spec.partition(":")
     attribute, has_argument, argument = attribute.partition("=")
     try:
@@ -99,19 +108,28 @@ class Configuration:
     episode: str = "window"
 
     def __post_init__(self) -> None:
+        for name in ("scenario", "intruder", "wind_model", "spawn_mode", "vehicle_policy", "episode"):
+            value = getattr(self, name)
+            if not isinstance(value, str) or not value:
+                raise ValueError(f"{name} must be a non-empty string; got {value!r}.")
         if isinstance(self.kbar, bool) or not isinstance(self.kbar, int) or self.kbar < 1:
             raise ValueError(f"kbar must be an integer >= 1 (the number of vehicles the intruder may force to "
                              f"avoid); got {self.kbar!r}.")
-        if self.wind is not None and (not isinstance(self.wind, (int, float)) or not math.isfinite(self.wind)
+        if self.wind is not None and (isinstance(self.wind, bool) or not isinstance(self.wind, (int, float))
+                                      or not math.isfinite(self.wind)
                                       or self.wind < 0):
             raise ValueError(f"wind must be a finite number >= 0 [m/s]; got {self.wind!r}.")
         if self.wind_model not in WIND_MODELS:
-            raise ValueError(f"wind model {self.wind_model!r} is not known; allowed: {', '.join(WIND_MODELS)}.")
+            raise ValueError(f"wind_model {self.wind_model!r} is not a known wind model; allowed: "
+                             f"{', '.join(WIND_MODELS)}.")
         if self.spawn_mode not in SPAWN_CHOICES:
-            raise ValueError(f"spawn mode {self.spawn_mode!r} is not known; allowed: {', '.join(SPAWN_CHOICES)}.")
+            raise ValueError(f"spawn_mode {self.spawn_mode!r} is not a known spawn mode; allowed: "
+                             f"{', '.join(SPAWN_CHOICES)}.")
         if self.episode not in EPISODE_CHOICES:
             raise ValueError(f"episode {self.episode!r} is not known; allowed: {', '.join(EPISODE_CHOICES)}.")
-        resolve_vehicle_policy(self.vehicle_policy)
+        if self.vehicle_policy not in VEHICLE_POLICIES:
+            raise ValueError(f"vehicle_policy {self.vehicle_policy!r} is not known; allowed: "
+                             f"{', '.join(VEHICLE_POLICIES)}.")
 
     @property
     def effective_spawn_mode(self) -> str:

@@ -7,6 +7,8 @@ after it leaves), a zoom on it, a frame every ``frame_dt`` seconds, a low resolu
 from __future__ import annotations
 
 import importlib.util
+import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -94,9 +96,19 @@ def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float 
 
     out = Path(path)
     if importlib.util.find_spec("PIL") is not None:
+        from stp_env.artifacts import TEMP_PREFIX, writer_tag
+
         anim = animation.FuncAnimation(fig, draw, frames=list(steps), blit=False)
-        anim.save(str(out), writer=animation.PillowWriter(fps=fps), dpi=dpi)
-        plt.close(fig)
+        # written beside the target and moved onto it: an interrupted render leaves no half-written GIF
+        fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=TEMP_PREFIX + writer_tag(), suffix=out.suffix or ".gif")
+        os.close(fd)
+        try:
+            anim.save(tmp, writer=animation.PillowWriter(fps=fps), dpi=dpi)
+            os.replace(tmp, out)
+        finally:
+            plt.close(fig)
+            if os.path.exists(tmp):
+                os.remove(tmp)
         return [str(out)], len(steps)
     frames_dir = out.with_suffix("")
     frames_dir.mkdir(parents=True, exist_ok=True)

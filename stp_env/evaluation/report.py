@@ -1,22 +1,29 @@
 """Results as JSON, CSV and a markdown table; bad episodes as replayable records (``events.json`` +
-``events.npz``); every episode's final state (``episodes.npz``)."""
+``events.npz``); every episode's final state (``episodes.npz``). Every file is written atomically
+(:func:`atomic_open`)."""
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import json
+import os
 import platform
 import subprocess
+import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from stp_env.evaluation.events import load_event_state  # noqa: F401  (re-exported)
 
 CSV_COLUMNS = (
     "label", "scenario", "kbar", "intruder", "scenario_wind_mps", "wind_model", "spawn_mode", "vehicle_policy",
     "episode", "episodes", "forced_mean", "forced_max", "exceed", "exceed_rate", "exceed_upper", "confidence",
     "collision_episodes", "collisions", "intruder_collisions", "out_of_bounds", "guarantee_violations",
-    "violation_episodes", "violation_upper", "assumption_failures", "due", "on_time_rate", "arrived_rate",
+    "violation_episodes", "violation_upper", "assumption_failures", "tracking_violations", "max_tracking_error_m",
+    "tracking_bound_m", "due", "on_time_rate", "arrived_rate",
     "min_separation_m", "min_separation_p5_m", "min_separation_median_m", "collision_radius_m", "seed", "n_steps",
     "batch_size", "seconds", "episodes_per_s",
 )
@@ -35,20 +42,45 @@ def markdown_table(summaries: list[dict]) -> str:
     conf = summaries[0]["confidence"] if summaries else 0.95
     head = ("| intruder | k̄ | wind [m/s] | episodes | mean \\|N^RP\\| | max \\|N^RP\\| | \\|N^RP\\| > k̄ | "
             f"P(\\|N^RP\\| > k̄) ≤ ({100 * conf:g}%) | collisions (intruder) | guarantee violations | "
-            "on time | min sep. [m] |")
-    rows = [head, "|" + " --- |" * 12]
+            "max tracking error [m] (r_e) | on time | min sep. [m] |")
+    rows = [head, "|" + " --- |" * 13]
     for s in summaries:
         wind = f"{s['scenario_wind_mps']:g} {s['wind_model']}"
         rows.append(
             f"| {s['intruder']} ({s['spawn_mode']}) | {s['kbar']} | {wind} | {s['episodes']} | "
             f"{s['forced_mean']:.2f} | {s['forced_max']} | {s['exceed']} | {_pct(s['exceed_upper'])} | "
             f"{s['collisions']} ({s['intruder_collisions']}) | {s['guarantee_violations']} | "
+            f"{s['max_tracking_error_m']:.2f} ({s['tracking_bound_m']:.2f}) | "
             f"{_pct(s['on_time_rate'])} | {s['min_separation_m']} |")
     return "\n".join(rows)
 
 
+@contextlib.contextmanager
+def atomic_open(path, mode: str = "w", **kwargs):
+    """Open a temporary file beside ``path`` for writing and move it onto ``path`` (``os.replace``) when the block
+    ends without an error: ``path`` is either its old content or the complete new one, never half written."""
+    from stp_env.artifacts import TEMP_PREFIX, writer_tag
+
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=TEMP_PREFIX + writer_tag(), suffix=path.suffix)
+    try:
+        with os.fdopen(fd, mode, **kwargs) as fh:
+            yield fh
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def write_text(text: str, path) -> str:
+    """``text`` to ``path``, atomically (:func:`atomic_open`)."""
+    with atomic_open(path) as fh:
+        fh.write(text)
+    return str(path)
+
+
 def write_csv(summaries: list[dict], path) -> str:
-    with open(path, "w", newline="") as f:
+    with atomic_open(path, "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=CSV_COLUMNS, extrasaction="ignore")
         writer.writeheader()
         for s in summaries:
@@ -102,8 +134,7 @@ def provenance() -> dict:
 def write_json(summaries: list[dict], path, **extra) -> str:
     """``{"provenance": provenance(), **extra, "configurations": summaries}`` as indented JSON."""
     record = {"provenance": provenance(), **extra, "configurations": summaries}
-    Path(path).write_text(json.dumps(record, indent=1) + "\n")
-    return str(path)
+    return write_text(json.dumps(record, indent=1) + "\n", path)
 
 
 def write_events(results, out_dir) -> tuple[str, str]:
@@ -119,8 +150,9 @@ def write_events(results, out_dir) -> tuple[str, str]:
             for field, value in event["state"].items():
                 arrays[f"{n}/{field}"] = np.asarray(value)
     json_path, npz_path = out_dir / "events.json", out_dir / "events.npz"
-    json_path.write_text(json.dumps(records, indent=1) + "\n")
-    np.savez_compressed(npz_path, **arrays)
+    with atomic_open(npz_path, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
+    write_text(json.dumps(records, indent=1) + "\n", json_path)
     return str(json_path), str(npz_path)
 
 
@@ -128,12 +160,6 @@ def write_episodes(results, path) -> str:
     """Every episode's final state, keys ``"{label}/{field}"`` (plus ``n_forced`` and ``index``), for analyses
     beyond the summary."""
     arrays = {f"{r.config.label}/{k}": np.asarray(v) for r in results for k, v in r.episodes.items()}
-    np.savez_compressed(path, **arrays)
+    with atomic_open(path, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
     return str(path)
-
-
-def load_event_state(npz_path, record: dict) -> dict:
-    """The saved final state of one ``events.json`` record."""
-    prefix = record["npz_prefix"]
-    with np.load(npz_path, allow_pickle=False) as data:
-        return {k[len(prefix):]: data[k] for k in data.files if k.startswith(prefix)}

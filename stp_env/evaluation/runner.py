@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import numbers
 import time
 
 import jax
@@ -25,8 +26,10 @@ import numpy as np
 from stp_env import sim
 from stp_env.evaluation.config import Configuration
 from stp_env.evaluation.stats import clopper_pearson_upper
+from stp_env.seeds import check_seed, prng_key
 from stp_env.sim.types import ARRIVED, COLLIDED, OUT_OF_BOUNDS
 
+MAX_EPISODES = 2**30  # episode indices are int32 (the last batch runs past the last episode)
 EVENT_KINDS = ("bound_exceeded", "collision", "guarantee_violation", "assumption_failed")
 
 
@@ -106,6 +109,7 @@ def _events(config: Configuration, seed: int, n_steps: int, plan_samples: int, b
             "collision_times_s": [round(float(ep["collision_time"][j, i]), 2) for i in collided],
             "with_intruder": [bool(ep["collided_with_intruder"][j, i]) for i in collided],
             "violating_vehicles": np.flatnonzero(ep["guarantee_violation"][j]).tolist(),
+            "tracking_violating_vehicles": np.flatnonzero(ep["tracking_violation"][j]).tolist(),
             "t_appear_s": round(float(ep["t_appear"][j]), 2),
             "state": {k: v[j] for k, v in ep.items() if k not in ("index",)},
         })
@@ -121,8 +125,12 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
     * ``collision_episodes`` (episodes with any collision), ``collisions`` (vehicles), ``intruder_collisions``
       (vehicles hit by the intruder), ``guarantee_violations`` (vehicles that collided although the intruder
       appeared outside their avoid region and they applied ``u^A`` throughout, i.e. a failure of the theory or
-      the numerics), ``violation_episodes`` and its upper bound; ``assumption_failures``: episodes where the
-      intruder appeared inside a vehicle's avoid region (Assumption 3 failed; no guarantee applies).
+      the numerics; a vehicle that tracked its plan with ``kappa`` and still got farther than ``r_e`` from it counts
+      too), ``violation_episodes`` and its upper bound; ``assumption_failures``: episodes where the intruder
+      appeared inside a vehicle's avoid region (Assumption 3 failed; no guarantee applies).
+    * ``tracking_violations``: vehicles farther than ``r_e`` (``tracking_bound_m``) from their nominal position
+      while tracking their plan (SPP eqs. 24-26); ``max_tracking_error_m``: the largest such distance of any
+      vehicle that tracked its plan.
     * ``due``: vehicle-episodes whose STA falls within the simulated time (``<= t_end``), not counting vehicles
       already in their target when the episode starts; ``on_time_rate``: the fraction of them that arrived by their
       STA; ``arrived_rate``: that arrived at all within the episode. A ``"window"`` episode has few due vehicles
@@ -170,6 +178,9 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
         "violation_episodes": violation_eps,
         "violation_upper": clopper_pearson_upper(violation_eps, n_ep, confidence),
         "assumption_failures": int(np.sum(~np.all(ep["assumption_ok"], axis=1))),
+        "tracking_violations": int(ep["tracking_violation"].sum()),
+        "max_tracking_error_m": round(float(np.max(np.where(ep["tracked"], ep["max_tracking_error"], 0.0))), 3),
+        "tracking_bound_m": round(float(params.tracking_bound), 3),
         "due": n_due,
         "on_time_rate": float(on_time.sum() / n_due) if n_due else None,
         "arrived_rate": float(arrived.sum() / n_due) if n_due else None,
@@ -209,15 +220,19 @@ def evaluate(configs, *, episodes: int = 1000, seed: int = 0, batch_size: int = 
     if not configs:
         raise ValueError("no configuration to evaluate.")
     for name, value in (("episodes", episodes), ("batch_size", batch_size)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name} must be an integer >= 1; got {value!r}.")
-    if not 0.0 < confidence < 1.0:
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_EPISODES:
+            raise ValueError(f"{name} must be an integer in [1, {MAX_EPISODES}]; got {value!r}.")
+    if isinstance(confidence, bool) or not isinstance(confidence, (int, float)) or not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence must be in (0, 1); got {confidence!r}.")
+    check_seed(seed)
+    for config in configs:
+        if not isinstance(config, Configuration):
+            raise ValueError(f"configurations must be Configuration objects; got {type(config).__name__}.")
     batch_size = min(batch_size, episodes)
     all_params = build_params(configs, store=store, progress=progress) if params is None else list(params)
     plan_samples = max(p.nominal_states.shape[1] for p in all_params)
     n_steps = max(sim.steps_for(p) for p in all_params)
-    key = jax.random.key(seed)
+    key = prng_key(seed)
     results = []
     for config, params_i in zip(configs, all_params):
         params_i = pad_plan(params_i, plan_samples)
@@ -273,9 +288,17 @@ def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_ste
     differently (10 of 10 town episodes of a batch of 250 replayed alone ended identically, BENCHMARKS.md). Either
     way the reachability artifacts must be the same as in the evaluation.
     """
+    check_seed(seed)
+    for name, value, lo, hi in (("index", index, 0, MAX_EPISODES - 1), ("batch_size", batch_size, 1, MAX_EPISODES),
+                                ("n_steps", n_steps, 1, None)):
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < lo or (
+                hi is not None and value > hi):
+            raise ValueError(f"{name} must be an integer >= {lo}" + ("" if hi is None else f" and <= {hi}")
+                             + f"; got {value!r}.")
+    index, batch_size, n_steps = int(index), int(batch_size), int(n_steps)
     first = (index // batch_size) * batch_size
     indices = jnp.arange(first, first + batch_size, dtype=jnp.int32)
-    final, traj = run_batch(jax.random.key(seed), indices, params, vehicle_policy, intruder_policy, n_steps,
+    final, traj = run_batch(prng_key(seed), indices, params, vehicle_policy, intruder_policy, n_steps,
                             record=record)
     j = index - first
     state = {k: v[j] for k, v in host_state(final).items()}
@@ -283,11 +306,29 @@ def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_ste
     return state, (None if traj is None else {k: np.asarray(v[j]) for k, v in traj.items()})
 
 
-def replay_event(event: dict, *, store=None, progress: bool = False):
-    """Replay a saved event (an entry of ``ConfigResult.events`` or of ``events.json``) in its evaluation batch."""
-    config = Configuration(**event["config"])
-    params = pad_plan(build_params([config], store=store, progress=progress)[0], event["plan_samples"])
-    vehicle_policy, intruder_policy = config.policies()
+def prepare_event(event: dict, *, store=None, progress: bool = False, intruder_policy=None,
+                  where: str = "event"):
+    """What replaying a saved event needs: ``(configuration, params, vehicle policy, intruder policy)``.
+
+    The record is untrusted data (:mod:`stp_env.evaluation.events`): it is checked first, and its intruder must be
+    registered or learned; a plug-in spec is refused before any work unless ``intruder_policy`` is given."""
+    from stp_env.evaluation.events import check_replay_sizes, event_configuration
+
+    config, vehicle_policy, intruder_policy = event_configuration(event, intruder_policy=intruder_policy,
+                                                                  where=where)
+    params = build_params([config], store=store, progress=progress)[0]
+    check_replay_sizes(event, params, where)
+    return config, pad_plan(params, event["plan_samples"]), vehicle_policy, intruder_policy
+
+
+def replay_event(event: dict, *, store=None, progress: bool = False, intruder_policy=None):
+    """Replay a saved event (an entry of ``ConfigResult.events`` or of ``events.json``) in its evaluation batch.
+
+    A record whose intruder is a plug-in spec (``package.module:attribute``) is not imported from the record:
+    pass ``intruder_policy`` (e.g. ``resolve_intruder(spec)`` of a spec you trust); see
+    :mod:`stp_env.evaluation.events`."""
+    _, params, vehicle_policy, intruder_policy = prepare_event(event, store=store, progress=progress,
+                                                               intruder_policy=intruder_policy)
     return replay(event["seed"], event["index"], params, vehicle_policy, intruder_policy, event["n_steps"],
                   batch_size=event["batch_size"], record=event["recorded"])
 

@@ -344,10 +344,14 @@ class ConvergedResult:
 
     Attributes:
         values: the final value function.
-        converged: whether ``max |V(s + check) - V(s)| <= tol`` (over ``band``) was reached.
+        converged: whether the last check interval changed every compared quantity by at most ``tol + rtol *
+            scale``; never on an empty comparison set.
         horizon: the (absolute) horizon at which the loop stopped.
         n_steps: time steps taken.
-        changes: the max change after each check interval.
+        changes: the residual after each check interval: the largest change of the compared values and of the
+            watched quantities (``inf`` when the comparison set was empty).
+        compared: how many grid nodes each check compared (``band`` or ``region``; the whole grid otherwise).
+        watched: the watched quantities after each check (``watch``), one tuple per check.
     """
 
     values: jnp.ndarray
@@ -355,26 +359,57 @@ class ConvergedResult:
     horizon: float
     n_steps: int
     changes: tuple[float, ...]
+    compared: tuple[int, ...] = ()
+    watched: tuple[tuple[float, ...], ...] = ()
+    check_interval: float = 1.0
+
+    @property
+    def rate(self) -> float:
+        """The residual rate of change at the end, ``changes[-1] / check_interval`` (per unit of time)."""
+        return self.changes[-1] / self.check_interval if self.changes else math.inf
 
 
 def solve_until_converged(settings: SolverSettings, dynamics: ControlAffineDynamics, grid: Grid, target, *,
                           tube: bool = True, obstacle=None, check_interval: float = 1.0,
-                          max_horizon: float = 100.0, tol: float = 1e-3, band: float | None = None,
+                          max_horizon: float = 100.0, tol: float = 1e-3, rtol: float = 0.0,
+                          band: float | None = None, region: Callable[[Any, Any], Any] | None = None,
+                          watch: Callable[[Any], Any] | None = None, warn: bool = True,
                           progress: bool = True, dtype=jnp.float32) -> ConvergedResult:
     """Backward solve until the value function stops changing: infinite-horizon sets such as the robust
     controlled-invariant set of tracking-error dynamics (SPP paper eqs. 24-26).
 
-    Stops when ``max |V_new - V_old| <= tol`` over one ``check_interval`` of simulated time, restricted to nodes
-    with ``|V| <= band`` when ``band`` is given (the sets are what matters, not the far field), or at
-    ``max_horizon``.
+    After every ``check_interval`` of simulated time the loop compares the new values with the old ones and stops
+    when the residual is at most ``tol + rtol * scale`` (``scale``: the largest watched quantity in absolute value
+    when ``watch`` is given, else the largest ``|V|`` compared). The residual is the largest of
+
+    * ``max |V_new - V_old|`` over the compared nodes: those with ``|V| <= band`` (old or new) when ``band`` is
+      given (the sets near the zero level, not the far field), those where ``region(old, new)`` is true when
+      ``region`` is given, else the whole grid;
+    * ``max |watch(V_new) - watch(V_old)|`` when ``watch`` is given: the quantities a user consumes (a value at a
+      point, the smallest level, ...), a jittable ``values -> array``.
+
+    A check whose comparison set is empty compares nothing and cannot pass: its residual is ``inf`` (a band that
+    every node's value has left would otherwise report convergence on the first check). At ``max_horizon`` the
+    loop stops with ``converged=False`` and, unless ``warn=False``, a :class:`RuntimeWarning` that gives the last
+    residual and its rate per unit time (``ConvergedResult.rate``, the creep a user should know of).
     """
-    if not (check_interval > 0 and max_horizon >= check_interval and tol > 0):
-        raise ValueError("Need check_interval > 0, max_horizon >= check_interval and tol > 0; got "
-                         f"{check_interval}, {max_horizon}, {tol}.")
+    if not (check_interval > 0 and max_horizon >= check_interval and tol >= 0 and rtol >= 0 and tol + rtol > 0):
+        raise ValueError("Need check_interval > 0, max_horizon >= check_interval, tol >= 0, rtol >= 0 and tol + rtol "
+                         f"> 0; got {check_interval}, {max_horizon}, {tol}, {rtol}.")
+    if band is not None and region is not None:
+        raise ValueError("Give band or region, not both.")
+    if band is not None:
+        if not band > 0:
+            raise ValueError(f"band must be > 0; got {band}.")
+
+        def region(old, new):
+            return (jnp.abs(new) <= band) | (jnp.abs(old) <= band)
+
     values = jnp.asarray(target, dtype)
-    horizon, n_steps, changes = 0.0, 0, []
+    horizon, n_steps, changes, compared, watched = 0.0, 0, [], [], []
     converged = False
-    n_checks = math.ceil(max_horizon / check_interval)
+    n_checks = math.ceil(max_horizon / check_interval - 1e-9)
+    previous_watch = None if watch is None else np.asarray(watch(values), np.float64).ravel()
     bar = _progress_bar(max_horizon, progress)
     try:
         for _ in range(n_checks):
@@ -382,24 +417,50 @@ def solve_until_converged(settings: SolverSettings, dynamics: ControlAffineDynam
             res = solve(settings, dynamics, grid, [0.0, -check_interval], target, initial_values=values,
                         tube=tube, obstacle=obstacle, progress=False, dtype=dtype)
             new = res.values[-1]
-            diff = jnp.abs(new - values)
-            if band is not None:
-                diff = jnp.where((jnp.abs(new) <= band) | (jnp.abs(values) <= band), diff, 0.0)
-            change = float(jnp.max(diff))
+            change, count, scale = _residual(values, new, region)
+            if watch is not None:
+                current = np.asarray(watch(new), np.float64).ravel()
+                change = max(change, float(np.max(np.abs(current - previous_watch), initial=0.0)))
+                scale = float(np.max(np.abs(current), initial=0.0))
+                previous_watch = current
+                watched.append(tuple(float(c) for c in current))
             changes.append(change)
+            compared.append(count)
             values = new
             horizon += check_interval
             n_steps += res.n_steps
             if bar is not None:
                 bar.update(check_interval)
-            if change <= tol:
+            if change <= tol + rtol * scale:
                 converged = True
                 break
     finally:
         if bar is not None:
             bar.close()
+    if not converged and warn:
+        import warnings
+
+        rate = changes[-1] / check_interval
+        warnings.warn(f"solve_until_converged: not converged after {horizon:g} of simulated time; the last check "
+                      f"changed the compared values by {changes[-1]:.4g} (tol {tol:g}; rate {rate:.4g} per unit "
+                      "time).", RuntimeWarning, stacklevel=2)
     return ConvergedResult(values=values, converged=converged, horizon=horizon, n_steps=n_steps,
-                           changes=tuple(changes))
+                           changes=tuple(changes), compared=tuple(compared), watched=tuple(watched),
+                           check_interval=float(check_interval))
+
+
+def _residual(old, new, region) -> tuple[float, int, float]:
+    """``(max |new - old|``, nodes compared, ``max |new|``) over ``region(old, new)`` (whole grid if ``None``);
+    ``(inf, 0, 0)`` if the region is empty."""
+    diff = jnp.abs(new - old)
+    if region is None:
+        return float(jnp.max(diff)), int(diff.size), float(jnp.max(jnp.abs(new)))
+    mask = region(old, new)
+    count = int(jnp.sum(mask))
+    if count == 0:
+        return math.inf, 0, 0.0
+    return (float(jnp.max(jnp.where(mask, diff, 0.0))), count,
+            float(jnp.max(jnp.where(mask, jnp.abs(new), 0.0))))
 
 
 def _progress_bar(total: float, enabled: bool):

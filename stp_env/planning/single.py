@@ -86,27 +86,22 @@ def planning_control(grid: hj.Grid, dynamics: DubinsWind, slice_times, stack, t,
     return u, jnp.stack(dynamics.optimal_disturbance(xs, ps))
 
 
-MAX_TURN_PER_STEP = 0.6
-"""Largest heading change [rad] of one integration step of the nominal trajectory (:func:`integration_substeps`)."""
+MAX_TURN_PER_SAMPLE = 0.3
+"""Largest heading change [rad] over one trajectory sample (``time_step * omega_max``, checked by
+:func:`plan_single_with_slices`): the planning controller is held over a sample, and a bang-bang turn held much
+longer overshoots every sample and never settles onto the target (measured on ``bay-area`` with 1 s samples at
+1.2 rad/s: no arrival)."""
 
 
-def integration_substeps(time_step: float, omega_max: float) -> int:
-    """Midpoint substeps per trajectory sample, so that one substep turns at most :data:`MAX_TURN_PER_STEP`.
-
-    The planning controller turns bang-bang; integrated over a whole 1 s sample at 1.2 rad/s (``bay-area``) the
-    heading overshoots every step and the vehicle never settles onto its target (measured: no arrival). 0.6 rad
-    is what the shipped ``city``/``town``/``tiny`` plans were made with (0.5 s at 1.2 rad/s), so they are
-    unchanged."""
-    return max(1, math.ceil(time_step * omega_max / MAX_TURN_PER_STEP - 1e-9))
-
-
-@functools.partial(jax.jit, static_argnames=("grid", "dynamics", "n_steps", "wind_mode", "substeps"))
-def _rollout(key, x0, t0, dt, slice_times, stack, *, grid, dynamics, n_steps, wind_mode, substeps=1):
-    """Midpoint integration of the vehicle under the planning controller and a wind model, ``substeps`` midpoint
-    steps per sample (the wind is held over a sample; the recorded control is the first substep's midpoint
-    control)."""
-    def control(t, x):
-        return planning_control(grid, dynamics, slice_times, stack, t, x)
+@functools.partial(jax.jit, static_argnames=("grid", "dynamics", "n_steps", "wind_mode"))
+def _rollout(key, x0, t0, dt, slice_times, stack, *, grid, dynamics, n_steps, wind_mode):
+    """The nominal trajectory: the planning controller evaluated at every sample and held over it, with the exact
+    Dubins motion (:func:`stp_env.sim.physics.dubins_step`) under a wind held over the sample. With
+    ``wind_mode="zero"`` (robust trajectory tracking) the samples and controls therefore *are* a trajectory of the
+    planning dynamics at every instant: the simulator reconstructs the reference between samples exactly
+    (:func:`stp_env.sim.reference.nominal_reference`). Returns the states at the samples and the controls held
+    from them."""
+    from stp_env.sim.physics import dubins_step
 
     def wind(key, d_opt):
         if wind_mode == "zero" or dynamics.wind == 0:
@@ -117,28 +112,12 @@ def _rollout(key, x0, t0, dt, slice_times, stack, *, grid, dynamics, n_steps, wi
         r = dynamics.wind * jnp.sqrt(jax.random.uniform(jax.random.fold_in(key, 1)))
         return r * jnp.array([jnp.cos(ang), jnp.sin(ang)])
 
-    def f(x, u, w):
-        return jnp.array([u[0] * jnp.cos(x[2]) + w[0], u[0] * jnp.sin(x[2]) + w[1], u[1]])
-
-    h = dt / substeps
-
     def step(carry, k):
         x, key = carry
         key, sub = jax.random.split(key)
-        t = t0 + k * dt
-        u0, d = control(t, x)
-        w = wind(sub, d)
-        x_new = x
-        for j in range(substeps):
-            tj = t + j * h
-            u = u0 if j == 0 else control(tj, x_new)[0]
-            xm = x_new + 0.5 * h * f(x_new, u, w)
-            um, _ = control(tj + 0.5 * h, xm)
-            if j == 0:
-                recorded = um
-            x_new = x_new + h * f(xm, um, w)
-            x_new = x_new.at[2].set(jnp.mod(x_new[2] + jnp.pi, 2 * jnp.pi) - jnp.pi)
-        return (x_new, key), (x, recorded)
+        u, d = planning_control(grid, dynamics, slice_times, stack, t0 + k * dt, x)
+        x_new = dubins_step(x, u[0], u[1], wind(sub, d), dt)
+        return (x_new, key), (x, u)
 
     (_, _), (xs, us) = jax.lax.scan(step, (x0, key), jnp.arange(n_steps))
     return xs, us
@@ -191,6 +170,10 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
         raise ValueError(f"wind_mode must be 'zero', 'random' or 'worst'; got {wind_mode!r}.")
     if not (horizon > 0 and time_step > 0):
         raise ValueError(f"horizon and time_step must be positive; got {horizon}, {time_step}.")
+    if time_step * dynamics.omega_max > MAX_TURN_PER_SAMPLE + 1e-9:
+        raise ValueError(f"time_step ({time_step} s) turns up to {time_step * dynamics.omega_max:.2f} rad per sample "
+                         f"at omega_max = {dynamics.omega_max} rad/s; at most {MAX_TURN_PER_SAMPLE} rad is allowed "
+                         "(the planning controller is held over a sample).")
     start = np.asarray(start, np.float64)
     if not bool(grid.contains(jnp.asarray(start))):
         raise ValueError(f"start {tuple(start)} lies outside the planning grid {grid.lo}..{grid.hi}.")
@@ -230,8 +213,7 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
     n_scan = max(n_steps, math.ceil(1.1 * horizon / time_step) + 1)
     xs, us = _rollout(jax.random.key(seed), jnp.asarray(start, jnp.float32), jnp.float32(t_start),
                       jnp.float32(time_step), slice_times, stack, grid=grid, dynamics=dynamics,
-                      n_steps=n_scan, wind_mode=wind_mode,
-                      substeps=integration_substeps(time_step, dynamics.omega_max))
+                      n_steps=n_scan, wind_mode=wind_mode)
     xs, us = np.asarray(xs, np.float64)[:n_steps], np.asarray(us, np.float64)[:n_steps]
     sample_times = t_start + time_step * np.arange(n_steps)
     dist = np.hypot(xs[:, 0] - target_center[0], xs[:, 1] - target_center[1])

@@ -68,12 +68,11 @@ def reset_one(key, params: EnvParams, horizon: str) -> EnvState:
 
 
 def step_one(key, state: EnvState, action, params: EnvParams, vehicle_policy):
-    """One core step: the vehicles' baseline actions and the intruder's ``action`` ``(2,)``.
-    Returns ``(state, intruder_reward)``."""
-    k_vehicles, k_step = jax.random.split(key)
-    a_vehicles = vehicle_policy(k_vehicles, state, params)
-    actions = jnp.concatenate([a_vehicles, jnp.asarray(action, a_vehicles.dtype)[None, :]], axis=0)
-    state, rewards = core.step(k_step, state, actions, params)
+    """One core step: the vehicles' baseline policy as the feedback law of every inner control step, and the
+    intruder's ``action`` ``(2,)``. Returns ``(state, intruder_reward)``."""
+    action = jnp.asarray(action, state.x.dtype)
+    actions = jnp.concatenate([jnp.zeros((params.n_vehicles, 2), action.dtype), action[None, :]], axis=0)
+    state, rewards = core.step(key, state, actions, params, vehicle_policy=vehicle_policy)
     return state, rewards[-1]
 
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import zipfile
 from importlib import resources
 from pathlib import Path
 
@@ -30,6 +31,7 @@ from stp_env.sim.core import intruder_observation_size, observe
 
 ACTIVATIONS = {"tanh": jnp.tanh, "relu": lambda x: jnp.maximum(x, 0.0)}
 FORMAT_VERSION = 1
+MAX_LAYERS = 64
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,15 +88,72 @@ def export_mlp(model, path, metadata: dict | None = None) -> Path:
 
 
 def load_mlp(path) -> MLPIntruder:
-    """Read an :func:`export_mlp` file (numpy only)."""
-    with np.load(path, allow_pickle=False) as data:
-        meta = json.loads(str(data["metadata"]))
-        if meta.get("format_version") != FORMAT_VERSION:
-            raise ValueError(f"{path}: format version {meta.get('format_version')!r}, expected {FORMAT_VERSION}.")
-        pairs = [(data[f"w{i}"], data[f"b{i}"]) for i in range(meta["n_layers"])]
-    if meta["activation"] not in ACTIVATIONS:
-        raise ValueError(f"{path}: unknown activation {meta['activation']!r}.")
-    return MLPIntruder(hidden=tuple(pairs[:-1]), action=pairs[-1], activation=meta["activation"], metadata=meta)
+    """Read an :func:`export_mlp` file (numpy only, ``allow_pickle=False``: reading it never runs code).
+
+    Everything is checked before the policy is built: the metadata (a JSON object with this module's format
+    version, a known activation and ``n_layers``), every layer's weights ``w{i}`` ``(out, in)`` and bias ``b{i}``
+    ``(out,)`` as real arrays whose shapes chain, an action layer of 2 outputs, and finite values (a NaN weight
+    would give the intruder a NaN action, and a NaN state, in every episode). Any problem is a ``ValueError``
+    naming the file and what is wrong."""
+    try:
+        data = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        raise ValueError(f"{path}: no such file (expected an .npz written by stp_env.rl.policy.export_mlp).") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
+        why = "neither an .npz nor an .npy file; it is never unpickled" if "pickled" in str(err) else \
+            f"{type(err).__name__}: {err}"
+        raise ValueError(f"{path}: not a learned-intruder file written by export_mlp ({why}).") from None
+    if not isinstance(data, np.lib.npyio.NpzFile):
+        raise ValueError(f"{path}: a single .npy array, not a learned-intruder .npz written by export_mlp.")
+    try:
+        with data:
+            arrays = {name: data[name] for name in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as err:
+        raise ValueError(f"{path}: unreadable ({type(err).__name__}: {err}).") from None
+    return _mlp_from_arrays(arrays, path)
+
+
+def _mlp_from_arrays(arrays: dict, path) -> MLPIntruder:
+    def bad(what):
+        return ValueError(f"{path}: not a valid learned-intruder file: {what}.")
+
+    raw = arrays.get("metadata")
+    if raw is None or raw.shape != () or raw.dtype.kind != "U":
+        raise bad("no 'metadata' string")
+    try:
+        meta = json.loads(str(raw))
+    except json.JSONDecodeError as err:
+        raise bad(f"metadata is not JSON ({err})") from None
+    if not isinstance(meta, dict):
+        raise bad(f"metadata is a JSON {type(meta).__name__}, not an object")
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise ValueError(f"{path}: format version {meta.get('format_version')!r}, expected {FORMAT_VERSION}.")
+    activation, n_layers = meta.get("activation"), meta.get("n_layers")
+    if not isinstance(activation, str) or activation not in ACTIVATIONS:
+        raise ValueError(f"{path}: unknown activation {activation!r}; allowed: {', '.join(ACTIVATIONS)}.")
+    if isinstance(n_layers, bool) or not isinstance(n_layers, int) or not 1 <= n_layers <= MAX_LAYERS:
+        raise bad(f"n_layers must be an integer in [1, {MAX_LAYERS}]; got {n_layers!r}")
+    expected = {"metadata"} | {f"{p}{i}" for i in range(n_layers) for p in "wb"}
+    missing, extra = sorted(expected - set(arrays)), sorted(set(arrays) - expected)
+    if missing or extra:
+        raise bad(f"arrays {missing} missing, {extra} unexpected for {n_layers} layer(s)")
+    pairs = []
+    width = None
+    for i in range(n_layers):
+        w, b = arrays[f"w{i}"], arrays[f"b{i}"]
+        for name, a, ndim in ((f"w{i}", w, 2), (f"b{i}", b, 1)):
+            if a.dtype.kind != "f" or a.ndim != ndim or 0 in a.shape:
+                raise bad(f"{name} must be a non-empty {ndim}-D float array; got dtype {a.dtype}, shape {a.shape}")
+            if not np.all(np.isfinite(a)):
+                raise bad(f"{name} has {int(np.sum(~np.isfinite(a)))} non-finite value(s) (NaN or inf)")
+        if b.shape[0] != w.shape[0] or (width is not None and w.shape[1] != width):
+            raise bad(f"layer {i}: w{i} {w.shape} and b{i} {b.shape} do not follow the previous layer's "
+                      f"{width} outputs")
+        width = w.shape[0]
+        pairs.append((w.astype(np.float32), b.astype(np.float32)))
+    if width != 2:
+        raise bad(f"the action layer has {width} outputs; an intruder action has 2 (speed, turn rate)")
+    return MLPIntruder(hidden=tuple(pairs[:-1]), action=pairs[-1], activation=activation, metadata=meta)
 
 
 def mlp_intruder(mlp: MLPIntruder, name: str = "learned"):
@@ -128,6 +187,8 @@ def shipped_intruders() -> list[str]:
 def load_intruder(name_or_path: str = "town-kbar2"):
     """A shipped learned intruder by name (see :func:`shipped_intruders`) or an :func:`export_mlp` file, as a
     jittable policy. Cached, so that repeated loads reuse one function (and its compiled rollouts)."""
+    if not isinstance(name_or_path, str):
+        raise ValueError(f"a learned intruder is a shipped name or an .npz path; got {name_or_path!r}.")
     path = Path(name_or_path)
     if path.suffix != ".npz":
         if name_or_path not in shipped_intruders():

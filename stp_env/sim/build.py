@@ -123,7 +123,7 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
         raise ValueError(f"d_sense ({d_sense} m) must be at least the detection range d^A = {d_a:.1f} m (eq. 16): "
                          "a vehicle must see the intruder before it has to avoid it.")
     veh, intr = acfg.vehicle, acfg.intruder
-    margin = config.dt * (veh.v_max + intr.v_max + veh.wind + intr.wind) if config.avoid_margin is None \
+    margin = config.control_dt * (veh.v_max + intr.v_max + veh.wind + intr.wind) if config.avoid_margin is None \
         else config.avoid_margin
     t_iat = float(scenario.t_iat)
     if config.appear_window is None:
@@ -198,6 +198,7 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
         wind_model=config.wind_model,
         safety_filter=config.safety_filter,
         n_nearest=config.n_nearest,
+        control_substeps=config.control_substeps,
     )
 
 
@@ -219,13 +220,36 @@ def load_artifacts(scenario, *, store=None, progress: bool = True):
 
 def load_plan(scenario, *, tracking_bound: float, store=None, progress: bool = True):
     """The shipped plan when ``scenario`` is a registry default (at its ``kbar``) that ships one
-    (:func:`stp_env.planning.stp.shipped_plan_for`), else the cached plan (planned on first use)."""
+    (:func:`stp_env.planning.stp.shipped_plan_for`) and that plan is valid for ``tracking_bound`` (made with a bound
+    at least as large, at the scenario's sample period), else the cached plan (planned on first use)."""
     from stp_env.planning.stp import cached_plan
 
     shipped = _shipped_plan(scenario)
     if shipped is not None:
-        return shipped
+        problem = plan_mismatch(shipped, scenario, tracking_bound)
+        if problem is None:
+            return shipped
+        import warnings
+
+        warnings.warn(f"The shipped plan of {scenario.name!r} does not fit this code ({problem}); planning anew "
+                      "(regenerate it with scripts/generate_plans.py).", RuntimeWarning, stacklevel=2)
     return cached_plan(scenario, tracking_bound=tracking_bound, store=store, progress=progress)
+
+
+BOUND_TOLERANCE = 1e-3  # [m] a plan made with r_e this much smaller than the current one is still accepted
+
+
+def plan_mismatch(plan, scenario, tracking_bound: float) -> str | None:
+    """Why ``plan`` cannot serve ``scenario`` with the tracking bound ``tracking_bound`` (``None`` if it can): its
+    obstacles and targets were grown and shrunk by the bound it was made with, so a smaller one voids its
+    separation guarantees; its samples must be the scenario's."""
+    if plan.tracking_bound < tracking_bound - BOUND_TOLERANCE:
+        return (f"it was made with the tracking-error bound r_e = {plan.tracking_bound:.3f} m, smaller than the "
+                f"current {tracking_bound:.3f} m")
+    periods = {round(float(v.plan.times[1] - v.plan.times[0]), 9) for v in plan.vehicles if len(v.plan.times) > 1}
+    if periods and periods != {round(float(scenario.time_step), 9)}:
+        return f"its sample period is {sorted(periods)} s, the scenario's {scenario.time_step} s"
+    return None
 
 
 def _shipped_plan(scenario):

@@ -56,7 +56,13 @@ class EnvConfig:
     """How an environment is simulated (the scenario and its plan say *what* is simulated).
 
     Attributes:
-        dt: step length [s]; controls are held over a step (zero-order hold).
+        dt: step length [s], the decision period: agents act once per step and their actions are held over it
+            (zero-order hold).
+        control_dt: period of the vehicles' low-level control loop inside a step [s] (``dt`` must be a whole
+            multiple of it): the tracker ``kappa`` (SPP eq. 26), ``u^A`` (eq. 15), the avoid-start check (eqs.
+            17-18), a vehicle feedback policy passed to the core, and the ``"worst"`` wind run at this rate. The
+            default 0.02 s keeps the continuous-time guarantees: held for 0.1 s, the bang-bang tracker leaves its
+            error bound and ``u^A`` lets the optimal intruder inside ``R_c`` (``docs/numerics.md``).
         wind_model: ``"uniform"`` (a new wind uniformly in the disk of radius ``d_r`` every step, as in the
             papers), ``"constant"`` (one wind per episode), ``"gusts"`` (Ornstein-Uhlenbeck, clipped to the disk),
             ``"worst"`` (from the HJ value gradients: against tracking while on the plan, against avoidance while
@@ -70,8 +76,9 @@ class EnvConfig:
         spawn_radius: [m] (``None``: 1.5 d^A).
         safety_filter: replace each vehicle's action by ``u^A`` from its avoid-start time until the intruder
             leaves (eq. 38). Off: vehicles do what their policy says (the avoid start is still recorded).
-        avoid_margin: [m] a vehicle starts avoiding when ``V^A <= avoid_margin``; ``None``: one step of the
-            fastest closing speed, ``dt (v_max + v_I,max + d_r + d_I)``, so that the boundary is not stepped over.
+        avoid_margin: [m] a vehicle starts avoiding when ``V^A <= avoid_margin``; ``None``: one inner step of the
+            fastest closing speed, ``control_dt (v_max + v_I,max + d_r + d_I)``, so that the boundary is not
+            stepped over between two checks.
         d_sense: sensing range for observations [m] (``None``: 1.5 d^A); must be >= d^A.
         episode: ``"window"`` (start ``lead`` seconds before the intruder can appear and end ``tail`` seconds
             after it leaves: the part of a flight that matters for k̄) or ``"full"`` (first departure to the last
@@ -82,6 +89,7 @@ class EnvConfig:
     """
 
     dt: float = 0.1
+    control_dt: float = 0.02
     wind_model: str = "uniform"
     gust_time_constant: float = 5.0
     appear_window: tuple[float, float] | None = None
@@ -98,13 +106,18 @@ class EnvConfig:
 
     def __post_init__(self) -> None:
         _finite("dt", self.dt, positive=True)
+        _finite("control_dt", self.control_dt, positive=True)
+        ratio = self.dt / self.control_dt
+        if round(ratio) < 1 or abs(ratio - round(ratio)) > 1e-6 * ratio:
+            raise ValueError(f"dt ({self.dt} s) must be a whole multiple of control_dt ({self.control_dt} s).")
         _finite("gust_time_constant", self.gust_time_constant, positive=True)
         if self.wind_model not in WIND_MODELS:
             raise ValueError(f"wind_model {self.wind_model!r} is not known; allowed: {', '.join(WIND_MODELS)}.")
         if self.spawn_mode not in SPAWN_MODES:
             raise ValueError(f"spawn_mode {self.spawn_mode!r} is not known; allowed: {', '.join(SPAWN_MODES)}.")
         if self.appear_window is not None:
-            if len(self.appear_window) != 2:
+            if isinstance(self.appear_window, (str, bytes)) or not hasattr(self.appear_window, "__len__") \
+                    or len(self.appear_window) != 2:
                 raise ValueError(f"appear_window must be (lo, hi) in seconds; got {self.appear_window!r}.")
             lo, hi = (_finite("appear_window", v) for v in self.appear_window)
             if hi < lo:
@@ -125,6 +138,11 @@ class EnvConfig:
             raise ValueError(f"n_nearest must be an integer >= 0; got {self.n_nearest!r}.")
         if not isinstance(self.rewards, RewardConfig):
             raise ValueError(f"rewards must be a RewardConfig; got {type(self.rewards).__name__}.")
+
+    @property
+    def control_substeps(self) -> int:
+        """Inner control steps per step, ``dt / control_dt``."""
+        return round(self.dt / self.control_dt)
 
     def with_overrides(self, **overrides) -> EnvConfig:
         names = {f.name for f in dataclasses.fields(self)}

@@ -8,16 +8,27 @@ One step of length ``dt`` (intruder paper Sections II and IV):
 2. Vehicles on the ground take off at their departure time (from their plan's first state).
 3. Avoid start (eqs. 17-18): a flying vehicle whose relative state reaches ``V^A(t - t_, t_IAT) <= margin`` is
    forced; ``t_i = t``. The set of forced vehicles is ``N^RP`` (eq. 39).
-4. Controls: each agent's action in ``[-1, 1]^2`` (clipped) maps to its ``(v, omega)`` bounds. With the safety
-   filter on, forced vehicles apply ``u^A`` (eq. 15) instead, until the intruder leaves (eq. 38).
-5. Wind (:mod:`stp_env.sim.wind`), then exact Dubins motion under zero-order hold (:func:`dubins_step`).
-6. Events: collisions (vehicle-vehicle and vehicle-intruder within ``R_c``, vehicle-building where the signed
-   distance is <= 0), leaving the domain, arrival in the target disk (and whether before the STA). A collision of
-   a vehicle whose assumptions held (the intruder appeared outside its avoid region, and it applied ``u^A`` at
-   every step from ``t_i`` on) is a *guarantee violation*, unless a vehicle flying the after-avoidance fallback
-   takes part in it (a collision between two such vehicles, or one of them hitting another vehicle or a
-   building): the fallback stands in for replanning (Algorithm 4), which is what the paper's guarantee after the
-   intruder leaves rests on, and carries no guarantee of its own. Such collisions still count as collisions.
+4. The step is ``control_substeps`` inner steps of the vehicles' low-level loop (the autopilot rate: real
+   vehicles run their trackers much faster than their decision rate). In each inner step: the papers' controllers
+   are evaluated at the current state (the tracker ``kappa`` of SPP eq. 26 for the nominal trajectory, and
+   ``u^A`` of eq. 15 against the intruder) and the avoid start of item 3 is checked; the vehicles' controls are
+   the vehicle policy's (when one is passed to :func:`step`: a feedback law evaluated at every inner step) or the
+   agents' actions (held over the step); with the safety filter on, forced vehicles apply ``u^A`` instead until
+   the intruder leaves (eq. 38). Each action in ``[-1, 1]^2`` (clipped) maps to the agent's ``(v, omega)``
+   bounds. The intruder's action is held over the step.
+5. Wind (:mod:`stp_env.sim.wind`: held over the step, except the state-dependent ``"worst"`` model, which is
+   re-evaluated every inner step), then exact Dubins motion under zero-order hold (:func:`dubins_step`).
+6. Events, from the closest approaches over the inner steps: collisions (vehicle-vehicle and vehicle-intruder
+   within ``R_c``, vehicle-building where the signed distance is <= 0), leaving the domain, arrival in the target
+   disk (and whether before the STA). A collision of a vehicle whose assumptions held (the intruder appeared
+   outside its avoid region, and it applied ``u^A`` at every inner step from ``t_i`` on) is a *guarantee
+   violation*, unless a vehicle flying the after-avoidance fallback takes part in it (a collision between two such
+   vehicles, or one of them hitting another vehicle or a building): the fallback stands in for replanning
+   (Algorithm 4), which is what the paper's guarantee after the intruder leaves rests on, and carries no guarantee
+   of its own. Such collisions still count as collisions. A vehicle that applied ``kappa`` at every inner step of
+   its nominal flight and still got farther than ``r_e`` from its nominal position breaks the robust-tracking
+   guarantee (SPP eqs. 24-26): that is a guarantee violation too (``tracking_violation``), whatever the intruder
+   does.
 
 Waiting and finished vehicles are outside the airspace: they neither move nor collide. Actions of agents that
 cannot act (waiting, finished, an absent intruder) are ignored.
@@ -32,7 +43,8 @@ from stp_env import hj
 from stp_env.sim import spawn as spawn_lib
 from stp_env.sim import tables
 from stp_env.sim import wind as wind_lib
-from stp_env.sim.physics import action_to_control, control_to_action, dubins_step, relative_state, rotate, wrap_angle
+from stp_env.sim.physics import action_to_control, control_to_action, dubins_step, relative_state, rotate
+from stp_env.sim.reference import nominal_reference
 from stp_env.sim.types import (
     AFTER_AVOIDANCE,
     ARRIVED,
@@ -54,22 +66,6 @@ COMPLIANCE_TOL = 1e-3  # |a - a^A| in action units below which a vehicle counts 
 
 
 # ------------------------------------------------------------------------------------------------ plans
-def nominal_reference(params: EnvParams, t):
-    """Every vehicle's nominal state and control at time ``t``: linear interpolation of the plan samples (heading
-    along the shortest arc), clamped to the first and last samples. Shapes ``(N, 3)``, ``(N, 2)``."""
-    s = (t - params.nominal_t0) / params.nominal_dt
-    last = jnp.maximum(params.nominal_len - 1, 0)
-    s = jnp.clip(s, 0.0, last.astype(s.dtype))
-    k0 = jnp.floor(s).astype(jnp.int32)
-    k1 = jnp.minimum(k0 + 1, last)
-    w = (s - k0)[:, None]
-    idx = jnp.arange(params.n_vehicles)
-    a, b = params.nominal_states[idx, k0], params.nominal_states[idx, k1]
-    pos = (1 - w) * a[:, :2] + w * b[:, :2]
-    head = wrap_angle(a[:, 2] + w[:, 0] * wrap_angle(b[:, 2] - a[:, 2]))
-    return jnp.concatenate([pos, head[:, None]], axis=1), params.nominal_controls[idx, k0]
-
-
 def building_distance(params: EnvParams, p):
     """Signed distance to the buildings at positions ``p`` (..., 2) [m] (bilinear in the table)."""
     grid = params.sdf_grid
@@ -124,6 +120,11 @@ def reset(key, params: EnvParams) -> EnvState:
         intruder_distance=inf,
         avoid_value=jnp.full((n,), tables.FAR, t0.dtype),
         avoid_action=jnp.zeros((n, 2), t0.dtype),
+        track_action=jnp.zeros((n, 2), t0.dtype),
+        tracking_error=jnp.zeros((n,), t0.dtype),
+        max_tracking_error=jnp.zeros((n,), t0.dtype),
+        tracked=jnp.ones((n,), bool),
+        tracking_violation=jnp.zeros((n,), bool),
     )
     return lifecycle(state, params)
 
@@ -153,6 +154,44 @@ def avoidance_actions(params: EnvParams, state: EnvState):
     return control_to_action(u[:, 0], u[:, 1], params.vehicle_bounds)
 
 
+def tracking_actions(params: EnvParams, state: EnvState):
+    """``kappa`` (SPP eq. 26) of every vehicle for its nominal trajectory at ``state.t``, as actions ``(N, 2)``,
+    and the tracking errors ``||e_p||`` ``(N,)`` [m]."""
+    x_ref, _ = nominal_reference(params, state.t)
+    err = relative_state(state.x, x_ref)
+    u = jax.vmap(lambda e: tables.tracking_control(params, e)[0])(err)
+    return control_to_action(u[:, 0], u[:, 1], params.vehicle_bounds), jnp.hypot(err[:, 0], err[:, 1])
+
+
+def refresh_controllers(state: EnvState, params: EnvParams) -> EnvState:
+    """The papers' controllers and values at the state: ``V^A`` and ``u^A`` against the intruder, ``kappa`` and
+    the tracking error (every inner step; :func:`lifecycle` at the step's end)."""
+    track_action, err = tracking_actions(params, state)
+    return replace(state, avoid_value=avoid_values(params, state), avoid_action=avoidance_actions(params, state),
+                   track_action=track_action, tracking_error=err)
+
+
+def observe_controllers(state: EnvState, params: EnvParams) -> EnvState:
+    """:func:`refresh_controllers`, and the largest tracking error of the vehicles flying their plans."""
+    state = refresh_controllers(state, params)
+    worst = jnp.where(on_plan(state), jnp.maximum(state.max_tracking_error, state.tracking_error),
+                      state.max_tracking_error)
+    return replace(state, max_tracking_error=worst)
+
+
+def avoid_start(state: EnvState, params: EnvParams) -> EnvState:
+    """Eqs. (17)-(18): a flying vehicle in the nominal mode whose ``V^A`` reached the margin starts avoiding now."""
+    start = (flying(state) & intruder_present(state) & (state.mode == NOMINAL)
+             & (state.avoid_value <= params.avoid_margin))
+    return replace(state, mode=jnp.where(start, AVOIDING, state.mode),
+                   avoid_start=jnp.where(start, state.t, state.avoid_start))
+
+
+def on_plan(state: EnvState):
+    """Vehicles the robust-tracking guarantee covers now: flying their plan (nominal mode, never forced)."""
+    return flying(state) & (state.mode == NOMINAL) & ~jnp.isfinite(state.avoid_start)
+
+
 def done_vehicles(state: EnvState):
     return state.status >= ARRIVED
 
@@ -175,64 +214,90 @@ def lifecycle(state: EnvState, params: EnvParams) -> EnvState:
     intruder_status = jnp.where(leaving, GONE, state.intruder_status)
     state = replace(state, mode=mode, intruder_status=intruder_status)
     # 2. departures
+    # A vehicle takes off at t_LDT, between two steps: it starts on its nominal trajectory (zero tracking error).
     depart = (state.status == WAITING) & (t >= params.departure - 1e-6 * params.dt)
+    x_nom, _ = nominal_reference(params, t)
     state = replace(state, status=jnp.where(depart, FLYING, state.status),
-                    x=jnp.where(depart[:, None], params.starts, state.x))
+                    x=jnp.where(depart[:, None], x_nom, state.x))
     # ... or appears (after departures, so that vehicles taking off now count)
     appear = (state.intruder_status == PENDING) & (t >= state.t_appear - 1e-6 * params.dt)
     state = replace(state,
                     intruder_x=jnp.where(appear, state.intruder_memory[:3], state.intruder_x),
                     t_appear=jnp.where(appear, t, state.t_appear),
                     intruder_status=jnp.where(appear, PRESENT, state.intruder_status))
+    state = observe_controllers(state, params)
     # Assumption 3 per vehicle: checked when the intruder appears, or when a vehicle takes off while it is here.
-    vals = avoid_values(params, state)
     check = (appear & flying(state)) | (depart & intruder_present(state))
-    assumption_ok = jnp.where(check, vals > params.avoid_margin, state.assumption_ok)
-    # 3. avoid start (eqs. 17-18)
-    start = flying(state) & intruder_present(state) & (state.mode == NOMINAL) & (vals <= params.avoid_margin)
+    assumption_ok = jnp.where(check, state.avoid_value > params.avoid_margin, state.assumption_ok)
     d_int = jnp.where(flying(state) & intruder_present(state),
                       jnp.hypot(*(state.x[:, :2] - state.intruder_x[None, :2]).T), jnp.inf)
-    return replace(state, assumption_ok=assumption_ok, intruder_distance=d_int, avoid_value=vals,
-                   avoid_action=avoidance_actions(params, state),
-                   mode=jnp.where(start, AVOIDING, state.mode),
-                   avoid_start=jnp.where(start, t, state.avoid_start))
+    state = replace(state, assumption_ok=assumption_ok, intruder_distance=d_int)
+    # 3. avoid start (eqs. 17-18)
+    return avoid_start(state, params)
 
 
-def step(key, state: EnvState, actions, params: EnvParams):
+def step(key, state: EnvState, actions, params: EnvParams, vehicle_policy=None):
     """Advance one step from ``t`` to ``t + dt``. ``actions``: ``(N + 1, 2)`` in ``[-1, 1]`` (vehicles, then the
-    intruder; clipped; NaN is the adapters' job to reject). Returns ``(state, rewards)``, rewards ``(N + 1,)``."""
-    k_wind = key
+    intruder; clipped; NaN is the adapters' job to reject). ``vehicle_policy``: ``None`` (the vehicles apply their
+    actions, held over the step) or a jittable ``(key, state, params) -> (N, 2)`` feedback law, evaluated at every
+    inner step in place of the vehicles' actions (the papers' controllers read ``state.track_action`` and
+    ``state.avoid_action``, refreshed every inner step). Returns ``(state, rewards)``, rewards ``(N + 1,)``."""
+    k_wind, k_policy = jax.random.split(key)
     n = params.n_vehicles
     w = params.reward_weights
     fly = flying(state)
     present = intruder_present(state)
+    m_sub = params.control_substeps
+    h = params.dt / m_sub
 
-    # 4. controls (the safety filter of eq. 38)
     actions = jnp.clip(actions, -1.0, 1.0)
-    a_veh = actions[:n]
-    avoiding = fly & present & (state.mode == AVOIDING)
-    a_avoid = state.avoid_action
-    use_filter = avoiding & params.safety_filter
-    a_veh = jnp.where(use_filter[:, None], a_avoid, a_veh)
-    complied = state.complied & ~(avoiding & (jnp.max(jnp.abs(a_veh - a_avoid), axis=1) > COMPLIANCE_TOL))
-    v, om = action_to_control(a_veh, params.vehicle_bounds)
     v_i, om_i = action_to_control(actions[n], params.intruder_bounds)
+    winds_held, head_dist, wind_state = wind_lib.sample(k_wind, state, params)
+    worst_wind = params.wind_model == "worst"
 
-    # 5. wind and motion
-    winds, head_dist, wind_state = wind_lib.sample(k_wind, state, params)
-    x_new = dubins_step(state.x, v, om + head_dist[:n], winds[:n], params.dt)
-    x = jnp.where(fly[:, None], x_new, state.x)
-    xi_new = dubins_step(state.intruder_x, v_i, om_i + head_dist[n], winds[n], params.dt)
-    xi = jnp.where(present, xi_new, state.intruder_x)
-    t = state.t + params.dt
+    def move(carry, m):
+        """Inner step ``m``: controls at the carried state, then motion over ``h``; closest approaches."""
+        s, d_pair, d_int, sdf = carry
+        # 4. controls: the policy's feedback law or the held actions; the safety filter of eq. 38
+        if vehicle_policy is None:
+            a_veh = actions[:n]
+        else:
+            a_veh = jnp.clip(vehicle_policy(jax.random.fold_in(k_policy, m), s, params), -1.0, 1.0)
+        avoiding = fly & present & (s.mode == AVOIDING)
+        use_filter = avoiding & params.safety_filter
+        a_veh = jnp.where(use_filter[:, None], s.avoid_action, a_veh)
+        complied = s.complied & ~(avoiding & (jnp.max(jnp.abs(a_veh - s.avoid_action), axis=1) > COMPLIANCE_TOL))
+        tracked = s.tracked & ~(on_plan(s) & (jnp.max(jnp.abs(a_veh - s.track_action), axis=1) > COMPLIANCE_TOL))
+        v, om = action_to_control(a_veh, params.vehicle_bounds)
+        # 5. wind and motion
+        winds = wind_lib.worst(s, params) if worst_wind else winds_held
+        x = jnp.where(fly[:, None], dubins_step(s.x, v, om + head_dist[:n], winds[:n], h), s.x)
+        xi = jnp.where(present, dubins_step(s.intruder_x, v_i, om_i + head_dist[n], winds[n], h), s.intruder_x)
+        s = replace(s, x=x, intruder_x=xi, t=s.t + h, complied=complied, tracked=tracked, used_filter=use_filter)
+        # closest approaches over the inner steps (the events of item 6)
+        p = x[:, :2]
+        diff = p[:, None, :] - p[None, :, :]
+        d_pair = jnp.minimum(d_pair, jnp.sqrt(jnp.sum(diff ** 2, axis=-1) + jnp.eye(n) * 1e30))
+        d_int = jnp.minimum(d_int, jnp.hypot(*(p - xi[None, :2]).T))
+        sdf = jnp.minimum(sdf, building_distance(params, p))
+        return s, d_pair, d_int, sdf
+
+    def inner(carry, m):
+        s, d_pair, d_int, sdf = move(carry, m)
+        return (avoid_start(observe_controllers(s, params), params), d_pair, d_int, sdf), None
+
+    init = (state, jnp.full((n, n), jnp.inf, state.x.dtype), jnp.full((n,), jnp.inf, state.x.dtype),
+            jnp.full((n,), jnp.inf, state.x.dtype))
+    # Inner steps 0 .. M-2 end with the controllers refreshed; the last one ends with lifecycle at t + dt.
+    carry, _ = jax.lax.scan(inner, init, jnp.arange(m_sub - 1))
+    sub, dist, d_int, sdf = move(carry, m_sub - 1)
+    x, xi, t = sub.x, sub.intruder_x, state.t + params.dt
 
     # 6. events
     p = x[:, :2]
     lo, hi = params.domain_lo, params.domain_hi
     out = fly & jnp.any((p < lo) | (p > hi), axis=1)
-    hit_building = fly & (building_distance(params, p) <= 0.0)
-    diff = p[:, None, :] - p[None, :, :]
-    dist = jnp.sqrt(jnp.sum(diff ** 2, axis=-1) + jnp.eye(n) * 1e30)
+    hit_building = fly & (sdf <= 0.0)
     pair_ok = fly[:, None] & fly[None, :]
     dist = jnp.where(pair_ok, dist, jnp.inf)
     near = dist <= params.collision_radius
@@ -242,7 +307,7 @@ def step(key, state: EnvState, actions, params: EnvParams):
     fallback = fly & (state.mode == AFTER_AVOIDANCE)
     no_fallback_pair = ~(fallback[:, None] | fallback[None, :])
     hit_guarded_vehicle = jnp.any(near & no_fallback_pair, axis=1)
-    d_int = jnp.where(fly & present, jnp.hypot(*(p - xi[None, :2]).T), jnp.inf)
+    d_int = jnp.where(fly & present, d_int, jnp.inf)
     hit_intruder = d_int <= params.collision_radius
     collided = fly & (hit_vehicle | hit_intruder | hit_building)
     d_target = jnp.hypot(*(p - params.targets).T)
@@ -250,19 +315,20 @@ def step(key, state: EnvState, actions, params: EnvParams):
     status = jnp.where(collided, COLLIDED, jnp.where(out, OUT_OF_BOUNDS, jnp.where(arrived, ARRIVED, state.status)))
     min_sep = jnp.minimum(state.min_separation, jnp.where(fly, jnp.minimum(jnp.min(dist, axis=1), d_int), jnp.inf))
     guarded_hit = hit_guarded_vehicle | hit_intruder | (hit_building & ~fallback)
-    violation = collided & guarded_hit & state.assumption_ok & complied
+    violation = collided & guarded_hit & sub.assumption_ok & sub.complied
 
     new_state = replace(
-        state, t=t, step_count=state.step_count + 1, x=x, status=status.astype(jnp.int32),
-        complied=complied, used_filter=use_filter, min_separation=min_sep,
+        sub, t=t, step_count=state.step_count + 1, x=x, status=status.astype(jnp.int32),
+        min_separation=min_sep,
         arrival_time=jnp.where(arrived, t, state.arrival_time),
         collision_time=jnp.where(collided, t, state.collision_time),
         collided_with_intruder=state.collided_with_intruder | (collided & hit_intruder),
-        guarantee_violation=state.guarantee_violation | violation,
         wind=wind_state, intruder_x=xi, intruder_distance=d_int,
     )
     new_state = lifecycle(new_state, params)
-
+    tracking_violation = new_state.tracked & (new_state.max_tracking_error > params.tracking_bound)
+    new_state = replace(new_state, tracking_violation=tracking_violation,
+                        guarantee_violation=state.guarantee_violation | violation | tracking_violation)
     # rewards (weights: progress, arrival, late_arrival, collision, forced, intruder_collision, shaping)
     d_prev = jnp.hypot(*(state.x[:, :2] - params.targets).T)
     r_veh = jnp.where(fly, w[0] * (d_prev - d_target), 0.0)

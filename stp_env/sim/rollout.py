@@ -12,12 +12,12 @@ from stp_env.sim.types import EnvParams
 
 
 def episode_step(key, state, params: EnvParams, vehicle_policy, intruder_policy):
-    """One step with both policies; returns ``(state, rewards)``."""
-    k_v, k_i, k_s = jax.random.split(key, 3)
-    a_v = vehicle_policy(k_v, state, params)
+    """One step: the intruder's action once (the decision rate), the vehicle policy as the feedback law of every
+    inner control step (:func:`stp_env.sim.core.step`); returns ``(state, rewards)``."""
+    k_i, k_s = jax.random.split(key)
     a_i = intruder_policy(k_i, state, params)
-    actions = jnp.concatenate([a_v, a_i[None, :]], axis=0)
-    return core.step(k_s, state, actions, params)
+    actions = jnp.concatenate([jnp.zeros((params.n_vehicles, 2), a_i.dtype), a_i[None, :]], axis=0)
+    return core.step(k_s, state, actions, params, vehicle_policy=vehicle_policy)
 
 
 @functools.partial(jax.jit, static_argnames=("vehicle_policy", "intruder_policy", "n_envs", "n_steps", "record"))

@@ -50,6 +50,9 @@ class EnvParams:
         n_vehicles, avoid_grid, tracking_grid, sdf_grid: sizes and grids.
         avoid_dynamics: eq. (44) with the roles of eq. (14); tracking_dynamics: SPP eqs. (24)-(25).
         wind_model: one of :data:`WIND_MODELS`.
+        control_substeps: the vehicles' low-level controllers (the tracker ``kappa``, ``u^A``, any vehicle policy
+            passed to :func:`stp_env.sim.core.step`) and the motion run this many times per step, at the inner
+            control period ``dt / control_substeps``.
         safety_filter: override a vehicle's action with ``u^A`` from its avoid-start time (eq. 38).
         n_nearest: vehicles listed in each observation.
     """
@@ -90,7 +93,7 @@ class EnvParams:
     appear_window: jax.Array      # (2,) [s] the intruder appears at t_ ~ U[lo, hi] (lo == hi: fixed)
     spawn_radius: jax.Array       # () [m] "outside" spawns lie within this distance of a flying vehicle
     spawn_boundary_probability: jax.Array  # () the episode's spawn is "boundary" with this probability, else "outside"
-    avoid_margin: jax.Array       # () [m] avoid start when V^A <= margin (one step of the fastest closing)
+    avoid_margin: jax.Array       # () [m] avoid start when V^A <= margin (one inner step of the fastest closing)
     kbar: jax.Array               # () int, the bound under test
     d_sense: jax.Array            # () [m] sensing range (>= d^A)
     gust_time_constant: jax.Array  # () [s] correlation time of the "gusts" wind model
@@ -106,11 +109,12 @@ class EnvParams:
     wind_model: str = "uniform"
     safety_filter: bool = True
     n_nearest: int = 4
+    control_substeps: int = 1
 
 
 EnvParams = _pytree(EnvParams, meta=("n_vehicles", "avoid_grid", "tracking_grid", "sdf_grid", "avoid_dynamics",
                                      "tracking_dynamics", "wind_model",
-                                     "safety_filter", "n_nearest"))
+                                     "safety_filter", "n_nearest", "control_substeps"))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -140,6 +144,12 @@ class EnvState:
     intruder_distance: jax.Array  # (N,) [m] distance to the intruder (inf when absent)
     avoid_value: jax.Array        # (N,) [m] V^A(t - t_, t_IAT) of each flying vehicle (FAR when absent)
     avoid_action: jax.Array       # (N, 2) u^A (eq. 15) of each vehicle against the intruder, as an action
+    track_action: jax.Array       # (N, 2) kappa (SPP eq. 26) of each vehicle for its nominal trajectory, as an action
+    tracking_error: jax.Array     # (N,) [m] distance to the nominal position (body-frame error ||e_p||)
+    max_tracking_error: jax.Array  # (N,) [m] largest ||e_p|| at an inner step while flying its plan (nominal
+    #                               mode, never forced); the robust-tracking guarantee bounds it by r_e
+    tracked: jax.Array            # (N,) bool: applied kappa at every inner step while flying its plan
+    tracking_violation: jax.Array  # (N,) bool: tracked, and max_tracking_error exceeded r_e
 
 
 EnvState = _pytree(EnvState)

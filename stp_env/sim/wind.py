@@ -6,9 +6,10 @@ disturbance in ``[-d_theta, d_theta]`` where the vehicle model has one (SPP eq. 
 * ``constant``: one wind per agent and episode, uniform in the disk.
 * ``gusts``: Ornstein-Uhlenbeck per component, ``dw = -w/T dt + sigma dB`` with stationary deviation half the
   bound, projected back into the disk.
-* ``worst``: from the HJ games. A vehicle avoiding the intruder gets the minimising wind of the avoid game (eq.
-  14) and the intruder the matching one; a vehicle tracking its plan gets the wind that grows its tracking error
-  most (SPP eq. 25). Heading disturbances are zero in this model.
+* ``worst``: from the HJ games, re-evaluated at every inner step of the core (:func:`worst`). A vehicle avoiding
+  the intruder gets the minimising wind of the avoid game (eq. 14) and the intruder the matching one; a vehicle
+  tracking its plan gets the wind that grows its tracking error most (SPP eq. 25). Heading disturbances are zero in
+  this model.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import jax.numpy as jnp
 
 from stp_env.sim import tables
 from stp_env.sim.physics import disk_sample, relative_state, rotate
+from stp_env.sim.reference import nominal_reference
 from stp_env.sim.types import AVOIDING, FLYING, PRESENT, EnvParams, EnvState
 
 
@@ -45,7 +47,8 @@ def _project(w, radius):
     return w * jnp.minimum(1.0, radius[:, None] / jnp.maximum(norm, 1e-12))
 
 
-def _worst(state: EnvState, params: EnvParams):
+def worst(state: EnvState, params: EnvParams):
+    """The ``worst`` model's winds ``(N + 1, 2)`` at ``state`` (world frame, each on its disk's boundary)."""
     n = params.n_vehicles
     radii = _radii(params)
     tau = state.t - state.t_appear
@@ -55,12 +58,11 @@ def _worst(state: EnvState, params: EnvParams):
     wc_dir = wc / jnp.maximum(jnp.linalg.norm(wc, axis=1, keepdims=True), 1e-12)
     # combined wind R(-theta_i)(d_I - d_i): the vehicle takes -R(theta_i) wc_dir d_r, the intruder +R(theta_i) ...
     w_avoid = -rotate(state.x[:, 2], wc_dir) * radii[:n, None]
-    from stp_env.sim.core import nominal_reference  # (import cycle)
-
     x_ref, _ = nominal_reference(params, state.t)
     err = relative_state(state.x, x_ref)
     d_err = jax.vmap(lambda e: tables.tracking_control(params, e)[1])(err)       # (N, 2) body frame
     d_dir = d_err / jnp.maximum(jnp.linalg.norm(d_err, axis=1, keepdims=True), 1e-12)
+    # The error dynamics see minus the vehicle's wind, rotated into its frame: the vehicle takes -R(theta) d.
     w_track = -rotate(state.x[:, 2], d_dir) * radii[:n, None]
     present = state.intruder_status == PRESENT
     avoiding = (state.status == FLYING) & (state.mode == AVOIDING) & present
@@ -74,7 +76,8 @@ def _worst(state: EnvState, params: EnvParams):
 
 
 def sample(key, state: EnvState, params: EnvParams):
-    """``(winds (N + 1, 2), heading disturbances (N + 1,), new wind state (N + 1, 2))`` for this step."""
+    """``(winds (N + 1, 2), heading disturbances (N + 1,), new wind state (N + 1, 2))`` for this step (held over
+    its inner steps; the ``"worst"`` model's winds come from :func:`worst` at every inner step instead)."""
     n = params.n_vehicles
     k1, k2 = jax.random.split(key)
     radii = _radii(params)
@@ -91,7 +94,6 @@ def sample(key, state: EnvState, params: EnvParams):
         w = state.wind - state.wind / tc * params.dt + sigma * jnp.sqrt(params.dt) * jax.random.normal(k1, (n + 1, 2))
         w = _project(w, radii)
         return w, hd, w
-    if model == "worst":
-        w = _worst(state, params)
-        return w, jnp.zeros((n + 1,)), state.wind
+    if model == "worst":  # state-dependent: the core calls worst() at every inner step
+        return jnp.zeros((n + 1, 2)), jnp.zeros((n + 1,)), state.wind
     raise ValueError(f"wind_model {model!r} is not known.")

@@ -1,0 +1,155 @@
+"""Attack on the avoid region ``V^A`` and the avoidance control ``u^A`` (intruder paper eqs. 13-18): from any state
+outside the avoid region, a vehicle that starts avoiding when the core detects it must keep the intruder outside
+the danger zone ``R_c`` until the intruder leaves (``t_IAT``).
+
+The attacker picks the intruder's start relative to the vehicle (bearing, relative heading, and the level
+``V^A(0, t_IAT) = level`` in ``[0, max_level]`` metres it starts on: 0 is the boundary of the avoid region itself),
+then either the intruder's controls (piecewise constant over ``segment`` seconds) or the game's optimal pursuit
+(``intruder="hj"``, the minimising player of eq. 14, re-read every step), and either the winds of both in their
+disks (``wind="search"``, piecewise constant over ``wind_segment``) or the avoid game's worst-case winds at every
+inner control step (``wind="worst"``). The vehicle flies ``u*`` (eq. 38): its plan (a straight line at the top
+planning speed) until the core's avoid-start check fires (eqs. 17-18, at the inner control rate), then ``u^A``.
+Objective: ``R_c - min distance`` over the intruder's presence, from the simulator's closest approaches over the
+inner steps. The bound under attack is 0 (positive: the intruder entered the danger zone).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+
+from stp_env.baselines.intruders import hj_pursuit
+from stp_env.baselines.vehicles import switching
+from stp_env.falsify import harness
+from stp_env.sim import core, tables
+from stp_env.sim.physics import control_to_action
+from stp_env.sim.types import EnvParams, replace
+
+N_BISECT = 30
+
+
+@dataclasses.dataclass(frozen=True)
+class AvoidanceAttack:
+    """See the module docstring. ``base``: the environment whose vehicle, intruder, tables and rates are used."""
+
+    base: EnvParams
+    segment: float = 0.5
+    intruder: str = "search"
+    wind: str = "search"
+    wind_segment: float = 0.5
+    max_level: float = 10.0
+    name: str = "avoidance"
+
+    def __post_init__(self) -> None:
+        if self.intruder not in ("search", "hj"):
+            raise ValueError(f"intruder must be 'search' or 'hj'; got {self.intruder!r}.")
+        if self.wind not in ("search", "worst"):
+            raise ValueError(f"wind must be 'search' or 'worst'; got {self.wind!r}.")
+        dt = float(self.base.dt)
+        for label, value in (("segment", self.segment), ("wind_segment", self.wind_segment)):
+            if not (math.isfinite(value) and value >= dt - 1e-9):
+                raise ValueError(f"{label} must be at least the step dt = {dt} s; got {value}.")
+        if not (math.isfinite(self.max_level) and self.max_level >= 0):
+            raise ValueError(f"max_level must be >= 0 [m]; got {self.max_level}.")
+
+    @property
+    def n_steps(self) -> int:
+        return round(float(self.base.t_iat) / float(self.base.dt))
+
+    def _split(self):
+        dt = float(self.base.dt)
+        rep = max(1, round(self.segment / dt))
+        n_seg = math.ceil(self.n_steps / rep) if self.intruder == "search" else 0
+        w_rep = max(1, round(self.wind_segment / dt))
+        n_wind = math.ceil(self.n_steps / w_rep) if self.wind == "search" else 0
+        return rep, n_seg, w_rep, n_wind
+
+    @property
+    def dim(self) -> int:
+        _, n_seg, _, n_wind = self._split()
+        return 3 + 2 * n_seg + 4 * n_wind
+
+    @property
+    def bound(self) -> float:
+        return 0.0
+
+    def margin(self, value: float) -> float:
+        """``min distance - R_c`` [m]: negative is a capture."""
+        return -value
+
+    def _params(self) -> EnvParams:
+        return harness.one_vehicle(self.base, self.n_steps + 2,
+                                   wind_model="constant" if self.wind == "search" else "worst")
+
+    def start(self, z3):
+        """The intruder's start ``(3,)`` (world frame = the vehicle's frame at ``t = 0``) on ``V^A(0) = level``."""
+        bearing = 2 * jnp.pi * z3[0] - jnp.pi
+        rel_heading = 2 * jnp.pi * z3[1] - jnp.pi
+        level = self.max_level * z3[2]
+        direction = jnp.stack([jnp.cos(bearing), jnp.sin(bearing)])
+        grid = self.base.avoid_grid
+        r_hi0 = 0.999 * min(-grid.lo[0], grid.hi[0], -grid.lo[1], grid.hi[1])
+
+        def value(r):
+            rel = jnp.stack([r * direction[0], r * direction[1], rel_heading])
+            return tables.avoid_value(self.base, 0.0, rel)
+
+        def bisect(_, lohi):
+            lo, hi = lohi
+            mid = 0.5 * (lo + hi)
+            inside = value(mid) <= level
+            return jnp.where(inside, mid, lo), jnp.where(inside, hi, mid)
+
+        _, r = jax.lax.fori_loop(0, N_BISECT, bisect, (jnp.zeros(()), jnp.asarray(r_hi0, jnp.float32)))
+        return jnp.stack([r * direction[0], r * direction[1], rel_heading])
+
+    def simulate(self, z, record: bool = False):
+        rep, n_seg, w_rep, n_wind = self._split()
+        params = self._params()
+        dt = float(self.base.dt)
+        n = self.n_steps + 2
+        v_plan = self.base.planning_v_max
+        controls = jnp.tile(jnp.stack([v_plan, 0.0]).astype(jnp.float32), (n, 1))
+        states = harness.reference(jnp.zeros(3), controls, dt)
+        params = harness.with_reference(params, states, controls)
+        xi0 = self.start(z[:3])
+        state = core.reset(jax.random.key(0), params)
+        # The intruder appears at t = 0 at the attacker's start (outside the avoid region: level >= 0, Assumption 3).
+        state = replace(state, intruder_x=xi0, intruder_memory=jnp.concatenate([xi0, jnp.zeros(1)]),
+                        assumption_ok=jnp.ones((1,), bool))
+        state = core.avoid_start(core.observe_controllers(state, params), params)
+        rest = z[3:]
+        actions = policy = None
+        if self.intruder == "search":
+            b = self.base.intruder_bounds
+            u = harness.segments(rest[:2 * n_seg], n_seg, rep, (b[0], -b[2]), (b[1], b[2]))[:self.n_steps]
+            actions = control_to_action(u[:, 0], u[:, 1], b)
+            rest = rest[2 * n_seg:]
+        else:
+            policy = hj_pursuit
+        winds = None
+        if self.wind == "search":
+            wv = harness.disk(rest[:2 * n_wind], self.base.vehicle_bounds[3], n_wind, w_rep)[:self.n_steps]
+            wi = harness.disk(rest[2 * n_wind:4 * n_wind], self.base.intruder_bounds[3], n_wind, w_rep)[:self.n_steps]
+            winds = jnp.stack([wv, wi], axis=1)
+        final, traj = harness.run(params, state, self.n_steps, vehicle_policy=switching, intruder_actions=actions,
+                                  intruder_policy=policy, winds=winds, record=record)
+        return final, traj
+
+    def objective(self, z):
+        final, _ = self.simulate(z)
+        return self.base.collision_radius - final.min_separation[0]
+
+    def trace(self, z) -> dict:
+        final, traj = self.simulate(jnp.asarray(z, jnp.float32), record=True)
+        x, xi, t = traj
+        return harness.to_numpy({"t": t, "vehicle": x[:, 0, :], "intruder": xi,
+                                 "min_distance": final.min_separation[0], "avoid_start": final.avoid_start[0],
+                                 "collision_radius": self.base.collision_radius})
+
+    def describe(self) -> dict:
+        return {"attack": self.name, "segment": self.segment, "intruder": self.intruder, "wind": self.wind,
+                "wind_segment": self.wind_segment, "max_level": self.max_level}

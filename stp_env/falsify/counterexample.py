@@ -1,0 +1,239 @@
+"""Running an attack, and the replayable record of the worst input it found.
+
+A counterexample file (``counterexample.json``) holds the attack's specification (a registered attack name, a
+registered scenario and plain numbers: nothing in it is code or names code), the search's seed and settings, the
+worst input ``z`` (float32 values, exact in JSON) and the objective there, evaluated by one canonical program
+(:func:`canonical_value`). :func:`replay` rebuilds the attack from the file and recomputes that value: the same
+program on the same inputs gives the same bits.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from stp_env.evaluation.report import atomic_open
+from stp_env.falsify.search import SearchConfig, search
+
+TARGETS = ("tracking", "avoidance", "kbar")
+FORMAT = 1
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class AttackSpec:
+    """What to attack.
+
+    Attributes:
+        target: ``"tracking"``, ``"avoidance"`` or ``"kbar"``.
+        scenario: a registered scenario name (its vehicle, tables and, for ``"kbar"``, its plan).
+        kbar: the scenario's k̄ (plan and buffers); ``None``: the scenario's default.
+        wind_model: the environment's wind model (``"kbar"``; the other attacks choose their wind themselves).
+        dt, control_dt: the environment's decision and inner control periods [s].
+        options: the attack's own options as ``(name, value)`` pairs (see each attack's dataclass fields).
+    """
+
+    target: str
+    scenario: str = "town"
+    kbar: int | None = None
+    wind_model: str = "worst"
+    dt: float = 0.1
+    control_dt: float = 0.02
+    options: tuple = ()
+
+    def __post_init__(self) -> None:
+        if self.target not in TARGETS:
+            raise ValueError(f"target must be one of {', '.join(TARGETS)}; got {self.target!r}.")
+        opts = dict(self.options)
+        if len(opts) != len(self.options):
+            raise ValueError(f"options repeat a name: {self.options!r}.")
+        for key, value in opts.items():
+            if not isinstance(key, str) or isinstance(value, (dict, list, tuple)):
+                raise ValueError(f"options must be (name, number or string) pairs; got {key!r}: {value!r}.")
+        object.__setattr__(self, "options", tuple(sorted(opts.items())))
+
+    def to_json(self) -> dict:
+        return {"target": self.target, "scenario": self.scenario, "kbar": self.kbar, "wind_model": self.wind_model,
+                "dt": self.dt, "control_dt": self.control_dt, "options": dict(self.options)}
+
+    @classmethod
+    def from_json(cls, data: dict) -> AttackSpec:
+        if not isinstance(data, dict):
+            raise ValueError("the attack specification must be a JSON object.")
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown attack specification field(s) {unknown}; allowed: {sorted(known)}.")
+        data = dict(data)
+        opts = data.pop("options", {}) or {}
+        if not isinstance(opts, dict):
+            raise ValueError("options must be a JSON object.")
+        return cls(**data, options=tuple(opts.items()))
+
+
+def environment(spec: AttackSpec, *, progress: bool = False):
+    """The environment the attack runs in (registered scenario, typed config)."""
+    from stp_env import sim
+    from stp_env.scenarios import factory_parameters, make
+
+    overrides = {}
+    if spec.kbar is not None:
+        if "kbar" not in factory_parameters(spec.scenario):
+            raise ValueError(f"scenario {spec.scenario!r} takes no kbar.")
+        overrides["kbar"] = spec.kbar
+    scenario = make(spec.scenario, **overrides)
+    config = sim.EnvConfig(dt=spec.dt, control_dt=spec.control_dt, wind_model=spec.wind_model)
+    return sim.params_for(scenario, config, progress=progress)
+
+
+def build_attack(spec: AttackSpec, params=None, *, progress: bool = False):
+    """The attack object of ``spec`` (in ``params``, or the environment :func:`environment` builds)."""
+    from stp_env.falsify.avoidance import AvoidanceAttack
+    from stp_env.falsify.kbar import KbarAttack
+    from stp_env.falsify.tracking import TrackingAttack
+
+    cls = {"tracking": TrackingAttack, "avoidance": AvoidanceAttack, "kbar": KbarAttack}[spec.target]
+    params = environment(spec, progress=progress) if params is None else params
+    allowed = {f.name for f in dataclasses.fields(cls)} - {"base", "name"}
+    opts = dict(spec.options)
+    unknown = sorted(set(opts) - allowed)
+    if unknown:
+        raise ValueError(f"unknown option(s) {unknown} for the {spec.target} attack; allowed: {sorted(allowed)}.")
+    return cls(base=params, **opts)
+
+
+def canonical_value(attack, z) -> float:
+    """The objective at one input, by the one program replays use (unbatched, float32)."""
+    return float(jax.jit(attack.objective)(jnp.asarray(np.asarray(z, np.float32))))
+
+
+@dataclasses.dataclass(frozen=True)
+class Outcome:
+    """A finished search.
+
+    Attributes:
+        spec, config, seed: what ran.
+        z: the worst input found (float32, in ``[0, 1]^dim``).
+        worst: the objective there (:func:`canonical_value`).
+        bound: the bound under attack; margin: its distance to ``worst`` (negative: the bound is broken).
+        evaluations: attacks simulated; seconds: wall time of the search (compilation included).
+        quantiles: the 50/90/99/100 % quantiles of every attack's objective (the spread of the search).
+        details: what the simulator says about the worst attack (attack-specific).
+    """
+
+    spec: AttackSpec
+    config: SearchConfig
+    seed: int
+    z: np.ndarray
+    worst: float
+    bound: float
+    margin: float
+    evaluations: int
+    seconds: float
+    quantiles: tuple[float, ...]
+    details: dict
+
+    @property
+    def violated(self) -> bool:
+        return self.margin < 0
+
+    def summary(self) -> dict:
+        return {"target": self.spec.target, "scenario": self.spec.scenario, "kbar": self.spec.kbar,
+                "options": dict(self.spec.options), "method": self.config.method, "attacks": self.evaluations,
+                "worst": round(self.worst, 4), "bound": round(self.bound, 4), "margin": round(self.margin, 4),
+                "violated": self.violated, "seconds": round(self.seconds, 1),
+                "quantiles_50_90_99_100": [round(q, 4) for q in self.quantiles], "details": self.details}
+
+
+def run(spec: AttackSpec, config: SearchConfig | None = None, seed: int = 0, *, params=None,
+        progress: bool = True) -> Outcome:
+    """Search ``config.budget`` attacks of ``spec`` and return the worst."""
+    config = SearchConfig() if config is None else config
+    attack = build_attack(spec, params, progress=progress)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=config.budget, unit="attack", desc=f"falsify {spec.target}")
+    start = time.perf_counter()
+    try:
+        result = search(attack.objective, attack.dim, jax.random.key(seed), config, progress=bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    seconds = time.perf_counter() - start
+    z = np.asarray(result.best_z, np.float32)
+    worst = canonical_value(attack, z)
+    finite = result.values[np.isfinite(result.values)]
+    quantiles = tuple(float(q) for q in np.quantile(finite, [0.5, 0.9, 0.99, 1.0])) if finite.size else ()
+    details = _details(attack, z)
+    return Outcome(spec=spec, config=config, seed=seed, z=z, worst=worst, bound=attack.bound,
+                   margin=attack.margin(worst), evaluations=result.evaluations, seconds=seconds,
+                   quantiles=quantiles, details=details)
+
+
+def _details(attack, z) -> dict:
+    if attack.name == "kbar":
+        out = attack.outcome(z)
+        return {"forced": int(out["forced"]), "guarantee_violations": int(out["guarantee_violations"]),
+                "min_separation_m": round(float(out["min_separation"]), 3), "assumption_ok": bool(out["assumption_ok"])}
+    trace = attack.trace(z)
+    if attack.name == "avoidance":
+        return {"min_distance_m": round(float(trace["min_distance"]), 4),
+                "avoid_start_s": None if not math.isfinite(float(trace["avoid_start"])) else
+                round(float(trace["avoid_start"]), 3)}
+    return {"max_error_m": round(float(trace["worst"]), 4)}
+
+
+def save(outcome: Outcome, directory, *, plot: bool = True) -> Path:
+    """Write ``counterexample.json`` (and ``counterexample.png``) into ``directory``, atomically."""
+    from stp_env import __version__
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    record = {"format": FORMAT, "package_version": __version__, "spec": outcome.spec.to_json(),
+              "search": dataclasses.asdict(outcome.config), "seed": outcome.seed,
+              "z": [float(v) for v in np.asarray(outcome.z, np.float32)], "value": outcome.worst,
+              "summary": outcome.summary()}
+    path = directory / "counterexample.json"
+    with atomic_open(path) as fh:
+        fh.write(json.dumps(record, indent=1))
+    if plot:
+        from stp_env.falsify.plots import plot_attack
+
+        plot_attack(build_attack(outcome.spec), outcome.z, directory / "counterexample.png",
+                    title=f"{outcome.spec.target}: worst {outcome.worst:.3f}, bound {outcome.bound:.3f}")
+    return path
+
+
+def load(path) -> tuple[AttackSpec, np.ndarray, float]:
+    """``(spec, z, value)`` of a counterexample file; a malformed file is a ``ValueError`` naming it."""
+    path = Path(path)
+    try:
+        record = json.loads(path.read_text())
+        if not isinstance(record, dict) or record.get("format") != FORMAT:
+            raise ValueError(f"not a counterexample file of format {FORMAT}")
+        spec = AttackSpec.from_json(record["spec"])
+        z = np.asarray(record["z"], np.float32)
+        value = float(record["value"])
+        if z.ndim != 1 or not np.all(np.isfinite(z)) or np.any((z < 0) | (z > 1)):
+            raise ValueError("z must be a list of numbers in [0, 1]")
+    except (OSError, KeyError, TypeError, ValueError) as err:
+        raise ValueError(f"{path}: cannot read the counterexample ({err}).") from err
+    return spec, z, value
+
+
+def replay(path, *, params=None) -> tuple[float, float]:
+    """``(recorded value, recomputed value)`` of a counterexample file; equal bit for bit when the code and the
+    scenario's artifacts are those it was made with."""
+    spec, z, value = load(path)
+    attack = build_attack(spec, params)
+    if attack.dim != z.shape[0]:
+        raise ValueError(f"{path}: the attack takes {attack.dim} inputs; the file has {z.shape[0]}.")
+    return value, canonical_value(attack, z)

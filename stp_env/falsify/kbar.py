@@ -1,0 +1,174 @@
+"""Attack on the k̄ bound (intruder paper Sections IV-V): against a planned scenario, make one intruder force more
+than k̄ vehicles to avoid, or bring it or another vehicle inside ``R_c`` of a guarded vehicle.
+
+The attacker picks when the intruder appears (in the scenario's appearance window), where (on the level
+``V^A(0, t_IAT) = avoid_margin + level`` of a chosen flying vehicle, ``level`` in ``[0, max_level]`` metres, along a
+chosen bearing and relative heading: the core then checks Assumption 3 against every vehicle and an attack that
+breaks it does not count), and how it flies: its controls piecewise constant over ``segment`` seconds
+(``intruder="search"``) or a scripted strategy (``"max-k"``, ``"hj"``: the papers' pursuit, re-read every step).
+The wind is the environment's model (``"worst"``: the games' worst case at every inner control step). The vehicles
+fly ``u*`` (eq. 38) through the core.
+
+Objective: ``|N^RP|`` plus a tie-breaker in ``[0, 1)`` that grows as the intruder comes closer to the avoid
+boundary of a vehicle it has not forced yet (``1 - min V^A / d^A`` over the episode), so that the search climbs
+toward forcing one more; ``-1`` for an attack that broke Assumption 3. The bound is k̄ (``|N^RP| > k̄`` is a
+violation); the simulator's guarantee violations and closest approach are reported beside it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from stp_env.baselines.intruders import INTRUDERS
+from stp_env.baselines.vehicles import switching
+from stp_env.falsify import harness
+from stp_env.sim import core, tables
+from stp_env.sim.physics import control_to_action, rotate, wrap_angle
+from stp_env.sim.reference import nominal_reference
+from stp_env.sim.types import FLYING, EnvParams, replace
+
+N_BISECT = 30
+SCRIPTED = ("max-k", "hj")
+
+
+@dataclasses.dataclass(frozen=True)
+class KbarAttack:
+    """See the module docstring. ``base``: the planned scenario's environment (its plan, k̄, tables, wind model)."""
+
+    base: EnvParams
+    intruder: str = "search"
+    segment: float = 0.5
+    max_level: float = 20.0
+    name: str = "kbar"
+
+    def __post_init__(self) -> None:
+        if self.intruder not in ("search", *SCRIPTED):
+            raise ValueError(f"intruder must be 'search', 'max-k' or 'hj'; got {self.intruder!r}.")
+        if not (math.isfinite(self.segment) and self.segment >= float(self.base.dt) - 1e-9):
+            raise ValueError(f"segment must be at least the step dt = {float(self.base.dt)} s; got {self.segment}.")
+        if int(self.base.kbar) < 1:
+            raise ValueError("the scenario has no k̄ (plan it intruder-aware) to attack.")
+
+    @property
+    def n_present(self) -> int:
+        return round(float(self.base.t_iat) / float(self.base.dt))
+
+    @property
+    def n_steps(self) -> int:
+        """Steps from the episode start to the last possible departure of the intruder."""
+        # on the host: jnp arithmetic here would be staged into the caller's trace when simulate runs under jit
+        base = self.base
+        span = float(np.asarray(base.appear_window)[1]) + float(base.t_iat) - float(base.t_start)
+        return round(span / float(base.dt)) + 2
+
+    def _split(self):
+        rep = max(1, round(self.segment / float(self.base.dt)))
+        n_seg = math.ceil(self.n_present / rep) if self.intruder == "search" else 0
+        return rep, n_seg
+
+    @property
+    def dim(self) -> int:
+        return 5 + 2 * self._split()[1]
+
+    @property
+    def bound(self) -> float:
+        return float(self.base.kbar)
+
+    def margin(self, value: float) -> float:
+        """``k̄ - |N^RP|`` of the worst attack (the tie-breaker dropped): negative is a violation."""
+        return self.bound - math.floor(value)
+
+    def spawn(self, z5, params: EnvParams):
+        """``(t_, intruder state at t_)`` from ``z5``: appearance time, vehicle, bearing, relative heading, level."""
+        lo, hi = params.appear_window[0], params.appear_window[1]
+        dt = params.dt
+        k = jnp.floor((lo + z5[0] * (hi - lo) - params.t_start) / dt + 0.5)
+        t_app = params.t_start + k * dt
+        x_app, _ = nominal_reference(params, t_app)
+        fly = (params.departure <= t_app) & (jnp.hypot(*(x_app[:, :2] - params.targets).T) > params.target_radii)
+        # the floor(z * n_fly)-th flying vehicle
+        rank = jnp.cumsum(fly) - 1
+        pick = jnp.minimum(jnp.floor(z5[1] * jnp.sum(fly)), jnp.sum(fly) - 1)
+        j = jnp.argmax(fly & (rank == pick))
+        bearing = 2 * jnp.pi * z5[2] - jnp.pi
+        rel_heading = 2 * jnp.pi * z5[3] - jnp.pi
+        level = params.avoid_margin + 1e-3 + self.max_level * z5[4]
+        direction = jnp.stack([jnp.cos(bearing), jnp.sin(bearing)])
+        grid = params.avoid_grid
+        r_hi0 = 0.999 * min(-grid.lo[0], grid.hi[0], -grid.lo[1], grid.hi[1])
+
+        def value(r):
+            return tables.avoid_value(params, 0.0, jnp.stack([r * direction[0], r * direction[1], rel_heading]))
+
+        def bisect(_, lohi):
+            a, b = lohi
+            mid = 0.5 * (a + b)
+            inside = value(mid) <= level
+            return jnp.where(inside, mid, a), jnp.where(inside, b, mid)
+
+        _, r = jax.lax.fori_loop(0, N_BISECT, bisect, (jnp.zeros(()), jnp.asarray(r_hi0, jnp.float32)))
+        p = x_app[j, :2] + rotate(x_app[j, 2], r * direction)
+        return t_app, jnp.stack([p[0], p[1], wrap_angle(x_app[j, 2] + rel_heading)])
+
+    def simulate(self, z, record: bool = False):
+        params = self.base
+        rep, n_seg = self._split()
+        t_app, xi0 = self.spawn(z[:5], params)
+        state = core.reset(jax.random.key(0), params)
+        state = replace(state, t_appear=t_app, intruder_memory=jnp.concatenate([xi0, jnp.zeros(1)]))
+        policy = None if self.intruder == "search" else INTRUDERS[self.intruder]
+        if self.intruder == "search":
+            b = params.intruder_bounds
+            u = harness.segments(z[5:5 + 2 * n_seg], n_seg, rep, (b[0], -b[2]), (b[1], b[2]))[:self.n_present]
+            plan = control_to_action(u[:, 0], u[:, 1], b)
+        n = params.n_vehicles
+        keys = jax.random.split(jax.random.key(1), self.n_steps)
+
+        def body(carry, key):
+            s, vmin = carry
+            if policy is not None:
+                a_i = policy(jax.random.fold_in(key, 1), s, params)
+            else:
+                k = jnp.clip(jnp.round((s.t - s.t_appear) / params.dt).astype(jnp.int32), 0, self.n_present - 1)
+                a_i = plan[k]
+            actions = jnp.concatenate([jnp.zeros((n, 2), s.x.dtype), a_i[None, :]], axis=0)
+            s2, _ = core.step(key, s, actions, params, vehicle_policy=switching)
+            unforced = (s2.status == FLYING) & ~jnp.isfinite(s2.avoid_start)
+            vmin = jnp.minimum(vmin, jnp.min(jnp.where(unforced, s2.avoid_value, jnp.inf)))
+            out = (s2.x, s2.intruder_x, s2.t) if record else None
+            return (s2, vmin), out
+
+        (final, vmin), traj = jax.lax.scan(body, (state, jnp.asarray(jnp.inf, jnp.float32)), keys)
+        return final, vmin, traj
+
+    def objective(self, z):
+        final, vmin, _ = self.simulate(z)
+        forced = jnp.sum(jnp.isfinite(final.avoid_start)).astype(jnp.float32)
+        closeness = 0.99 * (1.0 - jnp.clip(vmin / self.base.detection_range, 0.0, 1.0))
+        valid = jnp.all(final.assumption_ok)
+        return jnp.where(valid, forced + closeness, -1.0)
+
+    def outcome(self, z) -> dict:
+        """The simulator's verdict on the attack at ``z``: forced count, guarantee violations, closest approach."""
+        final, _, _ = jax.jit(self.simulate)(jnp.asarray(z, jnp.float32))
+        return harness.to_numpy({"forced": jnp.sum(jnp.isfinite(final.avoid_start)),
+                                 "guarantee_violations": jnp.sum(final.guarantee_violation),
+                                 "min_separation": jnp.min(final.min_separation),
+                                 "assumption_ok": jnp.all(final.assumption_ok)})
+
+    def trace(self, z) -> dict:
+        final, _, traj = self.simulate(jnp.asarray(z, jnp.float32), record=True)
+        x, xi, t = traj
+        return harness.to_numpy({"t": t, "vehicles": x, "intruder": xi, "avoid_start": final.avoid_start,
+                                 "status": final.status, "forced": jnp.sum(jnp.isfinite(final.avoid_start)),
+                                 "t_appear": final.t_appear, "collision_radius": self.base.collision_radius,
+                                 "min_separation": jnp.min(final.min_separation)})
+
+    def describe(self) -> dict:
+        return {"attack": self.name, "intruder": self.intruder, "segment": self.segment,
+                "max_level": self.max_level}

@@ -1,0 +1,113 @@
+"""Attack on the robust-tracking bound ``r_e`` (SPP eqs. 24-26): a legal reference and the wind against the tracker.
+
+The attacker picks the reference's controls in the planning set ``U^p`` (piecewise constant over ``segment``
+seconds) and either the wind in the disk of radius ``d_r`` (piecewise constant over ``wind_segment`` seconds) or the
+tracking game's own worst-case wind, re-evaluated at every inner control step (``wind="worst"``). The vehicle starts
+on its reference (zero error) and flies ``u^PP`` (the tracker ``kappa``, run by the core at the inner control rate).
+Objective: the largest distance to the reference over ``horizon`` seconds, as measured by the simulator
+(``EnvState.max_tracking_error``). The bound under attack is the ``r_e`` the planner and the simulator use.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+
+from stp_env.baselines.vehicles import nominal_tracking
+from stp_env.falsify import harness
+from stp_env.sim import core
+from stp_env.sim.types import EnvParams, replace
+
+WIND_MODES = ("search", "worst")
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackingAttack:
+    """See the module docstring. ``base``: the environment whose vehicle, tables, step and inner rate are used."""
+
+    base: EnvParams
+    horizon: float = 30.0
+    segment: float = 1.0
+    wind: str = "search"
+    wind_segment: float = 0.5
+    name: str = "tracking"
+
+    def __post_init__(self) -> None:
+        if self.wind not in WIND_MODES:
+            raise ValueError(f"wind must be one of {WIND_MODES}; got {self.wind!r}.")
+        dt = float(self.base.dt)
+        for label, value in (("horizon", self.horizon), ("segment", self.segment), ("wind_segment", self.wind_segment)):
+            if not (math.isfinite(value) and value >= dt - 1e-9):
+                raise ValueError(f"{label} must be at least the step dt = {dt} s; got {value}.")
+
+    # -- sizes
+    @property
+    def n_steps(self) -> int:
+        return round(self.horizon / float(self.base.dt))
+
+    def _split(self):
+        dt = float(self.base.dt)
+        rep = max(1, round(self.segment / dt))
+        n_seg = math.ceil(self.n_steps / rep)
+        w_rep = max(1, round(self.wind_segment / dt))
+        n_wind = math.ceil(self.n_steps / w_rep) if self.wind == "search" else 0
+        return rep, n_seg, w_rep, n_wind
+
+    @property
+    def dim(self) -> int:
+        _, n_seg, _, n_wind = self._split()
+        return 2 * n_seg + 2 * n_wind
+
+    @property
+    def bound(self) -> float:
+        """``r_e`` [m]."""
+        return float(self.base.tracking_bound)
+
+    def margin(self, value: float) -> float:
+        """``r_e - worst error`` [m]: negative is a violation."""
+        return self.bound - value
+
+    # -- the simulation
+    def _params(self) -> EnvParams:
+        params = harness.one_vehicle(self.base, self.n_steps + 2,
+                                     wind_model="constant" if self.wind == "search" else "worst")
+        # No intruder: it would appear only after the horizon.
+        far = jnp.full((2,), 1.0e9, jnp.float32)
+        return replace(params, appear_window=far)
+
+    def simulate(self, z, record: bool = False):
+        rep, n_seg, w_rep, n_wind = self._split()
+        dyn = self.base.tracking_dynamics
+        lo = (dyn.other_v_min, -dyn.other_omega_max)
+        hi = (dyn.other_v_max, dyn.other_omega_max)
+        n = self.n_steps + 2
+        controls = harness.segments(z[:2 * n_seg], n_seg, rep, lo, hi)
+        controls = jnp.concatenate([controls, jnp.repeat(controls[-1:], n, axis=0)])[:n]
+        states = harness.reference(jnp.zeros(3), controls, float(self.base.dt))
+        params = harness.with_reference(self._params(), states, controls)
+        winds = None
+        if self.wind == "search":
+            w = harness.disk(z[2 * n_seg:], self.base.vehicle_bounds[3], n_wind, w_rep)[:self.n_steps]
+            winds = jnp.stack([w, jnp.zeros_like(w)], axis=1)  # (steps, 2, 2): the vehicle, no intruder
+        state = core.reset(jax.random.key(0), params)
+        final, traj = harness.run(params, state, self.n_steps, vehicle_policy=nominal_tracking, winds=winds,
+                                  record=record)
+        return final, traj, states
+
+    def objective(self, z):
+        final, _, _ = self.simulate(z)
+        return final.max_tracking_error[0]
+
+    def trace(self, z) -> dict:
+        """Trajectories of the attack at ``z`` for plots: the vehicle's and the reference's positions."""
+        final, traj, states = self.simulate(jnp.asarray(z, jnp.float32), record=True)
+        x, _, t = traj
+        return harness.to_numpy({"t": t, "vehicle": x[:, 0, :], "reference": states[:self.n_steps + 1],
+                                 "worst": final.max_tracking_error[0]})
+
+    def describe(self) -> dict:
+        return {"attack": self.name, "horizon": self.horizon, "segment": self.segment, "wind": self.wind,
+                "wind_segment": self.wind_segment}

@@ -1,0 +1,132 @@
+"""The falsifier: the attacks run through the simulator, find violations where there are some (a check that can
+fail), find none against the guarantees in use, and their counterexamples replay bit for bit."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from stp_env import sim
+from stp_env.falsify import cli as falsify_cli
+from stp_env.falsify.avoidance import AvoidanceAttack
+from stp_env.falsify.counterexample import TARGETS, AttackSpec, canonical_value, load, replay, run, save
+from stp_env.falsify.kbar import KbarAttack
+from stp_env.falsify.search import SearchConfig, cross_entropy
+from stp_env.falsify.tracking import TrackingAttack
+from stp_env.scenarios import make
+
+
+@functools.lru_cache(maxsize=4)
+def _params(control_dt: float = 0.02, kbar: int = 2):
+    """``town`` at k̄ with the worst-case wind model (the attacks that search the wind switch it themselves)."""
+    return sim.params_for(make("town", kbar=kbar), sim.EnvConfig(control_dt=control_dt, wind_model="worst"),
+                          progress=False)
+
+
+def _zigzag(attack: TrackingAttack) -> np.ndarray:
+    """The legal reference that defeated the boundary-layer tracker: v_r = 12 m/s, omega_r = +-1.2 rad/s switching
+    every 1 to 6 s (1 s segments), from zero error."""
+    rep, n_seg, _, _ = attack._split()
+    assert rep * float(attack.base.dt) == pytest.approx(1.0)
+    z = np.zeros((n_seg, 2), np.float32)
+    z[:, 0] = 0.5  # 12 m/s in [11, 13]
+    sign, k = 1.0, 0
+    for hold in [1, 3, 6, 2, 5, 4, 1, 6, 3, 2, 4, 5, 1, 2]:
+        z[k:k + hold, 1] = 1.0 if sign > 0 else 0.0
+        sign, k = -sign, k + hold
+        if k >= n_seg:
+            break
+    return z.ravel()
+
+
+def test_zigzag_reference_in_worst_wind_stays_within_r_e():
+    """At the default inner control rate the tracker holds the zig-zag reference in the tracking game's worst wind
+    (the boundary-layer tracker held for a whole step lost it: > 100 m within 40 s)."""
+    attack = TrackingAttack(base=_params(), horizon=40.0, segment=1.0, wind="worst")
+    worst = canonical_value(attack, _zigzag(attack))
+    assert 1.0 < worst <= attack.bound, worst
+
+
+@pytest.mark.slow
+def test_zero_order_hold_of_the_tracker_breaks_the_bound():
+    """The same attack with the tracker held for the whole 0.1 s step (no inner loop) leaves the bound: the
+    sampled-data effect the inner control loop removes. The attack can fail."""
+    attack = TrackingAttack(base=_params(control_dt=0.1), horizon=40.0, segment=1.0, wind="worst")
+    worst = canonical_value(attack, _zigzag(attack))
+    assert worst > attack.bound, worst
+
+
+@pytest.mark.slow
+def test_short_searches_find_no_violation_of_the_bounds_in_use():
+    params = _params()
+    config = SearchConfig(budget=160, population=20, restarts=2, batch=40)
+    track = TrackingAttack(base=params, horizon=20.0, segment=1.0, wind="search", wind_segment=1.0)
+    res = cross_entropy(track.objective, track.dim, jax.random.key(0), config)
+    assert res.evaluations == 160 and track.margin(res.best_value) > 0, res.best_value
+    avoid = AvoidanceAttack(base=params, intruder="hj", wind="worst", max_level=5.0)
+    res = cross_entropy(avoid.objective, avoid.dim, jax.random.key(1), config)
+    assert avoid.margin(res.best_value) > 0, res.best_value
+    kbar = KbarAttack(base=params, intruder="max-k")
+    res = cross_entropy(kbar.objective, kbar.dim, jax.random.key(2), config)
+    assert 1.0 <= res.best_value and kbar.margin(res.best_value) >= 0, res.best_value
+
+
+@pytest.mark.slow
+def test_the_attacks_find_violations_where_there_are_some():
+    """Against a tracker that is not the robust one (a bound far below the game's) and a vehicle that does not
+    avoid (safety filter off, the intruder's controls searched), the same searches find violations: the checks
+    above can fail."""
+    params = _params()
+    config = SearchConfig(budget=160, population=20, restarts=2, batch=40)
+    tight = TrackingAttack(base=dataclasses.replace(params, tracking_bound=jnp.asarray(1.0, jnp.float32)),
+                           horizon=20.0, segment=1.0, wind="worst")
+    res = cross_entropy(tight.objective, tight.dim, jax.random.key(0), config)
+    assert tight.margin(res.best_value) < 0
+    unguarded = AvoidanceAttack(base=dataclasses.replace(params, safety_filter=False), intruder="search",
+                                wind="worst")
+    res = cross_entropy(unguarded.objective, unguarded.dim, jax.random.key(1), config)
+    assert unguarded.margin(res.best_value) < 0
+
+
+def test_counterexample_replays_bit_for_bit(tmp_path):
+    params = _params()
+    spec = AttackSpec(target="avoidance", scenario="town", kbar=2,
+                      options=(("intruder", "hj"), ("wind", "worst"), ("max_level", 2.0)))
+    outcome = run(spec, SearchConfig(budget=8, population=4, restarts=1, batch=4), seed=3, params=params,
+                  progress=False)
+    path = save(outcome, tmp_path, plot=True)
+    assert (tmp_path / "counterexample.png").stat().st_size > 0
+    recorded, recomputed = replay(path, params=params)
+    assert recorded == recomputed == outcome.worst
+    spec2, z, value = load(path)
+    assert spec2 == spec and value == outcome.worst and z.dtype == np.float32
+
+
+@pytest.mark.parametrize("edit", [
+    lambda r: r.update(format=99),
+    lambda r: r.update(z=[0.5, "x"]),
+    lambda r: r.update(z=[2.0]),
+    lambda r: r["spec"].update(target="os:system"),
+    lambda r: r["spec"].update(command="rm -rf /"),
+])
+def test_malformed_counterexample_files_are_refused(tmp_path, edit):
+    record = {"format": 1, "spec": {"target": "tracking"}, "z": [0.5], "value": 1.0}
+    edit(record)
+    path = tmp_path / "counterexample.json"
+    path.write_text(json.dumps(record))
+    with pytest.raises(ValueError, match="cannot read the counterexample"):
+        load(path)
+
+
+def test_cli_targets_match_the_attacks():
+    assert falsify_cli.TARGETS == TARGETS
+    with pytest.raises(ValueError, match="unknown option"):
+        from stp_env.falsify.counterexample import build_attack
+
+        build_attack(AttackSpec(target="tracking", options=(("horizonn", 3.0),)), params=_params())
