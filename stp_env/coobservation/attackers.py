@@ -1,6 +1,7 @@
 """Scripted attackers of a compromised vehicle: jittable ``policy(key, state, params, threat, planned) -> (2,)``
 actions in ``[-1, 1]`` (see :mod:`stp_env.coobservation.threat`); ``planned`` is the action the vehicle's tracker
-would apply (its plan), which an attacker may fall back to.
+would apply at the start of the step. An attacker that returns :data:`~stp_env.coobservation.threat.FLY_PLAN`
+lets the vehicle fly its plan for the step (the tracker at every inner control step, as the honest vehicles do).
 
 Both go for the *entry point* (a point just inside a forbidden zone, :attr:`ThreatParams.entry_points`) that
 minimises the detour ``|p - e| + |e - o|`` from the vehicle's position ``p`` to its next observation point ``o``
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from stp_env.coobservation import threat as threat_lib
 from stp_env.sim import core
 from stp_env.sim.physics import control_to_action, wrap_angle
 
@@ -66,7 +68,8 @@ def _attack_action(state, params, threat, planned, go):
     to_zone = steer(x, entry, b[1], b)
     dist_aim = jnp.linalg.norm(aim - x[:2])
     back = steer(x, aim, jnp.clip(dist_aim / ARRIVE_TIME, b[0], b[1]), b)
-    track = planned
+    del planned
+    track = threat_lib.FLY_PLAN
     x_ref, _ = core.nominal_reference(params, t)
     rejoined = jnp.linalg.norm(x_ref[c, :2] - x[:2]) < REJOIN_DISTANCE
     entered = state.entered[c]
@@ -101,8 +104,8 @@ def opportunistic(slack: float = 5.0):
 
 def honest(key, state, params, threat, planned):
     """No attack: the compromised vehicle keeps flying its plan (the false-alarm baseline)."""
-    del key, state, params, threat
-    return planned
+    del key, state, params, threat, planned
+    return threat_lib.FLY_PLAN
 
 
 ATTACKERS = {"reckless": reckless, "opportunistic": opportunistic(), "honest": honest}

@@ -103,11 +103,11 @@ def _step(key, ts, actions, given, attacker_action, attacker_given, params, tp):
     track = nominal_tracking(k_track, ts.sim, params)
     a = jnp.where(given[:, None], actions, track)
     c = jnp.maximum(ts.compromised, 0)
-    a_att = jnp.where(attacker_given, attacker_action, track[c])
+    a_att = jnp.where(attacker_given, attacker_action, threat.FLY_PLAN)
     entered_before = ts.entered[c]
     detected_before = jnp.isfinite(ts.detect_time)
     checked_before = ts.checked
-    new = threat.step(k_step, ts, a, a_att, params, tp)
+    new = threat.step(k_step, ts, a, a_att, params, tp, feedback=~given)
     reward = ATTACKER_REWARDS[0] * (new.entered[c] & ~entered_before & (ts.compromised >= 0)) + \
         ATTACKER_REWARDS[1] * (jnp.isfinite(new.detect_time) & ~detected_before)
     return key, new, _outputs(new, params, tp), reward, new.checked & ~checked_before
@@ -209,7 +209,9 @@ class CoObservationParallelEnv(ParallelEnv):
         self.agents = list(self.possible_agents)
         out = jax.device_get(out)
         obs = self._observations(out)
-        infos = self._infos(np.zeros(len(self.schedule), bool))
+        # the observations checked at the start (the base stations at t = 0) are the reset's events
+        checked = np.asarray(jax.device_get(self._ts.checked))[:len(self.schedule)]
+        infos = self._infos(checked & (np.asarray(self.threat.obs_time)[:len(self.schedule)] < threat.NEVER))
         return obs, infos
 
     def step(self, actions):

@@ -30,10 +30,11 @@ from stp_env.baselines import nominal_tracking
 from stp_env.coobservation.admm import polygon_halfplanes
 from stp_env.coobservation.schedule import Observation
 from stp_env.sim import core
-from stp_env.sim.types import COLLIDED, FLYING, EnvParams, EnvState, replace
+from stp_env.sim.types import COLLIDED, FLYING, OUT_OF_BOUNDS, EnvParams, EnvState, replace
 
 INF = jnp.inf
 NEVER = 1e9  # [s] time of the placeholder observations that pad a schedule
+FLY_PLAN = jnp.full((2,), jnp.nan, jnp.float32)  # an attacker's "action" that lets the vehicle fly its plan
 
 
 @jax.tree_util.register_dataclass
@@ -134,7 +135,10 @@ def _events(ts: ThreatState, sim_state: EnvState, params: EnvParams, threat: Thr
     pa = x[threat.obs_agent]
     pb = jnp.where((threat.obs_partner >= 0)[:, None], x[jnp.maximum(threat.obs_partner, 0)], threat.obs_point)
     dist = jnp.linalg.norm(pa - pb, axis=-1)
-    miss = due & (dist > threat.radius)
+    # a vehicle that collided or left the domain is lost: it can neither observe nor be observed
+    lost = (sim_state.status == COLLIDED) | (sim_state.status == OUT_OF_BOUNDS)
+    lost_pair = lost[threat.obs_agent] | ((threat.obs_partner >= 0) & lost[jnp.maximum(threat.obs_partner, 0)])
+    miss = due & ((dist > threat.radius) | lost_pair)
     involves = (c >= 0) & ((threat.obs_agent == c) | (threat.obs_partner == c))
     after = threat.obs_time >= ts.t_compromise - 0.5 * params.dt
     detect = miss & involves & after
@@ -170,15 +174,28 @@ def attacker_active(ts: ThreatState):
     return (ts.compromised >= 0) & (ts.sim.t >= ts.t_compromise - 1e-6)
 
 
-def step(key, ts: ThreatState, vehicle_actions, attacker_action, params: EnvParams, threat: ThreatParams):
+def step(key, ts: ThreatState, vehicle_actions, attacker_action, params: EnvParams, threat: ThreatParams,
+         feedback=None, vehicle_policy=nominal_tracking):
     """One step: ``vehicle_actions`` ``(N, 2)`` in ``[-1, 1]``, of which the compromised vehicle's row is replaced by
-    ``attacker_action`` ``(2,)`` once the attack is active. The core's intruder slot gets the zero action (there is
-    no intruder: it never appears). Returns the new :class:`ThreatState`."""
+    ``attacker_action`` ``(2,)`` once the attack is active (:data:`FLY_PLAN`: it flies its plan this step).
+    ``feedback`` ``(N,)`` (default: every vehicle): the
+    vehicles that run ``vehicle_policy`` (the tracker) at every inner control step of the core
+    (``EnvConfig.control_dt``) instead of holding their action over the step; the attacker's action is held. The
+    core's intruder slot gets the zero action (there is no intruder: it never appears). Returns the new
+    :class:`ThreatState`."""
     n = params.n_vehicles
-    mine = (jnp.arange(n) == ts.compromised) & attacker_active(ts)
-    a = jnp.where(mine[:, None], jnp.asarray(attacker_action, vehicle_actions.dtype)[None, :], vehicle_actions)
+    att = jnp.asarray(attacker_action, vehicle_actions.dtype)
+    # FLY_PLAN (NaN): the attacker lets its vehicle fly the plan this step (the tracker, at every inner step)
+    mine = (jnp.arange(n) == ts.compromised) & attacker_active(ts) & ~jnp.any(jnp.isnan(att))
+    a = jnp.where(mine[:, None], att[None, :], vehicle_actions)
+    feedback = jnp.ones((n,), bool) if feedback is None else jnp.asarray(feedback, bool)
+    feedback = feedback & ~mine
+
+    def policy(k, s, p):
+        return jnp.where(feedback[:, None], vehicle_policy(k, s, p), a)
+
     actions = jnp.concatenate([a, jnp.zeros((1, 2), a.dtype)], axis=0)
-    sim_state, _ = core.step(key, ts.sim, actions, params)
+    sim_state, _ = core.step(key, ts.sim, actions, params, vehicle_policy=policy)
     return _events(ts, sim_state, params, threat)
 
 
@@ -217,7 +234,7 @@ def rollout(key, params: EnvParams, threat: ThreatParams, attacker, n_envs: int,
             k_v, k_a, k_s = jax.random.split(k, 3)
             a_v = vehicle_policy(k_v, ts.sim, params)
             a_att = attacker(k_a, ts, params, threat, a_v[jnp.maximum(ts.compromised, 0)])
-            new = step(k_s, ts, a_v, a_att, params, threat)
+            new = step(k_s, ts, a_v, a_att, params, threat, vehicle_policy=vehicle_policy)
             over = episode_done(ts, params)
             new = jax.tree.map(lambda a, b: jnp.where(over, a, b), ts, new)
             return new, (new.sim.x[:, :2] if record else None)
