@@ -87,9 +87,11 @@ def run(args) -> int:
 
     from stp_env.coobservation import evaluation, threat
     from stp_env.coobservation.uav import FormationScenario
+    from stp_env.evaluation.pipeline import check_output_dir
+    from stp_env.evaluation.report import atomic_open
 
-    out = Path(args.out)
     attackers = resolve_attackers(args.attackers)  # bad names fail before any computation
+    out = check_output_dir(args.out)  # so that the results are not lost at the end
     scenario = FormationScenario()
     start = time.time()
     params = scenario.params(progress=not args.no_progress)
@@ -103,10 +105,10 @@ def run(args) -> int:
                           seed=args.seed, progress=not args.no_progress)
     table = evaluation.markdown(rows)
     print(table)
-    out.mkdir(parents=True, exist_ok=True)
     result = {"scenario": repr(scenario), "schedules": times, "compromise_window_s": list(window),
               "episodes": args.episodes, "seed": args.seed, "rows": [r.as_dict() for r in rows],
               "seconds": round(time.time() - start, 1), "jax": jax.__version__, "numpy": np.__version__}
-    (out / "results.json").write_text(json.dumps(result, indent=1, default=float) + "\n")
-    (out / "results.md").write_text(table + "\n")
+    for name, text in (("results.json", json.dumps(result, indent=1, default=float)), ("results.md", table)):
+        with atomic_open(out / name) as fh:
+            fh.write(text + "\n")
     return 0
