@@ -50,9 +50,10 @@ def test_secured_schedule_ellipses_miss_the_zones_and_the_unsecured_do_not():
 def test_attacks_succeed_only_against_the_unsecured_schedule():
     params, threats, _ = _setup()
     n_steps = threat.steps_for(params)
+    attacker = attackers.ATTACKERS["opportunistic"]  # one function object: one compilation for both schedules
     out = {}
     for name, tp in threats.items():
-        final, _ = threat.rollout(jax.random.key(3), params, tp, attackers.opportunistic(), 12, n_steps, (90.0, 96.0))
+        final, _ = threat.rollout(jax.random.key(3), params, tp, attacker, 12, n_steps, (90.0, 96.0))
         out[name] = threat.outcomes(jax.device_get(final))
     sec, uns = out["secured"], out["unsecured"]
     assert sec["entered"].sum() == 0 and sec["detected"].sum() == 0 and sec["success"].sum() == 0
