@@ -18,7 +18,7 @@ Subcommands:
 * ``survivability``: the mission-survivability study (partially known and unknown intruders, four planning
   policies under receding-horizon control): a resumable scenario sweep, results and figures
   (:mod:`stp_env.survivability`).
-
+* ``coobservation``: attacks on co-observation schedules by a compromised vehicle (:mod:`stp_env.coobservation.cli`).
 * ``train-intruder``: train a learned intruder with Stable-Baselines3 (PPO by default) on the native batched
   VecEnv against vehicles running ``u*`` with the HJ safety filter (:mod:`stp_env.rl.train`; needs the ``rl``
   extra); prints the last evaluation as JSON and writes the model, logs and ``intruder.npz`` to ``--out``.
@@ -132,6 +132,9 @@ def _build_parser() -> argparse.ArgumentParser:
     from stp_env.survivability.cli import add_parser as _add_survivability_parser
 
     _add_survivability_parser(sub)
+    from stp_env.coobservation.cli import add_parser as _add_coobservation_parser
+
+    _add_coobservation_parser(sub)
     return parser
 
 
@@ -464,6 +467,8 @@ def main(argv=None) -> int:
             from stp_env.falsify.cli import run_cli
 
             return run_cli(args)
+        if args.command == "coobservation":
+            return args.run(args)
     except (ValueError, OSError) as err:  # bad options, unreadable inputs, unwritable outputs: one line, no traceback
         message = " ".join(str(err).split())
         print(f"stp-env {args.command}: error: {message}", file=sys.stderr)

@@ -1,0 +1,49 @@
+"""Train the learned attacker (SB3 PPO) of the co-observation study and export it (numpy weights, no pickle).
+
+The attacker controls a compromised vehicle of the UAV formation (:mod:`stp_env.coobservation.uav`) from a random
+compromise time; its reward is entering a forbidden zone without missing an observation
+(:mod:`stp_env.coobservation.learned`). It trains against the unsecured schedule (every 90 s), where such attacks
+exist, and is evaluated afterwards on every schedule by ``stp-env coobservation --attackers learned:<npz>``.
+
+``python scripts/coobservation_train_attacker.py --out runs/attacker`` (defaults: 500 k decisions of 1 s, about
+20 minutes on 2 cores); ``--ship`` copies the result to ``stp_env/data/coobservation/attacker.npz``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main(argv=None):
+    from stp_env.coobservation import learned, threat
+    from stp_env.coobservation.env import UNSECURED_PERIOD
+    from stp_env.coobservation.uav import FormationScenario
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--timesteps", type=int, default=500_000, help="attacker decisions (1 s each)")
+    ap.add_argument("--n-envs", type=int, default=32)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", default="runs/attacker")
+    ap.add_argument("--ship", action="store_true", help="copy the exported attacker into the package data")
+    args = ap.parse_args(argv)
+    sc = FormationScenario()
+    params = sc.params()
+    tp = threat.threat_params(sc.schedule(sc.uniform_times(UNSECURED_PERIOD)), sc.forbidden, sc.observation_radius)
+    cfg = learned.AttackerTrainConfig(total_timesteps=args.timesteps, n_envs=args.n_envs, seed=args.seed)
+    start = time.time()
+    path = learned.train(params, tp, (0.0, sc.duration - 10.0), cfg, args.out)
+    print(f"wrote {path} after {time.time() - start:.0f} s")
+    if args.ship:
+        dest = ROOT / "stp_env" / "data" / "coobservation" / "attacker.npz"
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(path, dest)
+        print(f"shipped to {dest}")
+
+
+if __name__ == "__main__":
+    main()

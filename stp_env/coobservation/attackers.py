@@ -1,0 +1,148 @@
+"""Scripted attackers of a compromised vehicle: jittable ``policy(key, state, params, threat, planned) -> (2,)``
+actions in ``[-1, 1]`` (see :mod:`stp_env.coobservation.threat`); ``planned`` is the action the vehicle's tracker
+would apply at the start of the step. An attacker that returns :data:`~stp_env.coobservation.threat.FLY_PLAN`
+lets the vehicle fly its plan for the step (the tracker at every inner control step, as the honest vehicles do).
+
+Both go for the *entry point* (a point just inside a forbidden zone, :attr:`ThreatParams.entry_points`) that
+minimises the detour ``|p - e| + |e - o|`` from the vehicle's position ``p`` to its next observation point ``o``
+(its own nominal position at the next observation that involves it: its formation slot, within the observation
+radius of its observer), straight at full speed; once inside, straight back to ``o`` (slowing down on arrival, so
+that it waits there if early), and back on its nominal trajectory (the tracker) once it has rejoined it.
+
+* :func:`reckless`: attacks at once, whatever the schedule ("straight for the region, then back to the next
+  observation point in time").
+* :func:`opportunistic`: attacks only when the round trip fits before the next observation at the speed it can
+  count on whatever the wind, ``v_max - wind``, with ``slack`` seconds to spare (turns); otherwise it flies its
+  plan and waits for a window. Against a schedule whose reachability regions miss the forbidden zones no window
+  ever opens, so it never enters.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from stp_env.coobservation import threat as threat_lib
+from stp_env.sim import core
+from stp_env.sim.physics import control_to_action, wrap_angle
+
+HEADING_GAIN = 3.0   # [1/s] turn rate per radian of heading error
+ARRIVE_TIME = 2.0    # [s] slow down within this many seconds of the aim point
+REJOIN_DISTANCE = 30.0  # [m] back on the nominal trajectory within this distance
+
+
+def next_observation(state, params, threat, c, t):
+    """``(time, aim point)`` of the first scheduled observation involving vehicle ``c`` after ``t``: the time and
+    ``c``'s own nominal position then (``inf`` and its goal if there is none)."""
+    involves = (threat.obs_agent == c) | (threat.obs_partner == c)
+    later = involves & (threat.obs_time > t + 0.5 * params.dt)
+    t_next = jnp.min(jnp.where(later, threat.obs_time, jnp.inf))
+    x_ref, _ = core.nominal_reference(params, jnp.where(jnp.isfinite(t_next), t_next, params.t_end))
+    return t_next, x_ref[c, :2]
+
+
+def best_entry(p, o, threat):
+    """The entry point minimising ``|p - e| + |e - o|`` and that detour length [m]."""
+    e = threat.entry_points
+    d = jnp.linalg.norm(e - p, axis=-1) + jnp.linalg.norm(o - e, axis=-1)
+    k = jnp.argmin(d)
+    return e[k], d[k]
+
+
+def steer(x, point, speed, bounds):
+    """Action turning the state ``x`` (3,) toward ``point`` at ``speed`` [m/s]."""
+    d = point - x[:2]
+    err = wrap_angle(jnp.arctan2(d[1], d[0]) - x[2])
+    omega = jnp.clip(HEADING_GAIN * err, -bounds[2], bounds[2])
+    return control_to_action(speed, omega, bounds)
+
+
+def _attack_action(state, params, threat, planned, go):
+    """The shared strategy; ``go``: whether to head for the zone now (before entering)."""
+    c = jnp.maximum(state.compromised, 0)
+    sim = state.sim
+    x = sim.x[c]
+    t = sim.t
+    b = params.vehicle_bounds
+    _t_next, aim = next_observation(state, params, threat, c, t)
+    entry, _ = best_entry(x[:2], aim, threat)
+    to_zone = steer(x, entry, b[1], b)
+    dist_aim = jnp.linalg.norm(aim - x[:2])
+    back = steer(x, aim, jnp.clip(dist_aim / ARRIVE_TIME, b[0], b[1]), b)
+    del planned
+    track = threat_lib.FLY_PLAN
+    x_ref, _ = core.nominal_reference(params, t)
+    rejoined = jnp.linalg.norm(x_ref[c, :2] - x[:2]) < REJOIN_DISTANCE
+    entered = state.entered[c]
+    after = jnp.where(rejoined, track, back)
+    before = jnp.where(go, to_zone, jnp.where(rejoined, track, back))
+    return jnp.where(entered, after, before)
+
+
+def reckless(key, state, params, threat, planned):
+    """Straight for the zone at once, then straight back to the next observation point."""
+    del key
+    return _attack_action(state, params, threat, planned, jnp.asarray(True))
+
+
+def opportunistic(slack: float = 5.0):
+    """Only when ``detour / (v_max - wind) <= t_next - t - slack`` (see the module docstring)."""
+
+    def policy(key, state, params, threat, planned):
+        del key
+        c = jnp.maximum(state.compromised, 0)
+        x = state.sim.x[c]
+        t_next, aim = next_observation(state, params, threat, c, state.sim.t)
+        _, detour = best_entry(x[:2], aim, threat)
+        b = params.vehicle_bounds
+        speed = jnp.maximum(b[1] - b[3], 1e-3)
+        go = detour / speed <= t_next - state.sim.t - slack
+        return _attack_action(state, params, threat, planned, go)
+
+    policy.__name__ = "opportunistic"
+    return policy
+
+
+def honest(key, state, params, threat, planned):
+    """No attack: the compromised vehicle keeps flying its plan (the false-alarm baseline)."""
+    del key, state, params, threat, planned
+    return threat_lib.FLY_PLAN
+
+
+ATTACKERS = {"reckless": reckless, "opportunistic": opportunistic(), "honest": honest}
+
+
+# ------------------------------------------------------------------------------------------------ observation
+OBS_SIZE = 10
+DISTANCE_SCALE = 1000.0  # [m]
+TIME_SCALE = 60.0        # [s]
+
+
+def attacker_observation(state, params, threat):
+    """What an attacker sees (``(OBS_SIZE,)``, entries in ``[-2, 2]``; zeros while it is not active):
+
+    ====== ==============================================================================================
+    0-1    its next observation point (own nominal position at the next observation) in its body frame / 1 km
+    2-3    the best entry point (:func:`best_entry`) in its body frame / 1 km
+    4      time to the next observation / 60 s
+    5      the detour through the entry point over the distance it can fly by then at ``v_max`` (clipped at 2)
+    6      entered a zone already; 7 inside a zone now
+    8-9    ``cos, sin`` of its heading
+    ====== ==============================================================================================
+    """
+    from stp_env.coobservation.threat import attacker_active
+    from stp_env.sim.physics import rotate
+
+    c = jnp.maximum(state.compromised, 0)
+    x = state.sim.x[c]
+    t = state.sim.t
+    t_next, aim = next_observation(state, params, threat, c, t)
+    entry, detour = best_entry(x[:2], aim, threat)
+    left = jnp.where(jnp.isfinite(t_next), t_next - t, 0.0)
+    reach = params.vehicle_bounds[1] * left
+    obs = jnp.concatenate([
+        rotate(-x[2], aim - x[:2]) / DISTANCE_SCALE,
+        rotate(-x[2], entry - x[:2]) / DISTANCE_SCALE,
+        jnp.stack([left / TIME_SCALE, jnp.minimum(detour / jnp.maximum(reach, 1.0), 2.0),
+                   state.entered[c].astype(x.dtype), state.inside[c].astype(x.dtype), jnp.cos(x[2]), jnp.sin(x[2])]),
+    ])
+    return jnp.where(attacker_active(state), jnp.clip(obs, -2.0, 2.0), 0.0).astype(jnp.float32)

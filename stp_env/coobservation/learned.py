@@ -1,0 +1,230 @@
+"""A learned attacker (Stable-Baselines3 PPO) whose reward is entering a forbidden zone without missing an
+observation, trained on the batched JAX wrapper, and exported to a small ``.npz`` (numpy weights, no pickle).
+
+* :class:`AttackerVecEnv`: a native SB3 ``VecEnv`` of ``n`` attacker episodes in one JAX program per step.
+  An episode starts at the compromise (a random vehicle at a random time on the simulator's grid in
+  ``t_window``; the core is reset *at* that time with every vehicle on its plan, as the intruder's training env
+  does) and ends at the end of the schedule or at the detection. The attacker decides every ``action_repeat``
+  simulator steps. Observation: :func:`stp_env.coobservation.attackers.attacker_observation`.
+* Reward: ``+1`` at the first entry into a forbidden zone, ``-2`` at the detection (an entry that is detected nets
+  ``-1``, so entering is only worth it undetected), plus a potential-based shaping ``gamma phi(s') - phi(s)`` with
+  ``phi = -shaping * distance / 1 km`` to the best entry point before the entry and to the next observation point
+  after it (it does not change which policies are optimal).
+* :func:`train` (PPO, modest budgets) writes ``attacker.npz`` with :func:`stp_env.rl.policy.export_mlp`;
+  :func:`mlp_attacker` turns it into a jittable attacker for :func:`stp_env.coobservation.threat.rollout`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from stp_env.baselines import nominal_tracking
+from stp_env.coobservation import attackers, threat
+from stp_env.sim.types import replace
+
+ACTIVATIONS = {"tanh": jnp.tanh, "relu": lambda x: jnp.maximum(x, 0.0)}
+
+
+def _phi(ts, params, tp, shaping):
+    c = jnp.maximum(ts.compromised, 0)
+    x = ts.sim.x[c, :2]
+    _, aim = attackers.next_observation(ts, params, tp, c, ts.sim.t)
+    entry, _ = attackers.best_entry(x, aim, tp)
+    target = jnp.where(ts.entered[c], aim, entry)
+    return -shaping * jnp.linalg.norm(target - x) / attackers.DISTANCE_SCALE
+
+
+def reset_one(key, params, tp, t_window):
+    """A new attacker episode at the compromise time (see the module docstring)."""
+    k_draw, k_reset = jax.random.split(key)
+    c, t_c = threat.draw_attack(k_draw, params, t_window[0], t_window[1])
+    at = replace(params, t_start=t_c)
+    ts = threat.reset(k_reset, at, tp, c, t_c)
+    return ts, attackers.attacker_observation(ts, params, tp)
+
+
+def step_one(key, ts, action, params, tp, action_repeat: int, gamma: float, shaping: float):
+    """``action_repeat`` simulator steps with the attacker's ``action``; returns ``(state, obs, reward, done)``."""
+    phi0 = _phi(ts, params, tp, shaping)
+    c = jnp.maximum(ts.compromised, 0)
+
+    def sub(carry, k):
+        s, r, done = carry
+        k_v, k_s = jax.random.split(k)
+        a_v = nominal_tracking(k_v, s.sim, params)
+        new = threat.step(k_s, s, a_v, action, params, tp)
+        entered = new.entered[c] & ~s.entered[c]
+        detected = jnp.isfinite(new.detect_time) & ~jnp.isfinite(s.detect_time)
+        rew = 1.0 * entered - 2.0 * detected
+        new = jax.tree.map(lambda a, b: jnp.where(done, a, b), s, new)
+        rew = jnp.where(done, 0.0, rew)
+        done = done | threat.episode_done(new, params) | jnp.isfinite(new.detect_time)
+        return (new, r + rew, done), None
+
+    (ts, r, done), _ = jax.lax.scan(sub, (ts, jnp.zeros(()), jnp.asarray(False)),
+                                    jax.random.split(key, action_repeat))
+    r = r + jnp.where(done, 0.0, gamma * _phi(ts, params, tp, shaping)) - phi0
+    return ts, attackers.attacker_observation(ts, params, tp), r, done
+
+
+@functools.partial(jax.jit, static_argnames=("action_repeat",))
+def batch_step(keys, states, actions, params, tp, t_window, action_repeat: int, gamma: float, shaping: float):
+    """One decision of ``n`` envs with auto-reset. Returns ``(keys, states, obs, rewards, dones, terminal_obs,
+    stats)``; ``stats``: ``entered``, ``detected`` of the finished episode."""
+    def one(key, ts, a):
+        key, k_step, k_reset = jax.random.split(key, 3)
+        ts, obs, r, done = step_one(k_step, ts, a, params, tp, action_repeat, gamma, shaping)
+        c = jnp.maximum(ts.compromised, 0)
+        stats = jnp.stack([ts.entered[c], jnp.isfinite(ts.detect_time)]).astype(jnp.float32)
+        new_ts, new_obs = reset_one(k_reset, params, tp, t_window)
+        pick = functools.partial(jnp.where, done)
+        return key, jax.tree.map(pick, new_ts, ts), pick(new_obs, obs), r, done, obs, stats
+
+    return jax.vmap(one)(keys, states, actions)
+
+
+@jax.jit
+def batch_reset(keys, params, tp, t_window):
+    def one(key):
+        key, k = jax.random.split(key)
+        ts, obs = reset_one(k, params, tp, t_window)
+        return key, ts, obs
+
+    return jax.vmap(one)(keys)
+
+
+def make_vec_env(n_envs: int, params, tp, t_window, *, action_repeat: int = 5, gamma: float = 0.99,
+                 shaping: float = 1.0, seed: int = 0):
+    """A Stable-Baselines3 ``VecEnv`` (imported lazily: needs the ``rl`` extra)."""
+    import gymnasium as gym
+    from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+    class AttackerVecEnv(VecEnv):
+        """``n_envs`` attacker episodes in one batched JAX state (see the module docstring)."""
+
+        render_mode = None
+
+        def __init__(self):
+            super().__init__(n_envs, gym.spaces.Box(-2.0, 2.0, (attackers.OBS_SIZE,), np.float32),
+                             gym.spaces.Box(-1.0, 1.0, (2,), np.float32))
+            self._keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.PRNGKey(seed), i))(jnp.arange(n_envs))
+            self._states = None
+            self._actions = None
+            self.window = jnp.asarray(t_window, jnp.float32)
+            self._returns = np.zeros(n_envs)
+            self._lengths = np.zeros(n_envs, int)
+
+        def reset(self):
+            self._keys, self._states, obs = batch_reset(self._keys, params, tp, self.window)
+            return np.asarray(obs)
+
+        def step_async(self, actions):
+            self._actions = jnp.asarray(np.clip(np.asarray(actions, np.float32), -1, 1))
+
+        def step_wait(self):
+            out = batch_step(self._keys, self._states, self._actions, params, tp, self.window, action_repeat,
+                             gamma, shaping)
+            self._keys, self._states = out[0], out[1]
+            obs, rew, done, term_obs, stats = jax.device_get(out[2:])
+            self._returns += rew
+            self._lengths += 1
+            infos = [{} for _ in range(n_envs)]
+            for i in np.flatnonzero(done):  # "episode": SB3's Monitor convention (logged as rollout/ep_rew_mean)
+                infos[i] = {"terminal_observation": term_obs[i], "TimeLimit.truncated": False,
+                            "entered": bool(stats[i, 0]), "detected": bool(stats[i, 1]),
+                            "episode": {"r": float(self._returns[i]), "l": int(self._lengths[i])}}
+                self._returns[i], self._lengths[i] = 0.0, 0
+            return np.asarray(obs), rew.astype(np.float32), done.astype(bool), infos
+
+        def close(self):
+            pass
+
+        def get_attr(self, attr_name, indices=None):
+            return [getattr(self, attr_name) for _ in self._get_indices(indices)]
+
+        def set_attr(self, attr_name, value, indices=None):
+            setattr(self, attr_name, value)
+
+        def env_method(self, method_name, *args, indices=None, **kwargs):
+            return [getattr(self, method_name)(*args, **kwargs) for _ in self._get_indices(indices)]
+
+        def env_is_wrapped(self, wrapper_class, indices=None):
+            return [False for _ in self._get_indices(indices)]
+
+    return AttackerVecEnv()
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class AttackerTrainConfig:
+    """A modest PPO run (defaults: about 0.5 M decisions)."""
+
+    total_timesteps: int = 500_000
+    n_envs: int = 32
+    n_steps: int = 128
+    batch_size: int = 1024
+    n_epochs: int = 5
+    learning_rate: float = 3e-4
+    gamma: float = 0.99
+    ent_coef: float = 0.0
+    net_arch: tuple[int, ...] = (64, 64)
+    action_repeat: int = 5
+    shaping: float = 1.0
+    seed: int = 0
+    torch_threads: int = 1
+
+
+def train(params, tp, t_window, config: AttackerTrainConfig, out_dir, progress: bool = True) -> Path:
+    """Train PPO on :class:`AttackerVecEnv` and write ``out_dir/attacker.npz`` (and ``config.json``, the
+    training log ``progress.csv``). Returns the path of the ``.npz``."""
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import configure
+
+    from stp_env.rl.policy import export_mlp
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(config.torch_threads)
+    venv = make_vec_env(config.n_envs, params, tp, t_window, action_repeat=config.action_repeat, gamma=config.gamma,
+                        shaping=config.shaping, seed=config.seed)
+    model = PPO("MlpPolicy", venv, n_steps=config.n_steps, batch_size=config.batch_size, n_epochs=config.n_epochs,
+                learning_rate=config.learning_rate, gamma=config.gamma, ent_coef=config.ent_coef, seed=config.seed,
+                policy_kwargs={"net_arch": list(config.net_arch), "activation_fn": torch.nn.Tanh}, verbose=0,
+                device="cpu")
+    model.set_logger(configure(str(out), ["csv"]))
+    model.learn(config.total_timesteps, progress_bar=progress)
+    meta = {"objective": "enter a forbidden zone without missing an observation",
+            "config": dataclasses.asdict(config), "t_window": [float(t) for t in t_window]}
+    (out / "config.json").write_text(json.dumps(meta, indent=1))
+    return export_mlp(model, out / "attacker.npz", metadata=meta)
+
+
+def mlp_attacker(path, name: str = "learned"):
+    """The exported MLP as a jittable attacker ``(key, state, params, threat, planned) -> (2,)`` (the deterministic
+    action)."""
+    from stp_env.rl.policy import load_mlp
+
+    mlp = load_mlp(path)
+    if mlp.obs_size != attackers.OBS_SIZE:
+        raise ValueError(f"{path}: the MLP takes {mlp.obs_size} inputs; the attacker observation has "
+                         f"{attackers.OBS_SIZE}.")
+    act = ACTIVATIONS[mlp.activation]
+    hidden = [(jnp.asarray(w), jnp.asarray(b)) for w, b in mlp.hidden]
+    w_out, b_out = jnp.asarray(mlp.action[0]), jnp.asarray(mlp.action[1])
+
+    def policy(key, state, params, tp, planned):
+        del key, planned
+        h = attackers.attacker_observation(state, params, tp)
+        for w, b in hidden:
+            h = act(w @ h + b)
+        return jnp.clip(w_out @ h + b_out, -1.0, 1.0)
+
+    policy.__name__ = name
+    return policy
