@@ -1,4 +1,4 @@
-"""Monte Carlo evaluation of the k̄ bound on the batched core (issue 7, ``stp-env evaluate``).
+"""Monte Carlo evaluation of the k̄ bound on the batched core (``stp-env evaluate``).
 
 * :mod:`~stp_env.evaluation.config`: :class:`Configuration` (scenario, k̄, intruder, wind, spawn mode, vehicle
   policy) and :func:`resolve_intruder` (scripted names, or ``module:policy`` for learned intruders).

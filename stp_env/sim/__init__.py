@@ -1,4 +1,4 @@
-"""The pure JAX simulation core: arrays in, arrays out (see ``ARCHITECTURE.md``).
+"""The pure JAX simulation core: arrays in, arrays out (see ``docs/architecture.md``).
 
 * :mod:`~stp_env.sim.types`: ``EnvParams`` (constants), ``EnvState`` (per step), status and mode codes.
 * :mod:`~stp_env.sim.config`: ``EnvConfig`` and ``RewardConfig`` (typed).
