@@ -80,16 +80,16 @@ def test_short_searches_find_no_violation_of_the_bounds_in_use():
 @pytest.mark.slow
 def test_the_attacks_find_violations_where_there_are_some():
     """Against a tracker that is not the robust one (a bound far below the game's) and a vehicle that does not
-    avoid (safety filter off, the intruder's controls searched), the same searches find violations: the checks
-    above can fail."""
+    avoid (it only tracks its plan, safety filter off), the same searches find violations: the checks above can
+    fail."""
     params = _params()
     config = SearchConfig(budget=160, population=20, restarts=2, batch=40)
     tight = TrackingAttack(base=dataclasses.replace(params, tracking_bound=jnp.asarray(1.0, jnp.float32)),
                            horizon=20.0, segment=1.0, wind="worst")
     res = cross_entropy(tight.objective, tight.dim, jax.random.key(0), config)
     assert tight.margin(res.best_value) < 0
-    unguarded = AvoidanceAttack(base=dataclasses.replace(params, safety_filter=False), intruder="search",
-                                wind="worst")
+    unguarded = AvoidanceAttack(base=dataclasses.replace(params, safety_filter=False), vehicle="nominal",
+                                intruder="hj", wind="worst")
     res = cross_entropy(unguarded.objective, unguarded.dim, jax.random.key(1), config)
     assert unguarded.margin(res.best_value) < 0
 

@@ -8,7 +8,8 @@ then either the intruder's controls (piecewise constant over ``segment`` seconds
 (``intruder="hj"``, the minimising player of eq. 14, re-read every step), and either the winds of both in their
 disks (``wind="search"``, piecewise constant over ``wind_segment``) or the avoid game's worst-case winds at every
 inner control step (``wind="worst"``). The vehicle flies ``u*`` (eq. 38): its plan (a straight line at the top
-planning speed) until the core's avoid-start check fires (eqs. 17-18, at the inner control rate), then ``u^A``.
+planning speed) until the core's avoid-start check fires (eqs. 17-18, at the inner control rate), then ``u^A``
+(``vehicle="nominal"``: it only tracks its plan and never avoids, a control case the search must break).
 Objective: ``R_c - min distance`` over the intruder's presence, from the simulator's closest approaches over the
 inner steps. The bound under attack is 0 (positive: the intruder entered the danger zone).
 """
@@ -22,7 +23,7 @@ import jax
 import jax.numpy as jnp
 
 from stp_env.baselines.intruders import hj_pursuit
-from stp_env.baselines.vehicles import switching
+from stp_env.baselines.vehicles import VEHICLE_POLICIES
 from stp_env.falsify import harness
 from stp_env.sim import core
 from stp_env.sim.physics import control_to_action
@@ -40,11 +41,14 @@ class AvoidanceAttack:
     wind: str = "search"
     wind_segment: float = 0.5
     max_level: float = 10.0
+    vehicle: str = "switching"
     name: str = "avoidance"
 
     def __post_init__(self) -> None:
         if self.intruder not in ("search", "hj"):
             raise ValueError(f"intruder must be 'search' or 'hj'; got {self.intruder!r}.")
+        if self.vehicle not in VEHICLE_POLICIES:
+            raise ValueError(f"vehicle must be one of {', '.join(VEHICLE_POLICIES)}; got {self.vehicle!r}.")
         if self.wind not in ("search", "worst"):
             raise ValueError(f"wind must be 'search' or 'worst'; got {self.wind!r}.")
         dt = float(self.base.dt)
@@ -119,7 +123,8 @@ class AvoidanceAttack:
             wv = harness.disk(rest[:2 * n_wind], self.base.vehicle_bounds[3], n_wind, w_rep)[:self.n_steps]
             wi = harness.disk(rest[2 * n_wind:4 * n_wind], self.base.intruder_bounds[3], n_wind, w_rep)[:self.n_steps]
             winds = jnp.stack([wv, wi], axis=1)
-        final, traj = harness.run(params, state, self.n_steps, vehicle_policy=switching, intruder_actions=actions,
+        final, traj = harness.run(params, state, self.n_steps, vehicle_policy=VEHICLE_POLICIES[self.vehicle],
+                                  intruder_actions=actions,
                                   intruder_policy=policy, winds=winds, record=record)
         return final, traj
 
@@ -136,4 +141,4 @@ class AvoidanceAttack:
 
     def describe(self) -> dict:
         return {"attack": self.name, "segment": self.segment, "intruder": self.intruder, "wind": self.wind,
-                "wind_segment": self.wind_segment, "max_level": self.max_level}
+                "wind_segment": self.wind_segment, "max_level": self.max_level, "vehicle": self.vehicle}
