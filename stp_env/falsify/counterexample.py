@@ -110,7 +110,9 @@ def build_attack(spec: AttackSpec, params=None, *, progress: bool = False):
 
 def canonical_value(attack, z) -> float:
     """The objective at one input, by the one program replays use (unbatched, float32)."""
-    return float(jax.jit(attack.objective)(jnp.asarray(np.asarray(z, np.float32))))
+    from stp_env.falsify.search import compiled
+
+    return float(compiled(attack.objective, lambda f: f)(jnp.asarray(np.asarray(z, np.float32))))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,6 +1,7 @@
 """Batched black-box and gradient search for the input that maximises an objective (falsification).
 
-An attack (:mod:`stp_env.falsify.attacks`) is a jittable objective ``f(z) -> scalar`` of a point ``z`` of the unit
+An attack (one module each: :mod:`~stp_env.falsify.tracking`, :mod:`~stp_env.falsify.avoidance`,
+:mod:`~stp_env.falsify.kbar`) is a jittable objective ``f(z) -> scalar`` of a point ``z`` of the unit
 box ``[0, 1]^dim``, which it maps to physical inputs (reference controls, winds, intruder controls, spawn states).
 Larger is worse for the system under test. Two searchers share one budget of objective evaluations:
 
@@ -17,7 +18,9 @@ deterministic functions of their key.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import functools
 import math
 from collections.abc import Callable
 
@@ -90,10 +93,36 @@ class SearchResult:
     values: np.ndarray
 
 
-def evaluate(objective: Objective, zs, batch: int) -> np.ndarray:
-    """``objective`` at each row of ``zs`` ``(M, dim)``, ``batch`` rows at a time (one compiled program)."""
+TABLE_FIELDS = ("avoid_values", "tracking_grads", "sdf", "nominal_states", "nominal_controls")
+"""The large arrays of an attack's environment (``attack.base``): :func:`compiled` passes them to the compiled
+program as arguments. Closed over, they would be baked into it as constants (the avoid table alone is tens of
+megabytes), which makes XLA's compilation very slow."""
+
+
+def compiled(objective: Objective, transform=jax.vmap):
+    """``jax.jit(transform(objective))``, compiled once per call of this function. When ``objective`` is a method
+    of an attack whose ``base`` holds the environment, the :data:`TABLE_FIELDS` of ``base`` are arguments of the
+    compiled program rather than constants in it (same values, same results)."""
+    attack = getattr(objective, "__self__", None)
+    base = getattr(attack, "base", None)
+    if base is None or not dataclasses.is_dataclass(base) or not all(hasattr(base, k) for k in TABLE_FIELDS):
+        return jax.jit(transform(objective))
+    name = objective.__name__
+    tables = {k: getattr(base, k) for k in TABLE_FIELDS}
+
+    def run(tables, x):
+        traced = copy.copy(attack)  # the same attack, its environment's tables traced
+        object.__setattr__(traced, "base", dataclasses.replace(base, **tables))
+        return transform(getattr(traced, name))(x)
+
+    return functools.partial(jax.jit(run), tables)
+
+
+def evaluate(objective: Objective, zs, batch: int, *, program=None) -> np.ndarray:
+    """``objective`` at each row of ``zs`` ``(M, dim)``, ``batch`` rows at a time (one compiled program:
+    ``program``, from :func:`compiled`, or compiled here)."""
     zs = jnp.asarray(zs, jnp.float32)
-    f = jax.jit(jax.vmap(objective))
+    f = compiled(objective) if program is None else program
     out = []
     for i in range(0, zs.shape[0], batch):
         chunk = zs[i:i + batch]
@@ -116,10 +145,11 @@ def cross_entropy(objective: Objective, dim: int, key, config: SearchConfig, *, 
     mean = np.full((restarts, dim), 0.5)
     std = np.full((restarts, dim), 0.3)
     rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel().astype(np.uint32))
+    program = compiled(objective)  # once for the whole search
     best_z, best_v, history, values = None, -math.inf, [], []
     for _ in range(iters):
         zs = np.clip(mean[:, None, :] + std[:, None, :] * rng.standard_normal((restarts, pop, dim)), 0.0, 1.0)
-        vals = evaluate(objective, zs.reshape(-1, dim), config.batch).reshape(restarts, pop)
+        vals = evaluate(objective, zs.reshape(-1, dim), config.batch, program=program).reshape(restarts, pop)
         values.append(vals.ravel())
         finite = np.where(np.isfinite(vals), vals, -np.inf)
         i, j = np.unravel_index(np.argmax(finite), finite.shape)
@@ -154,10 +184,10 @@ def gradient_ascent(objective: Objective, dim: int, key, config: SearchConfig, *
     steps = max(1, budget // n)
     y = jnp.asarray(np.log(z0 / (1 - z0)), jnp.float32)
 
-    def f(yy):
-        return objective(jax.nn.sigmoid(yy))
+    def transform(g):
+        return jax.vmap(jax.value_and_grad(lambda yy: g(jax.nn.sigmoid(yy))))
 
-    value_and_grad = jax.jit(jax.vmap(jax.value_and_grad(f)))
+    value_and_grad = compiled(objective, transform)
     m = jnp.zeros_like(y)
     v = jnp.zeros_like(y)
     b1, b2, eps, lr = 0.9, 0.999, 1e-8, config.learning_rate
