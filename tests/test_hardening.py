@@ -529,7 +529,8 @@ def _fake_results():
     summary = {"label": "fake", "intruder": "hover", "spawn_mode": "outside", "kbar": 2, "scenario_wind_mps": 6.0,
                "wind_model": "uniform", "episodes": 1, "forced_mean": 0.0, "forced_max": 0, "exceed": 0,
                "exceed_upper": 0.95, "confidence": 0.95, "collisions": 0, "intruder_collisions": 0,
-               "guarantee_violations": 0, "on_time_rate": None, "min_separation_m": None, "forced_hist": [1]}
+               "guarantee_violations": 0, "tracking_violations": 0, "max_tracking_error_m": 0.0,
+               "tracking_bound_m": 5.0, "on_time_rate": None, "min_separation_m": None, "forced_hist": [1]}
     return [ConfigResult(config=Configuration(), seed=0, n_steps=1, plan_samples=1,
                          episodes={"n_forced": np.zeros(1, int)}, summary=summary, events=[], showcase=None)]
 
