@@ -3,7 +3,9 @@ outside the avoid region, a vehicle that starts avoiding when the core detects i
 the danger zone ``R_c`` until the intruder leaves (``t_IAT``).
 
 The attacker picks the intruder's start relative to the vehicle (bearing, relative heading, and the level
-``V^A(0, t_IAT) = level`` in ``[0, max_level]`` metres it starts on: 0 is the boundary of the avoid region itself),
+``V^A(0, t_IAT) = avoid_margin + level``, ``level`` in ``[0, max_level]`` metres, it starts on: just outside where
+the core's Assumption 3 check puts the intruder, ``V^A > avoid_margin``; on the boundary ``V^A = 0`` itself the
+game is won with equality and float32 rounding alone decides the last micrometres),
 then either the intruder's controls (piecewise constant over ``segment`` seconds) or the game's optimal pursuit
 (``intruder="hj"``, the minimising player of eq. 14, re-read every step), and either the winds of both in their
 disks (``wind="search"``, piecewise constant over ``wind_segment``) or the avoid game's worst-case winds at every
@@ -86,10 +88,11 @@ class AvoidanceAttack:
                                    wind_model="constant" if self.wind == "search" else "worst")
 
     def start(self, z3):
-        """The intruder's start ``(3,)`` (world frame = the vehicle's frame at ``t = 0``) on ``V^A(0) = level``."""
+        """The intruder's start ``(3,)`` (world frame = the vehicle's frame at ``t = 0``) on
+        ``V^A(0) = avoid_margin + level``."""
         bearing = 2 * jnp.pi * z3[0] - jnp.pi
         rel_heading = 2 * jnp.pi * z3[1] - jnp.pi
-        level = self.max_level * z3[2]
+        level = self.base.avoid_margin + 1e-3 + self.max_level * z3[2]
         direction = jnp.stack([jnp.cos(bearing), jnp.sin(bearing)])
         r = radius_on_level(self.base, direction, rel_heading, level)
         return jnp.stack([r * direction[0], r * direction[1], rel_heading])
@@ -105,7 +108,7 @@ class AvoidanceAttack:
         params = harness.with_reference(params, states, controls)
         xi0 = self.start(z[:3])
         state = core.reset(jax.random.key(0), params)
-        # The intruder appears at t = 0 at the attacker's start (outside the avoid region: level >= 0, Assumption 3).
+        # The intruder appears at t = 0 at the attacker's start (Assumption 3 as the core checks it).
         state = replace(state, intruder_x=xi0, intruder_memory=jnp.concatenate([xi0, jnp.zeros(1)]),
                         assumption_ok=jnp.ones((1,), bool))
         state = core.avoid_start(core.observe_controllers(state, params), params)
