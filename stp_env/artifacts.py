@@ -1,8 +1,9 @@
 """A cache of computed artifacts (reachability tables, plans): ``.npz`` arrays plus JSON metadata.
 
 Every artifact is keyed by a hash of its *kind*, every parameter that shaped it, :data:`FORMAT_VERSION` and
-:data:`CODE_VERSION` (a hash of the source of the modules that compute artifacts: the solver, the dynamics, the
-sets, the planner and the scenarios; a float32 solve compiled differently can move a boundary node, so results of
+:data:`CODE_VERSION` (a hash of the code of the modules that compute artifacts: the solver, the dynamics, the
+sets, the planner and the scenarios, read as syntax trees without docstrings and comments, so that editing prose
+keeps the cache; a float32 solve compiled differently can move a boundary node, so results of
 older code are recomputed rather than reused).
 Loading checks all of it, and the content hash of the array file; anything that does not match (a changed
 parameter, another format version, a truncated or tampered file, unreadable JSON) is reported with a warning and
@@ -19,6 +20,7 @@ The cache directory is ``$STP_ENV_CACHE_DIR`` if set, else the user cache direct
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import hashlib
 import json
@@ -40,6 +42,19 @@ CACHE_ENV_VAR = "STP_ENV_CACHE_DIR"
 _NUMERICS = ("hj", "dynamics.py", "reach", "planning", "scenarios")
 
 
+def code_fingerprint(source: str) -> str:
+    """What of a module's source can change a computed result: its syntax tree without docstrings (comments are
+    not in the tree). Editing prose leaves cached artifacts valid; any change to the code invalidates them."""
+    tree = ast.parse(source)
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if (isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and body
+                and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant)
+                and isinstance(body[0].value.value, str)):
+            node.body = body[1:] or [ast.Pass()]
+    return ast.dump(tree, annotate_fields=False, include_attributes=False)
+
+
 def _code_version() -> str:
     root = Path(__file__).resolve().parent
     h = hashlib.sha256()
@@ -47,7 +62,7 @@ def _code_version() -> str:
         path = root / name
         for file in sorted(path.glob("*.py")) if path.is_dir() else [path]:
             h.update(file.name.encode())
-            h.update(file.read_bytes())
+            h.update(code_fingerprint(file.read_text(encoding="utf-8")).encode())
     return h.hexdigest()[:16]
 
 

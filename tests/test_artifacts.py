@@ -135,3 +135,14 @@ def test_object_arrays_refused(tmp_path):
     store = ArtifactStore(tmp_path)
     with pytest.raises(TypeError, match="object"):
         store.save("demo", Params(), {"bad": np.array([{"a": 1}], dtype=object)})
+
+
+def test_code_version_ignores_prose_but_not_code():
+    """Editing a docstring or a comment keeps cached artifacts; editing code (even a string constant) does not."""
+    from stp_env.artifacts import code_fingerprint
+
+    base = 'def f(x):\n    """Doc."""\n    y = "a"  # note\n    return x + 1\n'
+    prose = 'def f(x):\n    """Other doc."""\n    y = "a"\n    return x + 1\n'
+    assert code_fingerprint(base) == code_fingerprint(prose)
+    assert code_fingerprint(base) != code_fingerprint('def f(x):\n    """Doc."""\n    y = "a"\n    return x + 2\n')
+    assert code_fingerprint(base) != code_fingerprint('def f(x):\n    """Doc."""\n    y = "b"\n    return x + 1\n')

@@ -16,7 +16,7 @@ GRID = hj.Grid.from_bounds((-1.5, -1.5, -np.pi), (1.5, 1.5, np.pi), (61, 61, 40)
 
 
 def test_straight_path_latest_departure_time():
-    # Pointing at the target: the time to reach is (distance - r) / v_max (NUMERICS.md), so t_LDT = -that.
+    # Pointing at the target: the time to reach is (distance - r) / v_max (docs/numerics.md), so t_LDT = -that.
     start, target, r = (-1.0, 0.0, 0.0), (1.0, 0.0), 0.2
     plan = plan_single(GRID, PLANNER, start, target, r, sta=0.0, horizon=5.0, time_step=0.05)
     exact = -(2.0 - r) / PLANNER.v_max

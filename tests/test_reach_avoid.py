@@ -48,7 +48,7 @@ def test_contains_danger_zone_and_not_touching_boundary(region):
 
 
 def test_behind_extent_matches_closed_form(region):
-    # Straight behind at equal heading the intruder closes at v_I + winds - v_i (NUMERICS.md).
+    # Straight behind at equal heading the intruder closes at v_I + winds - v_i (docs/numerics.md).
     value = make_value_function(region)
     exact = region.config.behind_extent()  # 1 + (1.2 + 0.2 - 1) * 2 = 1.8
     dx = region.grid.spacing[0]

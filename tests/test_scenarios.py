@@ -263,7 +263,7 @@ def test_town_setup():
     assert s.grid_spacing[0] == 50.0 and s.grid_spacing[1] == 50.0
     assert np.all(s.starts() == (*TOWN_ORIGIN, 0.0))
     assert {tuple(c) for c in s.targets()} <= set(TOWN_DESTINATIONS) and len({tuple(c) for c in s.targets()}) >= 2
-    assert np.all(s.target_radii() == 150.0) and 2 * 150.0 / s.grid_spacing[0] >= 5  # NUMERICS.md
+    assert np.all(s.target_radii() == 150.0) and 2 * 150.0 / s.grid_spacing[0] >= 5  # docs/numerics.md
     np.testing.assert_array_equal(s.stas(), 90.0 * s.priorities())
     np.testing.assert_array_equal(scenarios.make("town", kbar=1).stas(), 100.0 * s.priorities())
     # The buildings are far from the targets and from the straight routes: beyond V^S (~410 m at 6 m/s,

@@ -178,7 +178,7 @@ class Grid:
         """Minimum of ``values`` over the faces of the non-periodic dimensions.
 
         A reachable set computed on this grid is trustworthy only if this is positive: the set must not touch
-        the boundary (see NUMERICS.md)."""
+        the boundary (see docs/numerics.md)."""
         values = np.asarray(values)
         mins = []
         for i in range(self.ndim):

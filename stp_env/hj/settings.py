@@ -31,7 +31,7 @@ class SolverSettings:
         integrator: TVD Runge-Kutta order: ``"euler"``, ``"rk2"`` or ``"rk3"``.
         dissipation: Lax-Friedrichs coefficients: ``"local"`` (``alpha_i(x)`` per node, from the dynamics'
             partial bounds) or ``"global"`` (its maximum over the grid). Use ``"local"`` for relative dynamics,
-            whose coefficients grow with the distance from the origin (NUMERICS.md).
+            whose coefficients grow with the distance from the origin (docs/numerics.md).
         cfl: CFL number; the time step is ``cfl / max_x sum_i alpha_i(x) / dx_i``.
         boundary: ghost-cell rule at non-periodic faces (see :mod:`stp_env.hj.derivatives`).
         tube_mode: how a tube ("reach at some time within the horizon") is enforced: ``"min_with_target"``

@@ -146,7 +146,7 @@ def projected_obstacle_table(grid: hj.Grid, sets, collision_radius: float, fine:
         inside = (ax @ plane @ ay.T) <= 0
         if not inside.any():
             raise EmptyReachableSetError(f"the projected reachable set is empty at slice {k}: the set smeared away on "
-                                         "this grid (NUMERICS.md: keep a few cells across it).")
+                                         "this grid (docs/numerics.md: keep a few cells across it).")
         dist = ndimage.distance_transform_edt(~inside, sampling=(hx, hy))
         out[k] = dist[::fine, ::fine] - diag - collision_radius
     return out

@@ -72,7 +72,7 @@ LATE_RETRIES = 2
 
 PLANNING_SETTINGS = hj.SolverSettings.with_accuracy("medium")
 """Default solver settings of :func:`plan_rtt`: ENO2 + TVD-RK2 (the ``medium`` preset). The planning BRS has no
-relative-frame terms (the reason NUMERICS.md asks for WENO5 in the intruder problems): measured on ``town``, its
+relative-frame terms (the reason docs/numerics.md asks for WENO5 in the intruder problems): measured on ``town``, its
 nominal trajectories still arrive within 3 s of the planned arrival (one cell at the slowest planning speed before
 the STA), at about half the cost per step of WENO5 + RK2; first-order upwinding + Euler costs little less but
 departs ~15 s earlier than needed (more dissipation, a smaller tube)."""

@@ -9,7 +9,7 @@ minimise (:class:`stp_env.dynamics.RelativeDubins` with its default roles).
 The minimum detection range ``d^A`` (eq. 16) is the largest distance of a relative state in
 ``V^A(0, t_IAT)``.
 
-Numerics (NUMERICS.md): local Lax-Friedrichs and WENO5 by default; the box must contain the set with margin
+Numerics (docs/numerics.md): local Lax-Friedrichs and WENO5 by default; the box must contain the set with margin
 (checked: :attr:`AvoidRegion.boundary_margin` must be positive). The exact sanity check ``R_c + (v_I,max +
 wind_i + wind_I - v_i,max) t_IAT`` for the extent straight behind the vehicle at equal heading is available as
 :meth:`AvoidRegionConfig.behind_extent`.
@@ -87,7 +87,7 @@ class AvoidRegionConfig:
 
     def behind_extent(self) -> float:
         """Exact extent of ``V^A(0, t_IAT)`` straight behind the vehicle at equal heading: the intruder closes
-        at ``v_I,max + wind_i + wind_I - v_i,max`` (if positive) for ``t_IAT`` (NUMERICS.md)."""
+        at ``v_I,max + wind_i + wind_I - v_i,max`` (if positive) for ``t_IAT`` (docs/numerics.md)."""
         closing = self.intruder.v_max + self.vehicle.wind + self.intruder.wind - self.vehicle.v_max
         return self.collision_radius + max(closing, 0.0) * self.t_iat
 

@@ -37,7 +37,7 @@ METHODS = ("rtt", "centralized", "least_restrictive")
 (IV-A), least-restrictive control (IV-B)."""
 
 MIN_CELLS_ACROSS_TARGET = 5
-"""A target must span at least this many grid cells (diameter / spacing), NUMERICS.md: small targets smear away."""
+"""A target must span at least this many grid cells (diameter / spacing), docs/numerics.md: small targets smear away."""
 
 _MAX_REPORTED_ERRORS = 10
 
@@ -315,7 +315,7 @@ class Scenario:
                 nx = math.ceil((xhi - xlo) / need) + 1
                 ny = math.ceil((yhi - ylo) / need) + 1
                 errors.append(f"vehicle {i}: target radius {r} spans only {cells:.2f} grid cells at spacing "
-                              f"{spacing:.4g}; at least {MIN_CELLS_ACROSS_TARGET} cells are needed (NUMERICS.md): "
+                              f"{spacing:.4g}; at least {MIN_CELLS_ACROSS_TARGET} cells are needed (docs/numerics.md): "
                               f"use a spacing <= {need:.4g}, i.e. grid_points >= ({nx}, {ny}, ...).")
         return errors
 

@@ -255,7 +255,7 @@ def city(*, n_vehicles: int = 50, wind: float = 6.0, sta_spacing: float = 0.0, k
     * ``STA_i = sta_spacing * priority`` [s] (0, 5 or 10 s in BEACLS Cases 0-4, :data:`CITY_CASES`).
     * ``R_c = 100 m``, ``t_IAT = 10 s``; ``kbar=None`` plans without regard to an intruder (BEACLS Section V);
       ``kbar=3`` is the intruder paper's setting.
-    * Grid 151 x 151 x 24: 33.3 m in position (6 cells across a target, NUMERICS.md asks for >= 5), 15 degrees in
+    * Grid 151 x 151 x 24: 33.3 m in position (6 cells across a target, docs/numerics.md asks for >= 5), 15 degrees in
       heading. The solver's time step is set by the heading axis (CFL rate ``omega / dtheta`` = 4.6 /s against
       ``v / dx`` = 0.39 /s at ``U^p``) and the planning turn radius (13 / 1.2 = 11 m) is a third of a cell: with
       the earlier 251 x 251 x 36 (20 m, 10 degrees) a vehicle took ~290 s to plan, with this grid 6.2x fewer
@@ -418,7 +418,7 @@ def town(*, kbar: int = 2, n_vehicles: int = 7, wind: float = 6.0, sta_spacing: 
     What and why:
 
     * Domain 4 km x 4 km, ``[0, 4000]^2`` m; grid 81 x 81 x 24 (50 m, 15 degrees), so that a plan is cheap; a
-      target of radius 150 m spans 6 cells (NUMERICS.md asks for >= 5). The time step is set by the heading axis
+      target of radius 150 m spans 6 cells (docs/numerics.md asks for >= 5). The time step is set by the heading axis
       (CFL rate ``omega / dtheta = 4.6 /s`` against ``v / dx = 0.26 /s``); the planning turn radius (13 / 1.2 =
       11 m) is under a quarter cell, so 15 degrees in heading costs little accuracy and 1.5x fewer headings than
       the city's 10 degrees save 2.2x in time.
