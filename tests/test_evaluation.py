@@ -1,4 +1,4 @@
-"""The evaluation (issue 7): exact Clopper-Pearson bounds against scipy, the ``evaluate`` and ``render``
+"""The evaluation: exact Clopper-Pearson bounds against scipy, the ``evaluate`` and ``render``
 subcommands on a tiny run, bad options (exit code 2 with a clear message), and replays of saved episodes.
 
 Compile budget: the module compiles the rollout twice, once for the run's policies (a batch of 1, which the

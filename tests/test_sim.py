@@ -15,7 +15,7 @@ from stp_env.baselines import INTRUDERS, mixture, mixture_index, nominal_trackin
 from stp_env.planning.stp import shipped_plan_for
 from stp_env.sim.physics import dubins_step
 
-N_EPISODES = 500  # per intruder type (3,500 in all; a 7,000-episode run, 1,000 each, also passed: see issue 5's note)
+N_EPISODES = 500  # per intruder type (3,500 in all)
 
 
 @functools.lru_cache(maxsize=4)
