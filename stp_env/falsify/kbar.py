@@ -143,7 +143,9 @@ class KbarAttack:
 
     def outcome(self, z) -> dict:
         """The simulator's verdict on the attack at ``z``: forced count, guarantee violations, closest approach."""
-        final, _, _ = jax.jit(self.simulate)(jnp.asarray(z, jnp.float32))
+        from stp_env.falsify.search import compiled
+
+        final, _, _ = compiled(self.simulate, lambda f: f)(jnp.asarray(z, jnp.float32))
         return harness.to_numpy({"forced": jnp.sum(jnp.isfinite(final.avoid_start)),
                                  "guarantee_violations": jnp.sum(final.guarantee_violation),
                                  "min_separation": jnp.min(final.min_separation),
