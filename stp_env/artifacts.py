@@ -21,6 +21,7 @@ The cache directory is ``$STP_ENV_CACHE_DIR`` if set, else the user cache direct
 from __future__ import annotations
 
 import ast
+import contextlib
 import dataclasses
 import hashlib
 import json
@@ -36,6 +37,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+try:  # POSIX advisory locks; elsewhere concurrent processes may compute the same artifact twice (still atomic)
+    import fcntl
+except ImportError:  # pragma: no cover
+    fcntl = None
 
 FORMAT_VERSION = 1
 CACHE_ENV_VAR = "STP_ENV_CACHE_DIR"
@@ -370,4 +376,26 @@ class ArtifactStore:
         if cached is not None:
             return cached
         self.check_writable(f"the {kind} artifact")
-        return self.save(kind, params, compute(), extra_metadata)
+        with self._computing(kind, params):
+            # Another process (a parallel test worker, a second CLI run) may have computed it while we waited.
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", StaleArtifactWarning)
+                cached = self.load(kind, params)
+            if cached is not None:
+                return cached
+            return self.save(kind, params, compute(), extra_metadata)
+
+    @contextlib.contextmanager
+    def _computing(self, kind: str, params: Any):
+        """Holds an exclusive advisory lock on ``<kind>-<key>.lock`` while one artifact is computed, so that
+        processes sharing the cache compute each artifact once (the others wait, then load it)."""
+        if fcntl is None:
+            yield
+            return
+        npz_path, _, _ = self.paths(kind, params)
+        with open(npz_path.with_suffix(".lock"), "a") as fh:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
+            try:
+                yield
+            finally:
+                fcntl.flock(fh.fileno(), fcntl.LOCK_UN)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -146,3 +147,35 @@ def test_code_version_ignores_prose_but_not_code():
     assert code_fingerprint(base) == code_fingerprint(prose)
     assert code_fingerprint(base) != code_fingerprint('def f(x):\n    """Doc."""\n    y = "a"\n    return x + 2\n')
     assert code_fingerprint(base) != code_fingerprint('def f(x):\n    """Doc."""\n    y = "b"\n    return x + 1\n')
+
+
+def _slow_compute_in_child(root, marker_dir, params):
+    import os
+    import time as _time
+
+    def compute():
+        (Path(marker_dir) / f"computed-{os.getpid()}").write_text("")
+        _time.sleep(1.0)
+        return {"x": np.arange(4.0)}
+
+    ArtifactStore(root).load_or_compute("lock_probe", params, compute)
+
+
+def test_concurrent_processes_compute_an_artifact_once(tmp_path):
+    """Two processes asking for the same missing artifact at once (parallel test workers, two CLI runs): one
+    computes it, the other waits for the lock and loads it. Without the lock both would compute."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    markers = tmp_path / "markers"
+    markers.mkdir()
+    procs = [ctx.Process(target=_slow_compute_in_child, args=(str(tmp_path / "cache"), str(markers), {"p": 1}))
+             for _ in range(2)]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join(60)
+        assert p.exitcode == 0
+    assert len(list(markers.iterdir())) == 1
+    art = ArtifactStore(tmp_path / "cache").load("lock_probe", {"p": 1})
+    assert art is not None and np.array_equal(art.arrays["x"], np.arange(4.0))
