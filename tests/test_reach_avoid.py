@@ -209,3 +209,60 @@ def test_controller_outputs_within_bounds(region):
         assert 0 <= u[0] <= VEHICLE.v_max and abs(u[1]) <= VEHICLE.omega_max
         assert 0 <= d[0] <= INTRUDER.v_max + 1e-6 and abs(d[1]) <= INTRUDER.omega_max + 1e-6
         assert np.hypot(d[2], d[3]) <= VEHICLE.wind + INTRUDER.wind + 1e-5
+
+
+def _world_step(rel, controls, winds, h):
+    """The pair moved for ``h`` seconds in the world frame (vehicle at the origin, heading 0; explicit Euler, fine
+    for tiny ``h``), then expressed again in the vehicle's frame: independent of the relative dynamics' code."""
+    (v_v, w_v, v_i, w_i), (dvx, dvy, dix, diy) = controls, winds
+    xi, yi, thi = rel
+    pv = np.array([v_v + dvx, dvy]) * h
+    pi = np.array([xi + (v_i * np.cos(thi) + dix) * h, yi + (v_i * np.sin(thi) + diy) * h])
+    th_v = w_v * h
+    d = pi - pv
+    c, s = np.cos(th_v), np.sin(th_v)
+    return np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], thi + w_i * h - th_v])
+
+
+def test_fall_rate_bounds_the_value_along_any_motion_and_exceeds_the_closing_speed():
+    """The avoid region's fall-rate bound (the simulator's sampled-data avoid margin per second) against finite
+    differences of the interpolated value along random extreme inputs at states near its zero level. The largest
+    fall found must exceed the pair's closing speed ``v_V + v_I + d_V + d_I``: the margin the simulator used before
+    (one inner step of the closing speed) could be stepped over between two checks. Turn rates of 3 rad/s at
+    ``R_c = 1`` give the turn-to-speed ratio of the papers' vehicles (``omega R_c / v = 8`` there)."""
+    turning = dict(v_min=0.0, omega_max=3.0, wind=0.1)
+    region = compute_avoid_region(small_config(vehicle=DubinsWind(v_max=1.0, **turning),
+                                               intruder=DubinsWind(v_max=1.2, **turning)), progress=False)
+    value = jax.jit(make_value_function(region))
+    cfg = region.config
+    veh, intr = cfg.vehicle, cfg.intruder
+    rng = np.random.default_rng(0)
+    grid = region.grid
+    lo, hi = np.asarray(grid.lo), np.asarray(grid.hi)
+    n, h = 4000, 1e-4
+    taus = rng.uniform(0.0, cfg.t_iat - 2 * h, n)
+    states = rng.uniform(lo * 0.6, hi * 0.6, (n, 3))
+    v0 = np.asarray(jax.vmap(value)(jnp.asarray(taus), jnp.asarray(states)))
+    keep = np.abs(v0) <= 0.3
+    taus, states, v0 = taus[keep], states[keep], v0[keep]
+    assert len(v0) > 200
+    worst = 0.0
+    for _ in range(8):
+        ctrl = np.stack([rng.choice([0.0, veh.v_max], len(v0)), rng.choice([-1, 1], len(v0)) * veh.omega_max,
+                         rng.choice([0.0, intr.v_max], len(v0)), rng.choice([-1, 1], len(v0)) * intr.omega_max], 1)
+        a, b = rng.uniform(0, 2 * np.pi, (2, len(v0)))
+        winds = np.stack([veh.wind * np.cos(a), veh.wind * np.sin(a), intr.wind * np.cos(b), intr.wind * np.sin(b)], 1)
+        nxt = np.stack([_world_step(s, c, w, h) for s, c, w in zip(states, ctrl, winds)])
+        v1 = np.asarray(jax.vmap(value)(jnp.asarray(taus + h), jnp.asarray(nxt)))
+        worst = max(worst, float(np.max((v0 - v1) / h)))
+    closing = veh.v_max + intr.v_max + veh.wind + intr.wind
+    assert worst <= region.fall_rate * (1 + 1e-3) + 1e-3
+    assert worst > closing
+
+
+def test_fall_rate_refuses_a_table_without_a_zero_level(region):
+    from stp_env.reach.fall_rate import avoid_value_fall_rate
+
+    far = np.full_like(region.values, 50.0)
+    with pytest.raises(ValueError, match="vacuous"):
+        avoid_value_fall_rate(far, region.taus, region.grid, region.config.vehicle, region.config.intruder, 1.0)

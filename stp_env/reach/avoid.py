@@ -27,6 +27,7 @@ import numpy as np
 from stp_env import hj
 from stp_env.artifacts import ArtifactStore
 from stp_env.dynamics import DubinsWind, RelativeDubins
+from stp_env.reach.fall_rate import FALL_RATE_BAND, avoid_value_fall_rate
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -102,12 +103,16 @@ class AvoidRegion:
         values: ``V^A(tau_k, t_IAT)`` on ``config.grid``, shape ``(n_slices, *grid.shape)``; the set is
             ``{V <= 0}``.
         n_steps: solver time steps.
+        fall_rate: [m/s] the largest rate at which the interpolated value can fall near its zero level, under any
+            input and wind (:func:`stp_env.reach.fall_rate.avoid_value_fall_rate`): the simulator's avoid check,
+            sampled every ``control_dt``, needs a margin of ``control_dt * fall_rate``.
     """
 
     config: AvoidRegionConfig
     taus: np.ndarray
     values: np.ndarray
     n_steps: int
+    fall_rate: float
 
     @property
     def grid(self) -> hj.Grid:
@@ -152,15 +157,14 @@ def compute_avoid_region(config: AvoidRegionConfig | None = None, *, store: Arti
         taus_desc = np.linspace(config.t_iat, 0.0, config.n_slices)
         result = hj.solve(settings, config.relative_dynamics, grid, taus_desc, target, tube=True,
                           progress=progress)
-        return {
-            "taus": taus_desc[::-1].copy(),
-            "values": np.asarray(result.values)[::-1].copy(),  # ascending tau: values[0] = V^A(0, t_IAT)
-            "n_steps": np.asarray(result.n_steps),
-        }
+        taus = taus_desc[::-1].copy()
+        values = np.asarray(result.values)[::-1].copy()  # ascending tau: values[0] = V^A(0, t_IAT)
+        rate = avoid_value_fall_rate(values, taus, grid, config.vehicle, config.intruder, FALL_RATE_BAND)
+        return {"taus": taus, "values": values, "n_steps": np.asarray(result.n_steps), "fall_rate": np.asarray(rate)}
 
     arrays = compute() if store is None else store.load_or_compute("avoid_region", config, compute).arrays
     region = AvoidRegion(config=config, taus=np.asarray(arrays["taus"]), values=np.asarray(arrays["values"]),
-                         n_steps=int(arrays["n_steps"]))
+                         n_steps=int(arrays["n_steps"]), fall_rate=float(arrays["fall_rate"]))
     if region.boundary_margin <= 0:
         raise ValueError(
             f"The avoid region touches the grid boundary (half_width={config.half_width} m); the set is cut off "

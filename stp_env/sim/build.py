@@ -4,12 +4,15 @@ numpy; runs once per environment)."""
 from __future__ import annotations
 
 import math
+import warnings
 
 import jax.numpy as jnp
 import numpy as np
 
 from stp_env import hj
+from stp_env.reach.fall_rate import FALL_RATE_BAND
 from stp_env.sim.config import EnvConfig
+from stp_env.sim.margins import default_avoid_margin
 from stp_env.sim.types import EnvParams, replace
 
 
@@ -132,8 +135,17 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
         raise ValueError(f"d_sense ({d_sense} m) must be at least the detection range d^A = {d_a:.1f} m (eq. 16): "
                          "a vehicle must see the intruder before it has to avoid it.")
     veh, intr = acfg.vehicle, acfg.intruder
-    margin = config.control_dt * (veh.v_max + intr.v_max + veh.wind + intr.wind) if config.avoid_margin is None \
+    margin = default_avoid_margin(config.control_dt, avoid.fall_rate) if config.avoid_margin is None \
         else config.avoid_margin
+    step_fall = config.control_dt * avoid.fall_rate
+    if step_fall > FALL_RATE_BAND:
+        raise ValueError(f"One inner step ({config.control_dt} s) of the avoid value's fastest fall is "
+                         f"{step_fall:.1f} m, beyond the {FALL_RATE_BAND} m band in which that rate was bounded; use a "
+                         "smaller control_dt.")
+    if margin < step_fall:
+        warnings.warn(f"avoid_margin {margin:.3f} m is less than one inner step of the avoid value's fastest fall "
+                      f"({step_fall:.3f} m): a vehicle can step over the avoid region's boundary between two checks "
+                      "and the avoidance guarantee does not hold.", stacklevel=2)
     t_iat = float(scenario.t_iat)
     if config.appear_window is None:
         lo, hi = busiest_window(plan)

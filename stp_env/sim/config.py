@@ -77,8 +77,10 @@ class EnvConfig:
         safety_filter: replace each vehicle's action by ``u^A`` from its avoid-start time until the intruder
             leaves (eq. 38). Off: vehicles do what their policy says (the avoid start is still recorded).
         avoid_margin: [m] a vehicle starts avoiding when ``V^A <= avoid_margin``; ``None``: one inner step of the
-            fastest closing speed, ``control_dt (v_max + v_I,max + d_r + d_I)``, so that the boundary is not
-            stepped over between two checks.
+            fastest fall of the interpolated value near its zero level plus a rounding allowance
+            (:func:`stp_env.sim.margins.default_avoid_margin`), so that the boundary is not stepped over between
+            two checks. The fall rate is not a closing speed: the vehicle's own turn rotates the relative state
+            and the relative heading moves the value too.
         d_sense: sensing range for observations [m] (``None``: 1.5 d^A); must be >= d^A.
         episode: ``"window"`` (start ``lead`` seconds before the intruder can appear and end ``tail`` seconds
             after it leaves: the part of a flight that matters for k̄) or ``"full"`` (first departure to the last

@@ -93,7 +93,7 @@ class EnvParams:
     appear_window: jax.Array      # (2,) [s] the intruder appears at t_ ~ U[lo, hi] (lo == hi: fixed)
     spawn_radius: jax.Array       # () [m] "outside" spawns lie within this distance of a flying vehicle
     spawn_boundary_probability: jax.Array  # () the episode's spawn is "boundary" with this probability, else "outside"
-    avoid_margin: jax.Array       # () [m] avoid start when V^A <= margin (one inner step of the fastest closing)
+    avoid_margin: jax.Array       # () [m] avoid start when V^A <= margin (one inner step of the value's fastest fall)
     kbar: jax.Array               # () int, the bound under test
     d_sense: jax.Array            # () [m] sensing range (>= d^A)
     gust_time_constant: jax.Array  # () [s] correlation time of the "gusts" wind model
