@@ -163,8 +163,11 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
     if solver == "split":
         from stp_env.planning.brs import solve_until_departure
 
-        res, times, stack_all = solve_until_departure(settings, dynamics, grid, times, target, x0, full_fn,
-                                                      obstacle_params, depart_at)
+        ttr, n_solved, n_steps, stack_all = solve_until_departure(settings, dynamics, grid, times, target, x0,
+                                                                  obstacle_fn, obstacle_params, depart_at)
+        res = hj.ReachResult(values=stack_all[len(times) - n_solved:], times=times[:n_solved], n_steps=n_steps,
+                             dt=math.nan, time_to_reach=ttr)  # values in ascending time
+        times = times[:n_solved]
     elif early_stop:
         res, times = _solve_until_departure(settings, dynamics, grid, times, target, x0, full_fn, obstacle_params,
                                             depart_at, progress)
@@ -184,13 +187,14 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
                                       f"{t_ldt:.3f} s for an arrival by {sta} s.", latest_departure=t_ldt)
         t_start = float(depart_at)
     # Trajectory from t_start with the controller of the stored slices (ascending time for interpolation).
-    stack = res.values[::-1]
     if stack_all is None:
+        stack = res.values[::-1]
         slice_times = jnp.asarray(times[::-1].copy(), jnp.float32)
         rollout_stack = stack
     else:  # every slice of the horizon (one shape for every vehicle: one compiled rollout)
+        stack = res.values
         slice_times = jnp.asarray((sta - np.linspace(0.0, horizon, n_slices))[::-1].copy(), jnp.float32)
-        rollout_stack = stack_all[::-1]
+        rollout_stack = stack_all
     # Simulate a little past the STA so that a late arrival is measured, not hidden. The scan always runs for the
     # whole horizon (one compiled rollout per horizon and time step, shared by every vehicle of a scenario).
     n_steps = max(1, math.ceil(1.1 * (sta - t_start) / time_step) + 1)
