@@ -18,6 +18,10 @@ The centralized and least-restrictive induced-obstacle methods (SPP Sections IV-
 under the enforced feedback, or of all controls intersected with the BRS) are in :mod:`stp_env.planning.methods`;
 :func:`plan_scenario` dispatches on ``Scenario.method``. Replanning is in :mod:`stp_env.planning.replan`; plan
 caching in :func:`cached_plan`.
+
+Each vehicle's BRS is solved by the heading-split scheme of :mod:`stp_env.planning.brs` (:data:`PLANNING_SOLVER`);
+a run can be checkpointed after every vehicle and resumed (:mod:`stp_env.planning.checkpoint`). The plan types
+and their array packing live in :mod:`stp_env.planning.plan` and are importable from here too.
 """
 
 from __future__ import annotations
