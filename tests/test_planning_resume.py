@@ -41,6 +41,7 @@ def test_heading_window_is_the_minimum_of_the_interpolant(width):
     assert np.all(got <= want + 1e-6)  # the exact minimum is never above a sampled one
 
 
+@pytest.mark.slow
 def test_split_solver_matches_the_straight_path_and_the_unsplit_solver():
     start, target, r = (-1.0, 0.0, 0.0), (1.0, 0.0), 0.2
     split = plan_single(GRID, PLANNER, start, target, r, sta=0.0, horizon=4.0, time_step=0.05, solver="split")
@@ -51,8 +52,22 @@ def test_split_solver_matches_the_straight_path_and_the_unsplit_solver():
     assert split.t_ldt == pytest.approx(full.t_ldt, abs=dx / PLANNER.v_max)
     assert split.arrival_time <= 0.05 + (split.t_ldt - exact) + 1e-6
     assert np.all(np.abs(split.flight()[1][:, 1]) < dx)
-    # Fewer steps: the split step is set by the position axes, not by the turn rate.
-    assert split.n_steps < full.n_steps
+
+
+def test_split_step_is_set_by_the_position_axes_on_the_city_grid():
+    # City grid and U^p: the unsplit CFL step is limited by the turn rate (w_max / dth = 4.6 /s); the split one by
+    # the position (0.55 /s) and the cap of MAX_TURN_PER_STEP rad of turn per step.
+    from stp_env.planning.brs import MAX_TURN_PER_STEP, split_time_step
+    from stp_env.scenarios import make
+
+    grid = make("city").grid()
+    planner = DubinsWind(v_min=11.0, v_max=13.0, omega_max=1.2, wind=0.0)
+    settings = hj.SolverSettings.with_accuracy("medium")
+    unsplit, _ = hj.cfl_time_step(settings, planner, grid)
+    split = split_time_step(settings, planner, grid)
+    assert unsplit == pytest.approx(0.75 / (1.2 / grid.spacing[2] + 13.0 * math.sqrt(2) / grid.spacing[0]), rel=1e-3)
+    assert split == pytest.approx(MAX_TURN_PER_STEP / 1.2)
+    assert split > 2.5 * unsplit
 
 
 def _plan(tmp_path=None, on_vehicle=None, stas=(0.0, 0.0, 0.0)):
