@@ -134,3 +134,24 @@ def test_checkpoint_round_trip_and_bad_files(tmp_path):
     with pytest.raises(ValueError, match="not a readable"):
         checkpoint.load(bad, "k1")
     assert checkpoint.problem_key(np.zeros(2), "a") != checkpoint.problem_key(np.zeros(3), "a")
+
+
+def test_a_split_trajectory_that_never_arrives_is_planned_with_the_unsplit_solver(monkeypatch):
+    import dataclasses
+
+    import stp_env.planning.stp as stp
+
+    calls = []
+    original = stp.plan_single
+
+    def split_never_arrives(*args, **kwargs):
+        calls.append(kwargs["solver"])
+        plan = original(*args, **kwargs)
+        return dataclasses.replace(plan, arrival_time=math.inf) if kwargs["solver"] == "split" else plan
+
+    monkeypatch.setattr(stp, "plan_single", split_never_arrives)
+    with pytest.warns(UserWarning, match="never reaches the target"):
+        plan = plan_rtt(GRID, VEHICLE, (0.5, 0.6), 0.5, 0.05, 0.2, STARTS[:1], TARGETS[:1], 0.25, [0.0],
+                        horizon=8.0, progress=False)
+    assert calls == ["split", "hj"]
+    assert plan.vehicles[0].plan.arrival_time <= 0.0

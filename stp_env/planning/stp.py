@@ -160,28 +160,35 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
         kwargs = planning_obstacles(grid, trajectories, lags_arr, rads_arr, static_obstacle, n_slots=n - 1,
                                     n_samples=math.ceil(1.1 * horizon / time_step) + 1)
         aim = float(stas[i]) - arrival_margin
-        depart_at = None
-        for attempt in range(1 + LATE_RETRIES):
+        depart_at, vehicle_solver, retries = None, solver, 0
+        while True:
             try:
                 single = plan_single(grid, planner, starts[i], targets[i], float(shrunk[i]), aim, horizon,
                                      settings=settings, time_step=time_step, slice_dt=slice_dt, progress=False,
-                                     depart_at=depart_at, solver=solver, **kwargs)
+                                     depart_at=depart_at, solver=vehicle_solver, **kwargs)
             except InfeasiblePlanError as err:
                 raise InfeasiblePlanError(f"vehicle {i} (priority {rank}): no feasible departure for its STA "
                                           f"{float(stas[i])} s: {err}", err.latest_departure) from err
             late = single.arrival_time - float(stas[i])
             if not late > 0:
                 break
+            if math.isinf(late) and vehicle_solver != "hj":
+                # The split tube's trajectory never arrived (measured on the city: one vehicle of 50, which the
+                # unsplit solver's trajectory brings in, late, so that it can be re-extracted below).
+                warnings.warn(f"vehicle {i} (priority {rank}): its nominal trajectory from the {vehicle_solver!r} "
+                              "BRS never reaches the target; planning it with the unsplit solver 'hj'.", stacklevel=2)
+                depart_at, vehicle_solver = None, "hj"
+                continue
             # The tube promised an arrival by ``aim``; the extracted trajectory (a sampled controller following the
             # BRS gradient) came later, e.g. threading a narrow channel. Depart earlier by the delay (the trajectory
             # starts inside the tube, with more time to spare) and extract again.
             earlier = single.t_ldt - late - arrival_margin
-            if attempt == LATE_RETRIES or earlier < aim - horizon:
+            if retries == LATE_RETRIES or earlier < aim - horizon:
                 warnings.warn(f"vehicle {i} (priority {rank}): its nominal trajectory arrives {late:.1f} s after its "
                               f"STA {float(stas[i])} s (departing at {single.t_ldt:.1f} s); a finer grid or a longer "
                               "horizon may fix it.", stacklevel=2)
                 break
-            depart_at = earlier
+            depart_at, retries = earlier, retries + 1
         single = dataclasses.replace(single, sta=float(stas[i]))
         end = single.arrival_time if math.isfinite(single.arrival_time) else single.times[-1]
         trajectories.append((*single.flight(), single.t_ldt - pad_before, end + pad_after))
