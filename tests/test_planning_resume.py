@@ -136,6 +136,7 @@ def test_checkpoint_round_trip_and_bad_files(tmp_path):
     assert checkpoint.problem_key(np.zeros(2), "a") != checkpoint.problem_key(np.zeros(3), "a")
 
 
+@pytest.mark.slow
 def test_a_split_trajectory_that_never_arrives_is_planned_with_the_unsplit_solver(monkeypatch):
     import dataclasses
 
