@@ -1,12 +1,20 @@
 """Regenerate the plans shipped as package data (``stp_env/data/plans/*.npz``).
 
     python scripts/generate_plans.py [--names tiny tiny-intruder town-kbar1 town-kbar2 town-kbar3]
+    python scripts/generate_plans.py --names city --checkpoint-dir plan-checkpoints --progress
+
 
 Each file holds the arrays of :func:`stp_env.planning.stp.plan_to_arrays` for a registered scenario planned with
 robust trajectory tracking and the scenario's default tracking bound (:func:`stp_env.sim.build.load_artifacts`,
 computed into the artifact cache on first use); ``tests/test_planning.py`` regenerates the small one and compares
 it bit for bit. ``town-kbar{k}`` is ``make("town", kbar=k)`` (load it with
 :func:`stp_env.planning.stp.shipped_plan_for`); the three take a few minutes each on 2 cores.
+
+``city`` (``make("city")``: BEACLS Case 0, 50 vehicles) is not in the default list: it takes about 10 minutes.
+With ``--checkpoint-dir`` every vehicle's plan is saved as it is made (:mod:`stp_env.planning.checkpoint`, one
+file per plan name) and a rerun of the same command resumes after the last saved vehicle. ``--tracking-bound``
+plans with the given ``r_e`` instead of computing the default one (the shipped plan is accepted only if that is
+not smaller than the default: :func:`stp_env.sim.build.plan_mismatch`).
 """
 
 from __future__ import annotations
@@ -27,28 +35,44 @@ SHIPPED: dict[str, tuple[str, dict]] = {
     "tiny": ("tiny", {}),
     "tiny-intruder": ("tiny-intruder", {"sta_spacing": 90}),
     **{f"town-kbar{k}": ("town", {"kbar": k}) for k in (1, 2, 3)},
+    "city": ("city", {}),
 }
 """File name -> (registered scenario, overrides)."""
 
 
-def generate(name: str) -> dict[str, np.ndarray]:
+DEFAULT = [name for name in SHIPPED if name != "city"]
+
+
+def generate(name: str, *, tracking_bound: float | None = None, checkpoint=None,
+             progress: bool = False) -> dict[str, np.ndarray]:
     scenario_name, overrides = SHIPPED[name]
     scenario = make(scenario_name, **overrides)
-    _, tracking = load_artifacts(scenario, progress=False)
-    return plan_to_arrays(plan_scenario(scenario, tracking_bound=tracking.bound, progress=False))
+    if tracking_bound is None:
+        _, tracking = load_artifacts(scenario, progress=progress)
+        tracking_bound = tracking.bound
+    return plan_to_arrays(plan_scenario(scenario, tracking_bound=tracking_bound, progress=progress,
+                                        checkpoint=checkpoint))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("--names", nargs="+", default=list(SHIPPED), choices=list(SHIPPED))
+    parser.add_argument("--names", nargs="+", default=DEFAULT, choices=list(SHIPPED))
+    parser.add_argument("--tracking-bound", type=float, help="r_e [m] (default: the scenario's default bound)")
+    parser.add_argument("--checkpoint-dir", type=Path, help="save each vehicle's plan here; a rerun resumes")
+    parser.add_argument("--progress", action="store_true", help="progress bars (vehicles, with an ETA)")
     args = parser.parse_args()
+    if args.tracking_bound is not None and not args.tracking_bound > 0:
+        parser.error(f"--tracking-bound must be positive; got {args.tracking_bound}.")
     DATA.mkdir(parents=True, exist_ok=True)
     for name in args.names:
         t0 = time.perf_counter()
-        arrays = generate(name)
+        checkpoint = None if args.checkpoint_dir is None else args.checkpoint_dir / f"{name}.ckpt.npz"
+        arrays = generate(name, tracking_bound=args.tracking_bound, checkpoint=checkpoint, progress=args.progress)
         seconds = time.perf_counter() - t0
         path = DATA / f"{name}.npz"
-        np.savez_compressed(path, **arrays)
+        tmp = path.with_name(f".{path.name}.tmp.npz")
+        np.savez_compressed(tmp, **arrays)
+        tmp.replace(path)  # atomic: an interrupted write never leaves a broken shipped plan
         print(json.dumps({"scenario": name, "file": str(path), "bytes": path.stat().st_size,
                           "seconds": round(seconds, 1), "t_ldt": arrays["t_ldt"].round(3).tolist()}), flush=True)
 

