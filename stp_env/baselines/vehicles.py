@@ -64,5 +64,5 @@ VEHICLE_POLICIES = {"switching": switching, "nominal": nominal_tracking}
 def vehicle_policy(name: str):
     """A vehicle policy by name: one of :data:`VEHICLE_POLICIES`."""
     if name not in VEHICLE_POLICIES:
-        raise ValueError(f"unknown vehicle policy {name!r}; allowed: {', '.join(VEHICLE_POLICIES)}.")
+        raise ValueError(f"vehicle_policy {name!r} is not known; allowed: {', '.join(VEHICLE_POLICIES)}.")
     return VEHICLE_POLICIES[name]
