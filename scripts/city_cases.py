@@ -32,7 +32,7 @@ import numpy as np
 from stp_env.planning.plots import plot_plan
 from stp_env.planning.stp import plan_scenario, plan_to_arrays
 from stp_env.scenarios import CITY_CASES, make
-from stp_env.scenarios.registry import CITY_DESTINATIONS
+from stp_env.scenarios.catalog.city import CITY_DESTINATIONS
 
 
 def city_case(case: int, n_vehicles: int):

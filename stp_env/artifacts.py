@@ -66,8 +66,8 @@ def _code_version() -> str:
     h = hashlib.sha256()
     for name in _NUMERICS:
         path = root / name
-        for file in sorted(path.glob("*.py")) if path.is_dir() else [path]:
-            h.update(file.name.encode())
+        for file in sorted(path.rglob("*.py")) if path.is_dir() else [path]:  # subpackages too (scenarios/catalog)
+            h.update(file.relative_to(root).as_posix().encode())
             h.update(code_fingerprint(file.read_text(encoding="utf-8")).encode())
     return h.hexdigest()[:16]
 

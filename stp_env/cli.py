@@ -142,7 +142,7 @@ def _add_episode_options(p, *, many: bool) -> None:
     """Options shared by ``evaluate`` (lists) and ``render`` (one configuration)."""
     from stp_env.baselines import INTRUDERS, VEHICLE_POLICIES
     from stp_env.evaluation.config import EPISODE_CHOICES, SPAWN_CHOICES
-    from stp_env.sim.types import WIND_MODELS
+    from stp_env.sim import winds
 
     nargs = "+" if many else None
     p.add_argument("--scenario", default="town", help="registered scenario name (see stp_env.scenarios.names())")
@@ -159,9 +159,7 @@ def _add_episode_options(p, *, many: bool) -> None:
     p.add_argument("--wind", type=_nonnegative, default=None,
                    help="wind bound d_r of vehicles and intruder [m/s] (None: the scenario's, 6 m/s for town; "
                         "another value computes its own reachability artifacts and plan on first use)")
-    p.add_argument("--wind-model", choices=WIND_MODELS, default="uniform",
-                   help="uniform: a new wind in the disk every step (the papers); constant: one per episode; "
-                        "gusts: Ornstein-Uhlenbeck; worst: the HJ games' worst-case wind")
+    p.add_argument("--wind-model", choices=winds.names(), default="uniform", help=winds.describe())
     p.add_argument("--spawn-mode", choices=SPAWN_CHOICES, default="auto",
                    help="where the intruder appears: outside every avoid region (Assumption 3), on a vehicle's "
                         "avoid boundary (Observation 1), or auto (boundary for max-k, else outside)")
@@ -217,7 +215,8 @@ def _add_evaluate_parsers(sub) -> None:
 
 def _avoid_region(args) -> int:
     from stp_env.dynamics import DubinsWind
-    from stp_env.reach.avoid import AvoidRegionConfig, compute_avoid_region, plot_avoid_region
+    from stp_env.reach.avoid import AvoidRegionConfig, compute_avoid_region
+    from stp_env.reach.plots import plot_avoid_region
 
     _check_output_file(args.out)
     vehicle = DubinsWind(v_min=0.0, v_max=args.v_max, omega_max=args.omega_max, wind=args.wind)
@@ -443,9 +442,20 @@ def _train_intruder(args) -> int:
     return 0
 
 
+def _select_figure_backend() -> None:
+    """The command line writes figures to files: select matplotlib's non-interactive Agg backend (here, not at
+    library import, so that programs using the library keep their own backend)."""
+    try:
+        import matplotlib
+    except ImportError:  # figures are optional
+        return
+    matplotlib.use("Agg")
+
+
 def main(argv=None) -> int:
     parser = _build_parser()
     args = parser.parse_args(argv)
+    _select_figure_backend()
     try:
         if args.command == "avoid-region":
             return _avoid_region(args)

@@ -30,23 +30,26 @@ Agents
 
 Actions
 -------
-``Box(-1, 1, (2,), float32)`` for every agent: ``a[0]`` maps linearly to the speed ``[v_min, v_max]`` [m/s],
-``a[1]`` to the turn rate ``[-omega_max, omega_max]`` [rad/s]. Out-of-range actions are clipped. NaN or inf,
-anything but real numbers (strings, booleans, complex), wrong shapes, and actions for unknown or finished agents
-raise ``ValueError`` naming the agent and leave the state unchanged; the AEC form checks each action at its
-agent's own ``step`` (the agent is still to act after the error). ``step`` after every agent has finished raises
-``RuntimeError``: call ``reset``. A live agent missing from the action dict applies the zero action. With
-``EnvConfig(safety_filter=True)`` (the default), a vehicle forced by the intruder (its relative state reached the
-boundary of ``V^A``, eqs. 17-18) has its action replaced by the avoidance control ``u^A`` (eq. 15) until the
-intruder leaves (eq. 38); the info ``used_filter`` says when.
+``Box(-1, 1, (2,), float32)`` for every agent (for the vehicles: their vehicle model's action size, 2 for the
+papers' Dubins vehicle): ``a[0]`` maps linearly to the speed ``[v_min, v_max]`` [m/s], ``a[1]`` to the turn rate
+``[-omega_max, omega_max]`` [rad/s]. Out-of-range actions are clipped. NaN or inf, anything but real numbers
+(strings, booleans, complex), wrong shapes, and actions for unknown or finished agents raise ``ValueError`` naming
+the agent and leave the state unchanged; the AEC form checks each action at its agent's own ``step`` (the agent is
+still to act after the error). ``step`` after every agent has finished raises ``RuntimeError``: call ``reset``. A
+live agent missing from the action dict applies the zero action. With ``EnvConfig(safety_filter=True)`` (the
+default), a vehicle forced by the intruder (its relative state reached the boundary of ``V^A``, eqs. 17-18) has its
+action replaced by the avoidance control ``u^A`` (eq. 15) until the intruder leaves (eq. 38); the info
+``used_filter`` says when.
 
 Observations
 ------------
 ``Box(-2, 2, (20 + 5K,))`` for vehicles and ``Box(-2, 2, (8 + 7K,))`` for the intruder (``K = n_nearest``, 4 by
-default): own state, time to the STA, target, tracking error, the intruder within the sensing range ``d_sense``
-(>= ``d^A``, eq. 16) with its avoid-region value, and the ``K`` nearest flying vehicles, in the body frame. The
-table of entries is in :func:`stp_env.sim.core.observe`. ``state()`` is the global state: every vehicle's
-``(x, y, cos, sin)`` scaled by the domain, status and mode flags, the intruder's, and the time.
+default; the sizes are read from :func:`stp_env.sim.core.observe` itself, :func:`stp_env.sim.observation_sizes`):
+own state, time to the STA, target, tracking error, the intruder within the sensing range ``d_sense`` (>= ``d^A``,
+eq. 16) with its avoid-region value, and the ``K`` nearest flying vehicles, in the body frame. The table of entries
+is in :func:`stp_env.sim.core.observe`. ``state()`` is the global state (:func:`stp_env.sim.global_state`): every
+vehicle's ``(x, y, cos, sin)`` scaled by the domain, status and mode flags (the first entries of its observation),
+the intruder's, and the time.
 
 Rewards
 -------
@@ -95,11 +98,13 @@ the intruder, avoid-region footprints when ``render_avoid_regions=True``) and ``
 
 Version history
 ---------------
-* v0 (``stp_v0``): first release. Since then, with the same dynamics for the same actions: the ``replan``
-  argument and the ``sta`` and ``replanned`` infos; ``guarantee_violation`` no longer counts a collision that a
-  vehicle flying the after-avoidance fallback takes part in (it still counts as a collision). Seeds of
-  ``2**32`` and more give their own episodes (they were reduced to their low 32 bits); negative seeds, and
-  actions that are not real numbers, raise ``ValueError``.
+* v1 (``stp_v1``, this version): with the same dynamics for the same actions as v0: the ``replan`` argument and
+  the ``sta`` and ``replanned`` infos; ``guarantee_violation`` no longer counts a collision that a vehicle flying the
+  after-avoidance fallback takes part in (it still counts as a collision). Seeds of ``2**32`` and more give their
+  own episodes (they were reduced to their low 32 bits); negative seeds, and actions that are not real numbers,
+  raise ``ValueError``. Vehicles may fly another plant than Dubins (``EnvConfig(vehicle_model=...)``; the action
+  space is the model's).
+* v0 (``stp_v0``): first release.
 """
 
 from __future__ import annotations
@@ -109,7 +114,7 @@ import numbers
 import reprlib
 import time
 import warnings
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import gymnasium
 import jax
@@ -120,6 +125,7 @@ from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 from pettingzoo.utils.wrappers import OrderEnforcingWrapper
 
 from stp_env import sim
+from stp_env.angles import wrap_angle
 from stp_env.seeds import prng_key
 from stp_env.sim import core
 from stp_env.sim.types import (
@@ -130,7 +136,6 @@ from stp_env.sim.types import (
     INTRUDER_STATUS_NAMES,
     MODE_NAMES,
     NOMINAL,
-    PRESENT,
     STATUS_NAMES,
     replace,
 )
@@ -143,43 +148,62 @@ def _cached_params(scenario, config):
     return sim.params_for(scenario, config, progress=False)
 
 
-def _info_arrays(prev, new):
-    """Everything the infos need, packed into one float32 array ``(9, N)`` (one device-to-host copy)."""
-    n = new.status.shape[0]
-    scalars = jnp.zeros((n,), jnp.float32).at[0].set(new.t).at[1].set(new.intruder_status.astype(jnp.float32))
-    return jnp.stack([new.status.astype(jnp.float32), new.mode.astype(jnp.float32), new.avoid_start,
-                      new.guarantee_violation.astype(jnp.float32), new.used_filter.astype(jnp.float32),
-                      new.min_separation, prev.status.astype(jnp.float32), scalars,
-                      jnp.zeros((n,), jnp.float32)]).astype(jnp.float32)
+class StepInfo(NamedTuple):
+    """What the infos are made of, read on the device after each step (arrays ``(N,)`` per vehicle, scalars
+    ``()``)."""
+
+    status: jax.Array               # (N,) STATUS_NAMES index after the step
+    prev_status: jax.Array          # (N,) before it (a collision is new when it was not COLLIDED)
+    mode: jax.Array                 # (N,) MODE_NAMES index
+    avoid_start: jax.Array          # (N,) [s] t_i (inf: never forced)
+    guarantee_violation: jax.Array  # (N,) bool
+    used_filter: jax.Array          # (N,) bool
+    min_separation: jax.Array       # (N,) [m]
+    t: jax.Array                    # () [s]
+    intruder_status: jax.Array      # () INTRUDER_STATUS_NAMES index
+
+
+class StepOutput(NamedTuple):
+    """Everything the adapter converts to numpy after a ``reset`` or ``step`` (one ``device_get``)."""
+
+    obs_vehicles: jax.Array   # (N, vehicle observation size)
+    obs_intruder: jax.Array   # (intruder observation size,)
+    rewards: jax.Array        # (N + 1,)
+    info: StepInfo
+    terminated: jax.Array     # ()
+    truncated: jax.Array      # ()
+
+
+def _step_info(prev, new) -> StepInfo:
+    return StepInfo(status=new.status, prev_status=prev.status, mode=new.mode, avoid_start=new.avoid_start,
+                    guarantee_violation=new.guarantee_violation, used_filter=new.used_filter,
+                    min_separation=new.min_separation, t=new.t, intruder_status=new.intruder_status)
 
 
 def _advance(key, state, actions, params):
-    """One adapter step: ``step``, then everything the adapter converts to numpy, packed into one array."""
+    """One adapter step: ``step``, then everything the adapter converts to numpy."""
     key, sub = jax.random.split(key)
     new, rewards = core.step(sub, state, actions, params)
     obs_v, obs_i = core.observe(new, params)
     term, trunc = core.episode_over(new, params)
-    flat = jnp.concatenate([obs_v.ravel(), obs_i, rewards, _info_arrays(state, new).ravel(),
-                            jnp.stack([term, trunc]).astype(jnp.float32)])
-    return key, new, flat
+    return key, new, StepOutput(obs_v, obs_i, rewards, _step_info(state, new), term, trunc)
 
 
 def _start(key, params):
     key, sub = jax.random.split(key)
     state = core.reset(sub, params)
     obs_v, obs_i = core.observe(state, params)
-    flat = jnp.concatenate([obs_v.ravel(), obs_i, jnp.zeros((params.n_vehicles + 1,), jnp.float32),
-                            _info_arrays(state, state).ravel(), jnp.zeros((2,), jnp.float32)])
-    return key, state, flat
+    no = jnp.zeros((), bool)
+    return key, state, StepOutput(obs_v, obs_i, jnp.zeros((params.n_vehicles + 1,), jnp.float32),
+                                  _step_info(state, state), no, no)
 
 
 _start_jit = jax.jit(_start)
 
 
-@jax.jit
-def _observe_flat(state, params):
-    obs_v, obs_i = core.observe(state, params)
-    return jnp.concatenate([obs_v.ravel(), obs_i])
+_observe_jit = jax.jit(core.observe)
+_global_state_jit = jax.jit(core.global_state)
+
 TRACE_COUNTS = {"step": 0}  # incremented when the step function is traced (tests check it stays at 1)
 
 
@@ -208,7 +232,7 @@ def _check_appear_window(params) -> None:
 class STPParallelEnv(ParallelEnv):
     """PettingZoo ParallelEnv of STP vehicles and an intruder; see the module docstring (the user's manual)."""
 
-    metadata: ClassVar[dict] = {"name": "stp_v0", "render_modes": ["human", "rgb_array"], "render_fps": 10,
+    metadata: ClassVar[dict] = {"name": "stp_v1", "render_modes": ["human", "rgb_array"], "render_fps": 10,
                                 "is_parallelizable": True}
 
     def __init__(self, scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, *,
@@ -258,9 +282,11 @@ class STPParallelEnv(ParallelEnv):
         self.max_cycles = int(max_cycles)
         self.render_mode = render_mode
         self.render_avoid_regions = render_avoid_regions
-        self._dv = core.vehicle_observation_size(params)
-        self._di = core.intruder_observation_size(params)
+        self._dv, self._di = core.observation_sizes(params)
+        self._state_size = core.global_state_size(params)
         self._kbar = int(params.kbar)
+        self._observation_spaces: dict[str, gymnasium.spaces.Box] = {}
+        self._action_spaces: dict[str, gymnasium.spaces.Box] = {}
         self._key = None
         self._state = None
         self._steps = 0
@@ -268,21 +294,28 @@ class STPParallelEnv(ParallelEnv):
         self._fig = None
 
     # ------------------------------------------------------------------------------------------ spaces
-    @functools.cache  # noqa: B019  (one space object per agent, as PettingZoo recommends)
     def observation_space(self, agent):
+        """One space object per agent (as PettingZoo recommends), made on first use and kept by the env."""
         self._check_known(agent)
-        size = self._di if agent == "intruder" else self._dv
-        return gymnasium.spaces.Box(-2.0, 2.0, (size,), np.float32)
+        if agent not in self._observation_spaces:
+            size = self._di if agent == "intruder" else self._dv
+            self._observation_spaces[agent] = gymnasium.spaces.Box(-2.0, 2.0, (size,), np.float32)
+        return self._observation_spaces[agent]
 
-    @functools.cache  # noqa: B019
     def action_space(self, agent):
+        """One space object per agent, made on first use and kept by the env."""
         self._check_known(agent)
-        return gymnasium.spaces.Box(-1.0, 1.0, (2,), np.float32)
+        if agent not in self._action_spaces:
+            self._action_spaces[agent] = gymnasium.spaces.Box(-1.0, 1.0, (self._action_dim(agent),), np.float32)
+        return self._action_spaces[agent]
 
     @property
     def state_space(self):
-        n = self.params.n_vehicles
-        return gymnasium.spaces.Box(-2.0, 2.0, (9 * n + 7,), np.float32)
+        return gymnasium.spaces.Box(-2.0, 2.0, (self._state_size,), np.float32)
+
+    def _action_dim(self, agent) -> int:
+        """The intruder flies Dubins (speed, turn rate); the vehicles' action size is their model's."""
+        return 2 if agent == "intruder" else self.params.vehicle_model.action_dim
 
     def _check_known(self, agent):
         if agent not in self._index:
@@ -300,7 +333,7 @@ class STPParallelEnv(ParallelEnv):
         start_params = params
         if appear_time is not None:
             start_params = replace(params, appear_window=jnp.asarray([appear_time, appear_time], jnp.float32))
-        key, state, flat = _start_jit(key, start_params)
+        key, state, out = _start_jit(key, start_params)
         self._key, self._state = key, state
         self.params = params
         self._plan = self._plan0
@@ -309,12 +342,13 @@ class STPParallelEnv(ParallelEnv):
         self._sta = np.asarray(params.sta, np.float64)
         self.replan_log = []
         self._steps = 0
-        obs, _, info_arr, _ = self._unpack(np.asarray(flat))
+        out = jax.device_get(out)
+        obs, info = self._observations(out.obs_vehicles, out.obs_intruder), out.info
         # Vehicles that arrived before the episode's first instant are not agents of it (they would only be
         # terminated by the first step); the intruder always is.
-        done_v = info_arr[0] >= sim.ARRIVED
+        done_v = info.status >= sim.ARRIVED
         self.agents = [a for a in self.possible_agents if a == "intruder" or not done_v[self._index[a]]]
-        infos = self._infos(info_arr)
+        infos = self._infos(info)
         obs = {a: obs[a] for a in self.agents}
         infos = {a: infos[a] for a in self.agents}
         if self.render_mode == "human":
@@ -348,7 +382,7 @@ class STPParallelEnv(ParallelEnv):
         return t
 
     def _check_action(self, agent, a) -> np.ndarray | None:
-        """The action of a live ``agent`` as a clipped float32 ``(2,)`` array (``None``: the zero action);
+        """The action of a live ``agent`` as a clipped float32 array (``None``: the zero action);
         ``ValueError`` naming the agent for anything else."""
         if agent not in self._index:
             raise ValueError(f"action for unknown agent {agent!r}; agents are {self.possible_agents}.")
@@ -364,9 +398,10 @@ class STPParallelEnv(ParallelEnv):
         if arr.dtype.kind not in "iuf":
             raise ValueError(f"action for {agent!r} must be real numbers (speed, turn rate in [-1, 1]); got "
                              f"{reprlib.repr(a)} (dtype {arr.dtype}).")
-        if arr.shape != (2,):
-            raise ValueError(f"action for {agent!r} must have shape (2,) (speed, turn rate in [-1, 1]); got "
-                             f"shape {arr.shape}.")
+        shape = (self._action_dim(agent),)
+        if arr.shape != shape:
+            raise ValueError(f"action for {agent!r} must have shape {shape} (in [-1, 1]; Dubins: speed, turn rate); "
+                             f"got shape {arr.shape}.")
         arr = arr.astype(np.float64)
         if not np.all(np.isfinite(arr)):
             raise ValueError(f"action for {agent!r} is not finite: {arr.tolist()}; actions must be finite numbers "
@@ -382,24 +417,25 @@ class STPParallelEnv(ParallelEnv):
         if not isinstance(actions, dict):
             raise ValueError(f"actions must be a dict {{agent: action}}; got {type(actions).__name__}.")
         n = self.params.n_vehicles
-        arr = np.zeros((n + 1, 2), np.float32)
+        arr = np.zeros((n + 1, max(2, self.params.vehicle_model.action_dim)), np.float32)
         for agent, a in actions.items():
             checked = self._check_action(agent, a)
             if checked is not None:
-                arr[self._index[agent]] = checked
+                arr[self._index[agent], :checked.shape[0]] = checked
         return arr
 
     def step(self, actions):
         arr = self._parse_actions(actions)  # raises before anything changes
-        self._key, self._state, flat = _advance_jit(self._key, self._state, arr, self.params)
+        self._key, self._state, out = _advance_jit(self._key, self._state, arr, self.params)
         self._steps += 1
-        obs, rewards, info_arr, (_, trunc) = self._unpack(np.asarray(flat))
+        out = jax.device_get(out)
+        obs, rewards, info = self._observations(out.obs_vehicles, out.obs_intruder), out.rewards, out.info
         if self.replan:
-            obs, info_arr = self._maybe_replan(obs, info_arr)
-        done_v = info_arr[0] >= sim.ARRIVED
-        intruder_done = int(info_arr[7, 1]) == GONE
-        truncated_all = bool(trunc) or self._steps >= self.max_cycles
-        infos = self._infos(info_arr)
+            obs, info = self._maybe_replan(obs, info)
+        done_v = info.status >= sim.ARRIVED
+        intruder_done = int(info.intruder_status) == GONE
+        truncated_all = bool(out.truncated) or self._steps >= self.max_cycles
+        infos = self._infos(info)
         live = list(self.agents)
         rew = {a: float(rewards[self._index[a]]) for a in live}
         terms, truncs = {}, {}
@@ -415,22 +451,22 @@ class STPParallelEnv(ParallelEnv):
         return obs, rew, terms, truncs, infos
 
     # ------------------------------------------------------------------------------------------ replanning
-    def _maybe_replan(self, obs, info_arr):
+    def _maybe_replan(self, obs, info: StepInfo):
         """Algorithm 4 after the intruder has left: every flying vehicle in the after-avoidance mode that has not
         been replanned gets a new STA and plan (:func:`stp_env.planning.replan.replan`, host side), the
         simulator's nominal tables are updated (:func:`stp_env.sim.with_plan`; same shapes, no retrace) and the
         vehicle is back in the nominal mode, tracking its new plan. Returns the observations and info arrays of
         the updated state."""
-        need = (info_arr[1].astype(int) == AFTER_AVOIDANCE) & (info_arr[0].astype(int) == FLYING) & ~self._replan_tried
+        need = (info.mode == AFTER_AVOIDANCE) & (info.status == FLYING) & ~self._replan_tried
         if not need.any():
-            return obs, info_arr
+            return obs, info
         from stp_env.planning.replan import replan  # host-side level-set planning: imported on first use
 
         idx = [int(i) for i in np.nonzero(need)[0]]
         self._replan_tried[idx] = True  # one attempt per vehicle and episode
         x = np.asarray(self._state.x, np.float64)
         t_bar = float(self._state.t)
-        affected = {i: (x[i, 0], x[i, 1], float((x[i, 2] + np.pi) % (2 * np.pi) - np.pi)) for i in idx}
+        affected = {i: (x[i, 0], x[i, 1], wrap_angle(float(x[i, 2]))) for i in idx}
         start = time.perf_counter()
         try:
             new_plan = replan(self._plan, self.scenario, affected, t_bar)
@@ -438,7 +474,7 @@ class STPParallelEnv(ParallelEnv):
             warnings.warn(f"replanning vehicles {idx} at t = {t_bar:.1f} s failed ({err}); they keep the fallback "
                           "control of eq. 40.", stacklevel=3)
             self.replan_log.append({"time": t_bar, "vehicles": idx, "error": str(err)})
-            return obs, info_arr
+            return obs, info
         self._plan = new_plan
         self.params = sim.with_plan(self.params, new_plan)
         self._state = replace(self._state, mode=self._state.mode.at[jnp.asarray(idx)].set(NOMINAL))
@@ -448,39 +484,27 @@ class STPParallelEnv(ParallelEnv):
                                 "sta": [float(new_plan.vehicles[i].plan.sta) for i in idx],
                                 "old_sta": [float(self._base_params.sta[i]) for i in idx],
                                 "seconds": round(time.perf_counter() - start, 2)})
-        flat = np.asarray(_observe_flat(self._state, self.params))
-        n = self.params.n_vehicles
-        obs = {f"vehicle_{i}": flat[i * self._dv:(i + 1) * self._dv] for i in range(n)}
-        obs["intruder"] = flat[n * self._dv:]
-        info_arr = info_arr.copy()
-        info_arr[1, idx] = NOMINAL
-        return obs, info_arr
+        obs = self._observations(*jax.device_get(_observe_jit(self._state, self.params)))
+        mode = np.array(info.mode)
+        mode[idx] = NOMINAL
+        return obs, info._replace(mode=mode)
 
     # ------------------------------------------------------------------------------------------ conversions
-    def _unpack(self, flat):
-        n = self.params.n_vehicles
-        k = n * self._dv
-        obs_v = flat[:k].reshape(n, self._dv)
-        obs_i = flat[k:k + self._di]
-        k += self._di
-        rewards = flat[k:k + n + 1]
-        k += n + 1
-        info = flat[k:k + 9 * n].reshape(9, n)
-        flags = flat[k + 9 * n:]
-        obs = {f"vehicle_{i}": obs_v[i] for i in range(n)}
-        obs["intruder"] = obs_i
-        return obs, rewards, info, (bool(flags[0]), bool(flags[1]))
+    def _observations(self, obs_vehicles, obs_intruder) -> dict[str, np.ndarray]:
+        obs = {f"vehicle_{i}": obs_vehicles[i] for i in range(self.params.n_vehicles)}
+        obs["intruder"] = obs_intruder
+        return obs
 
-    def _infos(self, info):
+    def _infos(self, info: StepInfo):
         n = self.params.n_vehicles
-        status, mode, avoid_start = info[0].astype(int), info[1].astype(int), info[2]
+        status, mode, avoid_start = info.status.astype(int), info.mode.astype(int), info.avoid_start
         forced = np.isfinite(avoid_start)
         n_forced = int(forced.sum())
         kbar = self._kbar
         collided = status == COLLIDED
-        new_collision = collided & (info[6].astype(int) != COLLIDED)
-        t = float(info[7, 0])
-        violation, used, min_sep = info[3] > 0, info[4] > 0, info[5]
+        new_collision = collided & (info.prev_status != COLLIDED)
+        t = float(info.t)
+        violation, used, min_sep = info.guarantee_violation, info.used_filter, info.min_separation
         infos = {}
         for i in range(n):
             infos[f"vehicle_{i}"] = {
@@ -500,7 +524,7 @@ class STPParallelEnv(ParallelEnv):
                 "time": t,
             }
         infos["intruder"] = {
-            "status": INTRUDER_STATUS_NAMES[int(info[7, 1])],
+            "status": INTRUDER_STATUS_NAMES[int(info.intruder_status)],
             "n_forced": n_forced,
             "kbar": kbar,
             "kbar_exceeded": bool(kbar > 0 and n_forced > kbar),
@@ -517,23 +541,7 @@ class STPParallelEnv(ParallelEnv):
         the time since the episode start over its length."""
         if self._state is None:
             raise RuntimeError("call reset() before state().")
-        s = jax.device_get(self._state)
-        prm = self.params
-        lo, hi = np.asarray(prm.domain_lo), np.asarray(prm.domain_hi)
-        center, half = 0.5 * (lo + hi), 0.5 * float(np.max(hi - lo))
-        x = np.asarray(s.x)
-        status, mode = np.asarray(s.status), np.asarray(s.mode)
-        veh = np.concatenate([(x[:, :2] - center) / half, np.cos(x[:, 2:3]), np.sin(x[:, 2:3]),
-                              (status == sim.FLYING)[:, None], (status >= sim.ARRIVED)[:, None],
-                              (status == sim.WAITING)[:, None], (mode == sim.AVOIDING)[:, None],
-                              (mode == sim.AFTER_AVOIDANCE)[:, None]], axis=1).ravel()
-        xi = np.asarray(s.intruder_x)
-        present = int(s.intruder_status) == PRESENT
-        tau = (float(s.t) - float(s.t_appear)) / float(prm.t_iat) if present else 0.0
-        length = max(float(prm.t_end - prm.t_start), 1.0)
-        intr = np.asarray([(xi[0] - center[0]) / half, (xi[1] - center[1]) / half, np.cos(xi[2]), np.sin(xi[2]),
-                           float(present), tau, (float(s.t) - float(prm.t_start)) / length])
-        return np.clip(np.concatenate([veh, intr]), -2.0, 2.0).astype(np.float32)
+        return np.asarray(_global_state_jit(self._state, self.params))
 
     # ------------------------------------------------------------------------------------------ render
     def render(self):

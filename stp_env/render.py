@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from stp_env.angles import wrap_angle
 from stp_env.sim import tables
 from stp_env.sim.types import AVOIDING, COLLIDED, FLYING, MODE_NAMES, PRESENT, WAITING
 
@@ -20,14 +21,15 @@ def _footprint(params, state, i, n=81):
     s = np.linspace(-w, w, n)
     px, py = np.meshgrid(s, s, indexing="ij")
     xi = state.intruder_x
-    rel_heading = float(np.mod(float(xi[2]) - float(state.x[i, 2]) + np.pi, 2 * np.pi) - np.pi)
+    pose = np.asarray(params.vehicle_model.pose(state.x[i]))
+    rel_heading = wrap_angle(float(xi[2]) - float(pose[2]))
     pts = jnp.stack([px.ravel(), py.ravel(), jnp.full(px.size, rel_heading)], 1).astype(jnp.float32)
     tau = state.t - state.t_appear
     vals = np.asarray(jax.vmap(lambda r: tables.avoid_value(params, tau, r))(pts)).reshape(n, n)
-    th = float(state.x[i, 2])
+    th = float(pose[2])
     c, sn = np.cos(th), np.sin(th)
-    wx = float(state.x[i, 0]) + c * px - sn * py
-    wy = float(state.x[i, 1]) + sn * px + c * py
+    wx = float(pose[0]) + c * px - sn * py
+    wy = float(pose[1]) + sn * px + c * py
     return wx, wy, vals
 
 
@@ -55,7 +57,8 @@ def draw_frame(env, fig=None):
     lengths = np.asarray(params.nominal_len)
     for i in range(params.n_vehicles):
         ax.plot(states[i, :lengths[i], 0], states[i, :lengths[i], 1], color="0.8", lw=0.8, zorder=1)
-    x, status, mode = np.asarray(state.x), np.asarray(state.status), np.asarray(state.mode)
+    x = np.asarray(params.vehicle_model.pose(state.x))  # (x, y, heading) whatever the vehicle model
+    status, mode = np.asarray(state.status), np.asarray(state.mode)
     span = float(np.max(hi - lo))
     arrow = 0.03 * span
     present = int(state.intruder_status) == PRESENT

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from stp_env import hj
+from stp_env.angles import wrap_angle
 from stp_env.planning.stp import plan_scenario
 from stp_env.reach.tracking import TrackingConfig, compute_tracking_bound
 from stp_env.scenarios import make
@@ -61,7 +62,7 @@ def _simulate(scenario, cfg, bound, plan, mode, seed):
 
     def inputs(key, x, xr):
         p = rot(-x[2], xr[:2] - x[:2])
-        e = jnp.array([p[0], p[1], jnp.mod(xr[2] - x[2] + jnp.pi, 2 * jnp.pi) - jnp.pi])
+        e = jnp.array([p[0], p[1], wrap_angle(xr[2] - x[2])])
         g = hj.interpolation.interpolate_gradient(grid, grads, e)
         ex, pp = (e[0], e[1], e[2]), (g[0], g[1], g[2])
         u = jnp.stack(dyn.optimal_control(ex, pp))

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from stp_env import hj
+from stp_env.angles import wrap_angle
 from stp_env.planning.methods import SliceFeedback, plan_methods, projected_obstacle_table, tabulated_obstacles
 from stp_env.planning.single import planning_control
 from stp_env.scenarios import make
@@ -65,7 +66,7 @@ def _simulate(key, x0, t_ldt, t0, slice_times, stacks, targets, radius, worst, l
         xm = x + 0.5 * DT * f(x, u, w, dth)
         u, w, dth = inputs(key, times, stack, t + 0.5 * DT, xm)  # same draw: the disturbance holds over the step
         xn = x + DT * f(xm, u, w, dth)
-        xn = xn.at[2].set(jnp.mod(xn[2] + jnp.pi, 2 * jnp.pi) - jnp.pi)
+        xn = xn.at[2].set(wrap_angle(xn[2]))
         return jnp.where((t >= ldt) & ~done, xn, x)
 
     def step(carry, s):

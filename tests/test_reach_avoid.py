@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from stp_env.angles import wrap_angle
 from stp_env.dynamics import DubinsWind
 from stp_env.reach.avoid import (
     AvoidRegionConfig,
@@ -94,7 +95,7 @@ def _rot(theta, v):
 
 def _relative(xv, xi):
     p = _rot(-xv[2], xi[:2] - xv[:2])
-    return jnp.array([p[0], p[1], jnp.mod(xi[2] - xv[2] + jnp.pi, 2 * jnp.pi) - jnp.pi])
+    return jnp.array([p[0], p[1], wrap_angle(xi[2] - xv[2])])
 
 
 @functools.partial(jax.jit, static_argnames=("u_avoid", "u_pursue", "n_steps", "vehicle_avoids"))

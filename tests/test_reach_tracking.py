@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from stp_env import hj
+from stp_env.angles import wrap_angle
 from stp_env.dynamics import DubinsWind
 from stp_env.reach.tracking import TrackingConfig, compute_tracking_bound
 
@@ -54,7 +55,7 @@ def _rot(theta, v):
 
 def _error(xv, xr):
     p = _rot(-xv[2], xr[:2] - xv[:2])
-    return jnp.array([p[0], p[1], jnp.mod(xr[2] - xv[2] + jnp.pi, 2 * jnp.pi) - jnp.pi])
+    return jnp.array([p[0], p[1], wrap_angle(xr[2] - xv[2])])
 
 
 def _f(x, u, w):

@@ -14,7 +14,7 @@ from stp_env import scenarios
 from stp_env.dynamics import DubinsWind
 from stp_env.hj import Grid
 from stp_env.scenarios import Building, Scenario, VehicleSpec, polygon_signed_distance
-from stp_env.scenarios.registry import CITY_CORRIDOR_Y, CITY_ORIGIN
+from stp_env.scenarios.catalog.city import CITY_CORRIDOR_Y, CITY_ORIGIN
 
 UNIT_SQUARE = ((0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0))
 
@@ -254,7 +254,7 @@ def test_same_seed_same_scenario_other_seed_differs(city):
 
 # ------------------------------------------------------------------------------------------ town
 def test_town_setup():
-    from stp_env.scenarios.registry import TOWN_DESTINATIONS, TOWN_ORIGIN
+    from stp_env.scenarios.catalog.town import TOWN_DESTINATIONS, TOWN_ORIGIN
 
     s = scenarios.make("town")
     assert s.kbar == 2 and s.n_vehicles == 7 and s.vehicle.wind == 6.0 and s.method == "rtt"

@@ -90,7 +90,7 @@ def greedy_pursuit(key, state, params):
 def _pursue(state, params, eligible):
     """HJ-optimal pursuit (eq. 14's minimiser) of the eligible vehicle with the smallest ``V^A``."""
     tau = state.t - state.t_appear
-    rel = relative_state(state.x, state.intruder_x[None, :])
+    rel = relative_state(params.vehicle_model.pose(state.x), state.intruder_x[None, :])
     vals = jnp.where(eligible, state.avoid_value, jnp.inf)  # V^A per vehicle, kept by the core
     j = jnp.argmin(vals)
     d = tables.pursuit_input(params, tau, rel[j])

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from stp_env.sim.physics import control_to_action, wrap_angle
+from stp_env.sim.physics import wrap_angle
 from stp_env.sim.types import AFTER_AVOIDANCE, AVOIDING, PRESENT
 
 HEADING_GAIN = 2.0  # [1/s] fallback turn rate per radian of heading error
@@ -26,11 +26,12 @@ HEADING_GAIN = 2.0  # [1/s] fallback turn rate per radian of heading error
 
 def fallback_control(state, params):
     """Head for the target at the fastest planning speed: ``(N, 2)`` actions."""
-    d = params.targets - state.x[:, :2]
-    err = wrap_angle(jnp.arctan2(d[:, 1], d[:, 0]) - state.x[:, 2])
+    pose = params.vehicle_model.pose(state.x)
+    d = params.targets - pose[:, :2]
+    err = wrap_angle(jnp.arctan2(d[:, 1], d[:, 0]) - pose[:, 2])
     omega = jnp.clip(HEADING_GAIN * err, -params.vehicle_bounds[2], params.vehicle_bounds[2])
     v = jnp.full_like(omega, params.planning_v_max)
-    return control_to_action(v, omega, params.vehicle_bounds)
+    return params.vehicle_model.command_to_action(state.x, v, omega, params.vehicle_bounds)
 
 
 def nominal_tracking(key, state, params):
@@ -63,5 +64,5 @@ VEHICLE_POLICIES = {"switching": switching, "nominal": nominal_tracking}
 def vehicle_policy(name: str):
     """A vehicle policy by name: one of :data:`VEHICLE_POLICIES`."""
     if name not in VEHICLE_POLICIES:
-        raise ValueError(f"unknown vehicle policy {name!r}; allowed: {', '.join(VEHICLE_POLICIES)}.")
+        raise ValueError(f"vehicle_policy {name!r} is not known; allowed: {', '.join(VEHICLE_POLICIES)}.")
     return VEHICLE_POLICIES[name]

@@ -157,6 +157,8 @@ class CoObservationParallelEnv(ParallelEnv):
             raise ValueError(f"max_cycles must be a positive integer; got {max_cycles!r}.")
         self.max_cycles = steps if max_cycles is None else max_cycles
         self._dv = vehicle_observation_size(self.params)
+        self._observation_spaces: dict[str, gymnasium.spaces.Box] = {}
+        self._action_spaces: dict[str, gymnasium.spaces.Box] = {}
         self.agents: list[str] = []
         self._key = None
         self._ts = None
@@ -172,16 +174,20 @@ class CoObservationParallelEnv(ParallelEnv):
         if compromise_time is not None and not (np.isfinite(compromise_time) and compromise_time >= 0):
             raise ValueError(f"compromise_time must be a time >= 0 [s] or None (random); got {compromise_time!r}.")
 
-    @functools.cache  # noqa: B019  (one space object per agent)
     def observation_space(self, agent):
+        """One space object per agent, made on first use and kept by the env."""
         self._known(agent)
-        size = attackers.OBS_SIZE if agent == "attacker" else self._dv
-        return gymnasium.spaces.Box(-2.0, 2.0, (size,), np.float32)
+        if agent not in self._observation_spaces:
+            size = attackers.OBS_SIZE if agent == "attacker" else self._dv
+            self._observation_spaces[agent] = gymnasium.spaces.Box(-2.0, 2.0, (size,), np.float32)
+        return self._observation_spaces[agent]
 
-    @functools.cache  # noqa: B019
     def action_space(self, agent):
+        """One space object per agent, made on first use and kept by the env."""
         self._known(agent)
-        return gymnasium.spaces.Box(-1.0, 1.0, (2,), np.float32)
+        if agent not in self._action_spaces:
+            self._action_spaces[agent] = gymnasium.spaces.Box(-1.0, 1.0, (2,), np.float32)
+        return self._action_spaces[agent]
 
     def _known(self, agent):
         if agent not in self._index:

@@ -173,7 +173,7 @@ class FormationScenario:
         """The :class:`stp_env.scenarios.Scenario` the simulator builds from (vehicles, domain, UAV bounds)."""
         from stp_env.dynamics import DubinsWind
         from stp_env.scenarios import Scenario, VehicleSpec
-        from stp_env.scenarios.registry import BEACLS_PLANNING_OMEGA_MAX, BEACLS_PLANNING_V
+        from stp_env.scenarios.paper import BEACLS_PLANNING_OMEGA_MAX, BEACLS_PLANNING_V
 
         _, _, heading = self._frame()
         starts, goals = self.starts(), self.goals()

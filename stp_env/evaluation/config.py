@@ -13,9 +13,9 @@ import importlib
 import math
 from collections.abc import Callable
 
-from stp_env.baselines import INTRUDERS, VEHICLE_POLICIES
-from stp_env.sim import EnvConfig
-from stp_env.sim.types import SPAWN_MODES, WIND_MODELS
+from stp_env.baselines import INTRUDERS, vehicle_policy
+from stp_env.sim import EnvConfig, winds
+from stp_env.sim.types import SPAWN_MODES
 
 SPAWN_CHOICES = ("auto", *SPAWN_MODES)
 """``auto``: ``boundary`` for the ``max-k`` intruder (the strategy of the intruder paper's Figs. 6-7 starts on a
@@ -74,10 +74,7 @@ def resolve_intruder(spec: str, *, allow_plugins: bool = True) -> Callable:
     return policy
 
 
-def resolve_vehicle_policy(name: str) -> Callable:
-    if name not in VEHICLE_POLICIES:
-        raise ValueError(f"unknown vehicle policy {name!r}; allowed: {', '.join(VEHICLE_POLICIES)}.")
-    return VEHICLE_POLICIES[name]
+resolve_vehicle_policy = vehicle_policy  # the one lookup by name (stp_env.baselines.vehicles)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -90,7 +87,7 @@ class Configuration:
         intruder: intruder name or import spec (:func:`resolve_intruder`).
         wind: wind bound ``d_r`` of vehicles and intruder [m/s]; ``None``: the scenario's (a non-default wind
             needs its own reachability artifacts and plan, computed and cached on first use).
-        wind_model: :data:`stp_env.sim.types.WIND_MODELS`.
+        wind_model: a registered wind model (:func:`stp_env.sim.winds.names`), or a spec ``name:param=value``.
         spawn_mode: one of :data:`SPAWN_CHOICES`.
         vehicle_policy: ``"switching"`` (``u*``, eq. 38, with the core's safety filter) or ``"nominal"`` (``u^PP``
             only: the safety filter is off and vehicles ignore the intruder; their avoid starts are still counted).
@@ -119,17 +116,13 @@ class Configuration:
                                       or not math.isfinite(self.wind)
                                       or self.wind < 0):
             raise ValueError(f"wind must be a finite number >= 0 [m/s]; got {self.wind!r}.")
-        if self.wind_model not in WIND_MODELS:
-            raise ValueError(f"wind_model {self.wind_model!r} is not a known wind model; allowed: "
-                             f"{', '.join(WIND_MODELS)}.")
+        winds.make(self.wind_model)  # ValueError naming wind_model and the registered models
         if self.spawn_mode not in SPAWN_CHOICES:
             raise ValueError(f"spawn_mode {self.spawn_mode!r} is not a known spawn mode; allowed: "
                              f"{', '.join(SPAWN_CHOICES)}.")
         if self.episode not in EPISODE_CHOICES:
             raise ValueError(f"episode {self.episode!r} is not known; allowed: {', '.join(EPISODE_CHOICES)}.")
-        if self.vehicle_policy not in VEHICLE_POLICIES:
-            raise ValueError(f"vehicle_policy {self.vehicle_policy!r} is not known; allowed: "
-                             f"{', '.join(VEHICLE_POLICIES)}.")
+        vehicle_policy(self.vehicle_policy)  # ValueError naming the allowed ones
 
     @property
     def effective_spawn_mode(self) -> str:

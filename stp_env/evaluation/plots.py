@@ -16,9 +16,6 @@ from stp_env.sim.types import AVOIDING, COLLIDED, FLYING, PRESENT
 
 
 def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     return plt

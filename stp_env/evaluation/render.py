@@ -20,9 +20,6 @@ def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float 
                    fps: int = 8, dpi: int = 70, title: str = "") -> tuple[list[str], int]:
     """Write the episode to ``path`` (``.gif``); returns the written files (the GIF, or the PNG frames in
     ``path`` with its suffix removed when pillow is not installed) and the number of frames."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib import animation
 

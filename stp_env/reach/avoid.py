@@ -143,7 +143,6 @@ class AvoidRegion:
         return float(np.max(np.where(inside, radii[None, :], 0.0)))
 
 
-
 def compute_avoid_region(config: AvoidRegionConfig | None = None, *, store: ArtifactStore | None = None,
                          progress: bool = True) -> AvoidRegion:
     """Solves eqs. (13)-(14): the backward reachable tube of the danger zone over ``[tau, t_IAT]`` (cached in
@@ -174,14 +173,32 @@ def compute_avoid_region(config: AvoidRegionConfig | None = None, *, store: Arti
     return region
 
 
+def avoid_table_value(grid: hj.Grid, taus, values, tau, x_rel):
+    """``V^A(tau, t_IAT)(x_rel)`` read from a table of slices ``values`` at ascending ``taus`` on ``grid`` (linear
+    in ``tau``, multilinear in the state; jittable). The one reader of avoid tables: :func:`make_value_function`
+    and the simulator (:mod:`stp_env.sim.tables`) both use it."""
+    return hj.interpolation.interpolate_slices(grid, taus, values, tau, x_rel)
+
+
+def avoid_table_input(dynamics: RelativeDubins, grid: hj.Grid, taus, values, player: str, tau, x_rel):
+    """The optimal input of one player of eq. (14) at ``x_rel`` from the interpolated gradient of the table:
+    ``player="vehicle"``: ``u^A = (v_i, omega_i)`` (eq. 15, the maximising control); ``"intruder"``: ``(v_I,
+    omega_I, w_x, w_y)``, the minimising intruder control and worst combined wind (vehicle's body frame)."""
+    if player not in ("vehicle", "intruder"):
+        raise ValueError(f"player must be 'vehicle' or 'intruder'; got {player!r}.")
+    p = hj.interpolation.gradient_slices(grid, taus, values, tau, x_rel)
+    optimum = dynamics.optimal_control if player == "vehicle" else dynamics.optimal_disturbance
+    return jnp.stack(optimum((x_rel[0], x_rel[1], x_rel[2]), (p[0], p[1], p[2])))
+
+
 def make_value_function(region: AvoidRegion):
-    """Jittable ``(tau, x_rel) -> V^A(tau, t_IAT)(x_rel)`` (linear in ``tau``, multilinear in the state)."""
+    """Jittable ``(tau, x_rel) -> V^A(tau, t_IAT)(x_rel)`` (:func:`avoid_table_value` of ``region``)."""
     grid = region.grid
     taus = jnp.asarray(region.taus, jnp.float32)
     stack = jnp.asarray(region.values, jnp.float32)
 
     def value(tau, x_rel):
-        return hj.interpolation.interpolate_slices(grid, taus, stack, tau, x_rel)
+        return avoid_table_value(grid, taus, stack, tau, x_rel)
 
     return value
 
@@ -191,11 +208,9 @@ def _optimal_input(region: AvoidRegion, player: str):
     grid = region.grid
     taus = jnp.asarray(region.taus, jnp.float32)
     stack = jnp.asarray(region.values, jnp.float32)
-    optimum = dyn.optimal_control if player == "vehicle" else dyn.optimal_disturbance
 
     def u(tau, x_rel):
-        p = hj.interpolation.gradient_slices(grid, taus, stack, tau, x_rel)
-        return jnp.stack(optimum((x_rel[0], x_rel[1], x_rel[2]), (p[0], p[1], p[2])))
+        return avoid_table_input(dyn, grid, taus, stack, player, tau, x_rel)
 
     return u
 
@@ -211,64 +226,3 @@ def make_pursuit_controller(region: AvoidRegion):
     (v_I, omega_I, w_x, w_y)``: intruder speed and turn rate, and the worst combined wind in the vehicle's body
     frame [m/s]."""
     return _optimal_input(region, "intruder")
-
-
-def plot_avoid_region(region: AvoidRegion, path: str, headings_deg=(0, 90, 180, -90)) -> str:
-    """Writes a PNG: slices of ``V^A(0, t_IAT)`` at several relative headings, and its projection on the
-    position plane with the danger zone and the detection range ``d^A``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    cfg = region.config
-    grid = region.grid
-    xs, ys, ths = (grid.coordinate_vector(i) for i in range(3))
-    v0 = np.asarray(region.values[0])
-    d_a = region.detection_range()
-    fig, axes = plt.subplots(1, 2, figsize=(12, 6.4), constrained_layout=True)
-
-    ax = axes[0]
-    colors = plt.cm.viridis(np.linspace(0, 0.9, len(headings_deg)))
-    for deg, col in zip(headings_deg, colors):
-        k = int(np.argmin(np.abs(np.angle(np.exp(1j * (ths - np.deg2rad(deg)))))))
-        ax.contour(xs, ys, v0[:, :, k].T, levels=[0.0], colors=[col], linewidths=2)
-        ax.plot([], [], color=col, lw=2, label=f"relative heading {np.rad2deg(ths[k]):.0f} deg")
-    _danger_and_vehicle(ax, cfg.collision_radius)
-    ax.set_title(r"Avoid region $V^A(0, t_{IAT})$: slices by relative heading")
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2, fontsize=8, frameon=False)
-
-    ax = axes[1]
-    proj = v0.min(axis=2)
-    ax.contourf(xs, ys, proj.T, levels=[proj.min() - 1, 0.0], colors=["tab:red"], alpha=0.35)
-    ax.contour(xs, ys, proj.T, levels=[0.0], colors=["tab:red"], linewidths=2)
-    ax.plot([], [], color="tab:red", lw=2, label="union over headings")
-    circle = plt.Circle((0, 0), d_a, fill=False, ls="--", color="k")
-    ax.add_patch(circle)
-    ax.plot([], [], "k--", label=f"detection range $d^A$ = {d_a:.0f} m")
-    _danger_and_vehicle(ax, cfg.collision_radius)
-    ax.set_title("Projection on the relative position plane")
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2, fontsize=8, frameon=False)
-
-    for ax in axes:
-        ax.set_xlabel(r"$p_x$ of intruder in vehicle frame [m] (vehicle heads to +x)")
-        ax.set_ylabel(r"$p_y$ [m]")
-        ax.set_aspect("equal")
-        ax.set_xlim(xs[0], xs[-1])
-        ax.set_ylim(ys[0], ys[-1])
-        ax.grid(alpha=0.3)
-    fig.suptitle(
-        f"Intruder avoid region: v in [{cfg.vehicle.v_min:g}, {cfg.vehicle.v_max:g}] m/s, "
-        f"|omega| <= {cfg.vehicle.omega_max:g} rad/s, wind {cfg.vehicle.wind:g} + {cfg.intruder.wind:g} m/s, "
-        f"t_IAT = {cfg.t_iat:g} s, R_c = {cfg.collision_radius:g} m, grid {grid.shape}")
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
-
-
-def _danger_and_vehicle(ax, radius: float) -> None:
-    import matplotlib.pyplot as plt
-
-    ax.add_patch(plt.Circle((0, 0), radius, color="0.6", alpha=0.5))
-    ax.plot([], [], "s", color="0.6", label=f"danger zone R_c = {radius:g} m")
-    ax.annotate("", xy=(0.6 * radius, 0), xytext=(0, 0), arrowprops={"arrowstyle": "->", "lw": 2})

@@ -43,6 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env import hj
+from stp_env.angles import wrap_angle
 from stp_env.dynamics import DubinsWind
 from stp_env.reach.buffer import brd_time, position_radius
 
@@ -114,7 +115,7 @@ def disk_frs(grid: hj.Grid, vehicle: DubinsWind, radius: float, duration: float,
     x = grid.broadcast_states()
     init = jnp.sqrt(x[0] ** 2 + x[1] ** 2) - radius
     if heading is not None:
-        dth = jnp.abs(jnp.mod(x[2] - heading + math.pi, 2 * math.pi) - math.pi)
+        dth = jnp.abs(wrap_angle(x[2] - heading))
         init = jnp.maximum(init, dth - grid.spacing[2])
     init = jnp.broadcast_to(init, grid.shape)
     dyn = vehicle.with_modes(control_mode="max", disturbance_mode="max")

@@ -69,9 +69,6 @@ def _setup(ax, extent, title):
 def plot_sets(avoid: AvoidRegion, tracking_bound: float, buffer: RelativeBuffer, path: str) -> str:
     """Four panels like Fig. 2: base obstacle ``M``, avoid region ``V^A(0, t_IAT)``, separation region
     ``S = M + dV^A`` and relative buffer region ``V^B(0, t_BRD)``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     wa = float(avoid.grid.hi[0])
@@ -113,9 +110,6 @@ def plot_buffer_regions(avoid: AvoidRegion, tracking_bound: float, buffers: dict
                         radii: dict[int, BufferRadii], path: str) -> str:
     """Like Fig. 3: the buffer regions ``B = M + dV^A + V^B + M`` (footprints, filled) for several ``k̄``,
     with the conservative disks the planner uses (dashed)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     extent = max(r.buffer for r in radii.values()) * 1.08
@@ -151,3 +145,61 @@ def footprint_area_ratio(avoid: AvoidRegion, tracking_bound: float, buffer: Rela
     grown = _dilate(va, xs, xs, 2 * tracking_bound + buffer.radius)
     cell = (xs[1] - xs[0]) ** 2
     return math.pi * radius**2 / (grown.sum() * cell)
+
+
+def plot_avoid_region(region: AvoidRegion, path: str, headings_deg=(0, 90, 180, -90)) -> str:
+    """Writes a PNG: slices of ``V^A(0, t_IAT)`` at several relative headings, and its projection on the
+    position plane with the danger zone and the detection range ``d^A``."""
+    import matplotlib.pyplot as plt
+
+    cfg = region.config
+    grid = region.grid
+    xs, ys, ths = (grid.coordinate_vector(i) for i in range(3))
+    v0 = np.asarray(region.values[0])
+    d_a = region.detection_range()
+    fig, axes = plt.subplots(1, 2, figsize=(12, 6.4), constrained_layout=True)
+
+    ax = axes[0]
+    colors = plt.cm.viridis(np.linspace(0, 0.9, len(headings_deg)))
+    for deg, col in zip(headings_deg, colors):
+        k = int(np.argmin(np.abs(np.angle(np.exp(1j * (ths - np.deg2rad(deg)))))))
+        ax.contour(xs, ys, v0[:, :, k].T, levels=[0.0], colors=[col], linewidths=2)
+        ax.plot([], [], color=col, lw=2, label=f"relative heading {np.rad2deg(ths[k]):.0f} deg")
+    _danger_and_vehicle(ax, cfg.collision_radius)
+    ax.set_title(r"Avoid region $V^A(0, t_{IAT})$: slices by relative heading")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2, fontsize=8, frameon=False)
+
+    ax = axes[1]
+    proj = v0.min(axis=2)
+    ax.contourf(xs, ys, proj.T, levels=[proj.min() - 1, 0.0], colors=["tab:red"], alpha=0.35)
+    ax.contour(xs, ys, proj.T, levels=[0.0], colors=["tab:red"], linewidths=2)
+    ax.plot([], [], color="tab:red", lw=2, label="union over headings")
+    circle = plt.Circle((0, 0), d_a, fill=False, ls="--", color="k")
+    ax.add_patch(circle)
+    ax.plot([], [], "k--", label=f"detection range $d^A$ = {d_a:.0f} m")
+    _danger_and_vehicle(ax, cfg.collision_radius)
+    ax.set_title("Projection on the relative position plane")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2, fontsize=8, frameon=False)
+
+    for ax in axes:
+        ax.set_xlabel(r"$p_x$ of intruder in vehicle frame [m] (vehicle heads to +x)")
+        ax.set_ylabel(r"$p_y$ [m]")
+        ax.set_aspect("equal")
+        ax.set_xlim(xs[0], xs[-1])
+        ax.set_ylim(ys[0], ys[-1])
+        ax.grid(alpha=0.3)
+    fig.suptitle(
+        f"Intruder avoid region: v in [{cfg.vehicle.v_min:g}, {cfg.vehicle.v_max:g}] m/s, "
+        f"|omega| <= {cfg.vehicle.omega_max:g} rad/s, wind {cfg.vehicle.wind:g} + {cfg.intruder.wind:g} m/s, "
+        f"t_IAT = {cfg.t_iat:g} s, R_c = {cfg.collision_radius:g} m, grid {grid.shape}")
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _danger_and_vehicle(ax, radius: float) -> None:
+    import matplotlib.pyplot as plt
+
+    ax.add_patch(plt.Circle((0, 0), radius, color="0.6", alpha=0.5))
+    ax.plot([], [], "s", color="0.6", label=f"danger zone R_c = {radius:g} m")
+    ax.annotate("", xy=(0.6 * radius, 0), xytext=(0, 0), arrowprops={"arrowstyle": "->", "lw": 2})

@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 
 from stp_env import sim
-from stp_env.baselines import VEHICLE_POLICIES
+from stp_env.baselines import vehicle_policy
 from stp_env.seeds import check_seed
 from stp_env.sim import core
 from stp_env.sim.types import COLLIDED, GONE, EnvParams, EnvState, replace
@@ -51,10 +51,7 @@ def check_horizon(horizon: str) -> str:
     return horizon
 
 
-def check_vehicle_policy(name: str):
-    if name not in VEHICLE_POLICIES:
-        raise ValueError(f"unknown vehicle policy {name!r}; allowed: {', '.join(VEHICLE_POLICIES)}.")
-    return VEHICLE_POLICIES[name]
+check_vehicle_policy = vehicle_policy  # the one lookup by name (stp_env.baselines.vehicles)
 
 
 def reset_one(key, params: EnvParams, horizon: str) -> EnvState:

@@ -12,13 +12,16 @@ Usage::
 
 Modules: :mod:`~stp_env.scenarios.config` (``Scenario``, ``VehicleSpec``, ``Building``),
 :mod:`~stp_env.scenarios.geometry` (polygon signed distance, building tables),
-:mod:`~stp_env.scenarios.registry` (``register``, ``make``, ``names`` and the registered scenarios).
+:mod:`~stp_env.scenarios.registry` (``register``, ``make``, ``names``: the mechanism),
+:mod:`~stp_env.scenarios.catalog` (the named scenarios, one module each, found automatically),
+:mod:`~stp_env.scenarios.paper` (what the papers' scenarios share).
 """
 
 from stp_env.scenarios import geometry
+from stp_env.scenarios.catalog.city import CITY_CASES
 from stp_env.scenarios.config import METHODS, Building, Scenario, VehicleSpec, wrap_angle
 from stp_env.scenarios.geometry import NO_OBSTACLE_DISTANCE, buildings_sdf, polygon_signed_distance
-from stp_env.scenarios.registry import CITY_CASES, factory_parameters, make, names, register
+from stp_env.scenarios.registry import factory_parameters, load_catalog, make, names, register
 
 __all__ = [
     "CITY_CASES",
@@ -30,6 +33,7 @@ __all__ = [
     "buildings_sdf",
     "factory_parameters",
     "geometry",
+    "load_catalog",
     "make",
     "names",
     "polygon_signed_distance",

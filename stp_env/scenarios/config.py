@@ -28,6 +28,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from stp_env.angles import wrap_angle
 from stp_env.dynamics import DubinsWind
 from stp_env.hj import Grid
 from stp_env.scenarios import geometry
@@ -40,11 +41,6 @@ MIN_CELLS_ACROSS_TARGET = 5
 """A target must span at least this many grid cells (diameter / spacing), docs/numerics.md: small targets smear away."""
 
 _MAX_REPORTED_ERRORS = 10
-
-
-def wrap_angle(theta: float) -> float:
-    """Wraps an angle [rad] into ``[-pi, pi)``."""
-    return (float(theta) + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def _is_int(x) -> bool:

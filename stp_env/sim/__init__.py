@@ -11,7 +11,8 @@
 
 from stp_env.sim.build import busiest_window, load_artifacts, load_plan, make_params, params_for, with_plan
 from stp_env.sim.config import EnvConfig, RewardConfig
-from stp_env.sim.core import episode_over, lifecycle, nominal_reference, observe, reset, step
+from stp_env.sim.core import episode_over, global_state, lifecycle, observation_sizes, observe, reset, step
+from stp_env.sim.reference import nominal_reference
 from stp_env.sim.rollout import rollout, steps_for
 from stp_env.sim.types import (
     AFTER_AVOIDANCE,
@@ -27,12 +28,14 @@ from stp_env.sim.types import (
     WAITING,
     EnvParams,
     EnvState,
+    RewardWeights,
     n_forced,
 )
 
 __all__ = [
     "AFTER_AVOIDANCE", "ARRIVED", "AVOIDING", "COLLIDED", "FLYING", "GONE", "NOMINAL", "OUT_OF_BOUNDS", "PENDING",
-    "PRESENT", "WAITING", "EnvConfig", "EnvParams", "EnvState", "RewardConfig", "busiest_window", "episode_over",
-    "lifecycle", "load_artifacts", "load_plan", "make_params", "n_forced", "nominal_reference", "observe",
-    "params_for", "reset", "rollout", "step", "steps_for", "with_plan",
+    "PRESENT", "WAITING", "EnvConfig", "EnvParams", "EnvState", "RewardConfig", "RewardWeights", "busiest_window",
+    "episode_over", "global_state", "lifecycle", "load_artifacts", "load_plan", "make_params", "n_forced",
+    "nominal_reference", "observation_sizes", "observe", "params_for", "reset", "rollout", "step", "steps_for",
+    "with_plan",
 ]

@@ -6,9 +6,12 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import jax.numpy as jnp
 import numpy as np
 
-from stp_env.sim.types import SPAWN_MODES, WIND_MODELS
+from stp_env.sim import winds
+from stp_env.sim.types import SPAWN_MODES, RewardWeights
+from stp_env.sim.vehicle_models import Dubins, VehicleModel
 
 
 def _finite(name: str, value, *, positive: bool = False, nonneg: bool = False) -> float:
@@ -47,8 +50,10 @@ class RewardConfig:
         for f in dataclasses.fields(self):
             _finite(f.name, getattr(self, f.name))
 
-    def as_array(self) -> np.ndarray:
-        return np.asarray([getattr(self, f.name) for f in dataclasses.fields(self)], np.float32)
+    def weights(self) -> RewardWeights:
+        """The weights as float32 arrays, by name (what :class:`~stp_env.sim.types.EnvParams` holds)."""
+        return RewardWeights(**{f.name: jnp.asarray(getattr(self, f.name), jnp.float32)
+                                for f in dataclasses.fields(self)})
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -63,11 +68,12 @@ class EnvConfig:
             17-18), a vehicle feedback policy passed to the core, and the ``"worst"`` wind run at this rate. The
             default 0.02 s keeps the continuous-time guarantees: held for 0.1 s, the bang-bang tracker leaves its
             error bound and ``u^A`` lets the optimal intruder inside ``R_c`` (``docs/numerics.md``).
-        wind_model: ``"uniform"`` (a new wind uniformly in the disk of radius ``d_r`` every step, as in the
-            papers), ``"constant"`` (one wind per episode), ``"gusts"`` (Ornstein-Uhlenbeck, clipped to the disk),
-            ``"worst"`` (from the HJ value gradients: against tracking while on the plan, against avoidance while
-            avoiding).
-        gust_time_constant: correlation time of ``"gusts"`` [s].
+        wind_model: a registered wind model (:mod:`stp_env.sim.winds`), by name with its default parameters
+            (``"uniform"``: a new wind uniformly in the disk of radius ``d_r`` every step, as in the papers;
+            ``"constant"``: one wind per episode; ``"gusts"``: Ornstein-Uhlenbeck, clipped to the disk; ``"worst"``:
+            from the HJ value gradients, against tracking while on the plan, against avoidance while avoiding), by
+            spec (``"gusts:time_constant=3"``) or as an instance (``Gusts(time_constant=3.0)``); stored as the
+            instance.
         appear_window: the intruder appears at ``t_`` drawn uniformly from this window, in seconds relative to
             the first departure; ``None``: while the most vehicles are in the air (see ``make_params``).
         spawn_mode: ``"outside"`` (uniform within ``spawn_radius`` of a flying vehicle, outside every avoid
@@ -88,12 +94,14 @@ class EnvConfig:
         lead, tail: [s].
         n_nearest: other vehicles listed in each observation.
         rewards: :class:`RewardConfig`.
+        vehicle_model: the vehicles' plant (:mod:`stp_env.sim.vehicle_models`; the papers' :class:`Dubins` by
+            default). The plans, the reachability sets and the papers' controllers stay those of the scenario's
+            HJ model; the plant follows their commands through ``VehicleModel.command_to_action``.
     """
 
     dt: float = 0.1
     control_dt: float = 0.02
-    wind_model: str = "uniform"
-    gust_time_constant: float = 5.0
+    wind_model: str | winds.WindModel = "uniform"
     appear_window: tuple[float, float] | None = None
     spawn_mode: str = "outside"
     spawn_radius: float | None = None
@@ -105,6 +113,7 @@ class EnvConfig:
     tail: float = 10.0
     n_nearest: int = 4
     rewards: RewardConfig = dataclasses.field(default_factory=RewardConfig)
+    vehicle_model: VehicleModel = dataclasses.field(default_factory=Dubins)
 
     def __post_init__(self) -> None:
         _finite("dt", self.dt, positive=True)
@@ -112,9 +121,7 @@ class EnvConfig:
         ratio = self.dt / self.control_dt
         if round(ratio) < 1 or abs(ratio - round(ratio)) > 1e-6 * ratio:
             raise ValueError(f"dt ({self.dt} s) must be a whole multiple of control_dt ({self.control_dt} s).")
-        _finite("gust_time_constant", self.gust_time_constant, positive=True)
-        if self.wind_model not in WIND_MODELS:
-            raise ValueError(f"wind_model {self.wind_model!r} is not known; allowed: {', '.join(WIND_MODELS)}.")
+        object.__setattr__(self, "wind_model", winds.make(self.wind_model))
         if self.spawn_mode not in SPAWN_MODES:
             raise ValueError(f"spawn_mode {self.spawn_mode!r} is not known; allowed: {', '.join(SPAWN_MODES)}.")
         if self.appear_window is not None:
@@ -140,6 +147,9 @@ class EnvConfig:
             raise ValueError(f"n_nearest must be an integer >= 0; got {self.n_nearest!r}.")
         if not isinstance(self.rewards, RewardConfig):
             raise ValueError(f"rewards must be a RewardConfig; got {type(self.rewards).__name__}.")
+        if not isinstance(self.vehicle_model, VehicleModel):
+            raise ValueError(f"vehicle_model must be a stp_env.sim.vehicle_models.VehicleModel; got "
+                             f"{type(self.vehicle_model).__name__}.")
 
     @property
     def control_substeps(self) -> int:

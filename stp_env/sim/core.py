@@ -16,8 +16,10 @@ One step of length ``dt`` (intruder paper Sections II and IV):
    agents' actions (held over the step); with the safety filter on, forced vehicles apply ``u^A`` instead until
    the intruder leaves (eq. 38). Each action in ``[-1, 1]^2`` (clipped) maps to the agent's ``(v, omega)``
    bounds. The intruder's action is held over the step.
-5. Wind (:mod:`stp_env.sim.wind`: held over the step, except the state-dependent ``"worst"`` model, which is
-   re-evaluated every inner step), then exact Dubins motion under zero-order hold (:func:`dubins_step`).
+5. Wind (:mod:`stp_env.sim.winds`: held over the step, except state-dependent models such as ``"worst"``,
+   re-evaluated every inner step), then the motion of the vehicle model under zero-order hold
+   (:mod:`stp_env.sim.vehicle_models`; the papers' :class:`~stp_env.sim.vehicle_models.Dubins` by default, exact:
+   :func:`~stp_env.sim.physics.dubins_step`); the intruder flies Dubins.
 6. Events, from the closest approaches over the inner steps: collisions (vehicle-vehicle and vehicle-intruder
    within ``R_c``, vehicle-building where the signed distance is <= 0), leaving the domain, arrival in the target
    disk (and whether before the STA). A collision of a vehicle whose assumptions held (the intruder appeared
@@ -36,6 +38,8 @@ cannot act (waiting, finished, an absent intruder) are ignored.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 
@@ -43,7 +47,7 @@ from stp_env import hj
 from stp_env.sim import spawn as spawn_lib
 from stp_env.sim import tables
 from stp_env.sim import wind as wind_lib
-from stp_env.sim.physics import action_to_control, control_to_action, dubins_step, relative_state, rotate
+from stp_env.sim.physics import action_to_control, dubins_step, relative_state, rotate
 from stp_env.sim.reference import nominal_reference
 from stp_env.sim.types import (
     AFTER_AVOIDANCE,
@@ -84,11 +88,12 @@ def reset(key, params: EnvParams) -> EnvState:
     t0 = params.t_start
     lo, hi = params.appear_window[0], params.appear_window[1]
     t_appear = lo + (hi - lo) * jax.random.uniform(k_appear, (), dtype=t0.dtype)
+    model = params.vehicle_model
     x_nom, _ = nominal_reference(params, t0)
     departed = params.departure <= t0
     arrived = departed & (jnp.hypot(*(x_nom[:, :2] - params.targets).T) <= params.target_radii)
     status = jnp.where(arrived, ARRIVED, jnp.where(departed, FLYING, WAITING)).astype(jnp.int32)
-    x = jnp.where(departed[:, None], x_nom, params.starts)
+    x = jnp.where(departed[:, None], model.from_pose(x_nom), model.from_pose(params.starts))
     # The spawn state, drawn now from the nominal states at the first step time >= t_ (see spawn.spawn).
     t_app = t0 + jnp.ceil(jnp.maximum(t_appear - t0, 0.0) / params.dt - 1e-4) * params.dt
     x_app, _ = nominal_reference(params, t_app)
@@ -119,8 +124,8 @@ def reset(key, params: EnvParams) -> EnvState:
         intruder_memory=jnp.concatenate([x_spawn, jnp.zeros((1,), t0.dtype)]),
         intruder_distance=inf,
         avoid_value=jnp.full((n,), tables.FAR, t0.dtype),
-        avoid_action=jnp.zeros((n, 2), t0.dtype),
-        track_action=jnp.zeros((n, 2), t0.dtype),
+        avoid_action=jnp.zeros((n, model.action_dim), t0.dtype),
+        track_action=jnp.zeros((n, model.action_dim), t0.dtype),
         tracking_error=jnp.zeros((n,), t0.dtype),
         max_tracking_error=jnp.zeros((n,), t0.dtype),
         tracked=jnp.ones((n,), bool),
@@ -130,6 +135,13 @@ def reset(key, params: EnvParams) -> EnvState:
 
 
 # ------------------------------------------------------------------------------------------------ helpers
+def poses(params: EnvParams, state: EnvState):
+    """Every vehicle's pose ``(x, y, heading)`` ``(N, 3)`` from its state (the vehicle model's
+    :meth:`~stp_env.sim.vehicle_models.VehicleModel.pose`): what sensing, the value tables and the observations
+    read."""
+    return params.vehicle_model.pose(state.x)
+
+
 def flying(state: EnvState):
     return state.status == FLYING
 
@@ -149,18 +161,19 @@ def avoidance_actions(params: EnvParams, state: EnvState):
     """``u^A`` (eq. 15) of every vehicle against the present intruder, as actions ``(N, 2)`` (computed once per
     step by :func:`lifecycle` into ``state.avoid_action``)."""
     tau = state.t - state.t_appear
-    rel = relative_state(state.x, state.intruder_x[None, :])
+    rel = relative_state(poses(params, state), state.intruder_x[None, :])
     u = jax.vmap(lambda r: tables.avoidance_control(params, tau, r))(rel)
-    return control_to_action(u[:, 0], u[:, 1], params.vehicle_bounds)
+    return params.vehicle_model.command_to_action(state.x, u[:, 0], u[:, 1], params.vehicle_bounds)
 
 
 def tracking_actions(params: EnvParams, state: EnvState):
     """``kappa`` (SPP eq. 26) of every vehicle for its nominal trajectory at ``state.t``, as actions ``(N, 2)``,
     and the tracking errors ``||e_p||`` ``(N,)`` [m]."""
     x_ref, _ = nominal_reference(params, state.t)
-    err = relative_state(state.x, x_ref)
+    err = relative_state(poses(params, state), x_ref)
     u = jax.vmap(lambda e: tables.tracking_control(params, e)[0])(err)
-    return control_to_action(u[:, 0], u[:, 1], params.vehicle_bounds), jnp.hypot(err[:, 0], err[:, 1])
+    return (params.vehicle_model.command_to_action(state.x, u[:, 0], u[:, 1], params.vehicle_bounds),
+            jnp.hypot(err[:, 0], err[:, 1]))
 
 
 def refresh_controllers(state: EnvState, params: EnvParams) -> EnvState:
@@ -218,7 +231,7 @@ def lifecycle(state: EnvState, params: EnvParams) -> EnvState:
     depart = (state.status == WAITING) & (t >= params.departure - 1e-6 * params.dt)
     x_nom, _ = nominal_reference(params, t)
     state = replace(state, status=jnp.where(depart, FLYING, state.status),
-                    x=jnp.where(depart[:, None], x_nom, state.x))
+                    x=jnp.where(depart[:, None], params.vehicle_model.from_pose(x_nom), state.x))
     # ... or appears (after departures, so that vehicles taking off now count)
     appear = (state.intruder_status == PENDING) & (t >= state.t_appear - 1e-6 * params.dt)
     state = replace(state,
@@ -236,70 +249,74 @@ def lifecycle(state: EnvState, params: EnvParams) -> EnvState:
     return avoid_start(state, params)
 
 
-def step(key, state: EnvState, actions, params: EnvParams, vehicle_policy=None):
-    """Advance one step from ``t`` to ``t + dt``. ``actions``: ``(N + 1, 2)`` in ``[-1, 1]`` (vehicles, then the
-    intruder; clipped; NaN is the adapters' job to reject). ``vehicle_policy``: ``None`` (the vehicles apply their
-    actions, held over the step) or a jittable ``(key, state, params) -> (N, 2)`` feedback law, evaluated at every
-    inner step in place of the vehicles' actions (the papers' controllers read ``state.track_action`` and
-    ``state.avoid_action``, refreshed every inner step). Returns ``(state, rewards)``, rewards ``(N + 1,)``."""
-    k_wind, k_policy = jax.random.split(key)
+class Closest(NamedTuple):
+    """Closest approaches over a step's inner steps (the events of item 6 are decided on them) [m]."""
+
+    pair: jax.Array       # (N, N) vehicle-vehicle (the diagonal is huge)
+    intruder: jax.Array   # (N,) vehicle-intruder
+    building: jax.Array   # (N,) signed distance to the buildings
+
+
+class Events(NamedTuple):
+    """What happened to each vehicle in a step (item 6), ``(N,)`` each; the rewards are made of these."""
+
+    collided: jax.Array       # bool: with a vehicle, the intruder or a building
+    hit_vehicle: jax.Array    # bool: within R_c of another flying vehicle
+    hit_intruder: jax.Array   # bool: within R_c of the intruder
+    arrived: jax.Array        # bool: in its target disk (and not collided or out)
+    d_target: jax.Array       # [m] distance to its target after the step
+
+
+def _vehicle_controls(key, s: EnvState, actions, fly, present, params: EnvParams, vehicle_policy):
+    """Item 4: the vehicles' actions at inner step state ``s``: the policy's feedback law or the held actions,
+    then the safety filter of eq. 38. Returns the actions ``(N, 2)`` and ``s`` with ``complied``, ``tracked`` and
+    ``used_filter`` updated."""
+    if vehicle_policy is None:
+        a_veh = actions[:params.n_vehicles, :params.vehicle_model.action_dim]
+    else:
+        a_veh = jnp.clip(vehicle_policy(key, s, params), -1.0, 1.0)
+    avoiding = fly & present & (s.mode == AVOIDING)
+    use_filter = avoiding & params.safety_filter
+    a_veh = jnp.where(use_filter[:, None], s.avoid_action, a_veh)
+    complied = s.complied & ~(avoiding & (jnp.max(jnp.abs(a_veh - s.avoid_action), axis=1) > COMPLIANCE_TOL))
+    tracked = s.tracked & ~(on_plan(s) & (jnp.max(jnp.abs(a_veh - s.track_action), axis=1) > COMPLIANCE_TOL))
+    return a_veh, replace(s, complied=complied, tracked=tracked, used_filter=use_filter)
+
+
+def _motion(s: EnvState, a_veh, control_i, fly, present, winds, head_dist, h, params: EnvParams) -> EnvState:
+    """Item 5: every flying vehicle and the present intruder move over ``h`` under their controls and winds."""
     n = params.n_vehicles
-    w = params.reward_weights
+    v_i, om_i = control_i
+    model = params.vehicle_model
+    control = model.action_to_control(a_veh, params.vehicle_bounds)
+    x = jnp.where(fly[:, None], model.step(s.x, control, winds[:n], head_dist[:n], h), s.x)
+    xi = jnp.where(present, dubins_step(s.intruder_x, v_i, om_i + head_dist[n], winds[n], h), s.intruder_x)
+    return replace(s, x=x, intruder_x=xi, t=s.t + h)
+
+
+def _closest_approach(closest: Closest, s: EnvState, params: EnvParams) -> Closest:
+    """``closest`` updated with the distances at inner step state ``s``."""
+    n = params.n_vehicles
+    p = s.x[:, :2]
+    diff = p[:, None, :] - p[None, :, :]
+    return Closest(pair=jnp.minimum(closest.pair, jnp.sqrt(jnp.sum(diff ** 2, axis=-1) + jnp.eye(n) * 1e30)),
+                   intruder=jnp.minimum(closest.intruder, jnp.hypot(*(p - s.intruder_x[None, :2]).T)),
+                   building=jnp.minimum(closest.building, building_distance(params, p)))
+
+
+def _events(state: EnvState, sub: EnvState, closest: Closest, params: EnvParams):
+    """Item 6: collisions, leaving the domain, arrivals and guarantee violations of the step from ``state`` (its
+    start) to ``sub`` (its end, before the lifecycle). Returns the new state (lifecycle at ``t + dt`` done) and
+    the :class:`Events`."""
     fly = flying(state)
     present = intruder_present(state)
-    m_sub = params.control_substeps
-    h = params.dt / m_sub
-
-    actions = jnp.clip(actions, -1.0, 1.0)
-    v_i, om_i = action_to_control(actions[n], params.intruder_bounds)
-    winds_held, head_dist, wind_state = wind_lib.sample(k_wind, state, params)
-    worst_wind = params.wind_model == "worst"
-
-    def move(carry, m):
-        """Inner step ``m``: controls at the carried state, then motion over ``h``; closest approaches."""
-        s, d_pair, d_int, sdf = carry
-        # 4. controls: the policy's feedback law or the held actions; the safety filter of eq. 38
-        if vehicle_policy is None:
-            a_veh = actions[:n]
-        else:
-            a_veh = jnp.clip(vehicle_policy(jax.random.fold_in(k_policy, m), s, params), -1.0, 1.0)
-        avoiding = fly & present & (s.mode == AVOIDING)
-        use_filter = avoiding & params.safety_filter
-        a_veh = jnp.where(use_filter[:, None], s.avoid_action, a_veh)
-        complied = s.complied & ~(avoiding & (jnp.max(jnp.abs(a_veh - s.avoid_action), axis=1) > COMPLIANCE_TOL))
-        tracked = s.tracked & ~(on_plan(s) & (jnp.max(jnp.abs(a_veh - s.track_action), axis=1) > COMPLIANCE_TOL))
-        v, om = action_to_control(a_veh, params.vehicle_bounds)
-        # 5. wind and motion
-        winds = wind_lib.worst(s, params) if worst_wind else winds_held
-        x = jnp.where(fly[:, None], dubins_step(s.x, v, om + head_dist[:n], winds[:n], h), s.x)
-        xi = jnp.where(present, dubins_step(s.intruder_x, v_i, om_i + head_dist[n], winds[n], h), s.intruder_x)
-        s = replace(s, x=x, intruder_x=xi, t=s.t + h, complied=complied, tracked=tracked, used_filter=use_filter)
-        # closest approaches over the inner steps (the events of item 6)
-        p = x[:, :2]
-        diff = p[:, None, :] - p[None, :, :]
-        d_pair = jnp.minimum(d_pair, jnp.sqrt(jnp.sum(diff ** 2, axis=-1) + jnp.eye(n) * 1e30))
-        d_int = jnp.minimum(d_int, jnp.hypot(*(p - xi[None, :2]).T))
-        sdf = jnp.minimum(sdf, building_distance(params, p))
-        return s, d_pair, d_int, sdf
-
-    def inner(carry, m):
-        s, d_pair, d_int, sdf = move(carry, m)
-        return (avoid_start(observe_controllers(s, params), params), d_pair, d_int, sdf), None
-
-    init = (state, jnp.full((n, n), jnp.inf, state.x.dtype), jnp.full((n,), jnp.inf, state.x.dtype),
-            jnp.full((n,), jnp.inf, state.x.dtype))
-    # Inner steps 0 .. M-2 end with the controllers refreshed; the last one ends with lifecycle at t + dt.
-    carry, _ = jax.lax.scan(inner, init, jnp.arange(m_sub - 1))
-    sub, dist, d_int, sdf = move(carry, m_sub - 1)
     x, xi, t = sub.x, sub.intruder_x, state.t + params.dt
-
-    # 6. events
     p = x[:, :2]
     lo, hi = params.domain_lo, params.domain_hi
     out = fly & jnp.any((p < lo) | (p > hi), axis=1)
-    hit_building = fly & (sdf <= 0.0)
+    hit_building = fly & (closest.building <= 0.0)
     pair_ok = fly[:, None] & fly[None, :]
-    dist = jnp.where(pair_ok, dist, jnp.inf)
+    dist = jnp.where(pair_ok, closest.pair, jnp.inf)
     near = dist <= params.collision_radius
     hit_vehicle = jnp.any(near, axis=1)
     # A vehicle flying the after-avoidance fallback (eq. 40 without replanning) has no guarantee: collisions it
@@ -307,7 +324,7 @@ def step(key, state: EnvState, actions, params: EnvParams, vehicle_policy=None):
     fallback = fly & (state.mode == AFTER_AVOIDANCE)
     no_fallback_pair = ~(fallback[:, None] | fallback[None, :])
     hit_guarded_vehicle = jnp.any(near & no_fallback_pair, axis=1)
-    d_int = jnp.where(fly & present, d_int, jnp.inf)
+    d_int = jnp.where(fly & present, closest.intruder, jnp.inf)
     hit_intruder = d_int <= params.collision_radius
     collided = fly & (hit_vehicle | hit_intruder | hit_building)
     d_target = jnp.hypot(*(p - params.targets).T)
@@ -323,27 +340,77 @@ def step(key, state: EnvState, actions, params: EnvParams, vehicle_policy=None):
         arrival_time=jnp.where(arrived, t, state.arrival_time),
         collision_time=jnp.where(collided, t, state.collision_time),
         collided_with_intruder=state.collided_with_intruder | (collided & hit_intruder),
-        wind=wind_state, intruder_x=xi, intruder_distance=d_int,
+        intruder_x=xi, intruder_distance=d_int,
     )
     new_state = lifecycle(new_state, params)
     tracking_violation = new_state.tracked & (new_state.max_tracking_error > params.tracking_bound)
     new_state = replace(new_state, tracking_violation=tracking_violation,
                         guarantee_violation=state.guarantee_violation | violation | tracking_violation)
-    # rewards (weights: progress, arrival, late_arrival, collision, forced, intruder_collision, shaping)
+    return new_state, Events(collided=collided, hit_vehicle=hit_vehicle, hit_intruder=hit_intruder,
+                             arrived=arrived, d_target=d_target)
+
+
+def _rewards(state: EnvState, new_state: EnvState, ev: Events, params: EnvParams):
+    """The rewards of the step ``(N + 1,)`` (:class:`~stp_env.sim.config.RewardConfig`, by name)."""
+    w = params.reward_weights
+    fly = flying(state)
+    present = intruder_present(state)
     d_prev = jnp.hypot(*(state.x[:, :2] - params.targets).T)
-    r_veh = jnp.where(fly, w[0] * (d_prev - d_target), 0.0)
-    on_time = t <= params.sta + 1e-6
-    r_veh = r_veh + jnp.where(arrived, jnp.where(on_time, w[1], w[2]), 0.0) + jnp.where(collided, w[3], 0.0)
+    r_veh = jnp.where(fly, w.progress * (d_prev - ev.d_target), 0.0)
+    on_time = new_state.t <= params.sta + 1e-6
+    r_veh = (r_veh + jnp.where(ev.arrived, jnp.where(on_time, w.arrival, w.late_arrival), 0.0)
+             + jnp.where(ev.collided, w.collision, 0.0))
     newly_forced = jnp.isfinite(new_state.avoid_start) & ~jnp.isfinite(state.avoid_start)
-    intruder_hits = collided & (hit_intruder | (hit_vehicle & jnp.isfinite(state.avoid_start)))
-    r_int = w[4] * jnp.sum(newly_forced) + w[5] * jnp.sum(intruder_hits)
+    intruder_hits = ev.collided & (ev.hit_intruder | (ev.hit_vehicle & jnp.isfinite(state.avoid_start)))
+    r_int = w.forced * jnp.sum(newly_forced) + w.intruder_collision * jnp.sum(intruder_hits)
     # Both potentials over the vehicles unforced *before* the step: forcing one lowers the potential (a positive
     # shaping reward) instead of removing it from the minimum (which would make the potential jump up).
     unforced = flying(state) & ~jnp.isfinite(state.avoid_start)
-    shaping = w[6] * (_potential(state, params, unforced) - _potential(new_state, params, unforced))
+    shaping = w.shaping * (_potential(state, params, unforced) - _potential(new_state, params, unforced))
     r_int = r_int + jnp.where(present & intruder_present(new_state), shaping, 0.0)
-    rewards = jnp.concatenate([r_veh, r_int[None]]).astype(jnp.float32)
-    return new_state, rewards
+    return jnp.concatenate([r_veh, r_int[None]]).astype(jnp.float32)
+
+
+def step(key, state: EnvState, actions, params: EnvParams, vehicle_policy=None):
+    """Advance one step from ``t`` to ``t + dt``. ``actions``: ``(N + 1, 2)`` in ``[-1, 1]`` (vehicles, then the
+    intruder; clipped; NaN is the adapters' job to reject). ``vehicle_policy``: ``None`` (the vehicles apply their
+    actions, held over the step) or a jittable ``(key, state, params) -> (N, 2)`` feedback law, evaluated at every
+    inner step in place of the vehicles' actions (the papers' controllers read ``state.track_action`` and
+    ``state.avoid_action``, refreshed every inner step). Returns ``(state, rewards)``, rewards ``(N + 1,)``.
+
+    The parts, in order: wind (:mod:`stp_env.sim.wind`), then per inner step :func:`_vehicle_controls`,
+    :func:`_motion` and :func:`_closest_approach`; then :func:`_events` and :func:`_rewards`."""
+    k_wind, k_policy = jax.random.split(key)
+    n = params.n_vehicles
+    fly = flying(state)
+    present = intruder_present(state)
+    m_sub = params.control_substeps
+    h = params.dt / m_sub
+
+    actions = jnp.clip(actions, -1.0, 1.0)
+    control_i = action_to_control(actions[n, :2], params.intruder_bounds)
+    winds_held, head_dist, wind_state = wind_lib.sample(k_wind, state, params)
+
+    def move(carry, m):
+        """Inner step ``m``: controls at the carried state, then motion over ``h``; closest approaches."""
+        s, closest = carry
+        a_veh, s = _vehicle_controls(jax.random.fold_in(k_policy, m), s, actions, fly, present, params,
+                                     vehicle_policy)
+        winds = wind_lib.inner(s, params, winds_held)
+        s = _motion(s, a_veh, control_i, fly, present, winds, head_dist, h, params)
+        return s, _closest_approach(closest, s, params)
+
+    def inner(carry, m):
+        s, closest = move(carry, m)
+        return (avoid_start(observe_controllers(s, params), params), closest), None
+
+    far = jnp.full((n,), jnp.inf, state.x.dtype)
+    init = (state, Closest(pair=jnp.full((n, n), jnp.inf, state.x.dtype), intruder=far, building=far))
+    # Inner steps 0 .. M-2 end with the controllers refreshed; the last one ends with lifecycle at t + dt.
+    carry, _ = jax.lax.scan(inner, init, jnp.arange(m_sub - 1))
+    sub, closest = move(carry, m_sub - 1)
+    new_state, ev = _events(state, replace(sub, wind=wind_state), closest, params)
+    return new_state, _rewards(state, new_state, ev, params)
 
 
 def _potential(state: EnvState, params: EnvParams, mask):
@@ -358,12 +425,59 @@ def _scale(params: EnvParams):
     return center, half
 
 
+def observation_sizes(params: EnvParams) -> tuple[int, int]:
+    """``(vehicle observation size, intruder observation size)``: the shapes :func:`observe` returns for
+    ``params`` (traced abstractly, nothing computed), so that they cannot drift from the code that builds them."""
+    obs_v, obs_i = jax.eval_shape(observe, _abstract_state(params), params)
+    return int(obs_v.shape[1]), int(obs_i.shape[0])
+
+
 def vehicle_observation_size(params: EnvParams) -> int:
-    return 20 + 5 * params.n_nearest
+    return observation_sizes(params)[0]
 
 
 def intruder_observation_size(params: EnvParams) -> int:
-    return 8 + 7 * params.n_nearest
+    return observation_sizes(params)[1]
+
+
+def global_state_size(params: EnvParams) -> int:
+    """The length of :func:`global_state` for ``params``."""
+    return int(jax.eval_shape(global_state, _abstract_state(params), params).shape[0])
+
+
+def _abstract_state(params: EnvParams):
+    """The shapes and dtypes of an :class:`EnvState` for ``params`` (``jax.ShapeDtypeStruct`` leaves)."""
+    return jax.eval_shape(reset, jax.random.key(0), params)
+
+
+def _own_vehicle_features(state: EnvState, params: EnvParams):
+    """The first 9 entries of each vehicle's observation row ``(N, 9)``: position ``(p - centre) / L``, ``cos,
+    sin`` of the heading, flying / finished / waiting flags, avoiding / after-avoidance flags (observation and
+    global state share them)."""
+    center, half = _scale(params)
+    x = poses(params, state)
+    c, s = jnp.cos(x[:, 2]), jnp.sin(x[:, 2])
+    return jnp.concatenate([
+        (x[:, :2] - center) / half, c[:, None], s[:, None],
+        flying(state)[:, None], done_vehicles(state)[:, None], (state.status == WAITING)[:, None],
+        (state.mode == AVOIDING)[:, None], (state.mode == AFTER_AVOIDANCE)[:, None],
+    ], axis=1).astype(x.dtype)
+
+
+def global_state(state: EnvState, params: EnvParams):
+    """The global state (the PettingZoo ``state()``), entries in ``[-2, 2]``: per vehicle the first 9 entries of
+    its observation row (:func:`_own_vehicle_features`), then the intruder's ``(x, y)`` scaled as the vehicles',
+    ``cos, sin``, present flag, ``tau / t_IAT`` (0 when absent), and the time since the episode start over its
+    length."""
+    center, half = _scale(params)
+    xi = state.intruder_x
+    present = intruder_present(state)
+    tau = jnp.where(present, (state.t - state.t_appear) / params.t_iat, 0.0)
+    length = jnp.maximum(params.t_end - params.t_start, 1.0)
+    intr = jnp.stack([(xi[0] - center[0]) / half, (xi[1] - center[1]) / half, jnp.cos(xi[2]), jnp.sin(xi[2]),
+                      present.astype(xi.dtype), tau, (state.t - params.t_start) / length])
+    veh = _own_vehicle_features(state, params).ravel()
+    return jnp.clip(jnp.concatenate([veh, intr.astype(veh.dtype)]), -2.0, 2.0).astype(jnp.float32)
 
 
 def _nearest(p_from, p_all, valid, k):
@@ -404,9 +518,7 @@ def observe(state: EnvState, params: EnvParams):
     T = jnp.maximum(params.t_end - params.t_start, 1.0)
     fly = flying(state)
     present = intruder_present(state)
-    x = state.x
-    c, s = jnp.cos(x[:, 2]), jnp.sin(x[:, 2])
-    done = done_vehicles(state)
+    x = poses(params, state)
     target_body = rotate(-x[:, 2], params.targets - x[:, :2]) / half
     x_ref, _ = nominal_reference(params, state.t)
     err = relative_state(x, x_ref)
@@ -418,9 +530,7 @@ def observe(state: EnvState, params: EnvParams):
                       jnp.where(visible, jnp.minimum(vals / ds, 1.0), 1.0)], axis=1)
     intr = intr * jnp.concatenate([jnp.ones((n, 1)), jnp.repeat(visible[:, None], 2, 1), jnp.ones((n, 1))], 1)
     own = jnp.concatenate([
-        (x[:, :2] - center) / half, c[:, None], s[:, None],
-        fly[:, None], done[:, None], (state.status == WAITING)[:, None],
-        (state.mode == AVOIDING)[:, None], (state.mode == AFTER_AVOIDANCE)[:, None],
+        _own_vehicle_features(state, params),
         ((params.sta - state.t) / T)[:, None], target_body,
         err[:, :2] / r_scale, jnp.cos(err[:, 2:3]), jnp.sin(err[:, 2:3]),
     ], axis=1).astype(x.dtype)

@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from stp_env.angles import wrap_angle
 
-def wrap_angle(theta):
-    """Headings to ``[-pi, pi)``."""
-    return jnp.mod(theta + jnp.pi, 2 * jnp.pi) - jnp.pi
+__all__ = ["action_to_control", "control_to_action", "disk_sample", "dubins_step", "relative_state", "rotate",
+           "wrap_angle"]
 
 
 def rotate(theta, v):

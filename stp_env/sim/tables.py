@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 
 from stp_env import hj
+from stp_env.reach.avoid import avoid_table_input, avoid_table_value
 from stp_env.sim.physics import relative_state
 
 FAR = 1.0e6  # value reported outside the avoid-region grid [m]
@@ -26,33 +27,30 @@ def _inside(grid, x):
 def avoid_value(params, tau, x_rel):
     """``V^A(tau, t_IAT)`` at the intruder's relative state ``x_rel`` (3,); ``FAR`` outside the grid."""
     grid = params.avoid_grid
-    v = hj.interpolation.interpolate_slices(grid, params.avoid_taus, params.avoid_values, tau, x_rel)
+    v = avoid_table_value(grid, params.avoid_taus, params.avoid_values, tau, x_rel)
     return jnp.where(_inside(grid, x_rel), v, FAR)
 
 
-def _avoid_gradient(params, tau, x_rel):
-    return hj.interpolation.gradient_slices(params.avoid_grid, params.avoid_taus, params.avoid_values, tau, x_rel)
+def _avoid_input(params, player, tau, x_rel):
+    return avoid_table_input(params.avoid_dynamics, params.avoid_grid, params.avoid_taus, params.avoid_values,
+                             player, tau, x_rel)
 
 
 def avoidance_control(params, tau, x_rel):
     """``u^A`` (eq. 15): ``(v_i, omega_i)`` maximising ``dV^A/dt`` at ``x_rel``."""
-    dyn = params.avoid_dynamics
-    p = _avoid_gradient(params, tau, x_rel)
-    return jnp.stack(dyn.optimal_control(tuple(x_rel), tuple(p)))
+    return _avoid_input(params, "vehicle", tau, x_rel)
 
 
 def pursuit_input(params, tau, x_rel):
     """The minimising player of eq. (14): ``(v_I, omega_I, w_x, w_y)``, the intruder's control and the worst
     combined wind ``R(-theta_i)(d_I - d_i)`` in the vehicle's body frame."""
-    dyn = params.avoid_dynamics
-    p = _avoid_gradient(params, tau, x_rel)
-    return jnp.stack(dyn.optimal_disturbance(tuple(x_rel), tuple(p)))
+    return _avoid_input(params, "intruder", tau, x_rel)
 
 
 def vehicle_intruder_values(params, state):
     """``V^A`` of every vehicle against the intruder, shape ``(N,)`` (``FAR`` when the intruder is absent)."""
     tau = state.t - state.t_appear
-    rel = relative_state(state.x, state.intruder_x[None, :])
+    rel = relative_state(params.vehicle_model.pose(state.x), state.intruder_x[None, :])
     vals = jax.vmap(lambda r: avoid_value(params, tau, r))(rel)
     return vals
 

@@ -12,13 +12,14 @@ states are in the vehicle's body frame (intruder paper eq. 44).
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
 from stp_env.dynamics import RelativeDubins
 from stp_env.hj.grid import Grid
+from stp_env.sim.vehicle_models import Dubins
 
 # Vehicle statuses (EnvState.status).
 WAITING, FLYING, ARRIVED, COLLIDED, OUT_OF_BOUNDS = 0, 1, 2, 3, 4
@@ -31,8 +32,20 @@ MODE_NAMES = ("nominal", "avoiding", "after_avoidance")
 PENDING, PRESENT, GONE = 0, 1, 2
 INTRUDER_STATUS_NAMES = ("pending", "present", "gone")
 
-WIND_MODELS = ("uniform", "constant", "gusts", "worst")
 SPAWN_MODES = ("outside", "boundary", "mixed")
+
+
+class RewardWeights(NamedTuple):
+    """The reward weights of :class:`stp_env.sim.config.RewardConfig` as arrays ``()``, read by name in the core
+    (a NamedTuple: a pytree, so they change without recompiling)."""
+
+    progress: jax.Array
+    arrival: jax.Array
+    late_arrival: jax.Array
+    collision: jax.Array
+    forced: jax.Array
+    intruder_collision: jax.Array
+    shaping: jax.Array
 
 
 def _pytree(cls, meta=()):
@@ -49,7 +62,9 @@ class EnvParams:
     Static (metadata, hashable):
         n_vehicles, avoid_grid, tracking_grid, sdf_grid: sizes and grids.
         avoid_dynamics: eq. (44) with the roles of eq. (14); tracking_dynamics: SPP eqs. (24)-(25).
-        wind_model: one of :data:`WIND_MODELS`.
+        wind_model: a :class:`stp_env.sim.winds.WindModel` (or a registered name: its default parameters).
+        vehicle_model: the vehicles' plant, a :class:`stp_env.sim.vehicle_models.VehicleModel` (the intruder flies
+            Dubins).
         control_substeps: the vehicles' low-level controllers (the tracker ``kappa``, ``u^A``, any vehicle policy
             passed to :func:`stp_env.sim.core.step`) and the motion run this many times per step, at the inner
             control period ``dt / control_substeps``.
@@ -65,6 +80,7 @@ class EnvParams:
     domain_lo: jax.Array          # (2,) [m]
     domain_hi: jax.Array          # (2,) [m]
     vehicle_bounds: jax.Array     # (5,) v_min, v_max [m/s], omega_max [rad/s], wind [m/s], heading dist. [rad/s]
+    #                               (the HJ model's bounds; the vehicle model maps actions with them)
     intruder_bounds: jax.Array    # (5,) the same for the intruder
     collision_radius: jax.Array   # () R_c [m]
     # --- plans (per vehicle)
@@ -96,9 +112,8 @@ class EnvParams:
     avoid_margin: jax.Array       # () [m] avoid start when V^A <= margin (one inner step of the value's fastest fall)
     kbar: jax.Array               # () int, the bound under test
     d_sense: jax.Array            # () [m] sensing range (>= d^A)
-    gust_time_constant: jax.Array  # () [s] correlation time of the "gusts" wind model
     # --- rewards
-    reward_weights: jax.Array     # (7,) see stp_env.sim.config.RewardConfig.as_array
+    reward_weights: RewardWeights  # by name, see stp_env.sim.config.RewardConfig
     # --- static
     n_vehicles: int
     avoid_grid: Grid
@@ -106,14 +121,15 @@ class EnvParams:
     sdf_grid: Grid
     avoid_dynamics: RelativeDubins
     tracking_dynamics: RelativeDubins
-    wind_model: str = "uniform"
+    wind_model: Any = "uniform"
+    vehicle_model: Any = dataclasses.field(default_factory=Dubins)
     safety_filter: bool = True
     n_nearest: int = 4
     control_substeps: int = 1
 
 
 EnvParams = _pytree(EnvParams, meta=("n_vehicles", "avoid_grid", "tracking_grid", "sdf_grid", "avoid_dynamics",
-                                     "tracking_dynamics", "wind_model",
+                                     "tracking_dynamics", "wind_model", "vehicle_model",
                                      "safety_filter", "n_nearest", "control_substeps"))
 
 
@@ -123,7 +139,7 @@ class EnvState:
 
     t: jax.Array                  # () [s]
     step_count: jax.Array         # () int
-    x: jax.Array                  # (N, 3) [m, m, rad]
+    x: jax.Array                  # (N, state_dim) of the vehicle model; Dubins: [m, m, rad]
     status: jax.Array             # (N,) int, WAITING / FLYING / ARRIVED / COLLIDED / OUT_OF_BOUNDS
     mode: jax.Array               # (N,) int, NOMINAL / AVOIDING / AFTER_AVOIDANCE
     avoid_start: jax.Array        # (N,) [s] t_i of eqs. 17-18 (inf: never)
@@ -143,8 +159,8 @@ class EnvState:
     intruder_memory: jax.Array    # (4,) spawn state (x, y, theta) and 0, drawn at reset (scripted intruders read it)
     intruder_distance: jax.Array  # (N,) [m] distance to the intruder (inf when absent)
     avoid_value: jax.Array        # (N,) [m] V^A(t - t_, t_IAT) of each flying vehicle (FAR when absent)
-    avoid_action: jax.Array       # (N, 2) u^A (eq. 15) of each vehicle against the intruder, as an action
-    track_action: jax.Array       # (N, 2) kappa (SPP eq. 26) of each vehicle for its nominal trajectory, as an action
+    avoid_action: jax.Array       # (N, action_dim) u^A (eq. 15) of each vehicle against the intruder (action)
+    track_action: jax.Array       # (N, action_dim) kappa (SPP eq. 26) of each vehicle for its nominal trajectory
     tracking_error: jax.Array     # (N,) [m] distance to the nominal position (body-frame error ||e_p||)
     max_tracking_error: jax.Array  # (N,) [m] largest ||e_p|| at an inner step while flying its plan (nominal
     #                               mode, never forced); the robust-tracking guarantee bounds it by r_e

@@ -1,0 +1,19 @@
+"""The catalog of named scenarios: one module per scenario (or family), each registering its factories with
+:func:`stp_env.scenarios.registry.register`. Every module of this package is imported when a scenario is first
+looked up by name (:func:`stp_env.scenarios.registry.names`), so a new scenario is one new file here.
+
+| name | source | vehicles | domain | method | notes |
+| --- | --- | --- | --- | --- | --- |
+| ``four-vehicle`` | SPP paper Section V, eqs. (28)-(30) | 4 | ``[-1, 1]^2`` | centralized | unit-free toy scale |
+| ``city`` | BEACLS Section V, intruder paper Section V-A | 50 | 5 km x 5 km | rtt | synthetic downtown |
+| ``bay-area`` | BEACLS Section VI | 200 | 20 km x 15 km | rtt | four cities, no buildings |
+| ``tiny`` | ours | 2 | 2 km x 2 km | rtt | two vehicles crossing, 41 x 41 x 40 grid |
+| ``tiny-intruder`` | ours | 2 | 2 km x 2 km | rtt | ``tiny`` with ``kbar=2`` |
+| ``town`` | ours | 7 | 4 km x 4 km | rtt | the environment's default; two buildings, ``kbar`` 1-4 |
+
+Scheduled times of arrival. For the city and bay-area studies ``STA_i = sta_spacing * priority`` [s]: the
+highest-priority vehicle is due at 0 and each next rank ``sta_spacing`` seconds later, BEACLS's ``t_i^STA = 5 (i -
+1)`` with ``i = priority + 1``. (BEACLS Section V-A words the medium- and low-density cases with "the latest
+``t_i^STA`` being 0"; that is the same schedule shifted by a constant, which changes nothing for time-invariant
+dynamics.)
+"""

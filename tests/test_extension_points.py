@@ -1,0 +1,226 @@
+"""The extension points of docs/architecture.md, each used by one small piece written here as a user would: a wind
+model, an intruder, a scenario (a catalog module found automatically) and a vehicle model (a double integrator
+in place of the Dubins plant), each run through the environment or the registry that picks it up."""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import textwrap
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from stp_env import scenarios, sim
+from stp_env.env import parallel_env
+from stp_env.evaluation.config import resolve_intruder
+from stp_env.sim import winds
+from stp_env.sim.physics import dubins_step
+from stp_env.sim.vehicle_models import VehicleModel
+from stp_env.sim.winds.base import WindModel
+
+SCENARIO = "tiny-intruder"
+
+
+# ------------------------------------------------------------------------------------------------ a wind model
+@dataclasses.dataclass(frozen=True)
+class Steady(WindModel):
+    """A steady wind of ``speed`` [m/s] from the west for every agent, whatever its bound."""
+
+    speed: float = 2.0
+    name = "test-steady"
+    help = "a steady west wind"
+
+    def draw(self, key, state, params):
+        del key, params
+        w = jnp.zeros_like(state.wind).at[:, 0].set(self.speed)
+        return w, state.wind
+
+
+@pytest.fixture
+def steady_registered(monkeypatch):
+    monkeypatch.setitem(winds.WIND_MODELS, Steady.name, Steady)
+    return Steady
+
+
+@pytest.mark.slow  # compiles the core step
+def test_a_registered_wind_model_is_configurable_by_spec_and_moves_the_vehicles(steady_registered):
+    assert Steady.name in winds.names() and "test-steady (speed=2.0)" in winds.describe()
+    config = sim.EnvConfig(wind_model="test-steady:speed=3")
+    assert config.wind_model == Steady(speed=3.0)
+    with pytest.raises(ValueError, match="wind_model"):
+        sim.EnvConfig(wind_model="test-steady:gust=3")
+    env = parallel_env(SCENARIO, config, max_cycles=40)
+    env.reset(seed=0)
+    params = env.params
+    for _ in range(30):
+        before = env.env_state
+        fly = np.asarray(before.status) == sim.FLYING
+        actions = {a: np.asarray([0.3, -0.2], np.float32) for a in env.agents}
+        env.step(actions)
+        after = env.env_state
+        moving = fly & (np.asarray(after.status) == sim.FLYING) & (np.asarray(after.mode) == sim.NOMINAL)
+        if moving.any():
+            break
+    assert moving.any(), "no vehicle flew a whole step"
+    # The motion is exact Dubins with the steady wind over the inner steps (tiny has no heading disturbance).
+    v = params.vehicle_bounds[0] + 0.5 * 1.3 * (params.vehicle_bounds[1] - params.vehicle_bounds[0])
+    omega = -0.2 * params.vehicle_bounds[2]
+    x = before.x
+    h = params.dt / params.control_substeps
+    for _ in range(params.control_substeps):
+        x = dubins_step(x, v, omega, jnp.asarray([3.0, 0.0]), h)
+    np.testing.assert_allclose(np.asarray(after.x)[moving], np.asarray(x)[moving], atol=1e-3)
+    x_calm = dubins_step(before.x, v, omega, jnp.zeros(2), params.dt)
+    assert np.all(np.abs(np.asarray(after.x)[moving, 0] - np.asarray(x_calm)[moving, 0] - 0.3) < 1e-2)
+
+
+# ------------------------------------------------------------------------------------------------ an intruder
+def circling(key, state, params):
+    """An intruder that flies full speed in its tightest left turn."""
+    del key, state, params
+    return jnp.asarray([1.0, 1.0])
+
+
+@pytest.mark.slow  # compiles the core step
+def test_an_intruder_module_is_found_by_its_import_spec():
+    policy = resolve_intruder(f"{__name__}:circling")
+    assert policy is circling
+    params = sim.params_for(SCENARIO, sim.EnvConfig(appear_window=(5.0, 5.0)), progress=False)
+    key = jax.random.key(0)
+
+    @jax.jit
+    def run(state):
+        def body(s, k):
+            a = jnp.concatenate([s.track_action, policy(key, s, params)[None]])
+            s, _ = sim.step(jax.random.fold_in(key, k), s, a, params)
+            return s, (s.intruder_status, s.intruder_x[2])
+
+        return jax.lax.scan(body, state, jnp.arange(120))[1]
+
+    status, heading = jax.device_get(run(sim.reset(key, params)))
+    headings = heading[status == sim.PRESENT]
+    assert len(headings) > 20
+    turn = np.diff(np.unwrap(headings)) / float(params.dt)
+    assert np.all(turn > 0.0) and np.median(turn) == pytest.approx(float(params.intruder_bounds[2]), rel=0.05)
+
+
+# ------------------------------------------------------------------------------------------------ a scenario
+CATALOG_MODULE = '''
+from stp_env.scenarios.catalog.tiny import tiny
+from stp_env.scenarios.registry import register
+
+
+@register("test-crossing-late")
+def crossing_late(*, delay: float = 40.0):
+    """tiny, with the second vehicle due ``delay`` seconds later."""
+    return tiny(sta_spacing=delay).with_overrides(name="test-crossing-late")
+'''
+
+
+def test_a_scenario_module_in_a_catalog_package_is_found(tmp_path, monkeypatch):
+    from stp_env.scenarios import registry
+
+    package = tmp_path / "my_catalog"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    (package / "crossing_late.py").write_text(textwrap.dedent(CATALOG_MODULE))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(registry, "CATALOG", "my_catalog")
+    monkeypatch.setattr(registry, "_catalog_loaded", False)
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
+    try:
+        assert "test-crossing-late" in scenarios.names()
+        s = scenarios.make("test-crossing-late", delay=25.0)
+        assert s.name == "test-crossing-late" and [v.sta for v in s.vehicles] == [0.0, 25.0]
+        assert scenarios.factory_parameters("test-crossing-late") == ("delay",)
+    finally:
+        sys.modules.pop("my_catalog.crossing_late", None)
+        sys.modules.pop("my_catalog", None)
+
+
+# ------------------------------------------------------------------------------------------------ a vehicle model
+@dataclasses.dataclass(frozen=True)
+class DoubleIntegrator(VehicleModel):
+    """A point mass: state ``(x, y, v_x, v_y)``, action the acceleration over ``accel_max``, speed capped at
+    ``v_max``; it flies toward the papers' ``(v, omega)`` commands by matching the velocity they would give after
+    ``horizon`` seconds."""
+
+    accel_max: float = 4.0
+    v_max: float = 15.0
+    horizon: float = 1.0
+    name = "double-integrator"
+    state_dim = 4
+
+    def action_to_control(self, action, bounds):
+        del bounds
+        return jnp.clip(action, -1.0, 1.0) * self.accel_max
+
+    def step(self, x, control, wind, heading_disturbance, dt):
+        del heading_disturbance
+        vel = x[..., 2:4]
+        new = vel + control * dt
+        speed = jnp.linalg.norm(new, axis=-1, keepdims=True)
+        new = new * jnp.minimum(1.0, self.v_max / jnp.maximum(speed, 1e-9))
+        p = x[..., :2] + 0.5 * (vel + new) * dt + wind * dt
+        return jnp.concatenate([p, new], axis=-1)
+
+    def pose(self, x):
+        heading = jnp.arctan2(x[..., 3], x[..., 2])
+        return jnp.concatenate([x[..., :2], heading[..., None]], axis=-1)
+
+    def from_pose(self, pose):
+        c, s = jnp.cos(pose[..., 2]), jnp.sin(pose[..., 2])
+        return jnp.stack([pose[..., 0], pose[..., 1], 0.8 * self.v_max * c, 0.8 * self.v_max * s], axis=-1)
+
+    def command_to_action(self, x, v, omega, bounds):
+        del bounds
+        heading = jnp.arctan2(x[..., 3], x[..., 2]) + omega * self.horizon
+        want = v[..., None] * jnp.stack([jnp.cos(heading), jnp.sin(heading)], axis=-1)
+        return jnp.clip((want - x[..., 2:4]) / (self.horizon * self.accel_max), -1.0, 1.0)
+
+
+@pytest.mark.slow  # compiles the core step
+def test_a_second_vehicle_model_runs_in_the_environment():
+    model = DoubleIntegrator()
+    dubins = parallel_env(SCENARIO, max_cycles=5)
+    env = parallel_env(SCENARIO, sim.EnvConfig(vehicle_model=model, safety_filter=False), max_cycles=150)
+    assert env.params.vehicle_model == model
+    obs, _ = env.reset(seed=1)
+    assert env.env_state.x.shape == (env.params.n_vehicles, 4)
+    assert env.observation_space("vehicle_0") == dubins.observation_space("vehicle_0")
+    assert env.action_space("vehicle_0").shape == (model.action_dim,)
+    speeds, checked = [], 0
+    while env.agents:
+        actions = {a: env.action_space(a).sample() for a in env.agents}
+        obs, rewards, *_ = env.step(actions)
+        x = np.asarray(env.env_state.x)
+        fly = np.asarray(env.env_state.status) == sim.FLYING
+        speeds.extend(np.linalg.norm(x[fly, 2:4], axis=1))
+        for i in np.nonzero(fly)[0]:
+            name = f"vehicle_{i}"
+            if name in obs:  # the observation's heading is the model's pose: the velocity's direction
+                unit = x[i, 2:4] / np.linalg.norm(x[i, 2:4])
+                np.testing.assert_allclose(obs[name][2:4], unit, atol=1e-5)
+                checked += 1
+        assert all(np.isfinite(r) for r in rewards.values())
+    assert checked > 10 and speeds and max(speeds) <= model.v_max * (1 + 1e-5)
+    # The papers' tracker drives the plant through command_to_action: with the vehicles on the tracker, they
+    # follow their plans to a few hundred metres (the plans are Dubins; the plant is not).
+    params = env.params
+    key = jax.random.key(0)
+
+    @jax.jit
+    def run(state):
+        def body(s, k):
+            a = jnp.concatenate([s.track_action, jnp.zeros((1, 2))])
+            s, _ = sim.step(jax.random.fold_in(key, k), s, a, params)
+            return s, (s.status, s.tracking_error)
+
+        return jax.lax.scan(body, state, jnp.arange(200))[1]
+
+    status, error = jax.device_get(run(sim.reset(key, params)))
+    errors = error[status == sim.FLYING]
+    assert errors.size and float(np.median(errors)) < 150.0
