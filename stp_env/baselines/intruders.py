@@ -12,6 +12,12 @@
 * :func:`max_k`: the strategy of the intruder paper's Figs. 6-7: appear on a vehicle's avoid boundary (use
   ``spawn_mode="boundary"``), then go for the avoid boundary of the next vehicle not yet forced (HJ pursuit of the
   unforced vehicle with the smallest ``V^A``), to force as many vehicles as possible.
+* :func:`optimal_max_k`: the same strategy played optimally for the hops *between* vehicles: from the vehicle it
+  has just forced it takes the time-optimal route to the next vehicle's avoid region, the minimising player of the
+  buffer game ``V^B`` (eqs. 46-47: the game the buffer region is built from), choosing as next vehicle the unforced
+  one with the smallest ``V^B`` (the one it can force soonest). Outside the ``V^B`` table it heads for the nearest
+  unforced vehicle. Needs the buffer table (:func:`stp_env.sim.build.with_buffer`). :func:`ordered_max_k` plays a
+  fixed vehicle order instead (to check by brute force over orders that the greedy choice forces the most).
 """
 
 from __future__ import annotations
@@ -114,6 +120,53 @@ def max_k(key, state, params):
     return jnp.where(ok_next, a_next, jnp.where(ok_any, a_any, hover(None, state, params)))
 
 
+def _buffer_hop(state, params, eligible):
+    """The buffer game's minimising intruder action toward vehicle ``j`` (the eligible one with the smallest
+    ``V^B``; the nearest when none is within the table) and whether any vehicle is eligible."""
+    rel = relative_state(state.x, state.intruder_x[None, :])
+    vb = jnp.where(eligible, jax.vmap(lambda r: tables.buffer_value(params, r))(rel), jnp.inf)
+    dist = jnp.where(eligible, jnp.hypot(*(state.x[:, :2] - state.intruder_x[None, :2]).T), jnp.inf)
+    in_table = vb < tables.FAR
+    j = jnp.where(jnp.any(in_table), jnp.argmin(vb), jnp.argmin(dist))
+    return _hop_to(state, params, j, rel), jnp.any(eligible)
+
+
+def _hop_to(state, params, j, rel):
+    d = tables.buffer_pursuit(params, rel[j])
+    game = control_to_action(d[0], d[1], params.intruder_bounds)
+    inside = tables.buffer_value(params, rel[j]) < tables.FAR
+    return jnp.where(inside, game, _steer(state, params, state.x[j, :2]))
+
+
+def optimal_max_k(key, state, params):
+    del key
+    fly = state.status == FLYING
+    unforced = fly & ~jnp.isfinite(state.avoid_start)
+    a_next, ok_next = _buffer_hop(state, params, unforced)
+    a_any, ok_any = _pursue(state, params, fly)
+    return jnp.where(ok_next, a_next, jnp.where(ok_any, a_any, hover(None, state, params)))
+
+
+def ordered_max_k(order):
+    """:func:`optimal_max_k` with a fixed order: the next vehicle is the first of ``order`` (vehicle indices) that
+    flies and is not yet forced."""
+    order = tuple(int(i) for i in order)
+    if not order or len(set(order)) != len(order) or min(order) < 0:
+        raise ValueError(f"order must list distinct vehicle indices >= 0; got {order!r}.")
+    idx = jnp.asarray(order, jnp.int32)
+
+    def policy(key, state, params):
+        fly = state.status == FLYING
+        unforced = fly & ~jnp.isfinite(state.avoid_start)
+        ok = unforced[idx]
+        j = idx[jnp.argmax(ok)]
+        rel = relative_state(state.x, state.intruder_x[None, :])
+        return jnp.where(jnp.any(ok), _hop_to(state, params, j, rel), optimal_max_k(key, state, params))
+
+    policy.__name__ = "ordered_max_k(" + ",".join(map(str, order)) + ")"
+    return policy
+
+
 INTRUDERS = {
     "hover": hover,
     "random": random_intruder,
@@ -122,7 +175,10 @@ INTRUDERS = {
     "greedy": greedy_pursuit,
     "hj": hj_pursuit,
     "max-k": max_k,
+    "optimal-max-k": optimal_max_k,
 }
+BUFFER_GAME_INTRUDERS = frozenset({"optimal-max-k"})
+"""The intruders that read the buffer table (the evaluation loads it for them)."""
 
 
 def intruder_policy(name: str):
