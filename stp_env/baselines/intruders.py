@@ -15,9 +15,10 @@
 * :func:`optimal_max_k`: the same strategy played optimally for the hops *between* vehicles: from the vehicle it
   has just forced it takes the time-optimal route to the next vehicle's avoid region, the minimising player of the
   buffer game ``V^B`` (eqs. 46-47: the game the buffer region is built from), choosing as next vehicle the unforced
-  one with the smallest ``V^B`` (the one it can force soonest). Outside the ``V^B`` table it heads for the nearest
-  unforced vehicle. Needs the buffer table (:func:`stp_env.sim.build.with_buffer`). :func:`ordered_max_k` plays a
-  fixed vehicle order instead (to check by brute force over orders that the greedy choice forces the most).
+  one with the smallest ``V^B`` (the one it can force soonest). Where ``V^B > 0`` it flies straight at that vehicle
+  (the nearest unforced one outside the table). Needs the buffer table (:func:`stp_env.sim.build.with_buffer`).
+  :func:`ordered_max_k` plays a fixed vehicle order instead (to check by brute force over orders that the greedy
+  choice forces the most).
 """
 
 from __future__ import annotations
@@ -134,7 +135,7 @@ def _buffer_hop(state, params, eligible):
 def _hop_to(state, params, j, rel):
     d = tables.buffer_pursuit(params, rel[j])
     game = control_to_action(d[0], d[1], params.intruder_bounds)
-    inside = tables.buffer_value(params, rel[j]) < tables.FAR
+    inside = tables.buffer_value(params, rel[j]) <= 0.0  # V^B's gradient carries no direction where V^B > 0
     return jnp.where(inside, game, _steer(state, params, state.x[j, :2]))
 
 

@@ -10,7 +10,8 @@
 * :func:`worst`: the vehicle behaviour the relative buffer region ``V^B`` assumes (eqs. 22/46-47, Fig. 6): while
   the intruder is present, every flying vehicle not yet forced applies its minimising control of the buffer game
   (:func:`stp_env.sim.tables.worst_control`, from the gradient of ``V^B``), i.e. the control that brings the
-  intruder into its avoid region fastest; outside the ``V^B`` table it turns toward the intruder at full speed.
+  intruder into its avoid region fastest; where ``V^B > 0`` (the intruder cannot reach the avoid region within
+  ``t_BRD``, and the table's gradient carries no direction) it turns toward the intruder at full speed.
   Forced vehicles apply ``u^A`` (the safety filter), and the others ``u^PP`` when no intruder is present. Needs the
   buffer table (:func:`stp_env.sim.build.with_buffer`).
 
@@ -80,7 +81,9 @@ def worst_unfiltered(key, state, params):
     rel = relative_state(state.x, state.intruder_x[None, :])
     u = jax.vmap(lambda r: tables.worst_control(params, r))(rel)
     game = control_to_action(u[:, 0], u[:, 1], params.vehicle_bounds)
-    inside = jax.vmap(lambda r: tables.buffer_value(params, r))(rel) < tables.FAR
+    # V^B's gradient is informative where the intruder can reach the avoid region within t_BRD (V^B <= 0); farther
+    # out the table holds the transported plateau of the clamped target (gradient ~0): close in head-on there.
+    inside = jax.vmap(lambda r: tables.buffer_value(params, r))(rel) <= 0.0
     toward = jnp.where(inside[:, None], game, _toward_intruder(state, params))
     attack = ((state.status == FLYING) & (state.mode == NOMINAL) & ~jnp.isfinite(state.avoid_start)
               & (state.intruder_status == PRESENT))

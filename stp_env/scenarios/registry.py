@@ -482,3 +482,4 @@ def town(*, kbar: int = 2, n_vehicles: int = 7, wind: float = 6.0, sta_spacing: 
                     f"destinations in a 4 km square with two synthetic buildings, kbar {kbar}, wind {wind} m/s, "
                     f"STA spacing {sta_spacing} s, seed {seed}.",
     )
+from stp_env.scenarios import fig6 as _fig6  # noqa: E402,F401  (registers "fig6": the intruder paper Fig. 6 worst case)
