@@ -137,6 +137,8 @@ def main() -> int:
         start = time.perf_counter()
         run = reproduce(params, vp, ip)
         out["runs"][name] = {"avoid_start_s": run["avoid_start_s"], "paper_s": list(paper), "n_forced": run["n_forced"],
+                             "min_avoid_value_m": run["min_avoid_value_m"],
+                             "min_avoid_value_time_s": run["min_avoid_value_time_s"],
                              "collisions": run["collisions"], "assumption_ok": run["assumption_ok"],
                              "t_appear_s": round(run["t_appear_s"], 3),
                              "seconds": round(time.perf_counter() - start, 1)}

@@ -14,7 +14,8 @@
   unforced vehicle with the smallest ``V^A``), to force as many vehicles as possible.
 * :func:`optimal_max_k`: the same strategy played optimally for the hops *between* vehicles: from the vehicle it
   has just forced it takes the time-optimal route to the next vehicle's avoid region, the minimising player of the
-  buffer game ``V^B`` (eqs. 46-47: the game the buffer region is built from), choosing as next vehicle the unforced
+  buffer game ``V^B`` (eqs. 46-47: the game the buffer region is built from; the heading of steepest descent of
+  ``V^B`` at full speed, see :func:`_hop_to`), choosing as next vehicle the unforced
   one with the smallest ``V^B`` (the one it can force soonest). Where ``V^B > 0`` it flies straight at that vehicle
   (the nearest unforced one outside the table). Needs the buffer table (:func:`stp_env.sim.build.with_buffer`).
   :func:`ordered_max_k` plays a fixed vehicle order instead (to check by brute force over orders that the greedy
@@ -133,10 +134,16 @@ def _buffer_hop(state, params, eligible):
 
 
 def _hop_to(state, params, j, rel):
-    d = tables.buffer_pursuit(params, rel[j])
-    game = control_to_action(d[0], d[1], params.intruder_bounds)
-    inside = tables.buffer_value(params, rel[j]) <= 0.0  # V^B's gradient carries no direction where V^B > 0
-    return jnp.where(inside, game, _steer(state, params, state.x[j, :2]))
+    """The intruder's time-optimal move toward vehicle ``j``'s avoid region: the heading of steepest descent of
+    ``V^B`` (``-grad_p V^B``, the minimiser of the game's position term, turned into the world frame) at full speed,
+    steered to with the proportional law of :func:`_steer`. The game's own turn rate is bang-bang; held over a
+    decision step (0.1 s) it zig-zags across the optimal heading by ``omega_max dt``, which costs the hop time the
+    buffer region is built on. Where ``V^B > 0`` (no direction in the table): straight at the vehicle."""
+    g = tables.buffer_gradient(params, rel[j])
+    heading = state.x[j, 2] + jnp.arctan2(-g[1], -g[0])
+    point = state.intruder_x[:2] + 100.0 * jnp.stack([jnp.cos(heading), jnp.sin(heading)])
+    inside = (tables.buffer_value(params, rel[j]) <= 0.0) & (jnp.hypot(g[0], g[1]) > 1e-3)
+    return jnp.where(inside, _steer(state, params, point), _steer(state, params, state.x[j, :2]))
 
 
 def optimal_max_k(key, state, params):

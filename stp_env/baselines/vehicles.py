@@ -8,10 +8,15 @@
   policy's action is kept except where the vehicle is forced (its relative state reached the avoid boundary,
   eqs. 17-18), where ``u^A`` replaces it. ``switching == safety_filter(nominal_tracking)``.
 * :func:`worst`: the vehicle behaviour the relative buffer region ``V^B`` assumes (eqs. 22/46-47, Fig. 6): while
-  the intruder is present, every flying vehicle not yet forced applies its minimising control of the buffer game
-  (:func:`stp_env.sim.tables.worst_control`, from the gradient of ``V^B``), i.e. the control that brings the
-  intruder into its avoid region fastest; where ``V^B > 0`` (the intruder cannot reach the avoid region within
-  ``t_BRD``, and the table's gradient carries no direction) it turns toward the intruder at full speed.
+  the intruder is present, every flying vehicle not yet forced plays the minimising player of the buffer game,
+  from the gradient of ``V^B``: the game's speed (:func:`stp_env.sim.tables.worst_control`) and a turn toward the
+  heading of steepest descent of ``V^B`` (:func:`stp_env.sim.tables.buffer_descent_heading`), i.e. the control
+  that brings the intruder into its avoid region fastest. The turn is proportional, not the game's bang-bang turn
+  rate: on the 12.5 m x 6 degree ``V^B`` grid the turn's switching function (``p_x y - p_y x - p_theta``) is
+  small and noisy near the head-on line, and its sign flips made the vehicles weave off the head-on approach, the
+  one along which the avoid region reaches farthest (``d^A``), which delayed the hop by 0.3 s in ``fig6``. Where
+  ``V^B > 0`` (the intruder cannot reach the avoid region within ``t_BRD``, and the table's gradient carries no
+  direction) it turns toward the intruder at full speed.
   Forced vehicles apply ``u^A`` (the safety filter), and the others ``u^PP`` when no intruder is present. Needs the
   buffer table (:func:`stp_env.sim.build.with_buffer`).
 
@@ -80,10 +85,14 @@ def worst_unfiltered(key, state, params):
     :func:`nominal_tracking` (:func:`worst` adds the safety filter)."""
     rel = relative_state(state.x, state.intruder_x[None, :])
     u = jax.vmap(lambda r: tables.worst_control(params, r))(rel)
-    game = control_to_action(u[:, 0], u[:, 1], params.vehicle_bounds)
+    phi, norm = jax.vmap(lambda r: tables.buffer_descent_heading(params, r))(rel)
+    b = params.vehicle_bounds
+    # the game's speed (v_max when moving ahead lowers V^B), turning proportionally toward the descent heading
+    omega = jnp.clip(HEADING_GAIN * wrap_angle(phi), -b[2], b[2])
+    game = control_to_action(u[:, 0], omega, b)
     # V^B's gradient is informative where the intruder can reach the avoid region within t_BRD (V^B <= 0); farther
     # out the table holds the transported plateau of the clamped target (gradient ~0): close in head-on there.
-    inside = jax.vmap(lambda r: tables.buffer_value(params, r))(rel) <= 0.0
+    inside = (jax.vmap(lambda r: tables.buffer_value(params, r))(rel) <= 0.0) & (norm > 1e-3)
     toward = jnp.where(inside[:, None], game, _toward_intruder(state, params))
     attack = ((state.status == FLYING) & (state.mode == NOMINAL) & ~jnp.isfinite(state.avoid_start)
               & (state.intruder_status == PRESENT))

@@ -35,10 +35,11 @@ def fig6_params(scenario=None, *, config: sim.EnvConfig | None = None, store=Non
 
     scenario = make("fig6") if scenario is None else scenario
     config = sim.EnvConfig() if config is None else config
-    # half a step early: the appearance happens at the first step time >= the window, and the step times are float32
-    # sums that may fall a hair short of FIG6_LEAD (the intruder would then appear one step late)
-    lead = FIG6_LEAD - 0.5 * config.dt
-    config = config.with_overrides(appear_window=(lead, lead))
+    # The episode starts at the departure (t = 0, steps at k dt) and the window is half a step before FIG6_LEAD: the
+    # intruder appears at the first step time >= the window, i.e. at FIG6_LEAD, even when the float32 step times
+    # fall a hair short of it.
+    lo = FIG6_LEAD - 0.5 * config.dt
+    config = config.with_overrides(appear_window=(lo, lo), lead=lo)
     avoid, tracking = sim.load_artifacts(scenario, store=store, progress=progress)
     plan = fig6_plan(scenario, tracking.bound)
     params = sim.make_params(scenario, plan, avoid, tracking, config)
@@ -56,7 +57,8 @@ def fig6_spawn() -> np.ndarray:
 @functools.partial(jax.jit, static_argnames=("vehicle_policy", "intruder_policy", "n_steps"))
 def run_fixed_spawn(key, params, spawn, vehicle_policy, intruder_policy, n_steps: int):
     """One episode with the intruder appearing at ``spawn`` (3,): ``(final state, trajectory)``, the trajectory a
-    dict of per-step arrays ``t``, ``x``, ``mode``, ``status``, ``intruder_x``, ``intruder_status``."""
+    dict of per-step arrays ``t``, ``x``, ``mode``, ``status``, ``intruder_x``, ``intruder_status``,
+    ``avoid_value`` (``V^A`` of each vehicle against the intruder, ``FAR`` when absent)."""
     k_reset, k_run = jax.random.split(key)
     s0 = core.reset(k_reset, params)
     memory = jnp.concatenate([jnp.asarray(spawn, s0.intruder_memory.dtype), jnp.zeros((1,), s0.intruder_memory.dtype)])
@@ -67,14 +69,16 @@ def run_fixed_spawn(key, params, spawn, vehicle_policy, intruder_policy, n_steps
         term, trunc = core.episode_over(state, params)
         new = jax.tree.map(lambda a, b: jnp.where(term | trunc, a, b), state, new)
         return new, {"t": new.t, "x": new.x, "mode": new.mode, "status": new.status, "intruder_x": new.intruder_x,
-                     "intruder_status": new.intruder_status}
+                     "intruder_status": new.intruder_status, "avoid_value": new.avoid_value}
 
     return jax.lax.scan(body, s0, jax.random.split(k_run, n_steps))
 
 
 def reproduce(params, vehicle_policy, intruder_policy, *, seed: int = 0, spawn=None, n_steps: int | None = None):
     """Run the fixed-spawn episode and summarise it: ``{"avoid_start_s": [t_i - t_ per vehicle, inf if never],
-    "n_forced", "collisions", "assumption_ok", "trajectory", "final"}`` (times relative to the appearance)."""
+    "min_avoid_value_m" and "min_avoid_value_time_s": each vehicle's smallest ``V^A`` against the intruder and
+    when (how close an untouched vehicle came to being forced), "n_forced", "collisions", "assumption_ok",
+    "trajectory", "final"}`` (times relative to the appearance)."""
     from stp_env.seeds import prng_key
 
     spawn = fig6_spawn() if spawn is None else np.asarray(spawn, np.float32)
@@ -83,8 +87,13 @@ def reproduce(params, vehicle_policy, intruder_policy, *, seed: int = 0, spawn=N
                                   n_steps)
     t_appear = float(final.t_appear)
     starts = np.asarray(final.avoid_start) - t_appear
+    values = np.asarray(traj["avoid_value"])
+    closest = values.min(axis=0)
     return {
         "avoid_start_s": [round(float(t), 3) if np.isfinite(t) else math.inf for t in starts],
+        "min_avoid_value_m": [round(float(v), 2) for v in closest],
+        "min_avoid_value_time_s": [round(float(np.asarray(traj["t"])[int(np.argmin(values[:, i]))] - t_appear), 2)
+                                   for i in range(values.shape[1])],
         "n_forced": int(np.sum(np.isfinite(starts))),
         "collisions": int(np.sum(np.asarray(final.status) == sim.COLLIDED)),
         "assumption_ok": np.asarray(final.assumption_ok).tolist(),

@@ -122,6 +122,14 @@ def buffer_gradient(params, x_rel):
     return jnp.where(_inside(grid, x_rel), g, 0.0)
 
 
+def buffer_descent_heading(params, x_rel):
+    """The heading, in the vehicle's body frame, along which the *vehicle* moving lowers ``V^B`` fastest: the
+    direction of ``+grad_p V^B`` (the relative position changes by minus the vehicle's velocity). The intruder's
+    is the opposite one, ``-grad_p V^B``. Returns ``(angle, |grad_p V^B|)``."""
+    g = buffer_gradient(params, x_rel)
+    return jnp.arctan2(g[1], g[0]), jnp.hypot(g[0], g[1])
+
+
 def worst_control(params, x_rel):
     """The vehicle's minimising control of the buffer game at ``x_rel``: ``(v_i, omega_i)`` bringing the intruder
     into its avoid region fastest (the vehicle behaviour ``V^B`` assumes)."""
