@@ -78,7 +78,7 @@ def plot_run(run, params, avoid, title, path, paper_times):
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.legend(loc="lower left", fontsize=8)
-    ax.set_title("trajectories while the intruder is present (o at appearance, * avoid start;\n"
+    ax.set_title("trajectories (o at the intruder's appearance, * avoid start, black: the intruder while present;\n"
                  "dashed: the avoid region V^A(t_i) of Q_i at its avoid start)", fontsize=9)
     ax.grid(alpha=0.3)
     names = [f"Q{i + 1}" for i in range(params.n_vehicles)]
@@ -150,8 +150,14 @@ def main() -> int:
             run = reproduce(params, worst, ordered_max_k(order))
             out["orders"][",".join(f"Q{i + 1}" for i in order)] = run["n_forced"]
             print(order, run["n_forced"], run["avoid_start_s"], flush=True)
-    (ROOT / "docs" / "fig6_reproduction.json").write_text(
-        json.dumps(out, indent=1, default=lambda x: None if isinstance(x, float) and math.isinf(x) else x) + "\n")
+    def finite(x):  # JSON has no infinity: a vehicle never forced is null
+        if isinstance(x, dict):
+            return {k: finite(v) for k, v in x.items()}
+        if isinstance(x, list):
+            return [finite(v) for v in x]
+        return None if isinstance(x, float) and math.isinf(x) else x
+
+    (ROOT / "docs" / "fig6_reproduction.json").write_text(json.dumps(finite(out), indent=1) + "\n")
     return 0
 
 

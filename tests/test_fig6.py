@@ -56,9 +56,10 @@ def test_worst_control_is_the_steepest_descent_by_brute_force(state):
 @pytest.mark.parametrize("state", [(250.0, 120.0, 2.0), (-200.0, 150.0, -1.0), (90.0, -260.0, 0.5)])
 def test_descent_heading_by_brute_force(state):
     """The heading the worst vehicle turns to: over 720 directions of the vehicle's velocity, the one that lowers
-    the closed-form value fastest, within 2 degrees (the table's gradient vs the exact one)."""
+    the closed-form value fastest, within 2 degrees (the table's gradient vs the exact one); its speed is the
+    game's."""
     params, value, _ = _synthetic_params()
-    phi, norm = (float(a) for a in tables.buffer_descent_heading(params, jnp.asarray(state, jnp.float32)))
+    v, phi, norm = (float(a) for a in tables.buffer_descent(params, jnp.asarray(state, jnp.float32)))
     s = np.asarray(state)
     angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
     h = 1e-3
@@ -66,6 +67,7 @@ def test_descent_heading_by_brute_force(state):
     best = angles[int(np.argmin(rates))]
     assert norm > 0.5
     assert abs((phi - best + np.pi) % (2 * np.pi) - np.pi) < math.radians(2.0)
+    assert v == pytest.approx(float(tables.worst_control(params, jnp.asarray(state, jnp.float32))[0]))
 
 
 def test_worst_control_needs_the_buffer_table():
@@ -125,3 +127,10 @@ def test_fig6_worst_vehicles_reach_kbar(fig6_setup):
     for got, want in zip(run["avoid_start_s"][:3], FIG6_PAPER_TIMES[:3]):
         assert abs(got - want) <= 0.1
     assert math.isinf(run["avoid_start_s"][3])
+
+
+def test_env_rejects_an_unknown_vehicle_policy():
+    from stp_env.env import STPParallelEnv
+
+    with pytest.raises(ValueError, match="vehicle_policy 'best'"):
+        STPParallelEnv("fig6", vehicle_policy="best")

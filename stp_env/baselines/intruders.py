@@ -113,13 +113,18 @@ def hj_pursuit(key, state, params):
     return jnp.where(ok, a, hover(None, state, params))
 
 
-def max_k(key, state, params):
-    del key
+def _force_next(state, params, hop):
+    """``hop`` toward the next unforced flying vehicle; when all are forced, HJ pursuit of any; else hover."""
     fly = state.status == FLYING
     unforced = fly & ~jnp.isfinite(state.avoid_start)
-    a_next, ok_next = _pursue(state, params, unforced)
+    a_next, ok_next = hop(state, params, unforced)
     a_any, ok_any = _pursue(state, params, fly)
     return jnp.where(ok_next, a_next, jnp.where(ok_any, a_any, hover(None, state, params)))
+
+
+def max_k(key, state, params):
+    del key
+    return _force_next(state, params, _pursue)
 
 
 def _buffer_hop(state, params, eligible):
@@ -148,11 +153,7 @@ def _hop_to(state, params, j, rel):
 
 def optimal_max_k(key, state, params):
     del key
-    fly = state.status == FLYING
-    unforced = fly & ~jnp.isfinite(state.avoid_start)
-    a_next, ok_next = _buffer_hop(state, params, unforced)
-    a_any, ok_any = _pursue(state, params, fly)
-    return jnp.where(ok_next, a_next, jnp.where(ok_any, a_any, hover(None, state, params)))
+    return _force_next(state, params, _buffer_hop)
 
 
 def ordered_max_k(order):

@@ -9,8 +9,8 @@
   eqs. 17-18), where ``u^A`` replaces it. ``switching == safety_filter(nominal_tracking)``.
 * :func:`worst`: the vehicle behaviour the relative buffer region ``V^B`` assumes (eqs. 22/46-47, Fig. 6): while
   the intruder is present, every flying vehicle not yet forced plays the minimising player of the buffer game,
-  from the gradient of ``V^B``: the game's speed (:func:`stp_env.sim.tables.worst_control`) and a turn toward the
-  heading of steepest descent of ``V^B`` (:func:`stp_env.sim.tables.buffer_descent_heading`), i.e. the control
+  from the gradient of ``V^B``: the game's speed (that of :func:`stp_env.sim.tables.worst_control`) and a turn
+  toward the heading of steepest descent of ``V^B`` (:func:`stp_env.sim.tables.buffer_descent`), i.e. the control
   that brings the intruder into its avoid region fastest. The turn is proportional, not the game's bang-bang turn
   rate: on the 12.5 m x 6 degree ``V^B`` grid the turn's switching function (``p_x y - p_y x - p_theta``) is
   small and noisy near the head-on line, and its sign flips made the vehicles weave off the head-on approach, the
@@ -84,12 +84,11 @@ def worst_unfiltered(key, state, params):
     """The buffer game's minimising vehicle control for the unforced vehicles while the intruder is present, else
     :func:`nominal_tracking` (:func:`worst` adds the safety filter)."""
     rel = relative_state(state.x, state.intruder_x[None, :])
-    u = jax.vmap(lambda r: tables.worst_control(params, r))(rel)
-    phi, norm = jax.vmap(lambda r: tables.buffer_descent_heading(params, r))(rel)
+    v, phi, norm = jax.vmap(lambda r: tables.buffer_descent(params, r))(rel)
     b = params.vehicle_bounds
     # the game's speed (v_max when moving ahead lowers V^B), turning proportionally toward the descent heading
     omega = jnp.clip(HEADING_GAIN * wrap_angle(phi), -b[2], b[2])
-    game = control_to_action(u[:, 0], omega, b)
+    game = control_to_action(v, omega, b)
     # V^B's gradient is informative where the intruder can reach the avoid region within t_BRD (V^B <= 0); farther
     # out the table holds the transported plateau of the clamped target (gradient ~0): close in head-on there.
     inside = (jax.vmap(lambda r: tables.buffer_value(params, r))(rel) <= 0.0) & (norm > 1e-3)

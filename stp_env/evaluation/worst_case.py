@@ -19,6 +19,7 @@ from stp_env import sim
 from stp_env.sim import core
 from stp_env.sim.build import load_buffer, with_buffer
 from stp_env.sim.rollout import episode_step
+from stp_env.sim.tables import FAR
 from stp_env.sim.types import replace
 
 FIG6_PAPER_TIMES = (0.0, 10 / 3, 20 / 3, math.inf)
@@ -77,7 +78,8 @@ def run_fixed_spawn(key, params, spawn, vehicle_policy, intruder_policy, n_steps
 def reproduce(params, vehicle_policy, intruder_policy, *, seed: int = 0, spawn=None, n_steps: int | None = None):
     """Run the fixed-spawn episode and summarise it: ``{"avoid_start_s": [t_i - t_ per vehicle, inf if never],
     "min_avoid_value_m" and "min_avoid_value_time_s": each vehicle's smallest ``V^A`` against the intruder and
-    when (how close an untouched vehicle came to being forced), "n_forced", "collisions", "assumption_ok",
+    when (how close an untouched vehicle came to being forced; ``None`` when the intruder never came within the
+    avoid table of it), "n_forced", "collisions", "assumption_ok",
     "trajectory", "final"}`` (times relative to the appearance)."""
     from stp_env.seeds import prng_key
 
@@ -91,9 +93,9 @@ def reproduce(params, vehicle_policy, intruder_policy, *, seed: int = 0, spawn=N
     closest = values.min(axis=0)
     return {
         "avoid_start_s": [round(float(t), 3) if np.isfinite(t) else math.inf for t in starts],
-        "min_avoid_value_m": [round(float(v), 2) for v in closest],
+        "min_avoid_value_m": [round(float(v), 2) if v < FAR else None for v in closest],
         "min_avoid_value_time_s": [round(float(np.asarray(traj["t"])[int(np.argmin(values[:, i]))] - t_appear), 2)
-                                   for i in range(values.shape[1])],
+                                   if closest[i] < FAR else None for i in range(values.shape[1])],
         "n_forced": int(np.sum(np.isfinite(starts))),
         "collisions": int(np.sum(np.asarray(final.status) == sim.COLLIDED)),
         "assumption_ok": np.asarray(final.assumption_ok).tolist(),

@@ -122,12 +122,14 @@ def buffer_gradient(params, x_rel):
     return jnp.where(_inside(grid, x_rel), g, 0.0)
 
 
-def buffer_descent_heading(params, x_rel):
-    """The heading, in the vehicle's body frame, along which the *vehicle* moving lowers ``V^B`` fastest: the
-    direction of ``+grad_p V^B`` (the relative position changes by minus the vehicle's velocity). The intruder's
-    is the opposite one, ``-grad_p V^B``. Returns ``(angle, |grad_p V^B|)``."""
+def buffer_descent(params, x_rel):
+    """One gradient read of ``V^B`` at ``x_rel`` for the worst vehicle: ``(v, angle, |grad_p V^B|)``, the game's
+    speed (the minimiser of :func:`worst_control`) and the heading, in the vehicle's body frame, along which the
+    *vehicle* moving lowers ``V^B`` fastest: the direction of ``+grad_p V^B`` (the relative position changes by minus
+    the vehicle's velocity; the intruder's heading is the opposite one, ``-grad_p V^B``)."""
     g = buffer_gradient(params, x_rel)
-    return jnp.arctan2(g[1], g[0]), jnp.hypot(g[0], g[1])
+    v = buffer_game(params).optimal_control(tuple(x_rel), tuple(g))[0]
+    return v, jnp.arctan2(g[1], g[0]), jnp.hypot(g[0], g[1])
 
 
 def worst_control(params, x_rel):
