@@ -28,21 +28,32 @@ ROOT = Path(__file__).resolve().parents[1]
 COLORS = ("tab:blue", "tab:red", "tab:green", "tab:pink")
 
 
+def _outline(grid, value_at, heading_rel):
+    """A set's position footprint for one relative heading, in the vehicle's body frame (contour data):
+    ``value_at(state)`` on a 121 x 121 raster of ``grid``'s positions."""
+    import jax
+    import jax.numpy as jnp
+
+    xs = np.linspace(grid.lo[0], grid.hi[0], 121)
+    pts = np.stack(np.meshgrid(xs, xs, indexing="ij"), -1).reshape(-1, 2)
+    vals = jax.vmap(lambda p: value_at(jnp.asarray([p[0], p[1], heading_rel])))(jnp.asarray(pts, jnp.float32))
+    return xs, np.asarray(vals).reshape(121, 121)
+
+
 def _avoid_outline(avoid, tau, heading_rel):
-    """Position footprint of ``V^A(tau)`` for one relative heading, in the vehicle's body frame (contour data)."""
     import jax.numpy as jnp
 
     from stp_env import hj
 
-    g = avoid.grid
-    xs = np.linspace(g.lo[0], g.hi[0], 121)
-    pts = np.stack(np.meshgrid(xs, xs, indexing="ij"), -1).reshape(-1, 2)
-    import jax
+    taus, values = jnp.asarray(avoid.taus), jnp.asarray(avoid.values)
+    return _outline(avoid.grid, lambda x: hj.interpolation.interpolate_slices(avoid.grid, taus, values, tau, x),
+                    heading_rel)
 
-    vals = jax.vmap(lambda p: hj.interpolation.interpolate_slices(
-        g, jnp.asarray(avoid.taus), jnp.asarray(avoid.values), tau, jnp.asarray([p[0], p[1], heading_rel])))(
-        jnp.asarray(pts, jnp.float32))
-    return xs, np.asarray(vals).reshape(121, 121)
+
+def _draw_in_frame(ax, xv, xs, vals, **kw):
+    c, s = math.cos(xv[2]), math.sin(xv[2])
+    gx, gy = np.meshgrid(xs, xs, indexing="ij")
+    ax.contour(xv[0] + c * gx - s * gy, xv[1] + s * gx + c * gy, vals, levels=[0.0], **kw)
 
 
 def plot_run(run, params, avoid, title, path, paper_times):
@@ -66,12 +77,22 @@ def plot_run(run, params, avoid, title, path, paper_times):
             ax.plot(xi[k, 0], xi[k, 1], "*", color="k", ms=9)
             # the avoid region V^A(tau) of Q_i at its avoid start (position footprint at the actual relative heading)
             xs, vals = _avoid_outline(avoid, starts[i], float(xi[k, 2] - xv[2]))
-            c, s = math.cos(xv[2]), math.sin(xv[2])
-            gx, gy = np.meshgrid(xs, xs, indexing="ij")
-            wx, wy = xv[0] + c * gx - s * gy, xv[1] + s * gx + c * gy
-            ax.contour(wx, wy, vals, levels=[0.0], colors=[COLORS[i]], linewidths=1.0, linestyles="--")
+            _draw_in_frame(ax, xv, xs, vals, colors=[COLORS[i]], linewidths=1.0, linestyles="--")
             ax.annotate(f"t{i + 1} = {starts[i]:.2f} s", (xv[0], xv[1]), textcoords="offset points",
                         xytext=(6, 10 if i % 2 else -16), color=COLORS[i], fontsize=9)
+    # the relative buffer region V^B(0, t_BRD) of Q2 when the intruder appears (at the intruder's relative heading):
+    # the intruder's spawn lies on its boundary, so the first hop takes t_BRD
+    import jax.numpy as jnp
+
+    from stp_env import hj
+
+    k0 = int(np.argmin(np.abs(t)))
+    x2 = traj["x"][k0, 1]
+    bvals = jnp.asarray(params.buffer_values)
+    xs, vals = _outline(params.buffer_grid, lambda x: hj.interpolation.interpolate(params.buffer_grid, bvals, x),
+                        float(xi[k0, 2] - x2[2]))
+    _draw_in_frame(ax, x2, xs, vals, colors=["k"], linewidths=0.8, linestyles=":")
+    ax.plot([], [], "k:", lw=0.8, label="V^B(0, t_BRD) of Q2 at t = 0")
     ax.set_aspect("equal")
     ax.set_xlim(-450, 800)
     ax.set_ylim(-330, 330)
@@ -79,7 +100,8 @@ def plot_run(run, params, avoid, title, path, paper_times):
     ax.set_ylabel("y [m]")
     ax.legend(loc="lower left", fontsize=8)
     ax.set_title("trajectories (o at the intruder's appearance, * avoid start, black: the intruder while present;\n"
-                 "dashed: the avoid region V^A(t_i) of Q_i at its avoid start)", fontsize=9)
+                 "dashed: the avoid region V^A(t_i) of Q_i at its avoid start; dotted: Q2's buffer region at t = 0)",
+                 fontsize=9)
     ax.grid(alpha=0.3)
     names = [f"Q{i + 1}" for i in range(params.n_vehicles)]
     y = np.arange(len(names))
