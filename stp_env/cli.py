@@ -162,9 +162,12 @@ def _add_episode_options(p, *, many: bool) -> None:
     p.add_argument("--wind-model", choices=winds.names(), default="uniform", help=winds.describe())
     p.add_argument("--spawn-mode", choices=SPAWN_CHOICES, default="auto",
                    help="where the intruder appears: outside every avoid region (Assumption 3), on a vehicle's "
-                        "avoid boundary (Observation 1), or auto (boundary for max-k, else outside)")
+                        "avoid boundary (Observation 1), or auto (boundary for max-k and optimal-max-k, else "
+                        "outside)")
     p.add_argument("--vehicle-policy", choices=list(VEHICLE_POLICIES), default="switching",
-                   help="switching: u* (eq. 38) with the safety filter; nominal: u^PP, the filter off")
+                   help="switching: u* (eq. 38) with the safety filter; nominal: u^PP, the filter off; worst: "
+                        "every unforced vehicle flies the buffer game's control toward the intruder (the assumption "
+                        "behind V^B), forced ones u^A")
     p.add_argument("--episode", choices=EPISODE_CHOICES, default="window",
                    help="window: from 5 s before the intruder's appearance window to 10 s after it can leave; "
                         "full: first departure to the last STA (slower)")

@@ -39,7 +39,10 @@ still to act after the error). ``step`` after every agent has finished raises ``
 live agent missing from the action dict applies the zero action. With ``EnvConfig(safety_filter=True)`` (the
 default), a vehicle forced by the intruder (its relative state reached the boundary of ``V^A``, eqs. 17-18) has its
 action replaced by the avoidance control ``u^A`` (eq. 15) until the intruder leaves (eq. 38); the info
-``used_filter`` says when.
+``used_filter`` says when. ``vehicle_policy="worst"`` (or any name of :data:`stp_env.baselines.VEHICLE_POLICIES`) flies the
+vehicles by that scripted policy instead of their actions (which are still checked, then ignored): ``"worst"`` is
+the buffer game's worst vehicle, under which an optimal intruder can reach the k̄ bound (the intruder paper's
+Fig. 6; scenario ``"fig6"``).
 
 Observations
 ------------
@@ -218,6 +221,18 @@ def _count_traces(fn):
 _advance_jit = jax.jit(_count_traces(_advance))
 
 
+def _advance_scripted(key, state, actions, params, vehicle_policy):
+    """:func:`_advance` with the vehicles flown by a scripted policy (their actions ignored)."""
+    key, sub = jax.random.split(key)
+    new, rewards = core.step(sub, state, actions, params, vehicle_policy=vehicle_policy)
+    obs_v, obs_i = core.observe(new, params)
+    term, trunc = core.episode_over(new, params)
+    return key, new, StepOutput(obs_v, obs_i, rewards, _step_info(state, new), term, trunc)
+
+
+_advance_scripted_jit = jax.jit(_advance_scripted, static_argnames=("vehicle_policy",))
+
+
 def _check_appear_window(params) -> None:
     """The intruder's appearance window must lie within the episode ``[t_start, t_end]``."""
     lo, hi = (float(v) for v in np.asarray(params.appear_window))
@@ -237,8 +252,14 @@ class STPParallelEnv(ParallelEnv):
 
     def __init__(self, scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, *,
                  max_cycles: int | None = None, render_mode: str | None = None, params: sim.EnvParams | None = None,
-                 render_avoid_regions: bool = False, store=None, replan: bool = False):
+                 render_avoid_regions: bool = False, store=None, replan: bool = False,
+                 vehicle_policy: str | None = None):
+        from stp_env.baselines import BUFFER_GAME_VEHICLE_POLICIES, VEHICLE_POLICIES
         from stp_env.scenarios import Scenario, make
+
+        if vehicle_policy is not None and vehicle_policy not in VEHICLE_POLICIES:
+            raise ValueError(f"vehicle_policy {vehicle_policy!r} is not known; allowed: None (the agents act) or "
+                             f"{', '.join(VEHICLE_POLICIES)}.")
 
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode {render_mode!r} is not supported; allowed: "
@@ -259,6 +280,9 @@ class STPParallelEnv(ParallelEnv):
             params = _cached_params(scenario, config) if store is None else sim.params_for(
                 scenario, config, store=store, progress=False)
         _check_appear_window(params)
+        if vehicle_policy in BUFFER_GAME_VEHICLE_POLICIES and params.buffer_values is None:
+            params = sim.build.with_buffer(params, sim.build.load_buffer(scenario, store=store, progress=False))
+        self._vehicle_policy = None if vehicle_policy is None else VEHICLE_POLICIES[vehicle_policy]
         self.params = params
         self._base_params = params
         self.replan = bool(replan)
@@ -426,7 +450,11 @@ class STPParallelEnv(ParallelEnv):
 
     def step(self, actions):
         arr = self._parse_actions(actions)  # raises before anything changes
-        self._key, self._state, out = _advance_jit(self._key, self._state, arr, self.params)
+        if self._vehicle_policy is None:
+            self._key, self._state, out = _advance_jit(self._key, self._state, arr, self.params)
+        else:
+            self._key, self._state, out = _advance_scripted_jit(self._key, self._state, arr, self.params,
+                                                                self._vehicle_policy)
         self._steps += 1
         out = jax.device_get(out)
         obs, rewards, info = self._observations(out.obs_vehicles, out.obs_intruder), out.rewards, out.info

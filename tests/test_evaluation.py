@@ -95,6 +95,7 @@ def test_configuration_rejects_bad_fields():
     with pytest.raises(ValueError, match="spawn mode"):
         Configuration(spawn_mode="sky")
     assert Configuration(intruder="max-k").effective_spawn_mode == "boundary"
+    assert Configuration(intruder="optimal-max-k").effective_spawn_mode == "boundary"
     assert Configuration(intruder="hj").effective_spawn_mode == "outside"
 
 
@@ -123,6 +124,11 @@ def test_evaluate_writes_results(tiny_run):
     assert np.array_equal(np.bincount(n_forced, minlength=len(s["forced_hist"])), s["forced_hist"])
     assert s["collisions"] == int(np.sum(status == COLLIDED))
     assert s["exceed_upper"] == pytest.approx(clopper_pearson_upper(s["exceed"], EPISODES))
+    # tightness: how often the bound was reached, and the k-th avoid starts (present exactly when reached)
+    assert s["kbar_reached"] == int(np.sum(n_forced >= s["kbar"]))
+    assert len(s["avoid_start_kth_median_s"]) == s["kbar"] + 1
+    assert [m is not None for m in s["avoid_start_kth_median_s"]] == [
+        bool(np.any(n_forced >= k)) for k in range(1, s["kbar"] + 2)]
     # what produced it is recorded: the source hash of the package that ran
     prov = json.loads((out / "results.json").read_text())["provenance"]
     from stp_env.artifacts import CODE_VERSION

@@ -7,6 +7,7 @@ policies return ``(2,)`` (see :mod:`stp_env.baselines.intruders`). They read the
 """
 
 from stp_env.baselines.intruders import (
+    BUFFER_GAME_INTRUDERS,
     INTRUDERS,
     bezier_intruder,
     greedy_pursuit,
@@ -16,18 +17,24 @@ from stp_env.baselines.intruders import (
     max_k,
     mixture,
     mixture_index,
+    optimal_max_k,
+    ordered_max_k,
     random_intruder,
 )
 from stp_env.baselines.vehicles import (
+    BUFFER_GAME_VEHICLE_POLICIES,
     VEHICLE_POLICIES,
     fallback_control,
     nominal_tracking,
     safety_filter,
     switching,
     vehicle_policy,
+    worst,
 )
 
 __all__ = [
+    "BUFFER_GAME_INTRUDERS",
+    "BUFFER_GAME_VEHICLE_POLICIES",
     "INTRUDERS",
     "VEHICLE_POLICIES",
     "bezier_intruder",
@@ -40,8 +47,11 @@ __all__ = [
     "mixture",
     "mixture_index",
     "nominal_tracking",
+    "optimal_max_k",
+    "ordered_max_k",
     "random_intruder",
     "safety_filter",
     "switching",
     "vehicle_policy",
+    "worst",
 ]

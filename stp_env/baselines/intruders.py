@@ -12,6 +12,14 @@
 * :func:`max_k`: the strategy of the intruder paper's Figs. 6-7: appear on a vehicle's avoid boundary (use
   ``spawn_mode="boundary"``), then go for the avoid boundary of the next vehicle not yet forced (HJ pursuit of the
   unforced vehicle with the smallest ``V^A``), to force as many vehicles as possible.
+* :func:`optimal_max_k`: the same strategy played optimally for the hops *between* vehicles: from the vehicle it
+  has just forced it takes the time-optimal route to the next vehicle's avoid region, the minimising player of the
+  buffer game ``V^B`` (eqs. 46-47: the game the buffer region is built from; the heading of steepest descent of
+  ``V^B`` at full speed, see :func:`_hop_to`), choosing as next vehicle the unforced
+  one with the smallest ``V^B`` (the one it can force soonest). Where ``V^B > 0`` it flies straight at that vehicle
+  (the nearest unforced one outside the table). Needs the buffer table (:func:`stp_env.sim.build.with_buffer`).
+  :func:`ordered_max_k` plays a fixed vehicle order instead (to check by brute force over orders that the greedy
+  choice forces the most).
 """
 
 from __future__ import annotations
@@ -105,13 +113,67 @@ def hj_pursuit(key, state, params):
     return jnp.where(ok, a, hover(None, state, params))
 
 
-def max_k(key, state, params):
-    del key
+def _force_next(state, params, hop):
+    """``hop`` toward the next unforced flying vehicle; when all are forced, HJ pursuit of any; else hover."""
     fly = state.status == FLYING
     unforced = fly & ~jnp.isfinite(state.avoid_start)
-    a_next, ok_next = _pursue(state, params, unforced)
+    a_next, ok_next = hop(state, params, unforced)
     a_any, ok_any = _pursue(state, params, fly)
     return jnp.where(ok_next, a_next, jnp.where(ok_any, a_any, hover(None, state, params)))
+
+
+def max_k(key, state, params):
+    del key
+    return _force_next(state, params, _pursue)
+
+
+def _buffer_hop(state, params, eligible):
+    """The buffer game's minimising intruder action toward vehicle ``j`` (the eligible one with the smallest
+    ``V^B``; the nearest when none is within the table) and whether any vehicle is eligible."""
+    rel = relative_state(state.x, state.intruder_x[None, :])
+    vb = jnp.where(eligible, jax.vmap(lambda r: tables.buffer_value(params, r))(rel), jnp.inf)
+    dist = jnp.where(eligible, jnp.hypot(*(state.x[:, :2] - state.intruder_x[None, :2]).T), jnp.inf)
+    in_table = vb < tables.FAR
+    j = jnp.where(jnp.any(in_table), jnp.argmin(vb), jnp.argmin(dist))
+    return _hop_to(state, params, j, rel), jnp.any(eligible)
+
+
+def _hop_to(state, params, j, rel):
+    """The intruder's time-optimal move toward vehicle ``j``'s avoid region: the heading of steepest descent of
+    ``V^B`` (``-grad_p V^B``, the minimiser of the game's position term, turned into the world frame) at full speed,
+    steered to with the proportional law of :func:`_steer`. The game's own turn rate is bang-bang; held over a
+    decision step (0.1 s) it zig-zags across the optimal heading by ``omega_max dt``, which costs the hop time the
+    buffer region is built on. Where ``V^B > 0`` (no direction in the table): straight at the vehicle."""
+    g = tables.buffer_gradient(params, rel[j])
+    heading = state.x[j, 2] + jnp.arctan2(-g[1], -g[0])
+    point = state.intruder_x[:2] + 100.0 * jnp.stack([jnp.cos(heading), jnp.sin(heading)])
+    inside = (tables.buffer_value(params, rel[j]) <= 0.0) & (jnp.hypot(g[0], g[1]) > 1e-3)
+    return jnp.where(inside, _steer(state, params, point), _steer(state, params, state.x[j, :2]))
+
+
+def optimal_max_k(key, state, params):
+    del key
+    return _force_next(state, params, _buffer_hop)
+
+
+def ordered_max_k(order):
+    """:func:`optimal_max_k` with a fixed order: the next vehicle is the first of ``order`` (vehicle indices) that
+    flies and is not yet forced."""
+    order = tuple(int(i) for i in order)
+    if not order or len(set(order)) != len(order) or min(order) < 0:
+        raise ValueError(f"order must list distinct vehicle indices >= 0; got {order!r}.")
+    idx = jnp.asarray(order, jnp.int32)
+
+    def policy(key, state, params):
+        fly = state.status == FLYING
+        unforced = fly & ~jnp.isfinite(state.avoid_start)
+        ok = unforced[idx]
+        j = idx[jnp.argmax(ok)]
+        rel = relative_state(state.x, state.intruder_x[None, :])
+        return jnp.where(jnp.any(ok), _hop_to(state, params, j, rel), optimal_max_k(key, state, params))
+
+    policy.__name__ = "ordered_max_k(" + ",".join(map(str, order)) + ")"
+    return policy
 
 
 INTRUDERS = {
@@ -122,7 +184,10 @@ INTRUDERS = {
     "greedy": greedy_pursuit,
     "hj": hj_pursuit,
     "max-k": max_k,
+    "optimal-max-k": optimal_max_k,
 }
+BUFFER_GAME_INTRUDERS = frozenset({"optimal-max-k"})
+"""The intruders that read the buffer table (the evaluation loads it for them)."""
 
 
 def intruder_policy(name: str):

@@ -7,6 +7,18 @@
 * :func:`safety_filter`: wraps any vehicle policy (learned or not) in the least-restrictive HJ filter: the
   policy's action is kept except where the vehicle is forced (its relative state reached the avoid boundary,
   eqs. 17-18), where ``u^A`` replaces it. ``switching == safety_filter(nominal_tracking)``.
+* :func:`worst`: the vehicle behaviour the relative buffer region ``V^B`` assumes (eqs. 22/46-47, Fig. 6): while
+  the intruder is present, every flying vehicle not yet forced plays the minimising player of the buffer game,
+  from the gradient of ``V^B``: the game's speed (that of :func:`stp_env.sim.tables.worst_control`) and a turn
+  toward the heading of steepest descent of ``V^B`` (:func:`stp_env.sim.tables.buffer_descent`), i.e. the control
+  that brings the intruder into its avoid region fastest. The turn is proportional, not the game's bang-bang turn
+  rate: on the 12.5 m x 6 degree ``V^B`` grid the turn's switching function (``p_x y - p_y x - p_theta``) is
+  small and noisy near the head-on line, and its sign flips made the vehicles weave off the head-on approach, the
+  one along which the avoid region reaches farthest (``d^A``), which delayed the hop by 0.3 s in ``fig6``. Where
+  ``V^B > 0`` (the intruder cannot reach the avoid region within ``t_BRD``, and the table's gradient carries no
+  direction) it turns toward the intruder at full speed.
+  Forced vehicles apply ``u^A`` (the safety filter), and the others ``u^PP`` when no intruder is present. Needs the
+  buffer table (:func:`stp_env.sim.build.with_buffer`).
 
 After the intruder leaves, eq. (40) replans the affected vehicles (Algorithm 4,
 :func:`stp_env.planning.replan.replan`, a level-set solve per vehicle: not jittable). The fallback here is the
@@ -16,10 +28,12 @@ documented faster substitute: fly at the fastest planning speed toward the targe
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
-from stp_env.sim.physics import wrap_angle
-from stp_env.sim.types import AFTER_AVOIDANCE, AVOIDING, PRESENT
+from stp_env.sim import tables
+from stp_env.sim.physics import control_to_action, relative_state, wrap_angle
+from stp_env.sim.types import AFTER_AVOIDANCE, AVOIDING, FLYING, NOMINAL, PRESENT
 
 HEADING_GAIN = 2.0  # [1/s] fallback turn rate per radian of heading error
 
@@ -58,7 +72,41 @@ switching = safety_filter(nominal_tracking)
 switching.__name__ = "switching"
 switching.__doc__ = "``u*`` (eq. 38): ``u^A`` while forced and the intruder is present, else ``u^PP``."
 
-VEHICLE_POLICIES = {"switching": switching, "nominal": nominal_tracking}
+def _toward_intruder(state, params):
+    """Full speed, turning toward the intruder at up to the full rate (proportional in the bearing error)."""
+    d = state.intruder_x[None, :2] - state.x[:, :2]
+    err = wrap_angle(jnp.arctan2(d[:, 1], d[:, 0]) - state.x[:, 2])
+    b = params.vehicle_bounds
+    omega = jnp.clip(HEADING_GAIN * err, -b[2], b[2])
+    return control_to_action(jnp.full_like(omega, b[1]), omega, b)
+
+
+def worst_unfiltered(key, state, params):
+    """The buffer game's minimising vehicle control for the unforced vehicles while the intruder is present, else
+    :func:`nominal_tracking` (:func:`worst` adds the safety filter)."""
+    rel = relative_state(state.x, state.intruder_x[None, :])
+    v, phi, norm = jax.vmap(lambda r: tables.buffer_descent(params, r))(rel)
+    b = params.vehicle_bounds
+    # the game's speed (v_max when moving ahead lowers V^B), turning proportionally toward the descent heading
+    omega = jnp.clip(HEADING_GAIN * wrap_angle(phi), -b[2], b[2])
+    game = control_to_action(v, omega, b)
+    # V^B's gradient is informative where the intruder can reach the avoid region within t_BRD (V^B <= 0); farther
+    # out the table holds the transported plateau of the clamped target (gradient ~0): close in head-on there.
+    inside = (jax.vmap(lambda r: tables.buffer_value(params, r))(rel) <= 0.0) & (norm > 1e-3)
+    toward = jnp.where(inside[:, None], game, _toward_intruder(state, params))
+    attack = ((state.status == FLYING) & (state.mode == NOMINAL) & ~jnp.isfinite(state.avoid_start)
+              & (state.intruder_status == PRESENT))
+    return jnp.where(attack[:, None], toward, nominal_tracking(key, state, params))
+
+
+worst = safety_filter(worst_unfiltered)
+worst.__name__ = "worst"
+worst.__doc__ = ("The buffer game's worst vehicles (see the module docstring): ``u^A`` while forced and the intruder "
+                 "is present, else the control that brings the intruder into the avoid region fastest.")
+
+VEHICLE_POLICIES = {"switching": switching, "nominal": nominal_tracking, "worst": worst}
+BUFFER_GAME_VEHICLE_POLICIES = frozenset({"worst"})
+"""The vehicle policies that read the buffer table (the evaluation loads it for them)."""
 
 
 def vehicle_policy(name: str):

@@ -18,8 +18,9 @@ from stp_env.sim import EnvConfig, winds
 from stp_env.sim.types import SPAWN_MODES
 
 SPAWN_CHOICES = ("auto", *SPAWN_MODES)
-"""``auto``: ``boundary`` for the ``max-k`` intruder (the strategy of the intruder paper's Figs. 6-7 starts on a
-vehicle's avoid boundary), ``outside`` for every other intruder."""
+"""``auto``: ``boundary`` for the ``max-k`` and ``optimal-max-k`` intruders (the strategy of the intruder paper's
+Figs. 6-7 starts on a vehicle's avoid boundary), ``outside`` for every other intruder."""
+BOUNDARY_INTRUDERS = ("max-k", "optimal-max-k")
 
 EPISODE_CHOICES = ("window", "full")
 LEARNED_PREFIX = "learned:"
@@ -89,8 +90,10 @@ class Configuration:
             needs its own reachability artifacts and plan, computed and cached on first use).
         wind_model: a registered wind model (:func:`stp_env.sim.winds.names`), or a spec ``name:param=value``.
         spawn_mode: one of :data:`SPAWN_CHOICES`.
-        vehicle_policy: ``"switching"`` (``u*``, eq. 38, with the core's safety filter) or ``"nominal"`` (``u^PP``
-            only: the safety filter is off and vehicles ignore the intruder; their avoid starts are still counted).
+        vehicle_policy: ``"switching"`` (``u*``, eq. 38, with the core's safety filter), ``"nominal"`` (``u^PP``
+            only: the safety filter is off and vehicles ignore the intruder; their avoid starts are still counted)
+            or ``"worst"`` (the buffer game's worst vehicles until forced, then ``u^A``: the assumption behind
+            ``V^B``, under which the k̄ bound can be reached).
         episode: ``"window"`` (around the intruder's appearance window) or ``"full"`` (first departure to the last
             STA), see :class:`stp_env.sim.EnvConfig`.
     """
@@ -128,7 +131,7 @@ class Configuration:
     def effective_spawn_mode(self) -> str:
         if self.spawn_mode != "auto":
             return self.spawn_mode
-        return "boundary" if self.intruder == "max-k" else "outside"
+        return "boundary" if self.intruder in BOUNDARY_INTRUDERS else "outside"
 
     @property
     def label(self) -> str:

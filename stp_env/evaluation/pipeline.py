@@ -117,10 +117,11 @@ def _write_all(results, out: Path, *, seed, episodes, batch_size, figures):
                     f"{show['index']}: |N^RP| = {int(show['final']['n_forced'])}")
             plots.plot_episode(show, show["final"], best.params, scenario, str(out / "episode.png"),
                                title=f"{scenario.name}: {what}")
-            own = best.config.vehicle_policy
-            other = "nominal" if own == "switching" else "switching"
-            other_final, other_traj = counterpart(best, other)
-            runs = {own: (show, show["final"]), other: (other_traj, other_final)}
+            runs = {best.config.vehicle_policy: (show, show["final"])}
+            for other in ("switching", "nominal"):  # the figure compares u* with u^PP (a "worst" run has neither)
+                if other not in runs:
+                    other_final, other_traj = counterpart(best, other)
+                    runs[other] = (other_traj, other_final)
             plots.plot_distance_vs_time(
                 *runs["switching"], *runs["nominal"], best.params, str(out / "distance_vs_time.png"),
                 title=f"distance to the intruder, avoidance u* vs nominal u^PP\n{scenario.name}: {what}")

@@ -21,6 +21,7 @@ from stp_env.evaluation.events import load_event_state  # noqa: F401  (re-export
 CSV_COLUMNS = (
     "label", "scenario", "kbar", "intruder", "scenario_wind_mps", "wind_model", "spawn_mode", "vehicle_policy",
     "episode", "episodes", "forced_mean", "forced_max", "exceed", "exceed_rate", "exceed_upper", "confidence",
+    "kbar_reached", "kbar_reached_rate", "avoid_start_kth_min_s", "avoid_start_kth_median_s",
     "collision_episodes", "collisions", "intruder_collisions", "out_of_bounds", "guarantee_violations",
     "violation_episodes", "violation_upper", "assumption_failures", "tracking_violations", "max_tracking_error_m",
     "tracking_bound_m", "due", "on_time_rate", "arrived_rate",
@@ -42,8 +43,9 @@ def markdown_table(summaries: list[dict]) -> str:
     conf = summaries[0]["confidence"] if summaries else 0.95
     head = ("| intruder | k̄ | wind [m/s] | episodes | mean \\|N^RP\\| | max \\|N^RP\\| | \\|N^RP\\| > k̄ | "
             f"P(\\|N^RP\\| > k̄) ≤ ({100 * conf:g}%) | collisions (intruder) | guarantee violations | "
-            "max tracking error [m] (r_e) | on time | min sep. [m] |")
-    rows = [head, "|" + " --- |" * 13]
+            "max tracking error [m] (r_e) | on time | min sep. [m] | \\|N^RP\\| ≥ k̄ | "
+            "k-th avoid start, median (earliest) [s] |")
+    rows = [head, "|" + " --- |" * 15]
     for s in summaries:
         wind = f"{s['scenario_wind_mps']:g} {s['wind_model']}"
         rows.append(
@@ -51,8 +53,15 @@ def markdown_table(summaries: list[dict]) -> str:
             f"{s['forced_mean']:.2f} | {s['forced_max']} | {s['exceed']} | {_pct(s['exceed_upper'])} | "
             f"{s['collisions']} ({s['intruder_collisions']}) | {s['guarantee_violations']} | "
             f"{s['max_tracking_error_m']:.2f} ({s['tracking_bound_m']:.2f}) | "
-            f"{_pct(s['on_time_rate'])} | {s['min_separation_m']} |")
+            f"{_pct(s['on_time_rate'])} | {s['min_separation_m']} | {_pct(s.get('kbar_reached_rate'))} | "
+            f"{_kth_times(s)} |")
     return "\n".join(rows)
+
+
+def _kth_times(s: dict) -> str:
+    """``t_1, t_2, ...`` of the summary's k-th avoid starts: ``median (earliest)``, ``-`` where none."""
+    meds, lows = s.get("avoid_start_kth_median_s") or [], s.get("avoid_start_kth_min_s") or []
+    return ", ".join("-" if m is None else f"{m:g} ({lo:g})" for m, lo in zip(meds, lows)) or "-"
 
 
 @contextlib.contextmanager

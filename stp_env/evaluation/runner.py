@@ -135,6 +135,11 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
       already in their target when the episode starts; ``on_time_rate``: the fraction of them that arrived by their
       STA; ``arrived_rate``: that arrived at all within the episode. A ``"window"`` episode has few due vehicles
       (one per town episode); ``"full"`` episodes measure every vehicle.
+    * Tightness of the bound: ``kbar_reached`` / ``kbar_reached_rate``: episodes (fraction) with ``|N^RP| >= k̄``
+      (the bound reached, or exceeded); ``avoid_start_kth_min_s`` / ``avoid_start_kth_median_s``: for ``k = 1 ..
+      k̄ + 1``, the earliest and the median over the episodes that forced at least ``k`` vehicles of the ``k``-th
+      avoid start, relative to the intruder's appearance (``None`` when no episode forced ``k``); the worst case of
+      the intruder paper's Fig. 6 has them at ``(k - 1) t_IAT / k̄``.
     * ``min_separation_m``: the smallest distance between a vehicle and another vehicle or the intruder over all
       episodes (``R_c`` is the collision radius); ``min_separation_p5_m`` / ``..._median_m``: percentiles of the
       per-episode minimum.
@@ -155,6 +160,7 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
     on_time = (ep["arrival_time"] <= sta[None, :] + 1e-6) & due
     arrived = (ep["status"] == ARRIVED) & due
     n_due = int(due.sum())
+    kth_min, kth_median = avoid_start_order_stats(ep, kbar + 1)
     per_episode_sep = np.min(ep["min_separation"], axis=1)
     finite = per_episode_sep[np.isfinite(per_episode_sep)]
     return {
@@ -170,6 +176,8 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
         "exceed": exceed, "exceed_rate": exceed / n_ep,
         "exceed_upper": clopper_pearson_upper(exceed, n_ep, confidence),
         "confidence": confidence,
+        "kbar_reached": int(np.sum(n_forced >= kbar)), "kbar_reached_rate": float(np.mean(n_forced >= kbar)),
+        "avoid_start_kth_min_s": kth_min, "avoid_start_kth_median_s": kth_median,
         "collision_episodes": int(np.sum(np.any(collided, axis=1))),
         "collisions": int(collided.sum()),
         "intruder_collisions": int(np.sum(collided & ep["collided_with_intruder"])),
@@ -192,15 +200,40 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
     }
 
 
+def avoid_start_order_stats(ep: dict, n: int) -> tuple[list, list]:
+    """For ``k = 1 .. n``: the earliest and the median ``k``-th avoid start (relative to the intruder's appearance,
+    rounded to 0.01 s) over the episodes that forced at least ``k`` vehicles (``None`` where none did)."""
+    rel = np.sort(np.asarray(ep["avoid_start"], float) - np.asarray(ep["t_appear"], float)[:, None], axis=1)
+    lows, meds = [], []
+    for k in range(n):
+        col = rel[:, k] if k < rel.shape[1] else np.full(rel.shape[0], np.inf)
+        col = col[np.isfinite(col)]
+        lows.append(round(float(col.min()), 2) if col.size else None)
+        meds.append(round(float(np.median(col)), 2) if col.size else None)
+    return lows, meds
+
+
+def needs_buffer(config: Configuration) -> bool:
+    """Whether a policy of ``config`` plays the buffer game (reads ``V^B``)."""
+    from stp_env.baselines import BUFFER_GAME_INTRUDERS, BUFFER_GAME_VEHICLE_POLICIES
+
+    return config.vehicle_policy in BUFFER_GAME_VEHICLE_POLICIES or config.intruder in BUFFER_GAME_INTRUDERS
+
+
 def build_params(configs, *, store=None, progress: bool = True) -> list:
-    """``EnvParams`` for each configuration (cached reachability artifacts and plans; computed on first use)."""
+    """``EnvParams`` for each configuration (cached reachability artifacts and plans; computed on first use), with
+    the relative buffer table ``V^B`` of its k̄ when a policy needs it (:func:`needs_buffer`)."""
     cache = {}
     out = []
     for config in configs:
         scenario, env_config = config.make_scenario(), config.env_config()
-        key = (scenario, env_config)
+        key = (scenario, env_config, needs_buffer(config))
         if key not in cache:
-            cache[key] = sim.params_for(scenario, env_config, store=store, progress=progress)
+            params = sim.params_for(scenario, env_config, store=store, progress=progress)
+            if needs_buffer(config):
+                params = sim.build.with_buffer(params, sim.build.load_buffer(scenario, config.kbar, store=store,
+                                                                             progress=progress))
+            cache[key] = params
         out.append(cache[key])
     return out
 

@@ -303,3 +303,33 @@ def params_for(scenario, config: EnvConfig | None = None, *, store=None, progres
     avoid, tracking = load_artifacts(scenario, store=store, progress=progress)
     plan = load_plan(scenario, tracking_bound=tracking.bound, store=store, progress=progress)
     return make_params(scenario, plan, avoid, tracking, config)
+
+
+def with_buffer(params: EnvParams, buffer) -> EnvParams:
+    """``params`` with the relative buffer region ``V^B(0, t_BRD)`` (a :class:`stp_env.reach.buffer.RelativeBuffer`
+    computed for the same avoid region), which the buffer-game policies read (the ``worst`` vehicles and the
+    ``optimal-max-k`` intruder of :mod:`stp_env.baselines`)."""
+    grid = buffer.config.grid
+    if tuple(np.shape(buffer.values)) != tuple(grid.shape):
+        raise ValueError(f"the buffer values have shape {np.shape(buffer.values)}, its grid {grid.shape}.")
+    acfg = buffer.config.avoid
+    if acfg.grid != params.avoid_grid or not math.isclose(acfg.t_iat, float(params.t_iat), rel_tol=1e-6):
+        raise ValueError("the relative buffer was computed for another avoid region than these params use.")
+    return replace(params, buffer_values=jnp.asarray(buffer.values, jnp.float32), buffer_grid=grid)
+
+
+def load_buffer(scenario, kbar: int | None = None, *, store=None, progress: bool = True):
+    """The relative buffer region ``V^B(0, t_IAT / k̄)`` of ``scenario``'s vehicle (``kbar``: the scenario's when
+    ``None``), from the artifact cache (computed on first use: about a CPU-minute)."""
+    from stp_env.artifacts import ArtifactStore
+    from stp_env.reach.avoid import compute_avoid_region
+    from stp_env.reach.buffer import BufferConfig, compute_relative_buffer
+    from stp_env.reach.defaults import default_avoid_config
+
+    kbar = scenario.kbar if kbar is None else kbar
+    if kbar is None:
+        raise ValueError(f"scenario {scenario.name!r} has no k̄: the buffer region needs one.")
+    store = ArtifactStore() if store is None else store
+    acfg = default_avoid_config(scenario.vehicle, scenario.collision_radius, scenario.t_iat)
+    avoid = compute_avoid_region(acfg, store=store, progress=progress)
+    return compute_relative_buffer(BufferConfig(avoid=acfg, kbar=int(kbar)), avoid, store=store, progress=progress)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from stp_env import hj
 from stp_env.reach.avoid import avoid_table_input, avoid_table_value
@@ -84,3 +85,60 @@ def tracking_control(params, error):
     recover = jnp.stack([jnp.asarray(box.hi[0], u.dtype),
                          jnp.clip(RECOVERY_GAIN * bearing, box.lo[1], box.hi[1]).astype(u.dtype)])
     return jnp.where(inside, u, recover), d[2:4]
+
+
+# ------------------------------------------------------------------------------------------------ buffer game
+def _require_buffer(params):
+    if params.buffer_values is None or params.buffer_grid is None:
+        raise ValueError("this policy plays the buffer game and needs V^B in the params: build them with "
+                         "stp_env.sim.build.with_buffer (the evaluation does so for the 'worst' vehicles and the "
+                         "'optimal-max-k' intruder).")
+
+
+def buffer_game(params):
+    """The dynamics of the buffer game (intruder paper eqs. 46-47): eq. (44) with *every* player minimising (the
+    vehicle, the intruder and both winds bring the intruder toward the vehicle's avoid region)."""
+    return params.avoid_dynamics.with_modes(control_mode="min", disturbance_mode="min")
+
+
+def buffer_value(params, x_rel):
+    """``V^B(0, t_BRD)`` at the intruder's relative state ``x_rel`` (3,); ``FAR`` outside its grid."""
+    _require_buffer(params)
+    grid = params.buffer_grid
+    v = hj.interpolation.interpolate(grid, params.buffer_values, x_rel)
+    return jnp.where(_inside(grid, x_rel), v, FAR)
+
+
+def buffer_gradient(params, x_rel):
+    """Spatial gradient of :func:`buffer_value` by one-cell central differences, ``(3,)`` (zero outside the grid)."""
+    _require_buffer(params)
+    grid = params.buffer_grid
+    steps = jnp.asarray(np.eye(3) * np.asarray(grid.spacing)[:, None], x_rel.dtype)
+    g = jnp.stack([(hj.interpolation.interpolate(grid, params.buffer_values, x_rel + steps[i])
+                    - hj.interpolation.interpolate(grid, params.buffer_values, x_rel - steps[i]))
+                   / (2 * steps[i, i]) for i in range(3)])
+    return jnp.where(_inside(grid, x_rel), g, 0.0)
+
+
+def buffer_descent(params, x_rel):
+    """One gradient read of ``V^B`` at ``x_rel`` for the worst vehicle: ``(v, angle, |grad_p V^B|)``, the game's
+    speed (the minimiser of :func:`worst_control`) and the heading, in the vehicle's body frame, along which the
+    *vehicle* moving lowers ``V^B`` fastest: the direction of ``+grad_p V^B`` (the relative position changes by minus
+    the vehicle's velocity; the intruder's heading is the opposite one, ``-grad_p V^B``)."""
+    g = buffer_gradient(params, x_rel)
+    v = buffer_game(params).optimal_control(tuple(x_rel), tuple(g))[0]
+    return v, jnp.arctan2(g[1], g[0]), jnp.hypot(g[0], g[1])
+
+
+def worst_control(params, x_rel):
+    """The vehicle's minimising control of the buffer game at ``x_rel``: ``(v_i, omega_i)`` bringing the intruder
+    into its avoid region fastest (the vehicle behaviour ``V^B`` assumes)."""
+    p = buffer_gradient(params, x_rel)
+    return jnp.stack(buffer_game(params).optimal_control(tuple(x_rel), tuple(p)))
+
+
+def buffer_pursuit(params, x_rel):
+    """The intruder's minimising input of the buffer game at ``x_rel``: ``(v_I, omega_I, w_x, w_y)`` (its control
+    and the combined wind, as in :func:`pursuit_input`)."""
+    p = buffer_gradient(params, x_rel)
+    return jnp.stack(buffer_game(params).optimal_disturbance(tuple(x_rel), tuple(p)))

@@ -70,6 +70,11 @@ class EnvParams:
             control period ``dt / control_substeps``.
         safety_filter: override a vehicle's action with ``u^A`` from its avoid-start time (eq. 38).
         n_nearest: vehicles listed in each observation.
+        buffer_grid: grid of ``buffer_values`` (``None`` when no buffer table is loaded).
+
+    Optional (``None`` unless loaded with :func:`stp_env.sim.build.with_buffer`; only the policies of the buffer
+    game read it: the ``worst`` vehicles and the ``optimal-max-k`` intruder):
+        buffer_values: ``V^B(0, t_BRD)`` of the plan's k̄ (intruder paper eqs. 46-47) on ``buffer_grid``.
     """
 
     # --- time
@@ -126,11 +131,14 @@ class EnvParams:
     safety_filter: bool = True
     n_nearest: int = 4
     control_substeps: int = 1
+    # --- optional: the relative buffer region of the buffer game
+    buffer_values: Any = None     # buffer_grid.shape V^B(0, t_BRD) [m], or None
+    buffer_grid: Grid | None = None
 
 
 EnvParams = _pytree(EnvParams, meta=("n_vehicles", "avoid_grid", "tracking_grid", "sdf_grid", "avoid_dynamics",
                                      "tracking_dynamics", "wind_model", "vehicle_model",
-                                     "safety_filter", "n_nearest", "control_substeps"))
+                                     "safety_filter", "n_nearest", "control_substeps", "buffer_grid"))
 
 
 @dataclasses.dataclass(frozen=True)

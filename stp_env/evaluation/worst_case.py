@@ -1,0 +1,105 @@
+"""The intruder paper's worst case on the core: the ``fig6`` scenario with a fixed intruder spawn, played by the
+buffer game's worst vehicles (Fig. 6) or by the vehicles' own controller ``u*`` (Fig. 7).
+
+:func:`fig6_params` builds the simulator constants (straight-line plan, the intruder appearing ``FIG6_LEAD`` s after
+departure, the ``V^B`` table for the buffer-game policies); :func:`run_fixed_spawn` runs one episode from a given
+intruder state (the core's spawner draws a random one), recording the trajectories.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from stp_env import sim
+from stp_env.sim import core
+from stp_env.sim.build import load_buffer, with_buffer
+from stp_env.sim.rollout import episode_step
+from stp_env.sim.tables import FAR
+from stp_env.sim.types import replace
+
+FIG6_PAPER_TIMES = (0.0, 10 / 3, 20 / 3, math.inf)
+"""Avoid-start times of ``Q1``-``Q4`` in the intruder paper's Fig. 6 [s] (``inf``: never forced)."""
+FIG7_PAPER_TIMES = (0.0, 6.4, math.inf, math.inf)
+"""The same in Fig. 7 (vehicles flying ``u^PP`` until forced)."""
+
+
+def fig6_params(scenario=None, *, config: sim.EnvConfig | None = None, store=None, progress: bool = False):
+    """``EnvParams`` of the ``fig6`` scenario (default ``make("fig6")``) with its straight-line plan and the
+    ``V^B`` table; the intruder appears ``FIG6_LEAD`` s after departure (``config.appear_window`` overridden)."""
+    from stp_env.scenarios import make
+    from stp_env.scenarios.catalog.fig6 import FIG6_LEAD, fig6_plan
+
+    scenario = make("fig6") if scenario is None else scenario
+    config = sim.EnvConfig() if config is None else config
+    # The episode starts at the departure (t = 0, steps at k dt) and the window is half a step before FIG6_LEAD: the
+    # intruder appears at the first step time >= the window, i.e. at FIG6_LEAD, even when the float32 step times
+    # fall a hair short of it.
+    lo = FIG6_LEAD - 0.5 * config.dt
+    config = config.with_overrides(appear_window=(lo, lo), lead=lo)
+    avoid, tracking = sim.load_artifacts(scenario, store=store, progress=progress)
+    plan = fig6_plan(scenario, tracking.bound)
+    params = sim.make_params(scenario, plan, avoid, tracking, config)
+    return with_buffer(params, load_buffer(scenario, store=store, progress=progress))
+
+
+def fig6_spawn() -> np.ndarray:
+    """The intruder's state at appearance: 1 m north of the origin, heading east (on ``Q1``'s avoid boundary, at
+    ``Q2``). The metre keeps ``V^A`` of ``Q1`` above the avoid margin despite ``Q1``'s tracking error (up to
+    ``r_e``) and float32 rounding, so that Assumption 3 holds; the hops to ``Q2``-``Q4`` (on ``y = 0``) are 1 m
+    off-axis, which changes their lengths by under 0.01 m."""
+    return np.asarray([0.0, 1.0, 0.0], np.float32)
+
+
+@functools.partial(jax.jit, static_argnames=("vehicle_policy", "intruder_policy", "n_steps"))
+def run_fixed_spawn(key, params, spawn, vehicle_policy, intruder_policy, n_steps: int):
+    """One episode with the intruder appearing at ``spawn`` (3,): ``(final state, trajectory)``, the trajectory a
+    dict of per-step arrays ``t``, ``x``, ``mode``, ``status``, ``intruder_x``, ``intruder_status``,
+    ``avoid_value`` (``V^A`` of each vehicle against the intruder, ``FAR`` when absent)."""
+    k_reset, k_run = jax.random.split(key)
+    s0 = core.reset(k_reset, params)
+    memory = jnp.concatenate([jnp.asarray(spawn, s0.intruder_memory.dtype), jnp.zeros((1,), s0.intruder_memory.dtype)])
+    s0 = replace(s0, intruder_memory=memory)
+
+    def body(state, k):
+        new, _ = episode_step(k, state, params, vehicle_policy, intruder_policy)
+        term, trunc = core.episode_over(state, params)
+        new = jax.tree.map(lambda a, b: jnp.where(term | trunc, a, b), state, new)
+        return new, {"t": new.t, "x": new.x, "mode": new.mode, "status": new.status, "intruder_x": new.intruder_x,
+                     "intruder_status": new.intruder_status, "avoid_value": new.avoid_value}
+
+    return jax.lax.scan(body, s0, jax.random.split(k_run, n_steps))
+
+
+def reproduce(params, vehicle_policy, intruder_policy, *, seed: int = 0, spawn=None, n_steps: int | None = None):
+    """Run the fixed-spawn episode and summarise it: ``{"avoid_start_s": [t_i - t_ per vehicle, inf if never],
+    "min_avoid_value_m" and "min_avoid_value_time_s": each vehicle's smallest ``V^A`` against the intruder and
+    when (how close an untouched vehicle came to being forced; ``None`` when the intruder never came within the
+    avoid table of it), "n_forced", "collisions", "assumption_ok",
+    "trajectory", "final"}`` (times relative to the appearance)."""
+    from stp_env.seeds import prng_key
+
+    spawn = fig6_spawn() if spawn is None else np.asarray(spawn, np.float32)
+    n_steps = sim.steps_for(params) if n_steps is None else n_steps
+    final, traj = run_fixed_spawn(prng_key(seed), params, jnp.asarray(spawn), vehicle_policy, intruder_policy,
+                                  n_steps)
+    t_appear = float(final.t_appear)
+    starts = np.asarray(final.avoid_start) - t_appear
+    values = np.asarray(traj["avoid_value"])
+    closest = values.min(axis=0)
+    return {
+        "avoid_start_s": [round(float(t), 3) if np.isfinite(t) else math.inf for t in starts],
+        "min_avoid_value_m": [round(float(v), 2) if v < FAR else None for v in closest],
+        "min_avoid_value_time_s": [round(float(np.asarray(traj["t"])[int(np.argmin(values[:, i]))] - t_appear), 2)
+                                   if closest[i] < FAR else None for i in range(values.shape[1])],
+        "n_forced": int(np.sum(np.isfinite(starts))),
+        "collisions": int(np.sum(np.asarray(final.status) == sim.COLLIDED)),
+        "assumption_ok": np.asarray(final.assumption_ok).tolist(),
+        "t_appear_s": t_appear,
+        "trajectory": {k: np.asarray(v) for k, v in traj.items()},
+        "final": final,
+    }
