@@ -13,6 +13,7 @@ import pytest
 from stp_env import sim
 from stp_env.baselines import INTRUDERS, mixture, mixture_index, nominal_tracking, switching
 from stp_env.planning.stp import shipped_plan_for
+from stp_env.scenarios import make
 from stp_env.sim.physics import dubins_step
 
 N_EPISODES = 500  # per intruder type (3,500 in all)
@@ -48,7 +49,8 @@ def test_switching_controller_keeps_the_guarantee_against_every_scripted_intrude
     """About 500 episodes of each scripted intruder, 3,500 in all (a per-episode mixture: one compiled program),
     half of them appearing on a vehicle's avoid boundary (Observation 1), half anywhere outside the avoid
     regions."""
-    params = _params("mixed")
+    # The buffer-game intruder ('optimal-max-k') reads V^B: the params carry it.
+    params = sim.build.with_buffer(_params("mixed"), sim.build.load_buffer(make("town", kbar=2), progress=False))
     names = tuple(INTRUDERS)
     n_steps = sim.steps_for(params)
     final, _ = sim.rollout(jax.random.key(17), params, switching, mixture(names), N_EPISODES * len(names), n_steps)
