@@ -628,7 +628,8 @@ def test_a_killed_cache_writer_leaves_no_temporary_file(tmp_path):
     art = ArtifactStore(tmp_path).load_or_compute("thing", {"n": 1}, lambda: {"x": np.zeros(3)})
     assert not art.from_cache
     npz_path, json_path, _ = ArtifactStore(tmp_path).paths("thing", {"n": 1})
-    assert sorted(tmp_path.iterdir()) == sorted([npz_path, json_path])
+    # and the artifact's lock file (empty, kept: processes sharing the cache coordinate on it)
+    assert sorted(tmp_path.iterdir()) == sorted([npz_path, json_path, npz_path.with_suffix(".lock")])
 
 
 def test_temporary_files_of_live_writers_are_kept(tmp_path):
