@@ -39,10 +39,10 @@ still to act after the error). ``step`` after every agent has finished raises ``
 live agent missing from the action dict applies the zero action. With ``EnvConfig(safety_filter=True)`` (the
 default), a vehicle forced by the intruder (its relative state reached the boundary of ``V^A``, eqs. 17-18) has its
 action replaced by the avoidance control ``u^A`` (eq. 15) until the intruder leaves (eq. 38); the info
-``used_filter`` says when. ``vehicle_policy="worst"`` (or any name of :data:`stp_env.baselines.VEHICLE_POLICIES`) flies the
-vehicles by that scripted policy instead of their actions (which are still checked, then ignored): ``"worst"`` is
-the buffer game's worst vehicle, under which an optimal intruder can reach the k̄ bound (the intruder paper's
-Fig. 6; scenario ``"fig6"``).
+``used_filter`` says when. ``vehicle_policy="worst"`` (or any name of
+:data:`stp_env.baselines.VEHICLE_POLICIES`) flies the vehicles by that scripted policy instead of their actions
+(which are still checked, then ignored): ``"worst"`` is the buffer game's worst vehicle, under which an optimal
+intruder can reach the k̄ bound (the intruder paper's Fig. 6; scenario ``"fig6"``).
 
 Observations
 ------------
