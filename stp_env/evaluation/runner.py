@@ -27,6 +27,7 @@ from stp_env import sim
 from stp_env.evaluation.config import Configuration
 from stp_env.evaluation.stats import clopper_pearson_upper
 from stp_env.seeds import check_seed, prng_key
+from stp_env.sim.rollout import rollout_keys
 from stp_env.sim.types import ARRIVED, COLLIDED, OUT_OF_BOUNDS
 
 MAX_EPISODES = 2**30  # episode indices are int32 (the last batch runs past the last episode)
@@ -37,10 +38,8 @@ EVENT_KINDS = ("bound_exceeded", "collision", "guarantee_violation", "assumption
 def run_batch(key, indices, params, vehicle_policy, intruder_policy, n_steps: int, record: bool = False):
     """Episodes ``indices`` (B,) of the run keyed by ``key``: ``(final states, trajectories)`` batched over ``B``
     (trajectories ``None`` unless ``record``; fields as in :func:`stp_env.sim.rollout`)."""
-    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(indices)
-    final, traj = jax.vmap(
-        lambda k: sim.rollout(k, params, vehicle_policy, intruder_policy, 1, n_steps, record=record))(keys)
-    return jax.tree.map(lambda a: a[:, 0], (final, traj))
+    keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.fold_in(key, i), 0))(indices)
+    return rollout_keys(keys, params, vehicle_policy, intruder_policy, n_steps, record=record)
 
 
 def pad_plan(params, n_samples: int):

@@ -401,14 +401,15 @@ def step(key, state: EnvState, actions, params: EnvParams, vehicle_policy=None):
         return s, _closest_approach(closest, s, params)
 
     def inner(carry, m):
-        s, closest = move(carry, m)
-        return (avoid_start(observe_controllers(s, params), params), closest), None
+        s, closest = move(carry[:2], m)
+        return (avoid_start(observe_controllers(s, params), params), closest, s), None
 
     far = jnp.full((n,), jnp.inf, state.x.dtype)
-    init = (state, Closest(pair=jnp.full((n, n), jnp.inf, state.x.dtype), intruder=far, building=far))
-    # Inner steps 0 .. M-2 end with the controllers refreshed; the last one ends with lifecycle at t + dt.
-    carry, _ = jax.lax.scan(inner, init, jnp.arange(m_sub - 1))
-    sub, closest = move(carry, m_sub - 1)
+    init = (state, Closest(pair=jnp.full((n, n), jnp.inf, state.x.dtype), intruder=far, building=far), state)
+    # Every inner step ends with the controllers refreshed for the next one; the step continues from the last inner
+    # step's state before that refresh (the lifecycle at t + dt comes first). One scan over all M inner steps, not
+    # M - 1 plus a last one written apart: the step's program holds the inner step once, which halves its compile.
+    (_, closest, sub), _ = jax.lax.scan(inner, init, jnp.arange(m_sub))
     new_state, ev = _events(state, replace(sub, wind=wind_state), closest, params)
     return new_state, _rewards(state, new_state, ev, params)
 

@@ -1,4 +1,4 @@
-"""Batched rollouts: ``vmap`` over episode keys of a ``lax.scan`` over steps (one compiled program)."""
+"""Batched rollouts: a ``lax.scan`` over steps of the step ``vmap``-ed over episode keys (one compiled program)."""
 
 from __future__ import annotations
 
@@ -31,27 +31,40 @@ def rollout(key, params: EnvParams, vehicle_policy, intruder_policy, n_envs: int
     ``jax.random.fold_in(key, i)``; steps after the episode ends (every vehicle done and the intruder gone, or
     ``t_end``) leave the state unchanged.
     """
-
-    def one(ep_key):
-        k_reset, k_run = jax.random.split(ep_key)
-        s0 = core.reset(k_reset, params)
-
-        def body(state, k):
-            new, rewards = episode_step(k, state, params, vehicle_policy, intruder_policy)
-            term, trunc = core.episode_over(state, params)
-            over = term | trunc
-            new = jax.tree.map(lambda a, b: jnp.where(over, a, b), state, new)
-            rewards = jnp.where(over, 0.0, rewards)
-            out = None
-            if record:
-                out = {"t": new.t, "x": new.x, "status": new.status, "mode": new.mode,
-                       "intruder_x": new.intruder_x, "intruder_status": new.intruder_status, "rewards": rewards}
-            return new, out
-
-        return jax.lax.scan(body, s0, jax.random.split(k_run, n_steps))
-
     keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(n_envs))
-    return jax.vmap(one)(keys)
+    return rollout_keys(keys, params, vehicle_policy, intruder_policy, n_steps, record)
+
+
+def rollout_keys(episode_keys, params: EnvParams, vehicle_policy, intruder_policy, n_steps: int,
+                 record: bool = False):
+    """:func:`rollout` of one episode per key of ``episode_keys`` ``(B,)``: the episode keyed ``k`` resets with the
+    first half of ``split(k)`` and steps with ``split(second half, n_steps)``.
+
+    The program is a ``lax.scan`` over steps of the step ``vmap``-ed over episodes, not a ``vmap`` of a scan: the
+    same arithmetic, but tracing a batched scan re-batches its whole body until the batching of its carry settles,
+    which made the rollout several times slower to trace and compile."""
+
+    def split(ep_key):
+        k_reset, k_run = jax.random.split(ep_key)
+        return k_reset, jax.random.split(k_run, n_steps)
+
+    k_reset, k_steps = jax.vmap(split)(episode_keys)
+    s0 = jax.vmap(core.reset, in_axes=(0, None))(k_reset, params)
+
+    def one(state, k):
+        new, rewards = episode_step(k, state, params, vehicle_policy, intruder_policy)
+        term, trunc = core.episode_over(state, params)
+        over = term | trunc
+        new = jax.tree.map(lambda a, b: jnp.where(over, a, b), state, new)
+        rewards = jnp.where(over, 0.0, rewards)
+        out = None
+        if record:
+            out = {"t": new.t, "x": new.x, "status": new.status, "mode": new.mode,
+                   "intruder_x": new.intruder_x, "intruder_status": new.intruder_status, "rewards": rewards}
+        return new, out
+
+    final, traj = jax.lax.scan(jax.vmap(one), s0, jnp.swapaxes(k_steps, 0, 1))
+    return final, jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), traj)
 
 
 def steps_for(params: EnvParams) -> int:
