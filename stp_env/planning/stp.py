@@ -232,9 +232,11 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
                   settings: hj.SolverSettings | None = None, progress: bool = True, solver: str | None = None,
                   checkpoint=None, on_vehicle=None) -> Plan:
     """Plans a registered :class:`stp_env.scenarios.Scenario` with its ``method``: robust trajectory tracking
-    (``"rtt"``, below) or the centralized / least-restrictive methods (:func:`stp_env.planning.methods.plan_methods`,
-    full control set, horizon by default twice the longest straight flight at ``v_max`` plus 1 s; intruder-aware
-    buffers are not available for them, and ``tracking_bound`` is not used).
+    (``"rtt"``, below), straight flights checked against its constraints (``"straight"``,
+    :func:`stp_env.planning.verify.straight_plan`), or the centralized / least-restrictive methods
+    (:func:`stp_env.planning.methods.plan_methods`, full control set, horizon by default twice the longest straight
+    flight at ``v_max`` plus 1 s; intruder-aware buffers are not available for them, and ``tracking_bound`` is not
+    used).
 
     ``tracking_bound`` defaults to :func:`stp_env.reach.tracking.compute_tracking_bound` for the scenario's
     vehicle and ``U^p`` (cached in ``store``); intruder-aware scenarios (``kbar`` set) take their buffer radius
@@ -243,12 +245,21 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
     of :func:`plan_rtt` (robust trajectory tracking only).
     """
     from stp_env.artifacts import ArtifactStore
-    from stp_env.reach.avoid import compute_avoid_region
-    from stp_env.reach.buffer import BufferConfig, buffer_radii, compute_relative_buffer
-    from stp_env.reach.defaults import default_avoid_config
-    from stp_env.reach.obstacles import intruder_obstacle_profiles
     from stp_env.reach.tracking import default_tracking_bound
 
+    if scenario.method == "straight":
+        from stp_env.planning.verify import planner_disks, straight_plan
+
+        if checkpoint is not None or on_vehicle is not None or solver is not None:
+            raise ValueError(f"scenario {scenario.name!r}: solver, checkpoint and on_vehicle are options of method "
+                             "'rtt', not 'straight'.")
+        store = ArtifactStore() if store is None else store
+        if tracking_bound is None:
+            tracking_bound = default_tracking_bound(scenario.vehicle, tuple(scenario.planning_v),
+                                                    scenario.planning_omega_max, store=store,
+                                                    progress=progress).bound
+        return straight_plan(scenario, tracking_bound,
+                             disks=planner_disks(scenario, tracking_bound, store=store, progress=progress))
     if scenario.method != "rtt":
         from stp_env.planning.methods import plan_methods
 
@@ -278,23 +289,37 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
     if horizon is None:
         dist = np.hypot(*(targets - starts[:, :2]).T)
         horizon = 2.0 * float(dist.max()) / scenario.planning_v[1] + 1.0
-    aware = {}
-    if scenario.kbar is not None:
-        avoid_cfg = default_avoid_config(vehicle, scenario.collision_radius, scenario.t_iat)
-        avoid = compute_avoid_region(avoid_cfg, store=store, progress=progress)
-        buffer = compute_relative_buffer(BufferConfig(avoid=avoid_cfg, kbar=scenario.kbar), avoid, store=store,
-                                         progress=progress)
-        radii = buffer_radii(scenario.kbar, tracking_bound, avoid.detection_range(), buffer.radius,
-                             scenario.t_iat)
-        aware = {"kbar": scenario.kbar, "buffer_radius": radii.buffer,
-                 "obstacle_profiles": intruder_obstacle_profiles(vehicle, tracking_bound, scenario.collision_radius,
-                                                                 scenario.t_iat, scenario.kbar)}
+    aware = aware_obstacles(scenario, tracking_bound, store=store, progress=progress)
     static = planning_static_obstacle(scenario, tracking_bound)
     return plan_rtt(grid, vehicle, tuple(scenario.planning_v), scenario.planning_omega_max, tracking_bound,
                     scenario.collision_radius, starts, targets, scenario.target_radii(), scenario.stas(),
                     scenario.priorities(), horizon=horizon, static_obstacle=static, settings=settings,
                     time_step=scenario.time_step, progress=progress, solver=solver, checkpoint=checkpoint,
                     on_vehicle=on_vehicle, **aware)
+
+
+def aware_obstacles(scenario, tracking_bound: float, *, store=None, progress: bool = True) -> dict:
+    """The intruder-aware keyword arguments of :func:`plan_rtt` for ``scenario`` (``{}`` when its ``kbar`` is
+    ``None``): ``kbar``, the buffer radius (:func:`stp_env.reach.buffer.buffer_radii`, from the avoid and
+    relative-buffer artifacts of the scenario's vehicle, cached in ``store``) and the obstacle lag profiles."""
+    from stp_env.artifacts import ArtifactStore
+    from stp_env.reach.avoid import compute_avoid_region
+    from stp_env.reach.buffer import BufferConfig, buffer_radii, compute_relative_buffer
+    from stp_env.reach.defaults import default_avoid_config
+    from stp_env.reach.obstacles import intruder_obstacle_profiles
+
+    if scenario.kbar is None:
+        return {}
+    store = ArtifactStore() if store is None else store
+    vehicle = scenario.vehicle
+    avoid_cfg = default_avoid_config(vehicle, scenario.collision_radius, scenario.t_iat)
+    avoid = compute_avoid_region(avoid_cfg, store=store, progress=progress)
+    buffer = compute_relative_buffer(BufferConfig(avoid=avoid_cfg, kbar=scenario.kbar), avoid, store=store,
+                                     progress=progress)
+    radii = buffer_radii(scenario.kbar, tracking_bound, avoid.detection_range(), buffer.radius, scenario.t_iat)
+    return {"kbar": scenario.kbar, "buffer_radius": radii.buffer,
+            "obstacle_profiles": intruder_obstacle_profiles(vehicle, tracking_bound, scenario.collision_radius,
+                                                            scenario.t_iat, scenario.kbar)}
 
 
 def planning_static_obstacle(scenario, tracking_bound: float):

@@ -33,9 +33,11 @@ from stp_env.dynamics import DubinsWind
 from stp_env.hj import Grid
 from stp_env.scenarios import geometry
 
-METHODS = ("rtt", "centralized", "least_restrictive")
+METHODS = ("rtt", "centralized", "least_restrictive", "straight")
 """Induced-obstacle methods of the SPP paper: robust trajectory tracking (Section IV-C), centralized control
-(IV-A), least-restrictive control (IV-B)."""
+(IV-A), least-restrictive control (IV-B); and ``"straight"``: robust trajectory tracking's constraints met by
+straight flights at the top planning speed, checked rather than searched
+(:func:`stp_env.planning.verify.straight_plan`), for scenarios whose routes are conflict-free by schedule."""
 
 MIN_CELLS_ACROSS_TARGET = 5
 """A target must span at least this many grid cells (diameter / spacing), docs/numerics.md: small targets smear away."""
