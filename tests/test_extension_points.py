@@ -18,7 +18,7 @@ from stp_env.env import parallel_env
 from stp_env.evaluation.config import resolve_intruder
 from stp_env.sim import winds
 from stp_env.sim.physics import dubins_step
-from stp_env.sim.vehicle_models import VehicleModel
+from stp_env.sim.vehicle_models import Dubins, VehicleModel
 from stp_env.sim.winds.base import WindModel
 
 SCENARIO = "tiny-intruder"
@@ -224,3 +224,34 @@ def test_a_second_vehicle_model_runs_in_the_environment():
     status, error = jax.device_get(run(sim.reset(key, params)))
     errors = error[status == sim.FLYING]
     assert errors.size and float(np.median(errors)) < 150.0
+
+
+# ------------------------------------------------------------------------------------------------ the bases
+def test_a_model_missing_a_required_method_fails_at_instantiation_naming_it():
+    """The bases are abstract: a subclass that leaves out a required method cannot be made (a clear
+    ``TypeError`` naming the method, at construction, not a ``NotImplementedError`` deep inside a jitted step)."""
+
+    @dataclasses.dataclass(frozen=True)
+    class NoFromPose(VehicleModel):
+        action_to_control = DoubleIntegrator.action_to_control
+        step = DoubleIntegrator.step
+        pose = DoubleIntegrator.pose
+        command_to_action = DoubleIntegrator.command_to_action
+
+    @dataclasses.dataclass(frozen=True)
+    class NoDraw(WindModel):
+        name = "test-no-draw"
+
+    with pytest.raises(TypeError, match=r"abstract method.*from_pose"):
+        NoFromPose()
+    with pytest.raises(TypeError, match=r"abstract method.*draw"):
+        NoDraw()
+    with pytest.raises(TypeError, match="abstract method"):
+        VehicleModel()
+    with pytest.raises(TypeError, match="abstract method"):
+        WindModel()
+    # the complete ones (the package's and the ones above) are made, hashable and compared by value
+    assert DoubleIntegrator() == DoubleIntegrator() and hash(Steady(speed=3.0)) == hash(Steady(speed=3.0))
+    for name in winds.names():
+        winds.make(name)
+    assert Dubins() == Dubins()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 from typing import ClassVar
 
@@ -29,11 +30,12 @@ def uniform_in_disks(key, params):
 
 
 @dataclasses.dataclass(frozen=True)
-class WindModel:
+class WindModel(abc.ABC):
     """A wind model: a frozen (hashable) dataclass whose fields are its parameters, checked in
-    ``__post_init__``. Subclasses set :attr:`name` and :attr:`help` and override :meth:`draw` (and
-    :meth:`initial` if the wind persists across steps, :meth:`inner` if it depends on the state within a step).
-    All methods are pure and jittable."""
+    ``__post_init__``. Subclasses set :attr:`name` and :attr:`help` and implement :meth:`draw` (abstract: a
+    subclass without it fails at instantiation with a ``TypeError``), and override :meth:`initial` if the wind
+    persists across steps, :meth:`inner` if it depends on the state within a step. All methods are pure and
+    jittable."""
 
     name: ClassVar[str] = ""
     help: ClassVar[str] = ""
@@ -44,6 +46,7 @@ class WindModel:
         del key
         return jnp.zeros((params.n_vehicles + 1, 2))
 
+    @abc.abstractmethod
     def draw(self, key, state, params):
         """``(winds (N + 1, 2), new wind state (N + 1, 2))`` for the step starting at ``state``."""
         raise NotImplementedError
