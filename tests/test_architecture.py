@@ -126,3 +126,17 @@ def test_the_package_has_no_import_cycle():
     cycle = find_cycle(graph)
     if cycle is not None:
         pytest.fail("import cycle: " + " -> ".join(cycle))
+
+
+def test_the_bounds_row_is_read_by_the_names_it_is_built_with():
+    """The ``(5,)`` bounds row of ``EnvParams`` is built and read in one place (:mod:`stp_env.sim.bounds`)."""
+    from stp_env.dynamics import DubinsWind
+    from stp_env.sim import bounds
+
+    dyn = DubinsWind(v_min=1.5, v_max=22.0, omega_max=1.25, wind=7.0, heading_disturbance=0.125)
+    row = bounds.bounds_row(dyn)
+    named = {"v_min": bounds.V_MIN, "v_max": bounds.V_MAX, "omega_max": bounds.OMEGA_MAX, "wind": bounds.WIND,
+             "heading_disturbance": bounds.HEADING_DISTURBANCE}
+    assert sorted(named.values()) == list(range(len(bounds.COLUMNS))) == list(range(len(row)))
+    for name, column in named.items():
+        assert row[column] == getattr(dyn, name) and bounds.COLUMNS[column] == name

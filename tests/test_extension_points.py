@@ -17,6 +17,7 @@ from stp_env import scenarios, sim
 from stp_env.env import parallel_env
 from stp_env.evaluation.config import resolve_intruder
 from stp_env.sim import winds
+from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN
 from stp_env.sim.physics import dubins_step
 from stp_env.sim.vehicle_models import Dubins, VehicleModel
 from stp_env.sim.winds.base import WindModel
@@ -66,8 +67,9 @@ def test_a_registered_wind_model_is_configurable_by_spec_and_moves_the_vehicles(
             break
     assert moving.any(), "no vehicle flew a whole step"
     # The motion is exact Dubins with the steady wind over the inner steps (tiny has no heading disturbance).
-    v = params.vehicle_bounds[0] + 0.5 * 1.3 * (params.vehicle_bounds[1] - params.vehicle_bounds[0])
-    omega = -0.2 * params.vehicle_bounds[2]
+    b = params.vehicle_bounds
+    v = b[V_MIN] + 0.5 * 1.3 * (b[V_MAX] - b[V_MIN])
+    omega = -0.2 * b[OMEGA_MAX]
     x = before.x
     h = params.dt / params.control_substeps
     for _ in range(params.control_substeps):
@@ -104,7 +106,7 @@ def test_an_intruder_module_is_found_by_its_import_spec():
     headings = heading[status == sim.PRESENT]
     assert len(headings) > 20
     turn = np.diff(np.unwrap(headings)) / float(params.dt)
-    assert np.all(turn > 0.0) and np.median(turn) == pytest.approx(float(params.intruder_bounds[2]), rel=0.05)
+    assert np.all(turn > 0.0) and np.median(turn) == pytest.approx(float(params.intruder_bounds[OMEGA_MAX]), rel=0.05)
 
 
 # ------------------------------------------------------------------------------------------------ a scenario

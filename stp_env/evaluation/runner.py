@@ -27,6 +27,7 @@ from stp_env import sim
 from stp_env.evaluation.config import Configuration
 from stp_env.evaluation.summary import forced_summary
 from stp_env.seeds import check_seed, prng_key
+from stp_env.sim.bounds import WIND
 from stp_env.sim.types import ARRIVED, COLLIDED, OUT_OF_BOUNDS
 
 MAX_EPISODES = 2**30  # episode indices are int32 (the last batch runs past the last episode)
@@ -167,7 +168,7 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
         "label": config.label,
         "scenario": config.scenario, "kbar": kbar, "intruder": config.intruder,
         "wind_mps": None if config.wind is None else float(config.wind),
-        "scenario_wind_mps": round(float(params.vehicle_bounds[3]), 3),
+        "scenario_wind_mps": round(float(params.vehicle_bounds[WIND]), 3),
         "wind_model": config.wind_model, "spawn_mode": config.effective_spawn_mode,
         "vehicle_policy": config.vehicle_policy, "episode": config.episode,
         "episodes": n_ep, "vehicles": n_veh,

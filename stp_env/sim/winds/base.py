@@ -9,19 +9,21 @@ from typing import ClassVar
 import jax
 import jax.numpy as jnp
 
+from stp_env.sim.bounds import HEADING_DISTURBANCE, WIND
 from stp_env.sim.physics import disk_sample
 
 
 def radii(params):
     """Each agent's wind bound ``(N + 1,)`` [m/s]: ``d_r`` for the vehicles, then ``d_I`` for the intruder."""
     n = params.n_vehicles
-    return jnp.concatenate([jnp.full((n,), params.vehicle_bounds[3]), params.intruder_bounds[3:4]])
+    return jnp.concatenate([jnp.full((n,), params.vehicle_bounds[WIND]), params.intruder_bounds[WIND:WIND + 1]])
 
 
 def heading_bounds(params):
     """Each agent's heading-rate disturbance bound ``(N + 1,)`` [rad/s]."""
     n = params.n_vehicles
-    return jnp.concatenate([jnp.full((n,), params.vehicle_bounds[4]), params.intruder_bounds[4:5]])
+    return jnp.concatenate([jnp.full((n,), params.vehicle_bounds[HEADING_DISTURBANCE]),
+                            params.intruder_bounds[HEADING_DISTURBANCE:HEADING_DISTURBANCE + 1]])
 
 
 def uniform_in_disks(key, params):
