@@ -8,7 +8,8 @@ intruder scripted, spawned on a vehicle's avoid boundary. Once with ``replan=Fal
 fallback of eq. 40 after the intruder leaves, toward its target at top planning speed, with no new STA) and once
 with ``replan=True`` (it gets a new STA and plan from :func:`stp_env.planning.replan.replan` and tracks it).
 Prints one JSON line per mode: forced vehicles, how many arrived, how many by their (new) STA, collisions,
-guarantee violations, and the replanning time.
+guarantee violations (:func:`stp_env.evaluation.summary.forced_summary`, with the most forced vehicles in an
+episode, the episodes above k̄ and the Clopper-Pearson bound on the violation rate), and the replanning time.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from stp_env import sim
 from stp_env.baselines.intruders import intruder_policy
 from stp_env.baselines.vehicles import vehicle_policy
 from stp_env.env import parallel_env
+from stp_env.evaluation.summary import forced_summary
 
 
 def run(scenario: str, episodes: int, seed: int, intruder: str, replan: bool) -> dict:
@@ -31,8 +33,9 @@ def run(scenario: str, episodes: int, seed: int, intruder: str, replan: bool) ->
     env = parallel_env(scenario, config, replan=replan)
     vpol, ipol = jax.jit(vehicle_policy("switching")), jax.jit(intruder_policy(intruder))
     n = env.params.n_vehicles
-    totals = {"forced": 0, "forced_arrived": 0, "forced_on_time": 0, "collisions": 0, "guarantee_violations": 0,
-              "replans": 0, "replan_failures": 0, "replan_seconds": [], "sta_delay_s": []}
+    totals = {"forced": 0, "forced_arrived": 0, "forced_on_time": 0, "replans": 0, "replan_failures": 0,
+              "replan_seconds": [], "sta_delay_s": []}
+    per_episode = {"n_forced": [], "collisions": [], "violations": []}  # (episodes, vehicles) flags
     start = time.perf_counter()
     for ep in range(episodes):
         env.reset(seed=seed + ep)
@@ -49,10 +52,10 @@ def run(scenario: str, episodes: int, seed: int, intruder: str, replan: bool) ->
             for a, info in step_infos.items():
                 if a != "intruder" and info["status"] == "arrived" and not np.isfinite(arrival[int(a[8:])]):
                     arrival[int(a[8:])] = info["time"]
-        for i in range(n):
-            info = infos[f"vehicle_{i}"]
-            totals["collisions"] += int(info["collision"])
-            totals["guarantee_violations"] += int(info["guarantee_violation"])
+        vehicle_infos = [infos[f"vehicle_{i}"] for i in range(n)]
+        for key_, name in (("n_forced", "forced"), ("collisions", "collision"), ("violations", "guarantee_violation")):
+            per_episode[key_].append([bool(info[name]) for info in vehicle_infos])
+        for i, info in enumerate(vehicle_infos):
             if info["forced"]:
                 totals["forced"] += 1
                 totals["forced_arrived"] += int(np.isfinite(arrival[i]))
@@ -65,8 +68,12 @@ def run(scenario: str, episodes: int, seed: int, intruder: str, replan: bool) ->
                 totals["replan_seconds"].append(record["seconds"])
                 totals["sta_delay_s"] += [s - o for s, o in zip(record["sta"], record["old_sta"])]
     seconds, delays = totals.pop("replan_seconds"), totals.pop("sta_delay_s")
+    summary = forced_summary(np.sum(per_episode["n_forced"], axis=1), int(env.params.kbar),
+                             per_episode["collisions"], per_episode["violations"])
     return {"scenario": scenario, "intruder": intruder, "replan": replan, "episodes": episodes, "seed": seed,
-            **totals,
+            **totals, "collisions": summary["collisions"], "guarantee_violations": summary["guarantee_violations"],
+            "forced_max": summary["forced_max"], "episodes_above_kbar": summary["exceed"],
+            "violation_episodes_upper": round(summary["violation_upper"], 4),
             "replan_seconds_median": round(float(np.median(seconds)), 2) if seconds else None,
             "replan_seconds_max": round(float(np.max(seconds)), 2) if seconds else None,
             "new_sta_delay_s_median": round(float(np.median(delays)), 1) if delays else None,

@@ -7,8 +7,9 @@
 with ``--ship`` copies ``model.zip`` and ``intruder.npz`` to ``stp_env/data/intruders/town-kbar2.{zip,npz}``.
 ``compare`` runs full core episodes (:func:`stp_env.sim.rollout`, the vehicles on ``switching`` with the HJ safety
 filter, the default ``EnvConfig``) on held-out seeds for the learned intruder and the scripted ones, and prints one
-JSON line per intruder: mean ``|N^RP|`` with its 95 % interval, max ``|N^RP|`` against k̄, collisions and guarantee
-violations; a guarantee violation or ``|N^RP| > k̄`` is a finding, reported with its episode seed and a plot.
+JSON line per intruder (:func:`stp_env.evaluation.summary.forced_summary`): mean ``|N^RP|`` with its 95 % interval,
+max ``|N^RP|`` against k̄, collisions and guarantee violations, Clopper-Pearson bounds; a guarantee violation or
+``|N^RP| > k̄`` is a finding, reported with its episode seed and a plot.
 
 Reproducibility: a run is deterministic given the seed and the code (same config in two processes: identical
 rollouts and weights). The shipped ``town-kbar2`` was trained from the tree of commit d1ce834 (06:35, 589 s); the
@@ -32,8 +33,9 @@ import numpy as np
 
 from stp_env import sim
 from stp_env.baselines import INTRUDERS, switching
+from stp_env.evaluation.summary import forced_summary
 from stp_env.rl.policy import load_intruder
-from stp_env.rl.train import TrainConfig, mean_interval, train
+from stp_env.rl.train import TrainConfig, train
 
 # forced_reward 5: one forced vehicle outweighs the shaping of a whole approach (shaping_reward * d_sense = 3.7).
 SHIPPED = TrainConfig(scenario="town", n_envs=256, n_steps=64, batch_size=4096, n_epochs=10, learning_rate=3e-4,
@@ -109,12 +111,14 @@ def run_compare(args) -> None:
                 plot_episode(params, traj, int(i), f"{name}: |N^RP| = {nf[i]}, violations = {gv[i]}", png)
                 findings[-1]["plot"] = str(png)
         forced, collisions, violations = (np.concatenate(v) for v in (forced, collisions, violations))
-        mean, half = mean_interval(forced)
+        s = forced_summary(forced, kbar, collisions, violations)
+        mean, half = s["forced_mean"], s["forced_ci95"]
         print(json.dumps({
-            "intruder": name, "episodes": int(forced.size), "mean_n_forced": round(mean, 4),
-            "ci95": [round(mean - half, 4), round(mean + half, 4)], "max_n_forced": int(forced.max()), "kbar": kbar,
-            "episodes_above_kbar": int(np.sum(forced > kbar)), "collisions": int(collisions.sum()),
-            "guarantee_violations": int(violations.sum()), "findings": findings,
+            "intruder": name, "episodes": s["episodes"], "mean_n_forced": round(mean, 4),
+            "ci95": [round(mean - half, 4), round(mean + half, 4)], "max_n_forced": s["forced_max"], "kbar": kbar,
+            "episodes_above_kbar": s["exceed"], "episodes_above_kbar_upper": s["exceed_upper"],
+            "collisions": s["collisions"], "guarantee_violations": s["guarantee_violations"],
+            "violation_episodes_upper": s["violation_upper"], "findings": findings,
             "seconds": round(time.perf_counter() - start, 1)}))
 
 

@@ -1,10 +1,13 @@
-"""Shared test configuration: CPU-only JAX, float32 (no x64) and a small, deterministic hypothesis profile."""
+"""Shared test configuration: CPU-only JAX, float32 (no x64), matplotlib's Agg backend and a small, deterministic
+hypothesis profile."""
 
 from __future__ import annotations
 
 import os
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
+# Figures are written to files, never shown: the library selects no backend, the tests pick the file-only one.
+os.environ.setdefault("MPLBACKEND", "Agg")
 
 import jax
 from hypothesis import HealthCheck, settings

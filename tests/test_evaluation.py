@@ -31,6 +31,7 @@ from stp_env.evaluation import (
     same_outcome,
 )
 from stp_env.evaluation.report import load_event_state
+from stp_env.evaluation.summary import forced_summary
 from stp_env.sim import COLLIDED
 
 TINY = ["--scenario", "tiny-intruder", "--kbar", "2", "--intruder", "greedy", "--vehicle-policy", "nominal",
@@ -54,6 +55,28 @@ def test_clopper_pearson_matches_scipy(n, confidence):
         assert lo == pytest.approx(0.0 if k == 0 else beta.ppf(tail, k, n - k + 1), rel=1e-9, abs=1e-12)
         assert hi == pytest.approx(1.0 if k == n else beta.ppf(1 - tail, k + 1, n - k), rel=1e-9, abs=1e-12)
 
+
+
+def test_the_episode_summary_counts_by_hand_and_bounds_with_scipy():
+    """forced_summary, the one summary every evaluator reads, on episodes whose counts are written out."""
+    n_forced = np.array([0, 1, 3, 2, 0, 4, 1])                     # k̄ = 2: episodes 2 and 5 exceed, 3 reach it
+    collided = np.zeros((7, 4), bool)
+    collided[1, [0, 2]] = collided[5, 3] = True                     # 3 vehicles in 2 episodes
+    violations = np.array([0, 0, 0, 2, 0, 0, 1])                    # per-episode counts: 3 in 2 episodes
+    s = forced_summary(n_forced, 2, collided, violations, confidence=0.9)
+    assert (s["episodes"], s["forced_max"], s["exceed"], s["kbar_reached"]) == (7, 4, 2, 3)
+    assert (s["collisions"], s["collision_episodes"], s["guarantee_violations"], s["violation_episodes"]) == (
+        3, 2, 3, 2)
+    assert s["forced_mean"] == pytest.approx(11 / 7) and s["exceed_rate"] == pytest.approx(2 / 7)
+    assert s["forced_ci95"] == pytest.approx(1.96 * np.std(n_forced, ddof=1) / np.sqrt(7))
+    assert s["exceed_upper"] == pytest.approx(beta.ppf(0.9, 3, 5), rel=1e-9)
+    assert s["violation_upper"] == pytest.approx(beta.ppf(0.9, 3, 5), rel=1e-9) and s["confidence"] == 0.9
+    one = forced_summary(np.array([1]), 2, np.array([0]), np.array([0]))
+    assert one["violation_upper"] == pytest.approx(0.95) and np.isnan(one["forced_ci95"])
+    with pytest.raises(ValueError, match="n_forced"):
+        forced_summary(np.array([]), 2, np.array([]), np.array([]))
+    with pytest.raises(ValueError, match="collisions"):
+        forced_summary(n_forced, 2, collided[:3], violations)
 
 def test_rule_of_three_and_betainc():
     # no event in n trials: the 95 % bound is 1 - 0.05^(1/n), about 3/n

@@ -17,8 +17,9 @@ from stp_env import scenarios, sim
 from stp_env.env import parallel_env
 from stp_env.evaluation.config import resolve_intruder
 from stp_env.sim import winds
+from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN
 from stp_env.sim.physics import dubins_step
-from stp_env.sim.vehicle_models import VehicleModel
+from stp_env.sim.vehicle_models import Dubins, VehicleModel
 from stp_env.sim.winds.base import WindModel
 
 SCENARIO = "tiny-intruder"
@@ -66,8 +67,9 @@ def test_a_registered_wind_model_is_configurable_by_spec_and_moves_the_vehicles(
             break
     assert moving.any(), "no vehicle flew a whole step"
     # The motion is exact Dubins with the steady wind over the inner steps (tiny has no heading disturbance).
-    v = params.vehicle_bounds[0] + 0.5 * 1.3 * (params.vehicle_bounds[1] - params.vehicle_bounds[0])
-    omega = -0.2 * params.vehicle_bounds[2]
+    b = params.vehicle_bounds
+    v = b[V_MIN] + 0.5 * 1.3 * (b[V_MAX] - b[V_MIN])
+    omega = -0.2 * b[OMEGA_MAX]
     x = before.x
     h = params.dt / params.control_substeps
     for _ in range(params.control_substeps):
@@ -104,7 +106,7 @@ def test_an_intruder_module_is_found_by_its_import_spec():
     headings = heading[status == sim.PRESENT]
     assert len(headings) > 20
     turn = np.diff(np.unwrap(headings)) / float(params.dt)
-    assert np.all(turn > 0.0) and np.median(turn) == pytest.approx(float(params.intruder_bounds[2]), rel=0.05)
+    assert np.all(turn > 0.0) and np.median(turn) == pytest.approx(float(params.intruder_bounds[OMEGA_MAX]), rel=0.05)
 
 
 # ------------------------------------------------------------------------------------------------ a scenario
@@ -224,3 +226,34 @@ def test_a_second_vehicle_model_runs_in_the_environment():
     status, error = jax.device_get(run(sim.reset(key, params)))
     errors = error[status == sim.FLYING]
     assert errors.size and float(np.median(errors)) < 150.0
+
+
+# ------------------------------------------------------------------------------------------------ the bases
+def test_a_model_missing_a_required_method_fails_at_instantiation_naming_it():
+    """The bases are abstract: a subclass that leaves out a required method cannot be made (a clear
+    ``TypeError`` naming the method, at construction, not a ``NotImplementedError`` deep inside a jitted step)."""
+
+    @dataclasses.dataclass(frozen=True)
+    class NoFromPose(VehicleModel):
+        action_to_control = DoubleIntegrator.action_to_control
+        step = DoubleIntegrator.step
+        pose = DoubleIntegrator.pose
+        command_to_action = DoubleIntegrator.command_to_action
+
+    @dataclasses.dataclass(frozen=True)
+    class NoDraw(WindModel):
+        name = "test-no-draw"
+
+    with pytest.raises(TypeError, match=r"abstract method.*from_pose"):
+        NoFromPose()
+    with pytest.raises(TypeError, match=r"abstract method.*draw"):
+        NoDraw()
+    with pytest.raises(TypeError, match="abstract method"):
+        VehicleModel()
+    with pytest.raises(TypeError, match="abstract method"):
+        WindModel()
+    # the complete ones (the package's and the ones above) are made, hashable and compared by value
+    assert DoubleIntegrator() == DoubleIntegrator() and hash(Steady(speed=3.0)) == hash(Steady(speed=3.0))
+    for name in winds.names():
+        winds.make(name)
+    assert Dubins() == Dubins()

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from stp_env import hj
+from stp_env.angles import wrap_angle
 from stp_env.dynamics import RelativeDubins
 from stp_env.evaluation.runner import avoid_start_order_stats
 from stp_env.sim import tables
@@ -66,7 +67,7 @@ def test_descent_heading_by_brute_force(state):
     rates = [value(s - h * 25.0 * np.array([np.cos(a), np.sin(a), 0.0])) for a in angles]
     best = angles[int(np.argmin(rates))]
     assert norm > 0.5
-    assert abs((phi - best + np.pi) % (2 * np.pi) - np.pi) < math.radians(2.0)
+    assert abs(wrap_angle(phi - best)) < math.radians(2.0)
     assert v == pytest.approx(float(tables.worst_control(params, jnp.asarray(state, jnp.float32))[0]))
 
 

@@ -18,7 +18,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecCheckNan, VecMonito
 from stp_env import sim
 from stp_env.rl import IntruderEnv, IntruderVecEnv
 from stp_env.rl.policy import export_mlp, load_mlp, mlp_intruder
-from stp_env.rl.train import TrainConfig, evaluate_on_vec_env, make_model
+from stp_env.rl.train import TrainConfig, evaluate_on_vec_env, make_model, summarize
 
 N_ENVS = 4
 
@@ -142,6 +142,11 @@ def test_short_ppo_run_is_seeded_and_exports_a_jittable_intruder(params, tmp_pat
     np.testing.assert_allclose(np.asarray(action), model_a.predict(obs, deterministic=True)[0], atol=1e-5)
     result = evaluate_on_vec_env(lambda o: model_a.predict(o, deterministic=True)[0], venv, N_ENVS, seed=5)
     assert result["n_forced"].shape == (N_ENVS,) and np.all(result["guarantee_violations"] == 0)
+    row = summarize(result, int(params.kbar))  # the row of evaluations.csv: the package's one episode summary
+    assert row["episodes"] == N_ENVS and row["max_n_forced"] == result["n_forced"].max()
+    assert row["guarantee_violations"] == row["violation_episodes"] == 0
+    assert row["violation_episodes_upper"] == pytest.approx(1 - 0.05 ** (1 / N_ENVS))
+    assert row["mean_return"] == pytest.approx(result["returns"].mean())
 
 
 def test_shipped_intruder_matches_its_sb3_model(params):

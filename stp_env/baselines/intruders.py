@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 
 from stp_env.sim import tables
+from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN
 from stp_env.sim.physics import control_to_action, relative_state, wrap_angle
 from stp_env.sim.types import FLYING
 
@@ -42,15 +43,15 @@ def _steer(state, params, point, speed=None):
     b = params.intruder_bounds
     d = point - xi[:2]
     err = wrap_angle(jnp.arctan2(d[1], d[0]) - xi[2])
-    omega = jnp.clip(HEADING_GAIN * err, -b[2], b[2])
-    v = b[1] if speed is None else speed
+    omega = jnp.clip(HEADING_GAIN * err, -b[OMEGA_MAX], b[OMEGA_MAX])
+    v = b[V_MAX] if speed is None else speed
     return control_to_action(v, omega, b)
 
 
 def hover(key, state, params):
     del key, state
     b = params.intruder_bounds
-    return control_to_action(b[0], 0.0, b)
+    return control_to_action(b[V_MIN], 0.0, b)
 
 
 def random_intruder(key, state, params):
@@ -70,7 +71,7 @@ def bezier_intruder(degree: int):
     def policy(key, state, params):
         del key
         b = params.intruder_bounds
-        reach = 0.5 * b[1] * params.t_iat
+        reach = 0.5 * b[V_MAX] * params.t_iat
         u = jax.random.uniform(state.intruder_key, (degree, 2))
         r = reach * jnp.sqrt(u[:, 0])
         a = 2 * jnp.pi * u[:, 1]
@@ -80,7 +81,7 @@ def bezier_intruder(degree: int):
         basis = binom * s ** powers * (1 - s) ** (degree - powers)
         target = basis @ pts
         dist = jnp.linalg.norm(target - state.intruder_x[:2])
-        speed = jnp.clip(dist / params.dt, b[0], b[1])
+        speed = jnp.clip(dist / params.dt, b[V_MIN], b[V_MAX])
         return _steer(state, params, target, speed)
 
     policy.__name__ = f"bezier{degree}"

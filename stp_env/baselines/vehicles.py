@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 
 from stp_env.sim import tables
+from stp_env.sim.bounds import OMEGA_MAX, V_MAX
 from stp_env.sim.physics import control_to_action, relative_state, wrap_angle
 from stp_env.sim.types import AFTER_AVOIDANCE, AVOIDING, FLYING, NOMINAL, PRESENT
 
@@ -43,7 +44,7 @@ def fallback_control(state, params):
     pose = params.vehicle_model.pose(state.x)
     d = params.targets - pose[:, :2]
     err = wrap_angle(jnp.arctan2(d[:, 1], d[:, 0]) - pose[:, 2])
-    omega = jnp.clip(HEADING_GAIN * err, -params.vehicle_bounds[2], params.vehicle_bounds[2])
+    omega = jnp.clip(HEADING_GAIN * err, -params.vehicle_bounds[OMEGA_MAX], params.vehicle_bounds[OMEGA_MAX])
     v = jnp.full_like(omega, params.planning_v_max)
     return params.vehicle_model.command_to_action(state.x, v, omega, params.vehicle_bounds)
 
@@ -77,8 +78,8 @@ def _toward_intruder(state, params):
     d = state.intruder_x[None, :2] - state.x[:, :2]
     err = wrap_angle(jnp.arctan2(d[:, 1], d[:, 0]) - state.x[:, 2])
     b = params.vehicle_bounds
-    omega = jnp.clip(HEADING_GAIN * err, -b[2], b[2])
-    return control_to_action(jnp.full_like(omega, b[1]), omega, b)
+    omega = jnp.clip(HEADING_GAIN * err, -b[OMEGA_MAX], b[OMEGA_MAX])
+    return control_to_action(jnp.full_like(omega, b[V_MAX]), omega, b)
 
 
 def worst_unfiltered(key, state, params):
@@ -88,7 +89,7 @@ def worst_unfiltered(key, state, params):
     v, phi, norm = jax.vmap(lambda r: tables.buffer_descent(params, r))(rel)
     b = params.vehicle_bounds
     # the game's speed (v_max when moving ahead lowers V^B), turning proportionally toward the descent heading
-    omega = jnp.clip(HEADING_GAIN * wrap_angle(phi), -b[2], b[2])
+    omega = jnp.clip(HEADING_GAIN * wrap_angle(phi), -b[OMEGA_MAX], b[OMEGA_MAX])
     game = control_to_action(v, omega, b)
     # V^B's gradient is informative where the intruder can reach the avoid region within t_BRD (V^B <= 0); farther
     # out the table holds the transported plateau of the clamped target (gradient ~0): close in head-on there.

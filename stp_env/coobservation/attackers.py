@@ -23,6 +23,7 @@ import jax.numpy as jnp
 
 from stp_env.coobservation import threat as threat_lib
 from stp_env.sim import core
+from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN, WIND
 from stp_env.sim.physics import control_to_action, wrap_angle
 
 HEADING_GAIN = 3.0   # [1/s] turn rate per radian of heading error
@@ -52,7 +53,7 @@ def steer(x, point, speed, bounds):
     """Action turning the state ``x`` (3,) toward ``point`` at ``speed`` [m/s]."""
     d = point - x[:2]
     err = wrap_angle(jnp.arctan2(d[1], d[0]) - x[2])
-    omega = jnp.clip(HEADING_GAIN * err, -bounds[2], bounds[2])
+    omega = jnp.clip(HEADING_GAIN * err, -bounds[OMEGA_MAX], bounds[OMEGA_MAX])
     return control_to_action(speed, omega, bounds)
 
 
@@ -65,9 +66,9 @@ def _attack_action(state, params, threat, planned, go):
     b = params.vehicle_bounds
     _t_next, aim = next_observation(state, params, threat, c, t)
     entry, _ = best_entry(x[:2], aim, threat)
-    to_zone = steer(x, entry, b[1], b)
+    to_zone = steer(x, entry, b[V_MAX], b)
     dist_aim = jnp.linalg.norm(aim - x[:2])
-    back = steer(x, aim, jnp.clip(dist_aim / ARRIVE_TIME, b[0], b[1]), b)
+    back = steer(x, aim, jnp.clip(dist_aim / ARRIVE_TIME, b[V_MIN], b[V_MAX]), b)
     del planned
     track = threat_lib.FLY_PLAN
     x_ref, _ = core.nominal_reference(params, t)
@@ -94,7 +95,7 @@ def opportunistic(slack: float = 5.0):
         t_next, aim = next_observation(state, params, threat, c, state.sim.t)
         _, detour = best_entry(x[:2], aim, threat)
         b = params.vehicle_bounds
-        speed = jnp.maximum(b[1] - b[3], 1e-3)
+        speed = jnp.maximum(b[V_MAX] - b[WIND], 1e-3)
         go = detour / speed <= t_next - state.sim.t - slack
         return _attack_action(state, params, threat, planned, go)
 
@@ -138,7 +139,7 @@ def attacker_observation(state, params, threat):
     t_next, aim = next_observation(state, params, threat, c, t)
     entry, detour = best_entry(x[:2], aim, threat)
     left = jnp.where(jnp.isfinite(t_next), t_next - t, 0.0)
-    reach = params.vehicle_bounds[1] * left
+    reach = params.vehicle_bounds[V_MAX] * left
     obs = jnp.concatenate([
         rotate(-x[2], aim - x[:2]) / DISTANCE_SCALE,
         rotate(-x[2], entry - x[:2]) / DISTANCE_SCALE,

@@ -25,8 +25,9 @@ import numpy as np
 
 from stp_env import sim
 from stp_env.evaluation.config import Configuration
-from stp_env.evaluation.stats import clopper_pearson_upper
+from stp_env.evaluation.summary import forced_summary
 from stp_env.seeds import check_seed, prng_key
+from stp_env.sim.bounds import WIND
 from stp_env.sim.rollout import rollout_keys
 from stp_env.sim.types import ARRIVED, COLLIDED, OUT_OF_BOUNDS
 
@@ -116,7 +117,8 @@ def _events(config: Configuration, seed: int, n_steps: int, plan_samples: int, b
 
 
 def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.95) -> dict:
-    """The report's numbers for one configuration from its per-episode arrays.
+    """The report's numbers for one configuration from its per-episode arrays (those about ``|N^RP|``, collisions
+    and violations from :func:`stp_env.evaluation.summary.forced_summary`).
 
     * ``forced_hist[m]``: episodes with ``|N^RP| = m`` (eq. 39), ``m = 0 .. N``; ``forced_mean``, ``forced_max``.
     * ``exceed``: episodes with ``|N^RP| > k̄``; ``exceed_rate`` and its exact one-sided Clopper-Pearson upper bound
@@ -148,9 +150,8 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
     n_forced = ep["n_forced"]
     n_veh = ep["status"].shape[1]
     hist = np.bincount(n_forced, minlength=n_veh + 1)
-    exceed = int(np.sum(n_forced > kbar))
     collided = ep["status"] == COLLIDED
-    violation_eps = int(np.sum(np.any(ep["guarantee_violation"], axis=1)))
+    base = forced_summary(n_forced, kbar, collided, ep["guarantee_violation"], confidence=confidence)
     sta = np.asarray(params.sta)
     # vehicles already in their target at the episode start are not simulated (reset gives them arrival_time =
     # t_start, not their real arrival), so they do not count
@@ -166,24 +167,23 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
         "label": config.label,
         "scenario": config.scenario, "kbar": kbar, "intruder": config.intruder,
         "wind_mps": None if config.wind is None else float(config.wind),
-        "scenario_wind_mps": round(float(params.vehicle_bounds[3]), 3),
+        "scenario_wind_mps": round(float(params.vehicle_bounds[WIND]), 3),
         "wind_model": config.wind_model, "spawn_mode": config.effective_spawn_mode,
         "vehicle_policy": config.vehicle_policy, "episode": config.episode,
         "episodes": n_ep, "vehicles": n_veh,
         "forced_hist": hist.tolist(),
-        "forced_mean": round(float(n_forced.mean()), 4), "forced_max": int(n_forced.max()),
-        "exceed": exceed, "exceed_rate": exceed / n_ep,
-        "exceed_upper": clopper_pearson_upper(exceed, n_ep, confidence),
+        "forced_mean": round(base["forced_mean"], 4), "forced_max": base["forced_max"],
+        "exceed": base["exceed"], "exceed_rate": base["exceed_rate"], "exceed_upper": base["exceed_upper"],
         "confidence": confidence,
-        "kbar_reached": int(np.sum(n_forced >= kbar)), "kbar_reached_rate": float(np.mean(n_forced >= kbar)),
+        "kbar_reached": base["kbar_reached"], "kbar_reached_rate": float(np.mean(n_forced >= kbar)),
         "avoid_start_kth_min_s": kth_min, "avoid_start_kth_median_s": kth_median,
-        "collision_episodes": int(np.sum(np.any(collided, axis=1))),
-        "collisions": int(collided.sum()),
+        "collision_episodes": base["collision_episodes"],
+        "collisions": base["collisions"],
         "intruder_collisions": int(np.sum(collided & ep["collided_with_intruder"])),
         "out_of_bounds": int(np.sum(ep["status"] == OUT_OF_BOUNDS)),
-        "guarantee_violations": int(ep["guarantee_violation"].sum()),
-        "violation_episodes": violation_eps,
-        "violation_upper": clopper_pearson_upper(violation_eps, n_ep, confidence),
+        "guarantee_violations": base["guarantee_violations"],
+        "violation_episodes": base["violation_episodes"],
+        "violation_upper": base["violation_upper"],
         "assumption_failures": int(np.sum(~np.all(ep["assumption_ok"], axis=1))),
         "tracking_violations": int(ep["tracking_violation"].sum()),
         "max_tracking_error_m": round(float(np.max(np.where(ep["tracked"], ep["max_tracking_error"], 0.0))), 3),

@@ -28,6 +28,7 @@ from stp_env.baselines.intruders import hj_pursuit
 from stp_env.baselines.vehicles import VEHICLE_POLICIES
 from stp_env.falsify import harness
 from stp_env.sim import core
+from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN, WIND
 from stp_env.sim.physics import control_to_action
 from stp_env.sim.spawn import radius_on_level
 from stp_env.sim.types import EnvParams, replace
@@ -116,15 +117,17 @@ class AvoidanceAttack:
         actions = policy = None
         if self.intruder == "search":
             b = self.base.intruder_bounds
-            u = harness.segments(rest[:2 * n_seg], n_seg, rep, (b[0], -b[2]), (b[1], b[2]))[:self.n_steps]
+            u = harness.segments(rest[:2 * n_seg], n_seg, rep, (b[V_MIN], -b[OMEGA_MAX]),
+                                 (b[V_MAX], b[OMEGA_MAX]))[:self.n_steps]
             actions = control_to_action(u[:, 0], u[:, 1], b)
             rest = rest[2 * n_seg:]
         else:
             policy = hj_pursuit
         winds = None
         if self.wind == "search":
-            wv = harness.disk(rest[:2 * n_wind], self.base.vehicle_bounds[3], n_wind, w_rep)[:self.n_steps]
-            wi = harness.disk(rest[2 * n_wind:4 * n_wind], self.base.intruder_bounds[3], n_wind, w_rep)[:self.n_steps]
+            wv = harness.disk(rest[:2 * n_wind], self.base.vehicle_bounds[WIND], n_wind, w_rep)[:self.n_steps]
+            wi = harness.disk(rest[2 * n_wind:4 * n_wind], self.base.intruder_bounds[WIND], n_wind,
+                              w_rep)[:self.n_steps]
             winds = jnp.stack([wv, wi], axis=1)
         final, traj = harness.run(params, state, self.n_steps, vehicle_policy=VEHICLE_POLICIES[self.vehicle],
                                   intruder_actions=actions,

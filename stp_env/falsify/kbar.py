@@ -28,6 +28,7 @@ from stp_env.baselines.intruders import INTRUDERS
 from stp_env.baselines.vehicles import switching
 from stp_env.falsify import harness
 from stp_env.sim import core
+from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN
 from stp_env.sim.physics import control_to_action, rotate, wrap_angle
 from stp_env.sim.reference import nominal_reference
 from stp_env.sim.spawn import radius_on_level
@@ -112,7 +113,8 @@ class KbarAttack:
         policy = None if self.intruder == "search" else INTRUDERS[self.intruder]
         if self.intruder == "search":
             b = params.intruder_bounds
-            u = harness.segments(z[5:5 + 2 * n_seg], n_seg, rep, (b[0], -b[2]), (b[1], b[2]))[:self.n_present]
+            u = harness.segments(z[5:5 + 2 * n_seg], n_seg, rep, (b[V_MIN], -b[OMEGA_MAX]),
+                                 (b[V_MAX], b[OMEGA_MAX]))[:self.n_present]
             plan = control_to_action(u[:, 0], u[:, 1], b)
         n = params.n_vehicles
         keys = jax.random.split(jax.random.key(1), self.n_steps)

@@ -9,13 +9,11 @@ import numpy as np
 
 def plot_attack(attack, z, path, *, title: str = "") -> Path:
     """Draw the attack at ``z`` into ``path`` (PNG): paths, and the attacked quantity over time."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     tr = attack.trace(z)
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4.8))
+    fig = Figure(figsize=(11, 4.8))  # no pyplot: any backend (or none) can save it
+    ax, ax2 = fig.subplots(1, 2)
     if attack.name == "tracking":
         ref, veh = tr["reference"], tr["vehicle"]
         ax.plot(ref[:, 0], ref[:, 1], "k--", lw=1, label="reference (legal, U^p)")
@@ -60,7 +58,6 @@ def plot_attack(attack, z, path, *, title: str = "") -> Path:
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 

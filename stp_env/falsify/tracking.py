@@ -19,6 +19,7 @@ import jax.numpy as jnp
 from stp_env.baselines.vehicles import nominal_tracking
 from stp_env.falsify import harness
 from stp_env.sim import core
+from stp_env.sim.bounds import WIND
 from stp_env.sim.types import EnvParams, replace
 
 WIND_MODES = ("search", "worst")
@@ -88,7 +89,7 @@ class TrackingAttack:
         params = harness.with_reference(self._params(), states, controls)
         winds = None
         if self.wind == "search":
-            w = harness.disk(z[2 * n_seg:], self.base.vehicle_bounds[3], n_wind, w_rep)[:self.n_steps]
+            w = harness.disk(z[2 * n_seg:], self.base.vehicle_bounds[WIND], n_wind, w_rep)[:self.n_steps]
             winds = jnp.stack([w, jnp.zeros_like(w)], axis=1)  # (steps, 2, 2): the vehicle, no intruder
         state = core.reset(jax.random.key(0), params)
         final, traj = harness.run(params, state, self.n_steps, vehicle_policy=nominal_tracking, winds=winds,

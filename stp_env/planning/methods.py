@@ -54,10 +54,11 @@ from scipy import ndimage
 from tqdm.auto import tqdm
 
 from stp_env import hj
+from stp_env.angles import wrap_angle
 from stp_env.dynamics import DubinsWind
 from stp_env.hj.derivatives import central_gradient
 from stp_env.planning.plan import Plan, VehiclePlan
-from stp_env.planning.single import InfeasiblePlanError, plan_single_with_slices, saturated_control
+from stp_env.planning.single import InfeasiblePlanError, initial_ball, plan_single_with_slices, saturated_control
 
 METHODS = ("centralized", "least_restrictive")
 NO_OBSTACLE = 1e6
@@ -215,21 +216,6 @@ class MethodPlan:
         return np.asarray([r.seconds for r in self.reach])
 
 
-def initial_ball(grid: hj.Grid, state, cells: float = 1.5):
-    """``l(x) <= 0`` on a ball of ``cells`` cells (position and heading, max-norm in cell units) around
-    ``state``, the small initial set of SPP footnote 2, in position units.
-
-    The ball is kept small because at departure it is the whole obstacle (grown by ``R_c``) that the lower-priority
-    vehicles must avoid: on the four-vehicle example, 3 cells (0.075) make Q1's parked start block Q2's straight
-    path, so Q2 must pass it before Q1 leaves, under either method. The centralized FRS does not vanish from
-    this small ball thanks to :func:`heading_floor`."""
-    x = grid.broadcast_states()
-    sp = grid.spacing
-    dth = jnp.abs(jnp.mod(x[2] - state[2] + math.pi, 2 * math.pi) - math.pi)
-    val = jnp.maximum(jnp.sqrt(((x[0] - state[0]) / sp[0]) ** 2 + ((x[1] - state[1]) / sp[1]) ** 2), dth / sp[2])
-    return jnp.broadcast_to((val - cells) * min(sp[:2]), grid.shape)
-
-
 HEADING_FLOOR_CELLS = 1
 """Half-width [heading cells] below which the centralized FRS may not thin in heading (:func:`heading_floor`)."""
 
@@ -247,7 +233,7 @@ def heading_floor(grid: hj.Grid, values, cells: int = HEADING_FLOOR_CELLS):
     m = jnp.min(values, axis=2, keepdims=True)
     th = jnp.asarray(grid.coordinate_vector(2), values.dtype)
     th_hat = th[jnp.argmin(values, axis=2)][..., None]
-    dth = jnp.abs(jnp.mod(th[None, None, :] - th_hat + math.pi, 2 * math.pi) - math.pi)
+    dth = jnp.abs(wrap_angle(th[None, None, :] - th_hat))
     slope = min(grid.spacing[:2]) / grid.spacing[2]
     floor = m + slope * jnp.maximum(0.0, dth - cells * grid.spacing[2])
     return jnp.minimum(values, floor)

@@ -28,24 +28,20 @@ import numpy as np
 from stp_env import hj
 from stp_env.dynamics import DubinsWind
 from stp_env.planning.obstacles import planning_obstacles
-from stp_env.planning.single import InfeasiblePlanError, full_grid_obstacle, plan_single
+from stp_env.planning.single import InfeasiblePlanError, full_grid_obstacle, initial_ball, plan_single
 from stp_env.planning.stp import PLANNING_SETTINGS, Plan, VehiclePlan, planning_static_obstacle
 
 
 def earliest_arrival(grid: hj.Grid, planner: DubinsWind, state, t_bar: float, target_center, target_radius: float,
                      horizon: float, *, obstacle_fn=None, obstacle_params=None, slice_dt: float = 1.0,
                      settings: hj.SolverSettings | None = None, segment: int = 10) -> float:
-    """``arg inf_t {W^RP(t_bar, t) meets L}`` (eqs. 41-42): the FRS from a ball of about 1.5 cells around
-    ``state`` (position and heading), the control covering every input (``"max"``), obstacles enforced at every
-    step; ``inf`` if the target is not reached within ``horizon``. The solve stops after the first group of
-    ``segment`` slices in which the set meets the target (the time returned is that of the first such slice)."""
+    """``arg inf_t {W^RP(t_bar, t) meets L}`` (eqs. 41-42): the FRS from a ball of 1.5 cells around ``state``
+    (position and heading, :func:`stp_env.planning.single.initial_ball`), the control covering every input
+    (``"max"``), obstacles enforced at every step; ``inf`` if the target is not reached within ``horizon``. The
+    solve stops after the first group of ``segment`` slices in which the set meets the target (the time returned is
+    that of the first such slice)."""
     settings = settings or hj.SolverSettings.with_accuracy("high")
-    x = grid.broadcast_states()
-    sp = grid.spacing
-    dth = jnp.abs(jnp.mod(x[2] - state[2] + math.pi, 2 * math.pi) - math.pi)
-    init = jnp.maximum(jnp.sqrt(((x[0] - state[0]) / sp[0]) ** 2 + ((x[1] - state[1]) / sp[1]) ** 2),
-                       dth / sp[2]) - 1.5
-    init = jnp.broadcast_to(init * min(sp[:2]), grid.shape)
+    init = initial_ball(grid, state)
     n = max(2, math.ceil(horizon / slice_dt) + 1)
     times = t_bar + np.linspace(0.0, horizon, n)
     dyn = planner.with_modes(control_mode="max", disturbance_mode="min")

@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env import hj
+from stp_env.angles import wrap_angle
 from stp_env.dynamics import DubinsWind
 from stp_env.planning.plan import InfeasiblePlanError, SinglePlan
 
@@ -263,3 +264,18 @@ def full_grid_obstacle(obstacle_fn, n_theta: int):
         return jnp.broadcast_to(g2[:, :, None], (*g2.shape, n_theta))
 
     return full
+
+
+def initial_ball(grid: hj.Grid, state, cells: float = 1.5):
+    """``l(x) <= 0`` on a ball of ``cells`` cells (position and heading, max-norm in cell units) around
+    ``state``, the small initial set of SPP footnote 2, in position units.
+
+    The ball is kept small because at departure it is the whole obstacle (grown by ``R_c``) that the lower-priority
+    vehicles must avoid: on the four-vehicle example, 3 cells (0.075) make Q1's parked start block Q2's straight
+    path, so Q2 must pass it before Q1 leaves, under either method. The centralized FRS does not vanish from
+    this small ball thanks to :func:`stp_env.planning.methods.heading_floor`."""
+    x = grid.broadcast_states()
+    sp = grid.spacing
+    dth = jnp.abs(wrap_angle(x[2] - state[2]))
+    val = jnp.maximum(jnp.sqrt(((x[0] - state[0]) / sp[0]) ** 2 + ((x[1] - state[1]) / sp[1]) ** 2), dth / sp[2])
+    return jnp.broadcast_to((val - cells) * min(sp[:2]), grid.shape)

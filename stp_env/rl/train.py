@@ -4,11 +4,11 @@
 ``train(TrainConfig(...))`` builds an :class:`~stp_env.rl.IntruderVecEnv` (the vehicles run ``switching``,
 ``u*`` with the HJ safety filter, inside the core), trains PPO (or A2C) with the given seed, and writes to
 ``out_dir``: ``config.json``, SB3 logs (``progress.csv``, TensorBoard events with ``"tensorboard"`` in
-``log_formats``), ``checkpoints/`` every ``checkpoint_every`` steps, ``evaluations.csv`` (one row per evaluation:
-mean, 95 % interval and max of ``|N^RP|``, collisions, guarantee violations, episodes above k̄), ``best_model.zip``
-(best mean ``|N^RP|``), ``model.zip`` and ``intruder.npz`` (the deterministic actor for
-:func:`stp_env.rl.policy.load_intruder`). Same config, same seed, same machine: same run (torch uses
-``torch_threads`` CPU threads; JAX keys come from :func:`stp_env.rl.key_for_seed`).
+``log_formats``), ``checkpoints/`` every ``checkpoint_every`` steps, ``evaluations.csv`` (one row per evaluation,
+:func:`summarize`: mean, 95 % interval and max of ``|N^RP|``, collisions, guarantee violations, episodes above k̄,
+with Clopper-Pearson bounds), ``best_model.zip`` (best mean ``|N^RP|``), ``model.zip`` and ``intruder.npz`` (the
+deterministic actor for :func:`stp_env.rl.policy.load_intruder`). Same config, same seed, same machine: same run
+(torch uses ``torch_threads`` CPU threads; JAX keys come from :func:`stp_env.rl.key_for_seed`).
 
 The PettingZoo + SuperSuit route
 --------------------------------
@@ -48,6 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from stp_env import sim
+from stp_env.evaluation.summary import forced_summary
 
 ALGORITHMS = ("ppo", "a2c")
 LOG_FORMATS = ("stdout", "csv", "tensorboard", "log", "json")
@@ -154,14 +155,6 @@ class TrainConfig:
         return dataclasses.asdict(self)
 
 
-def mean_interval(values) -> tuple[float, float]:
-    """Mean and the half-width of its 95 % normal interval (``1.96 s / sqrt(n)``)."""
-    values = np.asarray(values, np.float64)
-    if values.size < 2:
-        return float(values.mean()) if values.size else math.nan, math.nan
-    return float(values.mean()), float(1.96 * values.std(ddof=1) / math.sqrt(values.size))
-
-
 def evaluate_on_vec_env(predict, venv, n_episodes: int, seed: int) -> dict:
     """Run ``n_episodes`` episodes of ``predict(obs) -> actions`` on an :class:`IntruderVecEnv`, each env's
     first episode after ``venv.seed(seed + k n_envs)`` (so episode ``j`` is seeded ``seed + j``). Returns
@@ -189,16 +182,24 @@ def evaluate_on_vec_env(predict, venv, n_episodes: int, seed: int) -> dict:
     return {k: np.asarray(v) for k, v in rows.items()}
 
 
-def summarize(result: dict, kbar: int) -> dict:
-    mean, half = mean_interval(result["n_forced"])
+def summarize(result: dict, kbar: int, *, confidence: float = 0.95) -> dict:
+    """An evaluation's row (``evaluations.csv``, ``eval/*`` in the logs): the package's one episode summary
+    (:func:`stp_env.evaluation.summary.forced_summary`) under the training log's names, and the mean return.
+    ``episodes_above_kbar_upper`` and ``violation_episodes_upper`` are exact one-sided Clopper-Pearson bounds at
+    ``confidence`` on the rates of episodes above k̄ and of episodes with a guarantee violation."""
+    s = forced_summary(result["n_forced"], kbar, result["collisions"], result["guarantee_violations"],
+                       confidence=confidence)
     return {
-        "episodes": int(result["n_forced"].size),
-        "mean_n_forced": mean,
-        "ci95_n_forced": half,
-        "max_n_forced": int(result["n_forced"].max()),
-        "episodes_above_kbar": int(np.sum(result["n_forced"] > kbar)),
-        "collisions": int(result["collisions"].sum()),
-        "guarantee_violations": int(result["guarantee_violations"].sum()),
+        "episodes": s["episodes"],
+        "mean_n_forced": s["forced_mean"],
+        "ci95_n_forced": s["forced_ci95"],
+        "max_n_forced": s["forced_max"],
+        "episodes_above_kbar": s["exceed"],
+        "episodes_above_kbar_upper": s["exceed_upper"],
+        "collisions": s["collisions"],
+        "guarantee_violations": s["guarantee_violations"],
+        "violation_episodes": s["violation_episodes"],
+        "violation_episodes_upper": s["violation_upper"],
         "mean_return": float(result["returns"].mean()),
     }
 

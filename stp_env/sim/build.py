@@ -11,6 +11,7 @@ import numpy as np
 
 from stp_env import hj
 from stp_env.reach.fall_rate import FALL_RATE_BAND
+from stp_env.sim.bounds import bounds_row
 from stp_env.sim.config import EnvConfig
 from stp_env.sim.margins import default_avoid_margin
 from stp_env.sim.types import EnvParams, replace
@@ -178,9 +179,8 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
         t_end=jnp.asarray(t_end, f32),
         domain_lo=jnp.asarray(scenario.domain_lo, f32),
         domain_hi=jnp.asarray(scenario.domain_hi, f32),
-        vehicle_bounds=jnp.asarray([veh.v_min, veh.v_max, veh.omega_max, veh.wind, veh.heading_disturbance], f32),
-        intruder_bounds=jnp.asarray([intr.v_min, intr.v_max, intr.omega_max, intr.wind, intr.heading_disturbance],
-                                    f32),
+        vehicle_bounds=jnp.asarray(bounds_row(veh), f32),
+        intruder_bounds=jnp.asarray(bounds_row(intr), f32),
         collision_radius=jnp.asarray(scenario.collision_radius, f32),
         departure=jnp.asarray(arrays["departure"]),
         sta=jnp.asarray(arrays["sta"]),

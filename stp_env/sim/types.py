@@ -85,7 +85,8 @@ class EnvParams:
     domain_lo: jax.Array          # (2,) [m]
     domain_hi: jax.Array          # (2,) [m]
     vehicle_bounds: jax.Array     # (5,) v_min, v_max [m/s], omega_max [rad/s], wind [m/s], heading dist. [rad/s]
-    #                               (the HJ model's bounds; the vehicle model maps actions with them)
+    #                               (the HJ model's bounds, read by the names of stp_env.sim.bounds: b[V_MAX]...;
+    #                               the vehicle model maps actions with them)
     intruder_bounds: jax.Array    # (5,) the same for the intruder
     collision_radius: jax.Array   # () R_c [m]
     # --- plans (per vehicle)

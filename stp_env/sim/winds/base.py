@@ -2,25 +2,28 @@
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
 
+from stp_env.sim.bounds import HEADING_DISTURBANCE, WIND
 from stp_env.sim.physics import disk_sample
 
 
 def radii(params):
     """Each agent's wind bound ``(N + 1,)`` [m/s]: ``d_r`` for the vehicles, then ``d_I`` for the intruder."""
     n = params.n_vehicles
-    return jnp.concatenate([jnp.full((n,), params.vehicle_bounds[3]), params.intruder_bounds[3:4]])
+    return jnp.concatenate([jnp.full((n,), params.vehicle_bounds[WIND]), params.intruder_bounds[WIND:WIND + 1]])
 
 
 def heading_bounds(params):
     """Each agent's heading-rate disturbance bound ``(N + 1,)`` [rad/s]."""
     n = params.n_vehicles
-    return jnp.concatenate([jnp.full((n,), params.vehicle_bounds[4]), params.intruder_bounds[4:5]])
+    return jnp.concatenate([jnp.full((n,), params.vehicle_bounds[HEADING_DISTURBANCE]),
+                            params.intruder_bounds[HEADING_DISTURBANCE:HEADING_DISTURBANCE + 1]])
 
 
 def uniform_in_disks(key, params):
@@ -29,11 +32,12 @@ def uniform_in_disks(key, params):
 
 
 @dataclasses.dataclass(frozen=True)
-class WindModel:
+class WindModel(abc.ABC):
     """A wind model: a frozen (hashable) dataclass whose fields are its parameters, checked in
-    ``__post_init__``. Subclasses set :attr:`name` and :attr:`help` and override :meth:`draw` (and
-    :meth:`initial` if the wind persists across steps, :meth:`inner` if it depends on the state within a step).
-    All methods are pure and jittable."""
+    ``__post_init__``. Subclasses set :attr:`name` and :attr:`help` and implement :meth:`draw` (abstract: a
+    subclass without it fails at instantiation with a ``TypeError``), and override :meth:`initial` if the wind
+    persists across steps, :meth:`inner` if it depends on the state within a step. All methods are pure and
+    jittable."""
 
     name: ClassVar[str] = ""
     help: ClassVar[str] = ""
@@ -44,6 +48,7 @@ class WindModel:
         del key
         return jnp.zeros((params.n_vehicles + 1, 2))
 
+    @abc.abstractmethod
     def draw(self, key, state, params):
         """``(winds (N + 1, 2), new wind state (N + 1, 2))`` for the step starting at ``state``."""
         raise NotImplementedError

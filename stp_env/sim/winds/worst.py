@@ -55,10 +55,15 @@ class Worst(WindModel):
     order = 3
     state_dependent = True
 
-    def sample(self, key, state, params):
+    def draw(self, key, state, params):
+        """Zeros (held winds unused: :meth:`inner` computes the winds at every inner step); the state unchanged."""
         del key
-        n = params.n_vehicles
-        return jnp.zeros((n + 1, 2)), jnp.zeros((n + 1,)), state.wind
+        return jnp.zeros((params.n_vehicles + 1, 2)), state.wind
+
+    def sample(self, key, state, params):
+        """No random heading disturbance either: the worst case is :meth:`inner`'s."""
+        winds, new = self.draw(key, state, params)
+        return winds, jnp.zeros((params.n_vehicles + 1,)), new
 
     def inner(self, state, params, held):
         del held
