@@ -130,6 +130,12 @@ def _kinematic_host(x, v, omega, wind, head, dt, substeps):
     return out.reshape(*lead, 3)
 
 
+def _lag_mean(h: float, tau: float) -> float:
+    """The weight of the initial offset in the mean of a first-order lag over ``h``: ``tau / h (1 - exp(-h / tau))``
+    (0 without lag)."""
+    return tau / h * -math.expm1(-h / tau) if tau > 0 else 0.0
+
+
 def _dynamic_host(x, v_c, omega_c, wind, head, dt, cfg: RigidBodyConfig):
     lead, (x, v_c, omega_c, wind, head, dt) = _broadcast(
         np.asarray(x), (np.asarray(v_c), 0), (np.asarray(omega_c), 0), (np.asarray(wind), 1),
@@ -143,7 +149,6 @@ def _dynamic_host(x, v_c, omega_c, wind, head, dt, cfg: RigidBodyConfig):
     x[start, 4] = v_c[start] * s[start] + wind[start, 1]
     x[start, 5] = omega_c[start] + head[start]
     x[start, 6], x[start, 7] = v_c[start], omega_c[start]
-    c_lin, c_ang = cfg.linear_drag, cfg.angular_drag
     for h_total, idx in _groups(dt):
         n_sub = max(1, math.ceil(h_total / cfg.max_substep - 1e-9))
         h = h_total / n_sub
@@ -156,15 +161,24 @@ def _dynamic_host(x, v_c, omega_c, wind, head, dt, cfg: RigidBodyConfig):
             b.angle = x[i, 2]
             b.velocity = (x[i, 3], x[i, 4])
             b.angular_velocity = x[i, 5]
+        # The drag relaxes the velocity to its target with time constant m / c_lin (yaw: I / c_ang). pymunk's
+        # semi-implicit Euler step with the force m (target - v) (1 - exp(-h c / m)) / h lands on the exact
+        # relaxation over h for a held target, and the target uses the actuator's mean over the substep.
+        gain_v = cfg.mass * -math.expm1(-h / cfg.velocity_time_constant) / h
+        gain_w = cfg.moment * -math.expm1(-h / cfg.yaw_time_constant) / h
+        mean_v = _lag_mean(h, cfg.speed_time_constant)
+        mean_w = _lag_mean(h, cfg.turn_time_constant)
         for _ in range(n_sub):
-            v_a = v_c[idx] + (v_a - v_c[idx]) * keep_v         # exact first-order lag over h
+            va_mean = v_c[idx] + (v_a - v_c[idx]) * mean_v     # the exact first-order lag's mean over h ...
+            wa_mean = omega_c[idx] + (w_a - omega_c[idx]) * mean_w
+            v_a = v_c[idx] + (v_a - v_c[idx]) * keep_v         # ... and its value at the end of h
             w_a = omega_c[idx] + (w_a - omega_c[idx]) * keep_w
             for k, (b, i) in enumerate(zip(bodies, idx)):
                 vx, vy = b.velocity
                 th = b.angle
-                b.force = (c_lin * (v_a[k] * math.cos(th) - vx + wind[i, 0]),
-                           c_lin * (v_a[k] * math.sin(th) - vy + wind[i, 1]))
-                b.torque = c_ang * (w_a[k] + head[i] - b.angular_velocity)
+                b.force = (gain_v * (va_mean[k] * math.cos(th) - vx + wind[i, 0]),
+                           gain_v * (va_mean[k] * math.sin(th) - vy + wind[i, 1]))
+                b.torque = gain_w * (wa_mean[k] + head[i] - b.angular_velocity)
             space.step(h)
         for k, (b, i) in enumerate(zip(bodies, idx)):
             out[i, 0], out[i, 1] = b.position
