@@ -142,3 +142,43 @@ def test_dynamic_body_approaches_dubins_as_lags_vanish_and_drifts_with_lag():
     assert fine < 0.2 and 1.6 < coarse / fine < 2.5, (coarse, fine)
     lag_1, lag_3 = (deviation(RigidBodyConfig(speed_time_constant=t, turn_time_constant=t)) for t in (0.1, 0.3))
     assert lag_1 > 10 * fine and lag_3 > 1.5 * lag_1, (fine, lag_1, lag_3)
+
+
+@pytest.mark.slow  # builds town params and compiles the table lookup
+def test_sensor_shapes_agree_with_the_signed_distance_events():
+    """pymunk sensor shapes and collision callbacks (buildings as static polygons, R_c / 2 circles) against the
+    core's collision tests (the buildings' signed-distance table, pairwise distances) at random points of town."""
+    from stp_env.scenarios import make
+    from stp_env.sim.core import building_distance
+    from stp_env.sim.vehicle_models.contacts import SensorWorld
+
+    scenario = make("town")
+    params = sim.params_for(scenario, sim.EnvConfig(), progress=False)
+    world = SensorWorld(scenario.buildings, float(params.collision_radius))
+    rng = np.random.default_rng(0)
+    lo, hi = np.asarray(params.domain_lo), np.asarray(params.domain_hi)
+    spacing = float(np.max((hi - lo) / (np.asarray(params.sdf.shape) - 1)))
+    checked_inside = checked_pairs = 0
+    boxes = [(np.min(b.vertices, axis=0) - spacing, np.max(b.vertices, axis=0) + spacing)
+             for b in scenario.buildings]
+    for _ in range(10):
+        p = lo + rng.uniform(size=(40, 2)) * (hi - lo)
+        p[10:20] = p[:10] + rng.normal(size=(10, 2)) * float(params.collision_radius)  # close pairs
+        for k in range(20, 40):  # around the buildings
+            b_lo, b_hi = boxes[rng.integers(len(boxes))]
+            p[k] = b_lo + rng.uniform(size=2) * (b_hi - b_lo)
+        active = rng.uniform(size=40) < 0.9
+        hit_vehicle, hit_building = world.contacts(p, active)
+        sdf = np.asarray(building_distance(params, jnp.asarray(p, jnp.float32)))
+        # away from the boundary: the bilinear table's error (14 m at most near town's corners, 50 m cells)
+        clear = np.abs(sdf) > 0.5 * spacing
+        np.testing.assert_array_equal(hit_building[active & clear], (sdf <= 0)[active & clear])
+        assert not hit_building[~active].any() and not hit_vehicle[~active].any()
+        d = np.hypot(*(p[:, None] - p[None]).transpose(2, 0, 1)) + np.where(np.eye(40, dtype=bool), np.inf, 0.0)
+        d = np.where(active[:, None] & active[None, :], d, np.inf)
+        near = np.any(d <= float(params.collision_radius), axis=1)
+        sure = np.all(np.abs(d - float(params.collision_radius)) > 1e-6, axis=1)
+        np.testing.assert_array_equal(hit_vehicle[sure], near[sure])
+        checked_inside += int((active & clear & (sdf <= 0)).sum())
+        checked_pairs += int(near.sum())
+    assert checked_inside > 20 and checked_pairs > 30, (checked_inside, checked_pairs)
