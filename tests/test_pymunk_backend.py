@@ -126,7 +126,7 @@ def test_dynamic_body_approaches_dubins_as_lags_vanish_and_drifts_with_lag():
     """Open loop through a turning manoeuvre in wind: as the body time constants shrink (no actuator lag) the rigid
     body converges to the Dubins path at first order (a heading lag of ``omega I / c_ang`` per turn-rate change);
     with actuator lag it drifts away, more with more lag."""
-    commands = [(10.0, 0.5)] * 100 + [(14.0, -0.8)] * 100 + [(8.0, 0.0)] * 100
+    commands = [(10.0, 0.5)] * 50 + [(14.0, -0.8)] * 50 + [(8.0, 0.0)] * 50
     wind = (2.0, -1.0)
     dubins = _drive(Dubins(), commands, wind)
 

@@ -43,8 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env.angles import wrap_angle
-from stp_env.sim.physics import action_to_control, control_to_action
-from stp_env.sim.vehicle_models.base import VehicleModel
+from stp_env.sim.vehicle_models.dubins import Dubins
 
 __all__ = ["PymunkKinematic", "PymunkRigidBody", "RigidBodyConfig", "require_pymunk"]
 
@@ -190,8 +189,12 @@ def _dynamic_host(x, v_c, omega_c, wind, head, dt, cfg: RigidBodyConfig):
     return out.reshape(*lead, x.shape[-1])
 
 
-def _callback(fn, x, *args):
-    """``fn(x, *args)`` on the host: a pure function of its inputs, batched by one call per vmap."""
+def _host_step(fn, x, control, wind, heading_disturbance, dt):
+    """``fn(x, v, omega, wind, heading_disturbance, dt)`` on the host (every input broadcast per vehicle): a pure
+    function of its inputs, batched by one call per vmap."""
+    v, omega = control
+    dt = jnp.broadcast_to(jnp.asarray(dt, x.dtype), jnp.shape(v))
+    args = (v, omega, wind, heading_disturbance, dt)
     dtype = np.dtype(x.dtype)
 
     def host(*a):
@@ -203,9 +206,9 @@ def _callback(fn, x, *args):
 
 # ------------------------------------------------------------------------------------------------ models
 @dataclasses.dataclass(frozen=True)
-class PymunkKinematic(VehicleModel):
+class PymunkKinematic(Dubins):
     """The papers' Dubins vehicle as a pymunk kinematic body (see the module docstring): the same state, actions
-    and controller mapping as :class:`~stp_env.sim.vehicle_models.Dubins`; the motion is pymunk's.
+    and controller mapping as :class:`~stp_env.sim.vehicle_models.Dubins` (inherited); the motion is pymunk's.
 
     Attributes:
         substeps: pymunk steps per inner control step (each sets the body's velocity; any number gives the exact
@@ -220,24 +223,9 @@ class PymunkKinematic(VehicleModel):
             raise ValueError(f"substeps must be an integer >= 1; got {self.substeps!r}.")
         require_pymunk()
 
-    def action_to_control(self, action, bounds):
-        return action_to_control(action, bounds)
-
     def step(self, x, control, wind, heading_disturbance, dt):
-        v, omega = control
-        dt = jnp.broadcast_to(jnp.asarray(dt, x.dtype), jnp.shape(v))
-        new = _callback(lambda *a: _kinematic_host(*a, self.substeps), x, v, omega, wind, heading_disturbance, dt)
+        new = _host_step(lambda *a: _kinematic_host(*a, self.substeps), x, control, wind, heading_disturbance, dt)
         return new.at[..., 2].set(wrap_angle(new[..., 2]))
-
-    def pose(self, x):
-        return x
-
-    def from_pose(self, pose):
-        return pose
-
-    def command_to_action(self, x, v, omega, bounds):
-        del x
-        return control_to_action(v, omega, bounds)
 
 
 def _check(name: str, value, *, positive: bool = False) -> float:
@@ -300,10 +288,11 @@ class RigidBodyConfig:
 
 
 @dataclasses.dataclass(frozen=True)
-class PymunkRigidBody(VehicleModel):
+class PymunkRigidBody(Dubins):
     """A dynamic pymunk body with mass, inertia, drag, actuator lags and wind as an aerodynamic force (see the
     module docstring and :class:`RigidBodyConfig`). Actions as for Dubins: ``[-1, 1]^2`` to the commanded
-    ``(v_c, omega_c)``; the papers' controllers command through the same mapping."""
+    ``(v_c, omega_c)``; the papers' controllers command through the same mapping (inherited from
+    :class:`~stp_env.sim.vehicle_models.Dubins`); the state and the motion are the body's."""
 
     config: RigidBodyConfig = dataclasses.field(default_factory=RigidBodyConfig)
     name = "pymunk-rigid-body"
@@ -314,13 +303,8 @@ class PymunkRigidBody(VehicleModel):
             raise ValueError(f"config must be a RigidBodyConfig; got {type(self.config).__name__}.")
         require_pymunk()
 
-    def action_to_control(self, action, bounds):
-        return action_to_control(action, bounds)
-
     def step(self, x, control, wind, heading_disturbance, dt):
-        v, omega = control
-        dt = jnp.broadcast_to(jnp.asarray(dt, x.dtype), jnp.shape(v))
-        return _callback(lambda *a: _dynamic_host(*a, self.config), x, v, omega, wind, heading_disturbance, dt)
+        return _host_step(lambda *a: _dynamic_host(*a, self.config), x, control, wind, heading_disturbance, dt)
 
     def pose(self, x):
         return x[..., :3]
@@ -329,6 +313,3 @@ class PymunkRigidBody(VehicleModel):
         zeros = jnp.zeros((*pose.shape[:-1], self.state_dim - 3), pose.dtype)
         return jnp.concatenate([pose, zeros], axis=-1)
 
-    def command_to_action(self, x, v, omega, bounds):
-        del x
-        return control_to_action(v, omega, bounds)
