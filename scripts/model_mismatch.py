@@ -32,12 +32,12 @@ MASSES = (0.5, 1.0, 2.0, 4.0)             # [kg] with c_lin = 20 N s/m: m / c_li
 ANGULAR_DRAGS = (0.4, 0.2, 0.1, 0.05)     # [N m s/rad] with I = 0.01 kg m^2: I / c_ang = 0.025 .. 0.2 s
 
 
-def sweeps(which) -> list[tuple[str, float, str]]:
+def sweeps(which, lags=LAGS) -> list[tuple[str, float, str]]:
     """``(sweep, value, backend spec)`` rows; the other parameters stay at RigidBodyConfig's defaults, except
     that the lag sweep has no other lag and the mass and drag sweeps have no actuator lag."""
     rows = [("reference", 0.0, "jax")]
     if "lag" in which:
-        rows += [("lag", t, f"pymunk-dynamic:speed_time_constant={t},turn_time_constant={t}") for t in LAGS]
+        rows += [("lag", t, f"pymunk-dynamic:speed_time_constant={t},turn_time_constant={t}") for t in lags]
     if "mass" in which:
         rows += [("mass", m, f"pymunk-dynamic:mass={m},speed_time_constant=0,turn_time_constant=0") for m in MASSES]
     if "drag" in which:
@@ -47,13 +47,13 @@ def sweeps(which) -> list[tuple[str, float, str]]:
 
 
 def run(out: pathlib.Path, which, episodes: int, batch_size: int, scenario: str, kbar: int, intruder: str,
-        seed: int) -> None:
+        seed: int, lags=LAGS) -> None:
     from stp_env.evaluation.runner import evaluate
 
     out.mkdir(parents=True, exist_ok=True)
     path = out / "results.jsonl"
     done = {(r["sweep"], r["value"], r["episodes"]) for r in load(path)}
-    for sweep, value, backend in sweeps(which):
+    for sweep, value, backend in sweeps(which, lags):
         if (sweep, value, episodes) in done:
             continue
         config = Configuration(scenario=scenario, kbar=kbar, intruder=intruder, backend=backend)
@@ -138,6 +138,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default="runs/model_mismatch", help="directory of results.jsonl")
     p.add_argument("--sweep", nargs="+", choices=["lag", "mass", "drag"], default=["lag", "mass", "drag"])
+    p.add_argument("--lags", type=float, nargs="+", default=list(LAGS), help="actuator time constants [s]")
     p.add_argument("--episodes", type=int, default=100)
     p.add_argument("--batch-size", type=int, default=50)
     p.add_argument("--scenario", default="town")
@@ -150,7 +151,8 @@ def main(argv=None) -> int:
     if args.figure:
         figure(load(out / "results.jsonl"), args.figure)
         return 0
-    run(out, args.sweep, args.episodes, args.batch_size, args.scenario, args.kbar, args.intruder, args.seed)
+    run(out, args.sweep, args.episodes, args.batch_size, args.scenario, args.kbar, args.intruder, args.seed,
+        tuple(args.lags))
     return 0
 
 
