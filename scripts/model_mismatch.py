@@ -101,7 +101,7 @@ def figure(rows: list[dict], path: str) -> None:
     panels = [("lag", "actuator time constant [s]"), ("mass", "mass [kg] (m / c_lin = mass / 20 s)"),
               ("drag", "angular drag c_ang [N m s/rad] (I / c_ang = 0.01 / c_ang s)")]
     panels = [(k, label) for k, label in panels if any(r["sweep"] == k for r in rows)]
-    fig, axes = plt.subplots(3, len(panels), figsize=(4.6 * len(panels), 9), squeeze=False)
+    fig, axes = plt.subplots(3, len(panels), figsize=(max(6.0, 4.6 * len(panels)), 9.5), squeeze=False)
     for col, (sweep, label) in enumerate(panels):
         rs = sorted((r for r in rows if r["sweep"] == sweep), key=lambda r: r["value"])
         x = np.asarray([r["value"] for r in rs])
@@ -120,6 +120,8 @@ def figure(rows: list[dict], path: str) -> None:
         ax.plot(x, [r["max_tracking_error_m"] for r in rs], "o-", label="max tracking error [m]")
         ax.plot(x, [r["tracking_error_p95_m"] for r in rs], "s-", label="95th pct. per-episode max [m]")
         ax.axhline(rs[0]["tracking_bound_m"], color="r", ls=":", label="r_e")
+        if ref is not None:
+            ax.axhline(ref["max_tracking_error_m"], color="k", ls="--", lw=1, label="Dubins (jax) max")
         ax2 = ax.twinx()
         ax2.plot(x, [r["forced_mean"] for r in rs], "^-", color="tab:green", label="mean |N^RP|")
         ax2.set_ylabel("mean |N^RP|", color="tab:green")
@@ -127,7 +129,7 @@ def figure(rows: list[dict], path: str) -> None:
         ax.set_ylabel("tracking error [m]")
         ax.legend(fontsize=7, loc="upper left")
         axes[0, col].set_title(f"{sweep} sweep ({rs[0]['episodes'] if rs else 0} episodes each)")
-    fig.suptitle("Model mismatch on town (k̄ = 2, max-k intruder): Dubins guarantees on rigid-body vehicles")
+    fig.suptitle("Model mismatch on town (k̄ = 2, max-k intruder):\nDubins guarantees on rigid-body vehicles")
     fig.tight_layout()
     tmp = f"{path}.tmp.png"
     fig.savefig(tmp, dpi=110)
