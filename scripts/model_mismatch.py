@@ -125,6 +125,7 @@ def figure(rows: list[dict], path: str) -> None:
         ax2 = ax.twinx()
         ax2.plot(x, [r["forced_mean"] for r in rs], "^-", color="tab:green", label="mean |N^RP|")
         ax2.set_ylabel("mean |N^RP|", color="tab:green")
+        ax2.set_ylim(0.0, 1.2 * max([2.0] + [r["forced_max"] for r in rs]))  # k̄ = 2 on town
         ax.set_xlabel(label)
         ax.set_ylabel("tracking error [m]")
         ax.legend(fontsize=7, loc="upper left")
