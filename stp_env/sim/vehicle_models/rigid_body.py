@@ -34,6 +34,7 @@ integrates with semi-implicit Euler; the dynamic plant takes pymunk steps of at 
 
 from __future__ import annotations
 
+import atexit
 import dataclasses
 import math
 import threading
@@ -66,6 +67,7 @@ class _Bodies:
     def __init__(self):
         self.spaces = {}
         self.lock = threading.Lock()
+        atexit.register(self.spaces.clear)  # free the spaces while pymunk is still importable
 
     def get(self, count: int, kind: str, mass: float = 1.0, moment: float = 1.0):
         key = (count, kind, mass, moment)
