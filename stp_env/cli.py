@@ -171,6 +171,11 @@ def _add_episode_options(p, *, many: bool) -> None:
     p.add_argument("--episode", choices=EPISODE_CHOICES, default="window",
                    help="window: from 5 s before the intruder's appearance window to 10 s after it can leave; "
                         "full: first departure to the last STA (slower)")
+    p.add_argument("--backend", type=_backend, default="jax",
+                   help="what moves the vehicles: jax (the papers' Dubins model in the jitted core), pymunk (the same "
+                        "motion in the pymunk physics engine, host side: slower) or pymunk-dynamic[:param=value,...] "
+                        "(rigid bodies with mass, drag, actuator lag; parameters of "
+                        "stp_env.sim.vehicle_models.rigid_body.RigidBodyConfig); needs the pymunk extra")
     p.add_argument("--seed", type=_seed, default=0, help="run seed in [0, 2**63 - 1]; episode i replays from "
                    "(seed, i)")
     p.add_argument("--cache-dir", default=None,
@@ -303,7 +308,8 @@ def _evaluation_configs(args, kbars, intruders):
     for spec in intruders:
         resolve_intruder(spec)
     return [Configuration(scenario=args.scenario, kbar=k, intruder=i, wind=args.wind, wind_model=args.wind_model,
-                          spawn_mode=args.spawn_mode, vehicle_policy=args.vehicle_policy, episode=args.episode)
+                          spawn_mode=args.spawn_mode, vehicle_policy=args.vehicle_policy, episode=args.episode,
+                          backend=args.backend)
             for i in dict.fromkeys(intruders) for k in dict.fromkeys(kbars)]
 
 
@@ -384,6 +390,16 @@ def _event_to_render(args, store):
     config, params, vehicle_policy, intruder_policy = prepare_event(
         record, store=store, progress=not args.no_progress, intruder_policy=intruder_policy, where=where)
     return config, params, vehicle_policy, intruder_policy, record
+
+
+def _backend(text: str) -> str:
+    from stp_env.sim.backends import vehicle_model
+
+    try:
+        vehicle_model(text)
+    except (ValueError, ImportError) as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+    return text
 
 
 def _env_steps(text: str) -> int:

@@ -85,7 +85,8 @@ Intruder: ``status`` (pending / present / gone), ``n_forced``, ``kbar``, ``kbar_
 
 Arguments
 ---------
-``parallel_env(scenario="town", config=None, *, max_cycles=None, render_mode=None, params=None, store=None)``:
+``parallel_env(scenario="town", config=None, *, max_cycles=None, render_mode=None, params=None, store=None,
+backend=None)``:
 ``scenario`` is a registry name or a :class:`stp_env.scenarios.Scenario`; ``config`` an
 :class:`stp_env.sim.EnvConfig` (``dt`` [s], wind model, spawn mode, safety filter, episode window, rewards);
 ``max_cycles`` caps the steps (default: the episode window ``t_end - t_start`` over ``dt``); ``params``
@@ -95,6 +96,9 @@ intruder leaves: every vehicle that was forced to avoid gets a new STA and plan
 cores; ``env.replan_log`` records each) and tracks it in the nominal mode; without it (the default, and in the
 batched core) it flies the jittable fallback of eq. 40 with no new STA. Use it with
 ``EnvConfig(episode="full")``: the default episode window ends 10 s after the intruder leaves.
+``backend``: ``None`` (the config's plant: the papers' Dubins model in the jitted core by default), ``"jax"``,
+``"pymunk"`` (the same Dubins motion stepped by the pymunk physics engine) or ``"pymunk-dynamic[:param=value,...]"``
+(rigid bodies with mass, drag, actuator lag and wind as a force; :mod:`stp_env.sim.backends`).
 ``env(...)`` is the AEC form (``parallel_to_aec``), ``raw_env(...)`` the same without the order-enforcing wrapper.
 Render modes: ``"rgb_array"`` (a top-down map: buildings, targets, vehicles with headings and danger zones,
 the intruder, avoid-region footprints when ``render_avoid_regions=True``) and ``"human"`` (the same in a window).
@@ -131,6 +135,7 @@ from stp_env import sim
 from stp_env.angles import wrap_angle
 from stp_env.seeds import prng_key
 from stp_env.sim import core
+from stp_env.sim.backends import with_backend
 from stp_env.sim.types import (
     AFTER_AVOIDANCE,
     COLLIDED,
@@ -253,7 +258,7 @@ class STPParallelEnv(ParallelEnv):
     def __init__(self, scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, *,
                  max_cycles: int | None = None, render_mode: str | None = None, params: sim.EnvParams | None = None,
                  render_avoid_regions: bool = False, store=None, replan: bool = False,
-                 vehicle_policy: str | None = None):
+                 vehicle_policy: str | None = None, backend: str | None = None):
         from stp_env.baselines import BUFFER_GAME_VEHICLE_POLICIES, VEHICLE_POLICIES
         from stp_env.scenarios import Scenario, make
 
@@ -267,6 +272,7 @@ class STPParallelEnv(ParallelEnv):
         if config is not None and not isinstance(config, sim.EnvConfig):
             raise ValueError(f"config must be a stp_env.sim.EnvConfig; got {type(config).__name__}.")
         config = sim.EnvConfig() if config is None else config
+        config = with_backend(config, backend)
         if isinstance(scenario, str):
             scenario = make(scenario)
         if not isinstance(scenario, Scenario):
@@ -279,6 +285,8 @@ class STPParallelEnv(ParallelEnv):
         if params is None:
             params = _cached_params(scenario, config) if store is None else sim.params_for(
                 scenario, config, store=store, progress=False)
+        elif backend is not None:
+            params = replace(params, vehicle_model=config.vehicle_model)
         _check_appear_window(params)
         if vehicle_policy in BUFFER_GAME_VEHICLE_POLICIES and params.buffer_values is None:
             params = sim.build.with_buffer(params, sim.build.load_buffer(scenario, store=store, progress=False))

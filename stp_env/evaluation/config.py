@@ -15,6 +15,7 @@ from collections.abc import Callable
 
 from stp_env.baselines import INTRUDERS, vehicle_policy
 from stp_env.sim import EnvConfig, winds
+from stp_env.sim.backends import vehicle_model as backend_model
 from stp_env.sim.types import SPAWN_MODES
 
 SPAWN_CHOICES = ("auto", *SPAWN_MODES)
@@ -96,6 +97,9 @@ class Configuration:
             ``V^B``, under which the k̄ bound can be reached).
         episode: ``"window"`` (around the intruder's appearance window) or ``"full"`` (first departure to the last
             STA), see :class:`stp_env.sim.EnvConfig`.
+        backend: the engine that moves the vehicles (:mod:`stp_env.sim.backends`): ``"jax"`` (the papers' Dubins
+            model in the jitted core), ``"pymunk"`` (the same motion in the pymunk engine) or
+            ``"pymunk-dynamic[:param=value,...]"`` (rigid bodies with mass, drag and actuator lag).
     """
 
     scenario: str = "town"
@@ -106,9 +110,10 @@ class Configuration:
     spawn_mode: str = "auto"
     vehicle_policy: str = "switching"
     episode: str = "window"
+    backend: str = "jax"
 
     def __post_init__(self) -> None:
-        for name in ("scenario", "intruder", "wind_model", "spawn_mode", "vehicle_policy", "episode"):
+        for name in ("scenario", "intruder", "wind_model", "spawn_mode", "vehicle_policy", "episode", "backend"):
             value = getattr(self, name)
             if not isinstance(value, str) or not value:
                 raise ValueError(f"{name} must be a non-empty string; got {value!r}.")
@@ -126,6 +131,7 @@ class Configuration:
         if self.episode not in EPISODE_CHOICES:
             raise ValueError(f"episode {self.episode!r} is not known; allowed: {', '.join(EPISODE_CHOICES)}.")
         vehicle_policy(self.vehicle_policy)  # ValueError naming the allowed ones
+        backend_model(self.backend)  # ValueError naming the backends
 
     @property
     def effective_spawn_mode(self) -> str:
@@ -137,7 +143,8 @@ class Configuration:
     def label(self) -> str:
         wind = "default" if self.wind is None else f"{self.wind:g}"
         return (f"{self.scenario}_k{self.kbar}_{self.intruder.replace(':', '.').replace('/', '.')}_wind{wind}"
-                f"_{self.wind_model}_{self.effective_spawn_mode}_{self.vehicle_policy}")
+                f"_{self.wind_model}_{self.effective_spawn_mode}_{self.vehicle_policy}"
+                + ("" if self.backend == "jax" else f"_{self.backend.replace(':', '.').replace(',', '.')}"))
 
     def make_scenario(self):
         from stp_env.scenarios import make
@@ -152,7 +159,8 @@ class Configuration:
 
     def env_config(self) -> EnvConfig:
         return EnvConfig(wind_model=self.wind_model, spawn_mode=self.effective_spawn_mode,
-                         safety_filter=self.vehicle_policy != "nominal", episode=self.episode)
+                         safety_filter=self.vehicle_policy != "nominal", episode=self.episode,
+                         vehicle_model=backend_model(self.backend))
 
     def policies(self) -> tuple[Callable, Callable]:
         return resolve_vehicle_policy(self.vehicle_policy), resolve_intruder(self.intruder)

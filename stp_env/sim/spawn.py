@@ -56,7 +56,8 @@ def radius_on_level(params: EnvParams, direction, rel_heading, level):
         inside = value(mid) <= level
         return jnp.where(inside, mid, lo), jnp.where(inside, hi, mid)
 
-    _, hi = jax.lax.fori_loop(0, N_BISECT, bisect, (jnp.zeros(()), jnp.asarray(r_hi0, jnp.float32)))
+    dtype = params.collision_radius.dtype  # float32, or float64 when x64 is on and params are cast
+    _, hi = jax.lax.fori_loop(0, N_BISECT, bisect, (jnp.zeros((), dtype), jnp.asarray(r_hi0, dtype)))
     return hi
 
 
