@@ -15,7 +15,16 @@ import pytest
 from stp_env import sim
 from stp_env.falsify import cli as falsify_cli
 from stp_env.falsify.avoidance import AvoidanceAttack
-from stp_env.falsify.counterexample import TARGETS, AttackSpec, canonical_value, load, replay, run, save
+from stp_env.falsify.counterexample import (
+    TARGETS,
+    AttackSpec,
+    build_attack,
+    canonical_value,
+    load,
+    replay,
+    run,
+    save,
+)
 from stp_env.falsify.kbar import KbarAttack
 from stp_env.falsify.search import SearchConfig, cross_entropy
 from stp_env.falsify.tracking import TrackingAttack
@@ -94,6 +103,18 @@ def test_the_attacks_find_violations_where_there_are_some():
     assert unguarded.margin(res.best_value) < 0
 
 
+def test_kbar_attack_vehicle_option_needs_the_buffer_table():
+    params = _params()
+    with pytest.raises(ValueError, match="vehicles must be one of"):
+        KbarAttack(base=params, vehicles="reckless")
+    for opts in ({"vehicles": "worst"}, {"intruder": "optimal-max-k"}):
+        with pytest.raises(ValueError, match="buffer game"):
+            KbarAttack(base=params, **opts)
+    spec = AttackSpec(target="kbar", scenario="town", kbar=2, options=(("vehicles", "worst"),))
+    attack = build_attack(spec)
+    assert attack.needs_buffer and attack.base.buffer_values is not None
+
+
 def test_counterexample_replays_bit_for_bit(tmp_path):
     params = _params()
     # A short tracking attack: replay does not depend on the target, and this one compiles fastest.
@@ -127,6 +148,4 @@ def test_malformed_counterexample_files_are_refused(tmp_path, edit):
 def test_cli_targets_match_the_attacks():
     assert falsify_cli.TARGETS == TARGETS
     with pytest.raises(ValueError, match="unknown option"):
-        from stp_env.falsify.counterexample import build_attack
-
         build_attack(AttackSpec(target="tracking", options=(("horizonn", 3.0),)), params=_params())

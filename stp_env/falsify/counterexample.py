@@ -89,7 +89,13 @@ def environment(spec: AttackSpec, *, progress: bool = False):
         overrides["kbar"] = spec.kbar
     scenario = make(spec.scenario, **overrides)
     config = sim.EnvConfig(dt=spec.dt, control_dt=spec.control_dt, wind_model=spec.wind_model)
-    return sim.params_for(scenario, config, progress=progress)
+    params = sim.params_for(scenario, config, progress=progress)
+    opts = dict(spec.options)
+    if spec.target == "kbar" and (opts.get("vehicles") == "worst" or opts.get("intruder") == "optimal-max-k"):
+        from stp_env.sim.build import load_buffer, with_buffer
+
+        params = with_buffer(params, load_buffer(scenario, progress=progress))
+    return params
 
 
 def build_attack(spec: AttackSpec, params=None, *, progress: bool = False):

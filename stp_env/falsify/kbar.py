@@ -7,7 +7,10 @@ chosen bearing and relative heading: the core then checks Assumption 3 against e
 breaks it does not count), and how it flies: its controls piecewise constant over ``segment`` seconds
 (``intruder="search"``) or a scripted strategy (``"max-k"``, ``"hj"``: the papers' pursuit, re-read every step).
 The wind is the environment's model (``"worst"``: the games' worst case at every inner control step). The vehicles
-fly ``u*`` (eq. 38) through the core.
+fly ``u*`` (eq. 38) through the core (``vehicles="switching"``), or the buffer game's worst control until forced
+(``vehicles="worst"``: the assumption behind ``V^B``, the one under which the bound can be reached); the buffer-game
+policies (``vehicles="worst"``, ``intruder="optimal-max-k"``) need ``V^B`` in the params
+(:func:`stp_env.falsify.counterexample.environment` loads it for them).
 
 Objective: ``|N^RP|`` plus a tie-breaker in ``[0, 1)`` that grows as the intruder comes closer to the avoid
 boundary of a vehicle it has not forced yet (``1 - min V^A / d^A`` over the episode), so that the search climbs
@@ -25,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env.baselines.intruders import INTRUDERS
-from stp_env.baselines.vehicles import switching
+from stp_env.baselines.vehicles import VEHICLE_POLICIES
 from stp_env.falsify import harness
 from stp_env.sim import core
 from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN
@@ -34,7 +37,8 @@ from stp_env.sim.reference import nominal_reference
 from stp_env.sim.spawn import radius_on_level
 from stp_env.sim.types import FLYING, EnvParams, replace
 
-SCRIPTED = ("max-k", "hj")
+SCRIPTED = ("max-k", "hj", "optimal-max-k")
+VEHICLES = ("switching", "worst")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,15 +49,25 @@ class KbarAttack:
     intruder: str = "search"
     segment: float = 0.5
     max_level: float = 20.0
+    vehicles: str = "switching"
     name: str = "kbar"
 
     def __post_init__(self) -> None:
         if self.intruder not in ("search", *SCRIPTED):
-            raise ValueError(f"intruder must be 'search', 'max-k' or 'hj'; got {self.intruder!r}.")
+            raise ValueError(f"intruder must be 'search' or one of {SCRIPTED}; got {self.intruder!r}.")
+        if self.vehicles not in VEHICLES:
+            raise ValueError(f"vehicles must be one of {VEHICLES}; got {self.vehicles!r}.")
+        if self.needs_buffer and self.base.buffer_values is None:
+            raise ValueError(f"vehicles={self.vehicles!r} / intruder={self.intruder!r} play the buffer game: the "
+                             "params need V^B (stp_env.sim.build.with_buffer).")
         if not (math.isfinite(self.segment) and self.segment >= float(self.base.dt) - 1e-9):
             raise ValueError(f"segment must be at least the step dt = {float(self.base.dt)} s; got {self.segment}.")
         if int(self.base.kbar) < 1:
             raise ValueError("the scenario has no k̄ (plan it intruder-aware) to attack.")
+
+    @property
+    def needs_buffer(self) -> bool:
+        return self.vehicles == "worst" or self.intruder == "optimal-max-k"
 
     @property
     def n_present(self) -> int:
@@ -127,7 +141,7 @@ class KbarAttack:
                 k = jnp.clip(jnp.round((s.t - s.t_appear) / params.dt).astype(jnp.int32), 0, self.n_present - 1)
                 a_i = plan[k]
             actions = jnp.concatenate([jnp.zeros((n, 2), s.x.dtype), a_i[None, :]], axis=0)
-            s2, _ = core.step(key, s, actions, params, vehicle_policy=switching)
+            s2, _ = core.step(key, s, actions, params, vehicle_policy=VEHICLE_POLICIES[self.vehicles])
             unforced = (s2.status == FLYING) & ~jnp.isfinite(s2.avoid_start)
             vmin = jnp.minimum(vmin, jnp.min(jnp.where(unforced, s2.avoid_value, jnp.inf)))
             out = (s2.x, s2.intruder_x, s2.t) if record else None
