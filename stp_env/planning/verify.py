@@ -91,6 +91,8 @@ def straight_plan(scenario, tracking_bound: float, *, speed: float | None = None
     the STP planner imposes, so it is one the planner could return: for routes that are straight and conflict-free by
     schedule (a corridor, streams that cross at staggered times) it is the planner's answer without the BRS, exact
     rather than a grid approximation."""
+    if check and disks is None:
+        disks = planner_disks(scenario, tracking_bound)
     speed = float(scenario.planning_v[1] if speed is None else speed)
     if not scenario.planning_v[0] <= speed <= scenario.planning_v[1]:
         raise ValueError(f"speed {speed} m/s is outside the planning set {scenario.planning_v}.")
@@ -123,9 +125,6 @@ def straight_plan(scenario, tracking_bound: float, *, speed: float | None = None
     plan = Plan(vehicles=tuple(vehicles), tracking_bound=float(tracking_bound),
                 collision_radius=float(scenario.collision_radius), kbar=scenario.kbar)
     if check:
-        disks = planner_disks(scenario, tracking_bound) if disks is None else disks
-        plan = dataclasses.replace(plan, vehicles=tuple(
-            dataclasses.replace(v, obstacle_lags=disks.lags, obstacle_radii=disks.radii) for v in plan.vehicles))
         margin, (low, high, t) = obstacle_margin(plan, disks)
         if margin < 0:
             raise InfeasiblePlanError(f"scenario {scenario.name!r}: the straight plan brings vehicle {low} "
