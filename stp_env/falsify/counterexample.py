@@ -80,6 +80,7 @@ class AttackSpec:
 def environment(spec: AttackSpec, *, progress: bool = False):
     """The environment the attack runs in (registered scenario, typed config)."""
     from stp_env import sim
+    from stp_env.falsify.kbar import plays_buffer_game
     from stp_env.scenarios import factory_parameters, make
 
     overrides = {}
@@ -91,7 +92,8 @@ def environment(spec: AttackSpec, *, progress: bool = False):
     config = sim.EnvConfig(dt=spec.dt, control_dt=spec.control_dt, wind_model=spec.wind_model)
     params = sim.params_for(scenario, config, progress=progress)
     opts = dict(spec.options)
-    if spec.target == "kbar" and (opts.get("vehicles") == "worst" or opts.get("intruder") == "optimal-max-k"):
+    if spec.target == "kbar" and plays_buffer_game(str(opts.get("vehicles", "switching")),
+                                                   str(opts.get("intruder", "search"))):
         from stp_env.sim.build import load_buffer, with_buffer
 
         params = with_buffer(params, load_buffer(scenario, progress=progress))

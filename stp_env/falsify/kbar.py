@@ -27,8 +27,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env.baselines.intruders import INTRUDERS
-from stp_env.baselines.vehicles import VEHICLE_POLICIES
+from stp_env.baselines.intruders import BUFFER_GAME_INTRUDERS, INTRUDERS
+from stp_env.baselines.vehicles import BUFFER_GAME_VEHICLE_POLICIES, VEHICLE_POLICIES
 from stp_env.falsify import harness
 from stp_env.sim import core
 from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN
@@ -39,6 +39,11 @@ from stp_env.sim.types import FLYING, EnvParams, replace
 
 SCRIPTED = ("max-k", "hj", "optimal-max-k")
 VEHICLES = ("switching", "worst")
+
+
+def plays_buffer_game(vehicles: str = "switching", intruder: str = "search") -> bool:
+    """Whether the attack's vehicles or intruder read ``V^B`` (the buffer-game policies of :mod:`stp_env.baselines`)."""
+    return vehicles in BUFFER_GAME_VEHICLE_POLICIES or intruder in BUFFER_GAME_INTRUDERS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,7 +72,7 @@ class KbarAttack:
 
     @property
     def needs_buffer(self) -> bool:
-        return self.vehicles == "worst" or self.intruder == "optimal-max-k"
+        return plays_buffer_game(self.vehicles, self.intruder)
 
     @property
     def n_present(self) -> int:
