@@ -78,6 +78,31 @@ def test_the_episode_summary_counts_by_hand_and_bounds_with_scipy():
     with pytest.raises(ValueError, match="collisions"):
         forced_summary(n_forced, 2, collided[:3], violations)
 
+def test_the_tracking_error_column_counts_only_vehicles_that_flew_with_kappa():
+    """A vehicle still waiting at the end has ``tracked`` set and error 0: it must not make a run in which no vehicle
+    tracked (every one flew the ``worst`` policy) report a measured 0 m; such a run reports ``n/a``."""
+    import types
+
+    from stp_env.evaluation.report import markdown_table
+    from stp_env.evaluation.runner import summarize
+    from stp_env.sim.types import ARRIVED, WAITING
+
+    params = types.SimpleNamespace(sta=np.array([10.0, 20.0]), t_start=0.0, t_end=30.0, tracking_bound=5.0,
+                                   vehicle_bounds=np.array([0.0, 0.0, 0.0, 0.0, 6.0, 0.0]), collision_radius=20.0)
+    ep = {"n_forced": np.array([0, 0]), "status": np.array([[ARRIVED, WAITING], [ARRIVED, ARRIVED]]),
+          "guarantee_violation": np.zeros((2, 2), bool), "collided_with_intruder": np.zeros((2, 2), bool),
+          "assumption_ok": np.ones((2, 2), bool), "tracking_violation": np.zeros((2, 2), bool),
+          "max_tracking_error": np.array([[3.0, 0.0], [4.5, 7.0]]),
+          "tracked": np.array([[True, True], [True, False]]), "arrival_time": np.array([[9.0, np.inf], [9.0, 19.0]]),
+          "avoid_start": np.full((2, 2), np.inf), "t_appear": np.zeros(2), "min_separation": np.full((2, 2), 50.0)}
+    config = Configuration(scenario="tiny-intruder", kbar=1, intruder="greedy", vehicle_policy="worst")
+    assert summarize(config, ep, params)["max_tracking_error_m"] == 4.5    # 7.0 was flown without kappa
+    ep["tracked"][:, 0] = False                                            # only the waiting vehicle is left
+    summary = summarize(config, ep, params)
+    assert summary["max_tracking_error_m"] is None
+    assert "| n/a (5.00) |" in markdown_table([summary])
+
+
 def test_rule_of_three_and_betainc():
     # no event in n trials: the 95 % bound is 1 - 0.05^(1/n), about 3/n
     assert clopper_pearson_upper(0, 1000) == pytest.approx(1 - 0.05 ** (1 / 1000), rel=1e-12)

@@ -52,10 +52,15 @@ def markdown_table(summaries: list[dict]) -> str:
             f"| {s['intruder']} ({s['spawn_mode']}) | {s['kbar']} | {wind} | {s['episodes']} | "
             f"{s['forced_mean']:.2f} | {s['forced_max']} | {s['exceed']} | {_pct(s['exceed_upper'])} | "
             f"{s['collisions']} ({s['intruder_collisions']}) | {s['guarantee_violations']} | "
-            f"{s['max_tracking_error_m']:.2f} ({s['tracking_bound_m']:.2f}) | "
+            f"{_num(s['max_tracking_error_m'])} ({s['tracking_bound_m']:.2f}) | "
             f"{_pct(s['on_time_rate'])} | {s['min_separation_m']} | {_pct(s.get('kbar_reached_rate'))} | "
             f"{_kth_times(s)} |")
     return "\n".join(rows)
+
+
+def _num(x) -> str:
+    """``x`` with two decimals, ``n/a`` for ``None`` (nothing measured)."""
+    return "n/a" if x is None else f"{x:.2f}"
 
 
 def _kth_times(s: dict) -> str:

@@ -29,7 +29,7 @@ from stp_env.evaluation.summary import forced_summary
 from stp_env.seeds import check_seed, prng_key
 from stp_env.sim.bounds import WIND
 from stp_env.sim.rollout import rollout_keys
-from stp_env.sim.types import ARRIVED, COLLIDED, OUT_OF_BOUNDS
+from stp_env.sim.types import ARRIVED, COLLIDED, OUT_OF_BOUNDS, WAITING
 
 MAX_EPISODES = 2**30  # episode indices are int32 (the last batch runs past the last episode)
 EVENT_KINDS = ("bound_exceeded", "collision", "guarantee_violation", "assumption_failed")
@@ -131,7 +131,7 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
       appeared inside a vehicle's avoid region (Assumption 3 failed; no guarantee applies).
     * ``tracking_violations``: vehicles farther than ``r_e`` (``tracking_bound_m``) from their nominal position
       while tracking their plan (SPP eqs. 24-26); ``max_tracking_error_m``: the largest such distance of any
-      vehicle that tracked its plan.
+      vehicle that tracked its plan (``None`` when none flew with ``kappa``, e.g. under the ``worst`` policy).
     * ``due``: vehicle-episodes whose STA falls within the simulated time (``<= t_end``), not counting vehicles
       already in their target when the episode starts; ``on_time_rate``: the fraction of them that arrived by their
       STA; ``arrived_rate``: that arrived at all within the episode. A ``"window"`` episode has few due vehicles
@@ -162,6 +162,7 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
     n_due = int(due.sum())
     kth_min, kth_median = avoid_start_order_stats(ep, kbar + 1)
     per_episode_sep = np.min(ep["min_separation"], axis=1)
+    flew_tracked = ep["tracked"] & (ep["status"] != WAITING)  # a vehicle still waiting has tracked nothing
     finite = per_episode_sep[np.isfinite(per_episode_sep)]
     return {
         "label": config.label,
@@ -186,7 +187,8 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
         "violation_upper": base["violation_upper"],
         "assumption_failures": int(np.sum(~np.all(ep["assumption_ok"], axis=1))),
         "tracking_violations": int(ep["tracking_violation"].sum()),
-        "max_tracking_error_m": round(float(np.max(np.where(ep["tracked"], ep["max_tracking_error"], 0.0))), 3),
+        "max_tracking_error_m": (round(float(np.max(np.where(flew_tracked, ep["max_tracking_error"], 0.0))), 3)
+                                 if np.any(flew_tracked) else None),
         "tracking_bound_m": round(float(params.tracking_bound), 3),
         "due": n_due,
         "on_time_rate": float(on_time.sum() / n_due) if n_due else None,
