@@ -45,6 +45,7 @@ except ImportError:  # pragma: no cover
 
 FORMAT_VERSION = 1
 CACHE_ENV_VAR = "STP_ENV_CACHE_DIR"
+SHIPPED_DIR = Path(__file__).resolve().parent / "data" / "artifacts"  # artifacts that ship with the package
 _NUMERICS = ("hj", "dynamics.py", "reach", "planning", "scenarios")
 
 
@@ -257,11 +258,54 @@ class Artifact:
     from_cache: bool
 
 
-class ArtifactStore:
-    """Directory of artifacts. ``ArtifactStore()`` uses :func:`default_cache_dir`."""
+def _read_artifact(npz_path: Path, json_path: Path, kind: str, params: Any, key: str
+                   ) -> tuple[Artifact | None, str | None]:
+    """The artifact at ``npz_path`` / ``json_path`` if everything about it checks out, else ``None`` and why."""
+    if not npz_path.exists() and not json_path.exists():
+        return None, "missing"
+    problem = None
+    try:
+        meta = json.loads(json_path.read_text())
+        problem = _metadata_problem(meta)
+        if problem is not None:
+            pass
+        elif meta.get("format_version") != FORMAT_VERSION:
+            problem = (f"format version {meta.get('format_version')} != {FORMAT_VERSION}")
+        elif meta.get("code_version") != CODE_VERSION:
+            problem = f"computed by other code (code version {meta.get('code_version')} != {CODE_VERSION})"
+        elif meta.get("key") != key or meta.get("kind") != kind:
+            problem = "parameters changed"
+        elif meta.get("params") != json.loads(json.dumps(to_jsonable(params))):
+            problem = "parameters changed"
+        elif meta.get("content_sha256") != _file_sha256(npz_path):
+            problem = "array file does not match its content hash (corrupted or modified)"
+        else:
+            data = np.load(npz_path, allow_pickle=False)
+            if not isinstance(data, np.lib.npyio.NpzFile):
+                problem = "the array file is not an .npz archive"
+            else:
+                with data:
+                    arrays = {name: data[name] for name in data.files}
+                problem = _arrays_problem(arrays, meta)
+                if problem is None:
+                    return Artifact(arrays=arrays, metadata=meta, path=npz_path, from_cache=True), None
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, EOFError, zipfile.BadZipFile,
+            json.JSONDecodeError) as err:
+        problem = f"unreadable ({type(err).__name__}: {err})"
+    return None, problem
 
-    def __init__(self, root: str | os.PathLike | None = None):
+
+class ArtifactStore:
+    """Directory of artifacts. ``ArtifactStore()`` uses :func:`default_cache_dir`.
+
+    ``shipped``: a read-only directory of artifacts that came with the package (:data:`SHIPPED_DIR`; ``None``:
+    none), consulted when the cache has no file for an artifact. A shipped file is only used if it was computed by
+    the current code (:data:`CODE_VERSION`) with the same parameters; ``scripts/ship_artifacts.py`` regenerates
+    them and ``tests/test_artifacts.py`` fails while one is stale."""
+
+    def __init__(self, root: str | os.PathLike | None = None, *, shipped: str | os.PathLike | None = SHIPPED_DIR):
         self.root = Path(root) if root is not None else default_cache_dir()
+        self.shipped = Path(shipped) if shipped is not None else None
         self._swept = False
 
     def _sweep(self) -> None:
@@ -289,42 +333,20 @@ class ArtifactStore:
 
     def load(self, kind: str, params: Any) -> Artifact | None:
         """The cached artifact, or ``None`` (with a :class:`StaleArtifactWarning` saying why) if it is missing,
-        stale or corrupted."""
+        stale or corrupted. When the cache has no file for it, a valid shipped copy (:data:`SHIPPED_DIR`, checked
+        the same way: same parameters, format and code version, content hash) is returned instead."""
         npz_path, json_path, key = self.paths(kind, params)
         if not npz_path.exists() and not json_path.exists():
-            return None
-        problem = None
-        try:
-            meta = json.loads(json_path.read_text())
-            problem = _metadata_problem(meta)
-            if problem is not None:
-                pass
-            elif meta.get("format_version") != FORMAT_VERSION:
-                problem = (f"format version {meta.get('format_version')} != {FORMAT_VERSION}")
-            elif meta.get("code_version") != CODE_VERSION:
-                problem = f"computed by other code (code version {meta.get('code_version')} != {CODE_VERSION})"
-            elif meta.get("key") != key or meta.get("kind") != kind:
-                problem = "parameters changed"
-            elif meta.get("params") != json.loads(json.dumps(to_jsonable(params))):
-                problem = "parameters changed"
-            elif meta.get("content_sha256") != _file_sha256(npz_path):
-                problem = "array file does not match its content hash (corrupted or modified)"
-            else:
-                data = np.load(npz_path, allow_pickle=False)
-                if not isinstance(data, np.lib.npyio.NpzFile):
-                    problem = "the array file is not an .npz archive"
-                else:
-                    with data:
-                        arrays = {name: data[name] for name in data.files}
-                    problem = _arrays_problem(arrays, meta)
-                    if problem is None:
-                        return Artifact(arrays=arrays, metadata=meta, path=npz_path, from_cache=True)
-        except (OSError, ValueError, KeyError, TypeError, AttributeError, EOFError, zipfile.BadZipFile,
-                json.JSONDecodeError) as err:
-            problem = f"unreadable ({type(err).__name__}: {err})"
-        warnings.warn(f"Recomputing {kind} artifact {npz_path.name}: {problem}.", StaleArtifactWarning,
-                      stacklevel=3)
-        return None
+            if self.shipped is None:
+                return None
+            artifact, _ = _read_artifact(self.shipped / npz_path.name, self.shipped / json_path.name, kind, params,
+                                         key)
+            return artifact
+        artifact, problem = _read_artifact(npz_path, json_path, kind, params, key)
+        if artifact is None:
+            warnings.warn(f"Recomputing {kind} artifact {npz_path.name}: {problem}.", StaleArtifactWarning,
+                          stacklevel=3)
+        return artifact
 
     def save(self, kind: str, params: Any, arrays: Mapping[str, np.ndarray],
              extra_metadata: Mapping[str, Any] | None = None) -> Artifact:

@@ -179,3 +179,50 @@ def test_concurrent_processes_compute_an_artifact_once(tmp_path):
     assert len(list(markers.iterdir())) == 1
     art = ArtifactStore(tmp_path / "cache").load("lock_probe", {"p": 1})
     assert art is not None and np.array_equal(art.arrays["x"], np.arange(4.0))
+
+
+# ------------------------------------------------------------------------------------- shipped artifacts
+def test_a_valid_shipped_copy_is_used_and_an_invalid_one_is_not(tmp_path):
+    """The shipped layer is consulted only when the cache has no file, and only a copy that passes every check of
+    a cache entry is used: a tampered or stale shipped copy means a computation, not a silently reused result."""
+    calls, compute = _compute_counter()
+    shipped = tmp_path / "shipped"
+    made = ArtifactStore(shipped, shipped=None).load_or_compute("demo", Params(), compute)
+    assert len(calls) == 1
+    store = ArtifactStore(tmp_path / "cache", shipped=shipped)
+    hit = store.load_or_compute("demo", Params(), compute)
+    assert len(calls) == 1 and hit.from_cache and hit.path == made.path
+    assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").iterdir())  # nothing written
+    assert ArtifactStore(tmp_path / "off", shipped=None).load("demo", Params()) is None   # the layer can be off
+    store.load_or_compute("demo", Params(n=6), compute)   # other parameters: the shipped copy does not serve
+    assert len(calls) == 2
+    data = made.path.read_bytes()
+    made.path.write_bytes(data[:-8] + b"\0" * 8)           # tampered shipped copy: computed into the cache
+    fresh = ArtifactStore(tmp_path / "cache2", shipped=shipped).load_or_compute("demo", Params(), compute)
+    assert len(calls) == 3 and not fresh.from_cache and fresh.path.parent == tmp_path / "cache2"
+
+
+def test_the_shipped_artifacts_are_current_and_serve_the_default_scenario(tmp_path):
+    """Every file in ``stp_env/data/artifacts`` was computed by this code (an edit to the numerical code makes it
+    stale: run ``python scripts/ship_artifacts.py``), and the default scenario's tracking bound is read from it by
+    a store with an empty cache, without computing."""
+    from stp_env.reach import tracking
+    from stp_env.scenarios import make
+
+    metas = sorted(artifacts.SHIPPED_DIR.glob("*.json"))
+    assert metas, "no shipped artifacts"
+    for path in metas:
+        meta = json.loads(path.read_text())
+        assert meta["code_version"] == artifacts.CODE_VERSION, (
+            f"{path.name} is stale (computed by code {meta['code_version']}, this is {artifacts.CODE_VERSION}): "
+            "run python scripts/ship_artifacts.py")
+        assert meta["content_sha256"] == artifacts._file_sha256(path.with_suffix(".npz")), path.name
+    town = make("town")
+    store = ArtifactStore(tmp_path / "empty-cache")
+    cfg = tracking.default_tracking_config(town.vehicle, tuple(town.planning_v), town.planning_omega_max)
+    art = store.load("tracking_bound", cfg)
+    assert art is not None and art.path.parent == artifacts.SHIPPED_DIR
+    bound = tracking.default_tracking_bound(town.vehicle, tuple(town.planning_v), town.planning_omega_max,
+                                            store=store, progress=False)
+    assert bound.converged and 3.5 <= bound.bound <= 6.5
+    assert not (tmp_path / "empty-cache").exists() or not any((tmp_path / "empty-cache").iterdir())

@@ -1,0 +1,86 @@
+"""Regenerate the reachability artifacts that ship with the package (``stp_env/data/artifacts/``).
+
+    python scripts/ship_artifacts.py            # compute (or take from the cache) and copy; drop stale copies
+    python scripts/ship_artifacts.py --check    # exit 1 if a shipped copy is stale or one is missing
+
+What ships: every artifact the default scenario's parameters read (:func:`stp_env.sim.params_for` of ``town``, the
+default ``stp-env evaluate`` run) whose array file is at most ``--max-mb`` (the tracking-error bound: a 3-minute solve
+on 2 cores; the 55 MB avoid region, a 1-minute solve, does not ship). A shipped copy is keyed like a cache entry
+(parameters, format and code version, content hash), so any edit to the numerical code makes it stale:
+``tests/test_artifacts.py`` then fails until this script is run again. The cache (``STP_ENV_CACHE_DIR``) is used
+for the computation, so a second run is a copy.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+from stp_env import sim
+from stp_env.artifacts import SHIPPED_DIR, ArtifactStore
+
+
+class _Recording(ArtifactStore):
+    """The cache without the shipped layer, remembering which artifacts were asked for."""
+
+    def __init__(self):
+        super().__init__(shipped=None)
+        self.used = []
+
+    def load_or_compute(self, kind, params, compute, extra_metadata=None):
+        art = super().load_or_compute(kind, params, compute, extra_metadata)
+        self.used.append(art)
+        return art
+
+
+def wanted(max_mb: float) -> list:
+    """The cache files (npz paths) of the artifacts to ship, computed if not cached."""
+    store = _Recording()
+    sim.params_for("town", sim.EnvConfig(), store=store, progress=True)
+    return sorted({a.path for a in store.used if a.path.stat().st_size <= max_mb * 2**20})
+
+
+def _copy_atomic(src: Path, dst: Path) -> None:
+    fd, tmp = tempfile.mkstemp(dir=dst.parent, prefix=".ship-", suffix=dst.suffix)
+    os.close(fd)
+    try:
+        shutil.copyfile(src, tmp)
+        os.chmod(tmp, 0o644)                                # package data: readable by every user
+        os.replace(tmp, dst)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--max-mb", type=float, default=2.0, help="largest array file that ships [MiB]")
+    ap.add_argument("--check", action="store_true", help="only report whether the shipped copies are current")
+    args = ap.parse_args(argv)
+    paths = wanted(args.max_mb)
+    names = {p.name for p in paths} | {p.with_suffix(".json").name for p in paths}
+    present = {p.name for p in SHIPPED_DIR.glob("*")} if SHIPPED_DIR.is_dir() else set()
+    if args.check:
+        current = all((SHIPPED_DIR / n).is_file() and (SHIPPED_DIR / n).read_bytes() == (p.parent / n).read_bytes()
+                      for p in paths for n in (p.name, p.with_suffix(".json").name))
+        print(json.dumps({"current": current and present == names, "wanted": sorted(names),
+                          "shipped": sorted(present)}))
+        return 0 if current and present == names else 1
+    SHIPPED_DIR.mkdir(parents=True, exist_ok=True)
+    for p in paths:
+        _copy_atomic(p, SHIPPED_DIR / p.name)              # arrays first: a copy without its metadata is ignored
+        _copy_atomic(p.with_suffix(".json"), SHIPPED_DIR / p.with_suffix(".json").name)
+    for stale in sorted(present - names):
+        (SHIPPED_DIR / stale).unlink()
+    print(json.dumps({"shipped": sorted(names), "removed": sorted(present - names),
+                      "bytes": sum((SHIPPED_DIR / n).stat().st_size for n in names)}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
