@@ -258,28 +258,29 @@ class Artifact:
     from_cache: bool
 
 
+def _identity_problem(meta: dict, npz_path: Path, kind: str, params: Any, key: str) -> str | None:
+    """Whether well-formed metadata describes this artifact as computed by this code (``None``: it does)."""
+    if meta.get("format_version") != FORMAT_VERSION:
+        return f"format version {meta.get('format_version')} != {FORMAT_VERSION}"
+    if meta.get("code_version") != CODE_VERSION:
+        return f"computed by other code (code version {meta.get('code_version')} != {CODE_VERSION})"
+    if meta.get("key") != key or meta.get("kind") != kind \
+            or meta.get("params") != json.loads(json.dumps(to_jsonable(params))):
+        return "parameters changed"
+    if meta.get("content_sha256") != _file_sha256(npz_path):
+        return "array file does not match its content hash (corrupted or modified)"
+    return None
+
+
 def _read_artifact(npz_path: Path, json_path: Path, kind: str, params: Any, key: str
                    ) -> tuple[Artifact | None, str | None]:
     """The artifact at ``npz_path`` / ``json_path`` if everything about it checks out, else ``None`` and why."""
     if not npz_path.exists() and not json_path.exists():
         return None, "missing"
-    problem = None
     try:
         meta = json.loads(json_path.read_text())
-        problem = _metadata_problem(meta)
-        if problem is not None:
-            pass
-        elif meta.get("format_version") != FORMAT_VERSION:
-            problem = (f"format version {meta.get('format_version')} != {FORMAT_VERSION}")
-        elif meta.get("code_version") != CODE_VERSION:
-            problem = f"computed by other code (code version {meta.get('code_version')} != {CODE_VERSION})"
-        elif meta.get("key") != key or meta.get("kind") != kind:
-            problem = "parameters changed"
-        elif meta.get("params") != json.loads(json.dumps(to_jsonable(params))):
-            problem = "parameters changed"
-        elif meta.get("content_sha256") != _file_sha256(npz_path):
-            problem = "array file does not match its content hash (corrupted or modified)"
-        else:
+        problem = _metadata_problem(meta) or _identity_problem(meta, npz_path, kind, params, key)
+        if problem is None:
             data = np.load(npz_path, allow_pickle=False)
             if not isinstance(data, np.lib.npyio.NpzFile):
                 problem = "the array file is not an .npz archive"
