@@ -45,6 +45,13 @@ def wanted(max_mb: float) -> list:
     return sorted({a.path for a in store.used if a.path.stat().st_size <= max_mb * 2**20})
 
 
+def _same_key(shipped: Path, cached: Path) -> bool:
+    if not shipped.is_file():
+        return False
+    a, b = json.loads(shipped.read_text()), json.loads(cached.read_text())
+    return (a.get("key"), a.get("code_version")) == (b.get("key"), b.get("code_version"))
+
+
 def _copy_atomic(src: Path, dst: Path) -> None:
     fd, tmp = tempfile.mkstemp(dir=dst.parent, prefix=".ship-", suffix=dst.suffix)
     os.close(fd)
@@ -66,8 +73,9 @@ def main(argv=None) -> int:
     names = {p.name for p in paths} | {p.with_suffix(".json").name for p in paths}
     present = {p.name for p in SHIPPED_DIR.glob("*")} if SHIPPED_DIR.is_dir() else set()
     if args.check:
-        current = all((SHIPPED_DIR / n).is_file() and (SHIPPED_DIR / n).read_bytes() == (p.parent / n).read_bytes()
-                      for p in paths for n in (p.name, p.with_suffix(".json").name))
+        # current: every wanted artifact ships, keyed as this code keys it (the time or machine it was computed on
+        # may differ from the cache's copy)
+        current = all(_same_key(SHIPPED_DIR / p.with_suffix(".json").name, p.with_suffix(".json")) for p in paths)
         print(json.dumps({"current": current and present == names, "wanted": sorted(names),
                           "shipped": sorted(present)}))
         return 0 if current and present == names else 1
