@@ -323,18 +323,32 @@ def aware_obstacles(scenario, tracking_bound: float, *, store=None, progress: bo
 
 
 def planning_static_obstacle(scenario, tracking_bound: float):
-    """The buildings as the planner sees them: their signed distance on the position plane minus the tracking
-    bound ``r_e`` and, for intruder-aware scenarios, the static-obstacle augmentation ``V^S`` (eqs. 32-33,
-    :func:`stp_env.reach.obstacles.static_inflation_radius`); ``None`` without buildings. Shape
-    ``scenario.grid().shape[:2]``, ``{<= 0}`` forbidden."""
+    """The static obstacles as the planner sees them, on the position plane (shape ``scenario.grid().shape[:2]``,
+    ``{<= 0}`` forbidden): the minimum of
+
+    * the buildings' signed distance minus the tracking bound ``r_e`` and, for intruder-aware scenarios, the
+      static-obstacle augmentation ``V^S`` (eqs. 32-33, :func:`stp_env.reach.obstacles.static_inflation_radius`);
+    * the distance inside the scenario's domain minus ``r_e``: a tracking vehicle stays within ``r_e`` of its
+      nominal trajectory, and the simulator ends a vehicle that leaves the domain (out of bounds). Without this
+      term nothing kept the nominal trajectory in the domain: the planning grid is the domain, and a trajectory
+      that had to lose time (city Case 0, the 49th of 50 vehicles: its start is blocked by later departures, so it
+      leaves 280 s early) flew out of the grid, where the clamped value table has no gradient, 1.1 km past the
+      edge, and came back 70 s late. The domain term covers the nominal flight, not an avoidance manoeuvre, which
+      may still end out of bounds (the papers have no domain edge).
+    """
     from stp_env.reach.obstacles import static_inflation_radius
 
-    if not scenario.buildings:
-        return None
-    margin = float(tracking_bound)
-    if scenario.kbar is not None:
-        margin += static_inflation_radius(scenario.vehicle, scenario.collision_radius, scenario.t_iat)
-    return np.asarray(scenario.static_obstacle())[:, :, 0] - margin
+    grid = scenario.grid()
+    xs, ys = (np.asarray(c, np.float64) for c in grid.coordinate_vectors()[:2])
+    lo, hi = np.asarray(scenario.domain_lo, float), np.asarray(scenario.domain_hi, float)
+    inside = np.minimum(np.minimum(xs - lo[0], hi[0] - xs)[:, None], np.minimum(ys - lo[1], hi[1] - ys)[None, :])
+    plane = inside - float(tracking_bound)
+    if scenario.buildings:
+        margin = float(tracking_bound)
+        if scenario.kbar is not None:
+            margin += static_inflation_radius(scenario.vehicle, scenario.collision_radius, scenario.t_iat)
+        plane = np.minimum(plane, np.asarray(scenario.static_obstacle())[:, :, 0] - margin)
+    return plane
 
 
 def cached_plan(scenario, *, tracking_bound: float | None = None, store=None, progress: bool = True) -> Plan:

@@ -79,6 +79,22 @@ def obstacle_margin(plan: Plan, disks: ObstacleDisks) -> tuple[float, tuple[int,
     return best, where
 
 
+def domain_margin(plan: Plan, domain_lo, domain_hi) -> tuple[float, tuple[int, float]]:
+    """The smallest distance [m] of any vehicle's sampled nominal flight (departure to arrival) inside the
+    rectangle ``domain_lo``-``domain_hi``, and where ``(vehicle index, time)``; negative outside. The planner keeps
+    it at least ``r_e`` (:func:`stp_env.planning.stp.planning_static_obstacle`): a tracking vehicle then stays in
+    the domain, which the simulator requires (a vehicle that leaves it is out of bounds)."""
+    lo, hi = np.asarray(domain_lo, float), np.asarray(domain_hi, float)
+    best, where = math.inf, (-1, math.nan)
+    for v in plan.vehicles:
+        times, states = v.plan.flight()
+        inside = np.minimum(states[:, :2] - lo, hi - states[:, :2]).min(axis=1)
+        k = int(np.argmin(inside))
+        if inside[k] < best:
+            best, where = float(inside[k]), (v.index, float(times[k]))
+    return best, where
+
+
 def straight_plan(scenario, tracking_bound: float, *, speed: float | None = None,
                   disks: ObstacleDisks | None = None, check: bool = True) -> Plan:
     """Every vehicle flies straight from its start to its target centre at ``speed`` (default the top planning
