@@ -1,0 +1,86 @@
+"""The planner keeps nominal trajectories in the scenario's domain, and the shipped city plan (BEACLS Case 0, 50
+vehicles) holds the planner's constraints: every vehicle arrives by its STA, stays r_e inside the domain and
+outside the other vehicles' disks (to the grid's resolution)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from stp_env.planning.plan import Plan, SinglePlan, VehiclePlan
+from stp_env.planning.stp import planning_static_obstacle, shipped_plan
+from stp_env.planning.verify import domain_margin, obstacle_margin, planner_disks
+from stp_env.scenarios import make
+
+R_E = 5.337635040283203  # the default tracking bound the shipped plans were made with
+
+
+def _line(start, velocity, n=11, dt=1.0):
+    times = dt * np.arange(n)
+    pos = np.asarray(start, float)[None, :] + times[:, None] * np.asarray(velocity, float)[None, :]
+    states = np.concatenate([pos, np.zeros((n, 1))], axis=1)
+    single = SinglePlan(t_ldt=0.0, sta=float(times[-1]), times=times, states=states,
+                        controls=np.tile([np.hypot(*velocity), 0.0], (n, 1)), arrival_time=float(times[-1]),
+                        n_steps=0)
+    return VehiclePlan(index=0, priority=0, plan=single, obstacle_lags=np.zeros(1), obstacle_radii=np.zeros(1))
+
+
+def test_domain_margin_is_the_distance_inside_and_negative_outside():
+    inside = Plan(vehicles=(_line((100.0, 500.0), (10.0, 0.0)),), tracking_bound=1.0, collision_radius=1.0,
+                  kbar=None)
+    margin, (index, t) = domain_margin(inside, (0.0, 0.0), (1000.0, 1000.0))
+    assert (margin, index, t) == (100.0, 0, 0.0)  # the start, 100 m from the west edge
+    leaving = Plan(vehicles=(_line((100.0, 500.0), (-15.0, 0.0)),), tracking_bound=1.0, collision_radius=1.0,
+                   kbar=None)
+    margin, (_, t) = domain_margin(leaving, (0.0, 0.0), (1000.0, 1000.0))
+    assert margin == pytest.approx(-50.0) and t == 10.0  # 150 m flown west from x = 100 at the last sample
+
+
+@pytest.mark.parametrize("name", ["tiny", "town"])
+def test_the_planner_forbids_the_band_within_r_e_of_the_domain_edge(name):
+    scenario = make(name)
+    plane = planning_static_obstacle(scenario, R_E)
+    grid = scenario.grid()
+    assert plane.shape == grid.shape[:2]
+    xs, ys = (np.asarray(c) for c in grid.coordinate_vectors()[:2])
+    edge = np.minimum(np.minimum(xs - scenario.domain_lo[0], scenario.domain_hi[0] - xs)[:, None],
+                      np.minimum(ys - scenario.domain_lo[1], scenario.domain_hi[1] - ys)[None, :])
+    # edge nodes (0 m inside) are forbidden, and the plane never exceeds the distance inside less r_e
+    assert np.all(plane[edge < R_E] <= 0)
+    assert np.all(plane <= edge - R_E + 1e-9)
+    if not scenario.buildings:  # the domain term alone
+        np.testing.assert_allclose(plane, edge - R_E)
+    else:  # the buildings are still there: somewhere far from the edge is forbidden
+        assert np.any((plane <= 0) & (edge > 100.0))
+
+
+SHIPPED = [("tiny", "tiny", {}), ("tiny-intruder", "tiny-intruder", {"sta_spacing": 90}),
+           ("town-kbar1", "town", {"kbar": 1}), ("town-kbar2", "town", {"kbar": 2}),
+           ("town-kbar3", "town", {"kbar": 3}), ("fig6-kbar3", "fig6", {}), ("city", "city", {})]
+
+
+@pytest.mark.parametrize("file,name,overrides", SHIPPED, ids=[s[0] for s in SHIPPED])
+def test_every_shipped_plan_keeps_its_tracking_bubble_inside_the_domain(file, name, overrides):
+    scenario = make(name, **overrides)
+    plan = shipped_plan(file)
+    margin, where = domain_margin(plan, scenario.domain_lo, scenario.domain_hi)
+    assert margin >= plan.tracking_bound, (margin, where)
+
+
+def test_the_shipped_city_plan_holds_the_planners_constraints():
+    from stp_env.sim.build import _shipped_plan, plan_mismatch
+
+    scenario = make("city")
+    plan = _shipped_plan(scenario)  # what params_for("city") and parallel_env(scenario="city") load
+    assert plan is not None and len(plan.vehicles) == 50
+    assert plan_mismatch(plan, scenario, R_E) is None
+    lateness = np.asarray([v.plan.arrival_time - v.plan.sta for v in plan.vehicles])
+    assert np.all(np.isfinite(lateness)) and lateness.max() <= 0.0  # every vehicle arrives, by its STA
+    # outside every higher-priority vehicle's disk R_c + 2 r_e, to half a planning cell (the grid planner's
+    # trajectories may enter an induced obstacle by a fraction of a cell; docs/dense.md)
+    half_cell = 0.5 * max(scenario.grid().spacing[:2])
+    margin, where = obstacle_margin(plan, planner_disks(scenario, plan.tracking_bound))
+    assert margin >= -half_cell, (margin, where)
+    assert math.isfinite(margin)
