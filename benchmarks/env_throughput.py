@@ -12,16 +12,13 @@ Prints one JSON line. Measured in the same run:
   (``switching`` vehicles, HJ-pursuit intruder), compile excluded.
 * ``--long N``: N adapter steps (zero actions, auto-reset), peak RSS growth and step-function traces.
 
-The ``city`` scenario has no shipped plan yet (planning 50 vehicles takes about 2 minutes each here): its nominal
-trajectories are straight lines from the launch point to each destination at 12 m/s, departures every 5 s
-(throughput only; they are not STP plans).
+Both scenarios fly their shipped STP plans (``stp_env/data/plans``; the city's is BEACLS Case 0, 50 vehicles).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import resource
 import time
@@ -30,38 +27,13 @@ import jax
 import numpy as np
 
 
-def _straight_plan(scenario, spacing: float = 5.0, speed: float = 12.0, dt: float = 1.0):
-    from stp_env.planning.single import SinglePlan
-    from stp_env.planning.stp import Plan, VehiclePlan
-
-    vehicles = []
-    for i, spec in enumerate(scenario.vehicles):
-        start, target = np.asarray(spec.start[:2]), np.asarray(spec.target)
-        dist = float(np.linalg.norm(target - start))
-        heading = math.atan2(*(target - start)[::-1])
-        t0 = spacing * spec.priority
-        times = t0 + np.arange(0.0, dist / speed + dt, dt)
-        frac = np.clip((times - t0) * speed / dist, 0, 1)[:, None]
-        states = np.concatenate([start + frac * (target - start), np.full((len(times), 1), heading)], 1)
-        controls = np.tile([speed, 0.0], (len(times), 1))
-        single = SinglePlan(t_ldt=t0, sta=t0 + dist / speed, times=times, states=states, controls=controls,
-                            arrival_time=t0 + dist / speed, n_steps=0)
-        vehicles.append(VehiclePlan(index=i, priority=spec.priority, plan=single, obstacle_lags=np.zeros(1),
-                                    obstacle_radii=np.zeros(1)))
-    return Plan(vehicles=tuple(vehicles), tracking_bound=4.127, collision_radius=scenario.collision_radius,
-                kbar=scenario.kbar)
-
-
 def _params(name: str):
     from stp_env import sim
     from stp_env.scenarios import make
 
     scenario = make(name)
     avoid, tracking = sim.load_artifacts(scenario, progress=False)
-    if name == "city":
-        plan = _straight_plan(scenario)
-    else:
-        plan = sim.load_plan(scenario, tracking_bound=tracking.bound, progress=False)
+    plan = sim.load_plan(scenario, tracking_bound=tracking.bound, progress=False)  # the shipped plan
     return scenario, sim.make_params(scenario, plan, avoid, tracking, sim.EnvConfig())
 
 

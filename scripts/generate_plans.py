@@ -29,19 +29,15 @@ import numpy as np
 
 from stp_env.planning.stp import plan_scenario, plan_to_arrays
 from stp_env.scenarios import make
-from stp_env.sim.build import load_artifacts
+from stp_env.sim.build import SHIPPED_PLANS, load_artifacts
 
 DATA = Path(__file__).resolve().parents[1] / "stp_env" / "data" / "plans"
-SHIPPED: dict[str, tuple[str, dict]] = {
-    "tiny": ("tiny", {}),
-    "tiny-intruder": ("tiny-intruder", {"sta_spacing": 90}),
-    **{f"town-kbar{k}": ("town", {"kbar": k}) for k in (1, 2, 3)},
-    "city": ("city", {}),
-}
-"""File name -> (registered scenario, overrides)."""
+SHIPPED = {name: entry for name, entry in SHIPPED_PLANS.items() if name != "fig6-kbar3"}
+"""File name -> (registered scenario, overrides): :data:`stp_env.sim.build.SHIPPED_PLANS` but ``fig6-kbar3``
+(``scripts/fig6_reproduction.py`` makes it)."""
 
 
-DEFAULT = [name for name in SHIPPED if name != "city"]
+DEFAULT = [name for name in SHIPPED if not name.startswith("city")]
 
 
 def generate(name: str, *, tracking_bound: float | None = None, checkpoint=None,

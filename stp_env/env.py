@@ -450,11 +450,37 @@ class STPParallelEnv(ParallelEnv):
             raise ValueError(f"actions must be a dict {{agent: action}}; got {type(actions).__name__}.")
         n = self.params.n_vehicles
         arr = np.zeros((n + 1, max(2, self.params.vehicle_model.action_dim)), np.float32)
-        for agent, a in actions.items():
+        if self._parse_plain(actions, arr):
+            return arr
+        for agent, a in actions.items():  # the general path: every action checked on its own, errors named
             checked = self._check_action(agent, a)
             if checked is not None:
                 arr[self._index[agent], :checked.shape[0]] = checked
         return arr
+
+    def _parse_plain(self, actions, arr) -> bool:
+        """The common case in one vectorised check: every action a finite float ``np.ndarray`` of its agent's
+        shape, for a live agent; clipped into ``arr``. ``False`` (``arr`` untouched) for anything else, which the
+        general path then accepts (lists, ``None``, ints) or rejects with a message naming the agent. The same
+        result as the general path, with one finiteness check and one clip per action size instead of one per
+        agent (the per-agent checks were a third of an adapter step for the city's 51 agents)."""
+        live = set(self.agents)
+        groups: dict[int, tuple[list, list]] = {}
+        for agent, a in actions.items():
+            if agent not in live or type(a) is not np.ndarray or a.dtype.kind != "f" or a.ndim != 1:
+                return False
+            dim = self._action_dim(agent)
+            if a.shape[0] != dim:
+                return False
+            rows, values = groups.setdefault(dim, ([], []))
+            rows.append(self._index[agent])
+            values.append(a)
+        stacked = {dim: np.asarray(values, np.float64) for dim, (_, values) in groups.items()}
+        if not all(np.isfinite(v).all() for v in stacked.values()):
+            return False
+        for dim, (rows, _) in groups.items():
+            arr[rows, :dim] = np.clip(stacked[dim], -1.0, 1.0)
+        return True
 
     def step(self, actions):
         arr = self._parse_actions(actions)  # raises before anything changes

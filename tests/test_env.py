@@ -193,6 +193,38 @@ def test_finished_agents_and_bad_arguments_are_rejected(par):
         sim.EnvConfig(wind_model="hurricane")
 
 
+def _per_agent(par, actions):
+    """The general path of the action check, agent by agent (the reference for the vectorised one)."""
+    arr = np.zeros((par.params.n_vehicles + 1, 2), np.float32)
+    for agent, a in actions.items():
+        checked = par._check_action(agent, a)
+        if checked is not None:
+            arr[par._index[agent], :checked.shape[0]] = checked
+    return arr
+
+
+@settings(max_examples=40)
+@given(values=st.lists(st.floats(-5, 5, width=32), min_size=16, max_size=16),
+       dtype=st.sampled_from([np.float16, np.float32, np.float64]), drop=st.sets(st.integers(0, 7)))
+def test_the_vectorised_action_check_equals_the_per_agent_one(par, values, dtype, drop):
+    par.reset(seed=1)
+    acts = {a: np.asarray(values[2 * i:2 * i + 2], dtype) for i, a in enumerate(par.agents) if i not in drop}
+    fast = np.zeros((par.params.n_vehicles + 1, 2), np.float32)
+    assert par._parse_plain(acts, fast)
+    np.testing.assert_array_equal(fast, _per_agent(par, acts))
+
+
+@pytest.mark.parametrize("odd", [[0.5, 0.5], None, np.array([1, 0]), np.array([np.nan, 0.0]),
+                                 np.zeros(3, np.float32), np.zeros((1, 2), np.float32)])
+def test_anything_but_plain_float_arrays_takes_the_general_path(par, odd):
+    par.reset(seed=1)
+    acts = {a: np.full(2, 0.25, np.float32) for a in par.agents}
+    acts["vehicle_3"] = odd
+    untouched = np.full((par.params.n_vehicles + 1, 2), 9.0, np.float32)
+    assert not par._parse_plain(acts, untouched)
+    assert np.all(untouched == 9.0)
+
+
 def test_out_of_range_actions_are_clipped(par):
     par.reset(seed=4)
     a = _snapshot(par)

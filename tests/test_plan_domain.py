@@ -56,9 +56,23 @@ def test_the_planner_forbids_the_band_within_r_e_of_the_domain_edge(name):
         assert np.any((plane <= 0) & (edge > 100.0))
 
 
-SHIPPED = [("tiny", "tiny", {}), ("tiny-intruder", "tiny-intruder", {"sta_spacing": 90}),
-           ("town-kbar1", "town", {"kbar": 1}), ("town-kbar2", "town", {"kbar": 2}),
-           ("town-kbar3", "town", {"kbar": 3}), ("fig6-kbar3", "fig6", {}), ("city", "city", {})]
+def _shipped():
+    from importlib import resources
+
+    from stp_env.sim.build import SHIPPED_PLANS
+
+    files = {p.name[:-4] for p in (resources.files("stp_env") / "data" / "plans").iterdir()
+             if p.name.endswith(".npz")}
+    return files, SHIPPED_PLANS
+
+
+FILES, CATALOG = _shipped()
+SHIPPED = [(f, *CATALOG[f]) for f in sorted(FILES & set(CATALOG))]
+
+
+def test_every_shipped_file_is_in_the_catalog():
+    assert FILES <= set(CATALOG), sorted(FILES - set(CATALOG))
+    assert {"tiny", "tiny-intruder", "town-kbar2", "fig6-kbar3", "city"} <= FILES
 
 
 @pytest.mark.parametrize("file,name,overrides", SHIPPED, ids=[s[0] for s in SHIPPED])
@@ -67,6 +81,36 @@ def test_every_shipped_plan_keeps_its_tracking_bubble_inside_the_domain(file, na
     plan = shipped_plan(file)
     margin, where = domain_margin(plan, scenario.domain_lo, scenario.domain_hi)
     assert margin >= plan.tracking_bound, (margin, where)
+
+
+@pytest.mark.parametrize("file,name,overrides", SHIPPED, ids=[s[0] for s in SHIPPED])
+def test_a_shipped_plan_serves_exactly_its_scenario(file, name, overrides):
+    from stp_env.sim.build import _shipped_plan, plan_mismatch
+
+    scenario = make(name, **overrides)
+    plan = _shipped_plan(scenario)
+    assert plan is not None
+    np.testing.assert_array_equal(plan.vehicles[-1].plan.states, shipped_plan(file).vehicles[-1].plan.states)
+    assert plan_mismatch(plan, scenario, plan.tracking_bound) is None
+
+
+@pytest.mark.parametrize("name,overrides", [("tiny-intruder", {"kbar": 1}), ("tiny-intruder", {"sta_spacing": 0}),
+                                            ("town", {"kbar": 4}), ("tiny", {"wind": 11.0})])
+def test_no_shipped_plan_for_a_scenario_it_was_not_made_for(name, overrides):
+    from stp_env.sim.build import _shipped_plan
+
+    assert _shipped_plan(make(name, **overrides)) is None
+
+
+def test_plan_mismatch_names_kbar_stas_and_vehicle_count():
+    from stp_env.sim.build import plan_mismatch
+
+    town1 = shipped_plan("town-kbar1")
+    assert "kbar" in plan_mismatch(town1, make("town", kbar=2), town1.tracking_bound)
+    tiny = shipped_plan("tiny-intruder")  # STAs 0 and 90 s
+    assert "STA" in plan_mismatch(tiny, make("tiny-intruder", sta_spacing=0), tiny.tracking_bound)
+    assert "vehicles" in plan_mismatch(tiny, make("town", kbar=2), tiny.tracking_bound)
+    assert "tracking-error bound" in plan_mismatch(tiny, make("tiny-intruder"), tiny.tracking_bound + 1.0)
 
 
 def test_the_shipped_city_plan_holds_the_planners_constraints():

@@ -11,6 +11,7 @@ import numpy as np
 
 from stp_env import hj
 from stp_env.reach.fall_rate import FALL_RATE_BAND
+from stp_env.scenarios.catalog.city import CITY_CASES
 from stp_env.sim.bounds import bounds_row
 from stp_env.sim.config import EnvConfig
 from stp_env.sim.margins import default_avoid_margin
@@ -263,7 +264,15 @@ BOUND_TOLERANCE = 1e-3  # [m] a plan made with r_e this much smaller than the cu
 def plan_mismatch(plan, scenario, tracking_bound: float) -> str | None:
     """Why ``plan`` cannot serve ``scenario`` with the tracking bound ``tracking_bound`` (``None`` if it can): its
     obstacles and targets were grown and shrunk by the bound it was made with, so a smaller one voids its
-    separation guarantees; its samples must be the scenario's."""
+    separation guarantees; its vehicles, k̄, STAs and sample period must be the scenario's."""
+    if len(plan.vehicles) != len(scenario.vehicles):
+        return f"it has {len(plan.vehicles)} vehicles, the scenario {len(scenario.vehicles)}"
+    if plan.kbar != scenario.kbar:
+        return f"it was planned for kbar = {plan.kbar}, the scenario has kbar = {scenario.kbar}"
+    late = [v.index for v in plan.vehicles if not math.isclose(v.plan.sta, scenario.vehicles[v.index].sta,
+                                                                abs_tol=1e-6)]
+    if late:
+        return f"its STAs differ from the scenario's (vehicles {late[:5]})"
     if plan.tracking_bound < tracking_bound - BOUND_TOLERANCE:
         return (f"it was made with the tracking-error bound r_e = {plan.tracking_bound:.3f} m, smaller than the "
                 f"current {tracking_bound:.3f} m")
@@ -273,22 +282,40 @@ def plan_mismatch(plan, scenario, tracking_bound: float) -> str | None:
     return None
 
 
+SHIPPED_PLANS: dict[str, tuple[str, dict]] = {
+    "tiny": ("tiny", {}),
+    "tiny-intruder": ("tiny-intruder", {}),
+    **{f"town-kbar{k}": ("town", {"kbar": k}) for k in (1, 2, 3)},
+    "fig6-kbar3": ("fig6", {}),
+    "city": ("city", {}),  # BEACLS Case 0
+    **{f"city-case{c}": ("city", dict(case)) for c, case in CITY_CASES.items() if c != 0},
+}
+"""The plans ``stp_env/data/plans/<file>.npz`` may hold: file name -> (registered scenario, overrides), the plan
+being for ``make(scenario, **overrides)``. A listed file that is not there is simply not shipped
+(``scripts/generate_plans.py`` makes them; ``fig6-kbar3`` comes from ``scripts/fig6_reproduction.py``)."""
+
+
 def _shipped_plan(scenario):
-    from stp_env.planning.stp import shipped_plan_for
-    from stp_env.scenarios import factory_parameters, make, names
+    """The shipped plan made for exactly ``scenario`` (equal to ``make(name, **overrides)`` of an entry of
+    :data:`SHIPPED_PLANS` whose file exists), else ``None``."""
+    from stp_env.planning.stp import shipped_plan
+    from stp_env.scenarios import make, names
 
     if scenario.name not in names():
         return None
-    takes_kbar = "kbar" in factory_parameters(scenario.name)
-    default = make(scenario.name, kbar=scenario.kbar) if takes_kbar and scenario.kbar is not None \
-        else make(scenario.name)
-    if default != scenario:
-        return None
-    for kbar in dict.fromkeys((scenario.kbar, None)):  # "town-kbar2", then a plain "tiny-intruder"
+    for file, (name, overrides) in SHIPPED_PLANS.items():
+        if name != scenario.name:
+            continue
         try:
-            return shipped_plan_for(scenario.name, kbar)
+            candidate = make(name, **overrides)
+        except (TypeError, ValueError):
+            continue  # an entry this registry no longer accepts
+        if candidate != scenario:
+            continue
+        try:
+            return shipped_plan(file)
         except ValueError:
-            continue  # not shipped under this name
+            continue  # listed, not shipped
     return None
 
 

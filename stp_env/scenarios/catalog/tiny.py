@@ -41,9 +41,10 @@ def tiny(*, wind: float = 6.0, sta_spacing: float = 0.0, kbar: int | None = None
 
 
 @register("tiny-intruder")
-def tiny_intruder(*, wind: float = 6.0, sta_spacing: float = 0.0, kbar: int = 2) -> Scenario:
+def tiny_intruder(*, wind: float = 6.0, sta_spacing: float = 90.0, kbar: int = 2) -> Scenario:
     """:func:`tiny` with intruder-aware planning, ``kbar = 2`` (``t_BRD = 5 s``; at wind 6 m/s the buffer radius is
-    about 760 m, so the two vehicles must be separated in time as well as space)."""
+    about 760 m, so the two vehicles must be separated in time as well as space: STAs 0 and ``sta_spacing`` = 90 s
+    by default, the plan that ships)."""
     return tiny(wind=wind, sta_spacing=sta_spacing, kbar=kbar).with_overrides(
         name="tiny-intruder",
         description=f"Two vehicles crossing in a 2 km square with an intruder (kbar {kbar}), wind {wind} m/s.")
