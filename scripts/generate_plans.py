@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 from pathlib import Path
 
@@ -40,7 +41,7 @@ SHIPPED = {name: entry for name, entry in SHIPPED_PLANS.items() if name != "fig6
 DEFAULT = [name for name in SHIPPED if not name.startswith("city")]
 
 
-def generate(name: str, *, tracking_bound: float | None = None, checkpoint=None,
+def generate(name: str, *, tracking_bound: float | None = None, checkpoint=None, horizon: float | None = None,
              progress: bool = False) -> dict[str, np.ndarray]:
     scenario_name, overrides = SHIPPED[name]
     scenario = make(scenario_name, **overrides)
@@ -48,23 +49,29 @@ def generate(name: str, *, tracking_bound: float | None = None, checkpoint=None,
         _, tracking = load_artifacts(scenario, progress=progress)
         tracking_bound = tracking.bound
     return plan_to_arrays(plan_scenario(scenario, tracking_bound=tracking_bound, progress=progress,
-                                        checkpoint=checkpoint))
+                                        checkpoint=checkpoint, horizon=horizon))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--names", nargs="+", default=DEFAULT, choices=list(SHIPPED))
     parser.add_argument("--tracking-bound", type=float, help="r_e [m] (default: the scenario's default bound)")
+    parser.add_argument("--horizon", type=float,
+                        help="planning horizon before each STA [s] (default: twice the longest straight flight at "
+                             "the top planning speed; a long queue at one origin may need more)")
     parser.add_argument("--checkpoint-dir", type=Path, help="save each vehicle's plan here; a rerun resumes")
     parser.add_argument("--progress", action="store_true", help="progress bars (vehicles, with an ETA)")
     args = parser.parse_args()
     if args.tracking_bound is not None and not args.tracking_bound > 0:
         parser.error(f"--tracking-bound must be positive; got {args.tracking_bound}.")
+    if args.horizon is not None and not (math.isfinite(args.horizon) and args.horizon > 0):
+        parser.error(f"--horizon must be a positive number of seconds; got {args.horizon}.")
     DATA.mkdir(parents=True, exist_ok=True)
     for name in args.names:
         t0 = time.perf_counter()
         checkpoint = None if args.checkpoint_dir is None else args.checkpoint_dir / f"{name}.ckpt.npz"
-        arrays = generate(name, tracking_bound=args.tracking_bound, checkpoint=checkpoint, progress=args.progress)
+        arrays = generate(name, tracking_bound=args.tracking_bound, checkpoint=checkpoint, horizon=args.horizon,
+                          progress=args.progress)
         seconds = time.perf_counter() - t0
         path = DATA / f"{name}.npz"
         tmp = path.with_name(f".{path.name}.tmp.npz")
