@@ -1,5 +1,5 @@
-"""The planner keeps nominal trajectories in the scenario's domain, and the shipped city plan (BEACLS Case 0, 50
-vehicles) holds the planner's constraints: every vehicle arrives by its STA, stays r_e inside the domain and
+"""The planner keeps nominal trajectories in the scenario's domain, and the shipped city plans (BEACLS city cases, 50
+vehicles each) hold the planner's constraints: every vehicle arrives by its STA, stays r_e inside the domain and
 outside the other vehicles' disks (to the grid's resolution)."""
 
 from __future__ import annotations
@@ -113,13 +113,19 @@ def test_plan_mismatch_names_kbar_stas_and_vehicle_count():
     assert "tracking-error bound" in plan_mismatch(tiny, make("tiny-intruder"), tiny.tracking_bound + 1.0)
 
 
-def test_the_shipped_city_plan_holds_the_planners_constraints():
+CITY = [s for s in SHIPPED if s[1] == "city"]
+
+
+@pytest.mark.parametrize("file,name,overrides", CITY, ids=[s[0] for s in CITY])
+def test_the_shipped_city_plans_hold_the_planners_constraints(file, name, overrides):
     from stp_env.sim.build import _shipped_plan, plan_mismatch
 
-    scenario = make("city")
-    plan = _shipped_plan(scenario)  # what params_for("city") and parallel_env(scenario="city") load
+    scenario = make(name, **overrides)
+    plan = _shipped_plan(scenario)  # what params_for(scenario) and parallel_env(scenario=...) load
     assert plan is not None and len(plan.vehicles) == 50
-    assert plan_mismatch(plan, scenario, R_E) is None
+    assert plan_mismatch(plan, scenario, plan.tracking_bound) is None
+    if not overrides:
+        assert plan.tracking_bound == pytest.approx(R_E)  # Case 0: the default bound
     lateness = np.asarray([v.plan.arrival_time - v.plan.sta for v in plan.vehicles])
     assert np.all(np.isfinite(lateness)) and lateness.max() <= 0.0  # every vehicle arrives, by its STA
     # outside every higher-priority vehicle's disk R_c + 2 r_e, to half a planning cell (the grid planner's
