@@ -269,10 +269,10 @@ def plan_mismatch(plan, scenario, tracking_bound: float) -> str | None:
         return f"it has {len(plan.vehicles)} vehicles, the scenario {len(scenario.vehicles)}"
     if plan.kbar != scenario.kbar:
         return f"it was planned for kbar = {plan.kbar}, the scenario has kbar = {scenario.kbar}"
-    late = [v.index for v in plan.vehicles if not math.isclose(v.plan.sta, scenario.vehicles[v.index].sta,
-                                                                abs_tol=1e-6)]
-    if late:
-        return f"its STAs differ from the scenario's (vehicles {late[:5]})"
+    moved = [v.index for v in plan.vehicles if not math.isclose(v.plan.sta, scenario.vehicles[v.index].sta,
+                                                                 abs_tol=1e-6)]
+    if moved:
+        return f"its STAs differ from the scenario's (vehicles {moved[:5]})"
     if plan.tracking_bound < tracking_bound - BOUND_TOLERANCE:
         return (f"it was made with the tracking-error bound r_e = {plan.tracking_bound:.3f} m, smaller than the "
                 f"current {tracking_bound:.3f} m")
@@ -306,11 +306,7 @@ def _shipped_plan(scenario):
     for file, (name, overrides) in SHIPPED_PLANS.items():
         if name != scenario.name:
             continue
-        try:
-            candidate = make(name, **overrides)
-        except (TypeError, ValueError):
-            continue  # an entry this registry no longer accepts
-        if candidate != scenario:
+        if make(name, **overrides) != scenario:
             continue
         try:
             return shipped_plan(file)
