@@ -156,3 +156,35 @@ def test_a_split_trajectory_that_never_arrives_is_planned_with_the_unsplit_solve
                         horizon=8.0, progress=False)
     assert calls == ["split", "hj"]
     assert plan.vehicles[0].plan.arrival_time <= 0.0
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf")])
+def test_max_slice_dt_must_be_a_positive_number(bad):
+    with pytest.raises(ValueError, match="max_slice_dt"):
+        plan_rtt(GRID, VEHICLE, (0.5, 0.6), 0.5, 0.05, 0.2, STARTS, TARGETS, 0.25, [0.0] * 3, horizon=8.0,
+                 progress=False, max_slice_dt=bad)
+
+
+def test_the_slice_spacing_is_part_of_the_checkpoint_key(tmp_path):
+    def plan(cap, on_vehicle):
+        # horizon / 200 = 0.04 s above the 0.02 s time step: a cap of 0.03 s changes the slices, one of 0.05 s does not
+        return plan_rtt(GRID, VEHICLE, (0.5, 0.6), 0.5, 0.05, 0.2, STARTS, TARGETS, 0.25, [0.0] * 3, horizon=8.0,
+                        time_step=0.02, progress=False, checkpoint=tmp_path / "ck.npz", on_vehicle=on_vehicle,
+                        max_slice_dt=cap)
+
+    def stop(rank, index, single):
+        raise _Stop
+
+    with pytest.raises(_Stop):
+        plan(None, stop)  # one vehicle planned and checkpointed with 0.04 s slices
+    with pytest.raises(checkpoint.CheckpointMismatchError):
+        plan(0.03, stop)
+    resumed = []
+
+    def record(rank, index, single):
+        resumed.append(rank)
+        raise _Stop
+
+    with pytest.raises(_Stop):
+        plan(0.05, record)  # the same slices: the checkpoint is accepted and the second vehicle is next
+    assert resumed == [1]

@@ -70,7 +70,8 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
              *, horizon: float, kbar: int | None = None, buffer_radius: float | None = None,
              obstacle_profiles: dict | None = None, static_obstacle=None,
              settings: hj.SolverSettings | None = None, time_step: float = 0.05, arrival_margin: float | None = None,
-             progress: bool = True, solver: str | None = None, checkpoint=None, on_vehicle=None) -> Plan:
+             progress: bool = True, solver: str | None = None, checkpoint=None, on_vehicle=None,
+             max_slice_dt: float | None = None) -> Plan:
     """Plans every vehicle with robust trajectory tracking (optionally intruder-aware).
 
     Args:
@@ -97,7 +98,13 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
             where it stopped, to the same plan bit for bit. A checkpoint of another problem is refused
             (:class:`stp_env.planning.checkpoint.CheckpointMismatchError`).
         on_vehicle: called as ``on_vehicle(rank, index, plan)`` after each vehicle is planned (and checkpointed).
+        max_slice_dt: the BRS is stored every ``horizon / 200`` s (at least ``time_step``) and trajectories are
+            extracted from those slices interpolated in time; this caps the spacing [s] (more slices, 2.2 MB each on
+            the city's grid). With 6 s slices (a 1200 s horizon) a city trajectory came 42 m inside another
+            vehicle's disk at the instant that vehicle arrived: the slice after a disk vanishes has none.
     """
+    if max_slice_dt is not None and not (math.isfinite(max_slice_dt) and max_slice_dt > 0):
+        raise ValueError(f"max_slice_dt must be a positive number of seconds; got {max_slice_dt}.")
     n = len(starts)
     solver = solver or PLANNING_SOLVER
     radii = np.broadcast_to(np.asarray(target_radius, float), (n,))
@@ -119,7 +126,7 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
     settings = settings or PLANNING_SETTINGS
     if arrival_margin is None:
         arrival_margin = max(grid.spacing[:2]) / max(planning_v[0], 1e-3 * planning_v[1])
-    slice_dt = max(time_step, horizon / 200)
+    slice_dt = max(time_step, horizon / 200 if max_slice_dt is None else min(horizon / 200, float(max_slice_dt)))
     # Obstacle radii around each higher-priority nominal trajectory (lag 0 disk first).
     lags = [0.0]
     rads = [collision_radius + 2 * tracking_bound]
@@ -143,7 +150,7 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
             np.asarray(targets, np.float64), radii, np.asarray(stas, np.float64), priorities, float(horizon), kbar,
             buffer_radius, lags_arr, rads_arr, pad_before, pad_after,
             None if static_obstacle is None else np.asarray(static_obstacle), settings, float(time_step),
-            float(arrival_margin), solver)
+            float(arrival_margin), solver, slice_dt)
         planned = checkpoint_io.load(checkpoint, key)
         if [i for i, _ in planned] != order[:len(planned)]:
             raise checkpoint_io.CheckpointMismatchError(f"planning checkpoint {checkpoint}: its vehicles are not a "
@@ -230,7 +237,7 @@ def fold_contained_disks(lags: np.ndarray, radii: np.ndarray, speed: float):
 
 def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, horizon: float | None = None,
                   settings: hj.SolverSettings | None = None, progress: bool = True, solver: str | None = None,
-                  checkpoint=None, on_vehicle=None) -> Plan:
+                  checkpoint=None, on_vehicle=None, max_slice_dt: float | None = None) -> Plan:
     """Plans a registered :class:`stp_env.scenarios.Scenario` with its ``method``: robust trajectory tracking
     (``"rtt"``, below), straight flights checked against its constraints (``"straight"``,
     :func:`stp_env.planning.verify.straight_plan`), or the centralized / least-restrictive methods
@@ -241,8 +248,8 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
     ``tracking_bound`` defaults to :func:`stp_env.reach.tracking.compute_tracking_bound` for the scenario's
     vehicle and ``U^p`` (cached in ``store``); intruder-aware scenarios (``kbar`` set) take their buffer radius
     from the avoid and relative-buffer artifacts of the same vehicle (also cached). ``horizon`` defaults to twice
-    the longest straight-line flight at the planning speed. ``solver``, ``checkpoint`` and ``on_vehicle`` are those
-    of :func:`plan_rtt` (robust trajectory tracking only).
+    the longest straight-line flight at the planning speed. ``solver``, ``checkpoint``, ``on_vehicle`` and
+    ``max_slice_dt`` are those of :func:`plan_rtt` (robust trajectory tracking only).
     """
     from stp_env.artifacts import ArtifactStore
     from stp_env.reach.tracking import default_tracking_bound
@@ -250,9 +257,9 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
     if scenario.method == "straight":
         from stp_env.planning.verify import planner_disks, straight_plan
 
-        if checkpoint is not None or on_vehicle is not None or solver is not None:
-            raise ValueError(f"scenario {scenario.name!r}: solver, checkpoint and on_vehicle are options of method "
-                             "'rtt', not 'straight'.")
+        if checkpoint is not None or on_vehicle is not None or solver is not None or max_slice_dt is not None:
+            raise ValueError(f"scenario {scenario.name!r}: solver, checkpoint, on_vehicle and max_slice_dt are "
+                             "options of method 'rtt', not 'straight'.")
         store = ArtifactStore() if store is None else store
         if tracking_bound is None:
             tracking_bound = default_tracking_bound(scenario.vehicle, tuple(scenario.planning_v),
@@ -263,9 +270,9 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
     if scenario.method != "rtt":
         from stp_env.planning.methods import plan_methods
 
-        if checkpoint is not None or on_vehicle is not None or solver is not None:
-            raise ValueError(f"scenario {scenario.name!r}: solver, checkpoint and on_vehicle are options of method "
-                             f"'rtt', not {scenario.method!r}.")
+        if checkpoint is not None or on_vehicle is not None or solver is not None or max_slice_dt is not None:
+            raise ValueError(f"scenario {scenario.name!r}: solver, checkpoint, on_vehicle and max_slice_dt are "
+                             f"options of method 'rtt', not {scenario.method!r}.")
 
         if scenario.kbar is not None:
             raise NotImplementedError(
@@ -295,7 +302,7 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
                     scenario.collision_radius, starts, targets, scenario.target_radii(), scenario.stas(),
                     scenario.priorities(), horizon=horizon, static_obstacle=static, settings=settings,
                     time_step=scenario.time_step, progress=progress, solver=solver, checkpoint=checkpoint,
-                    on_vehicle=on_vehicle, **aware)
+                    on_vehicle=on_vehicle, max_slice_dt=max_slice_dt, **aware)
 
 
 def aware_obstacles(scenario, tracking_bound: float, *, store=None, progress: bool = True) -> dict:
