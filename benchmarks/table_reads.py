@@ -1,21 +1,25 @@
-"""Trace, compile and run time of the simulator's batch program with the library's table reader
-(:mod:`stp_env.hj.interpolation`: one scalar gather and its index arithmetic per corner of the ``2^ndim`` around a
-state, a central-difference gradient as six reads) against a peer in the same run that reads all corners with one
-gather (flattened indices) and the six gradient reads as one batch, on ``town`` (k̄ = 2, ``switching`` vehicles,
-HJ intruder by default).
+"""Tracing, compilation and run time of the simulator's programs with the library's table reads
+(:mod:`stp_env.sim.tables`: the avoid table read as one ``2 x 4 x 4 x 4`` block per state, every read a nested
+jitted call; the tracking gradients as one ``2 x 2 x 2 x 3`` block) against the reads they replaced (the peer, in
+the same run): 112 scalar gathers per avoid-table read (:func:`stp_env.reach.avoid.avoid_table_value` and the
+central differences of :func:`stp_env.hj.interpolation.gradient_slices` on the unpadded table) and 24 per tracking
+read (:func:`stp_env.hj.interpolation.interpolate_gradient`), inlined at every call site.
 
-    python benchmarks/table_reads.py [--envs 256] [--steps 200] [--intruder hj] [--vehicle-policy switching]
+    python benchmarks/table_reads.py [--program rollout|tracking|avoidance] [--batch 16] [--steps 20]
+    python benchmarks/table_reads.py --program rollout --batch 256 --steps 200   # run speed
 
-Prints one JSON line: per reader the seconds to trace and lower, to compile, the lowered program's size (lines of
-StableHLO) and the episode-steps per second of the compiled rollout (compile excluded); the ratios (peer / ours:
-above 1 means the library's reader is faster); and the largest difference between the two readers' final vehicle
-positions (they sum the same products in another order, so they agree to float32 rounding, not bit for bit).
+``rollout``: the evaluator's batch program (:func:`stp_env.sim.rollout.rollout_keys`, the baseline switching
+vehicles against the HJ intruder on ``town``, k̄ = 2); ``tracking`` / ``avoidance``: a falsifier objective
+(:mod:`stp_env.falsify`) vmapped over ``--batch`` inputs. Prints one JSON line: seconds to trace, lower, compile
+and run each variant (the fastest of five runs) and the batch-steps per second, the ratios (peer / ours), and the
+largest difference between the two programs' outputs (the same functions up to rounding).
 """
 
 from __future__ import annotations
 
 import argparse
-import itertools
+import contextlib
+import dataclasses
 import json
 import os
 import time
@@ -24,107 +28,124 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env.evaluation import Configuration, build_params
-from stp_env.hj import interpolation
-from stp_env.sim.rollout import rollout_keys
-
-LIBRARY = {"_multilinear": interpolation._multilinear, "gradient_slices": interpolation.gradient_slices}
+from stp_env import hj
+from stp_env.reach.avoid import avoid_table_value
+from stp_env.sim import tables
 
 
-def _take(values, idx):
-    """``values[idx]`` for a tuple of index arrays, as one gather from the flattened leading axes."""
-    flat = jnp.zeros(jnp.shape(idx[-1]), jnp.int32)
-    for i, n in zip(idx, values.shape[:len(idx)]):
-        flat = flat * n + i
-    return values.reshape((-1, *values.shape[len(idx):]))[flat]
+def _scalar_avoid_read(grid, taus, values, tau, x_rel):
+    return (avoid_table_value(grid, taus, values, tau, x_rel),
+            hj.interpolation.gradient_slices(grid, taus, values, tau, x_rel))
 
 
-def one_gather_multilinear(grid, state, read):
-    """The peer: all ``2^ndim`` corners' indices and weights as arrays, read by one gather (``read`` gets index
-    arrays), then an elementwise product and a sum."""
-    i0, i1, w1 = interpolation._corners(grid, state)
-    bits = np.asarray(list(itertools.product((False, True), repeat=grid.ndim)), bool)
-    idx = jnp.where(bits, i1[None, :], i0[None, :])
-    weights = jnp.where(bits, w1[None, :], 1.0 - w1[None, :])
-    w = weights[:, 0]
-    for d in range(1, grid.ndim):
-        w = w * weights[:, d]
-    vals = read(tuple(idx[:, d] for d in range(grid.ndim)))
-    return jnp.sum(w.reshape(w.shape + (1,) * (vals.ndim - 1)) * vals, axis=0)
+PEER = {"_avoid_read": _scalar_avoid_read, "interpolate": hj.interpolation.interpolate,
+        "_tracking_read": hj.interpolation.interpolate_gradient}
 
 
-def one_gather_slices(grid, slice_times, stack, t, state):
-    k = jnp.clip(jnp.searchsorted(slice_times, t, side="right") - 1, 0, slice_times.shape[0] - 2)
-    span = slice_times[k + 1] - slice_times[k]
-    w = jnp.clip(jnp.where(span > 0, (t - slice_times[k]) / span, 0.0), 0.0, 1.0)
-    return one_gather_multilinear(grid, state, lambda idx: (1.0 - w) * _take(stack, (k, *idx))
-                                  + w * _take(stack, (k + 1, *idx)))
+def _unpad(v, grid, lead: int):
+    v = np.asarray(v)
+    for d in grid.periodic:
+        v = np.take(v, range(tables.PERIODIC_PAD[0], tables.PERIODIC_PAD[0] + grid.shape[d]), axis=lead + d)
+    return v
 
 
-def batched_gradient(grid, slice_times, stack, t, state):
-    """The peer's gradient: the six central-difference reads as one batch (``vmap``)."""
-    steps = np.eye(grid.ndim) * np.asarray(grid.spacing)[:, None]
-    points = jnp.concatenate([state + steps, state - steps])
-    values = jax.vmap(lambda x: one_gather_slices(grid, slice_times, stack, t, x))(points)
-    return (values[:grid.ndim] - values[grid.ndim:]) / (2 * np.asarray(grid.spacing))
+def unpadded(params):
+    """``params`` with the avoid table and the tracking gradients in their plain layouts (what the peer's scalar
+    reads index)."""
+    grads = _unpad(params.tracking_grads, params.tracking_grid, 0)
+    return dataclasses.replace(params, avoid_values=jnp.asarray(_unpad(params.avoid_values, params.avoid_grid, 1)),
+                               tracking_grads=tuple(jnp.asarray(grads[..., i]) for i in range(grads.shape[-1])))
 
 
-PEER = {"_multilinear": one_gather_multilinear, "gradient_slices": batched_gradient,
-        "interpolate_slices": one_gather_slices}
-LIBRARY["interpolate_slices"] = interpolation.interpolate_slices
+@contextlib.contextmanager
+def peer_reads():
+    """The readers of :mod:`stp_env.sim.tables` swapped for the peer's (inlined, scalar gathers)."""
+    saved = {k: getattr(tables, k) for k in PEER}
+    for k, f in PEER.items():
+        setattr(tables, k, f)
+    try:
+        yield
+    finally:
+        for k, f in saved.items():
+            setattr(tables, k, f)
 
 
-def measure(reader: dict, keys, params, policies, n_steps: int) -> tuple[dict, np.ndarray]:
-    for name, fn in reader.items():
-        setattr(interpolation, name, fn)
-    jax.clear_caches()  # nothing traced with the other reader may be reused
-    vehicle_policy, intruder_policy = policies
+def program(kind: str, batch: int, steps: int, peer: bool = False):
+    """``(jitted function, arguments)`` of the program measured."""
+    from stp_env import sim
+    from stp_env.scenarios import make
 
-    def program(k, p):
-        return rollout_keys(k, p, vehicle_policy, intruder_policy, n_steps)[0]
+    if kind == "rollout":
+        from stp_env.baselines import INTRUDERS, VEHICLE_POLICIES
+        from stp_env.sim.rollout import rollout_keys
 
+        params = sim.params_for(make("town", kbar=2), sim.EnvConfig(), progress=False)
+        params = unpadded(params) if peer else params
+        keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.key(0), i))(jnp.arange(batch))
+        veh, intr = VEHICLE_POLICIES["switching"], INTRUDERS["hj"]
+
+        def run(keys, params):
+            final, _ = rollout_keys(keys, params, veh, intr, steps)
+            return final.x, final.intruder_x, final.avoid_start
+
+        return jax.jit(run), (keys, params)
+    from stp_env.falsify.search import compiled
+
+    params = sim.params_for(make("town", kbar=2), sim.EnvConfig(control_dt=0.02, wind_model="worst"),
+                            progress=False)
+    params = unpadded(params) if peer else params
+    if kind == "tracking":
+        from stp_env.falsify.tracking import TrackingAttack
+
+        attack = TrackingAttack(base=params, horizon=float(steps) * float(params.dt), segment=1.0, wind="search",
+                                wind_segment=1.0)
+    else:
+        from stp_env.falsify.avoidance import AvoidanceAttack
+
+        attack = AvoidanceAttack(base=params, intruder="hj", wind="worst", max_level=5.0)
+    prog = compiled(attack.objective)
+    z = jax.random.uniform(jax.random.key(0), (batch, attack.dim), jnp.float32)
+    return prog.func, (*prog.args, z)
+
+
+def measure(kind: str, batch: int, steps: int, peer: bool = False) -> tuple[dict, list]:
+    f, args = program(kind, batch, steps, peer)
     t0 = time.perf_counter()
-    lowered = jax.jit(program).lower(keys, params)
+    traced = f.trace(*args)
     t1 = time.perf_counter()
-    compiled = lowered.compile()
+    lowered = traced.lower()
     t2 = time.perf_counter()
-    jax.block_until_ready(compiled(keys, params))
+    comp = lowered.compile()
     t3 = time.perf_counter()
-    final = compiled(keys, params)
-    jax.block_until_ready(final)
-    run_s = time.perf_counter() - t3
-    return ({"lower_s": round(t1 - t0, 2), "compile_s": round(t2 - t1, 2), "hlo_lines": lowered.as_text().count("\n"),
-             "run_s": round(run_s, 2), "episode_steps_per_s": round(keys.shape[0] * n_steps / run_s)},
-            np.asarray(final.x))
+    out = jax.block_until_ready(comp(*args))
+    runs = []
+    for _ in range(5):  # the fastest of five runs: the machine is shared
+        t4 = time.perf_counter()
+        out = jax.block_until_ready(comp(*args))
+        runs.append(time.perf_counter() - t4)
+    return ({"trace_s": round(t1 - t0, 2), "lower_s": round(t2 - t1, 2), "compile_s": round(t3 - t2, 2),
+             "run_s": round(min(runs), 4), "batch_steps_per_s": round(batch * steps / min(runs))},
+            [np.asarray(a) for a in jax.tree.leaves(out)])
 
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("--envs", type=int, default=256)
-    parser.add_argument("--steps", type=int, default=200)
-    parser.add_argument("--intruder", default="hj")
-    parser.add_argument("--vehicle-policy", default="switching")
+    parser.add_argument("--program", choices=("rollout", "tracking", "avoidance"), default="rollout")
+    parser.add_argument("--batch", type=int, default=16)
+    parser.add_argument("--steps", type=int, default=20)
     args = parser.parse_args()
-    config = Configuration(scenario="town", kbar=2, intruder=args.intruder, vehicle_policy=args.vehicle_policy)
-    (params,) = build_params([config], progress=False)
-    policies = config.policies()
-    keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.key(0), i))(jnp.arange(args.envs))
-    out = {"case": "table_reads", "scenario": "town", "intruder": args.intruder,
-           "vehicle_policy": args.vehicle_policy, "envs": args.envs, "steps": args.steps,
-           "loadavg_1min_before": round(os.getloadavg()[0], 2)}
-    try:
-        ours, x_ours = measure(LIBRARY, keys, params, policies, args.steps)
-        peer, x_peer = measure(PEER, keys, params, policies, args.steps)
-    finally:
-        for name, fn in LIBRARY.items():
-            setattr(interpolation, name, fn)
-    out.update(per_corner=ours, one_gather=peer,
-               lower_ratio=round(peer["lower_s"] / ours["lower_s"], 2),
-               compile_ratio=round(peer["compile_s"] / ours["compile_s"], 2),
-               run_ratio=round(peer["run_s"] / ours["run_s"], 2),
-               max_final_position_diff_m=float(np.nanmax(np.abs(x_peer[..., :2] - x_ours[..., :2]))),
-               loadavg_1min_after=round(os.getloadavg()[0], 2))
-    print(json.dumps(out))
+    ours, out_o = measure(args.program, args.batch, args.steps)
+    with peer_reads():
+        peer, out_p = measure(args.program, args.batch, args.steps, peer=True)
+    diff = max(float(np.nanmax(np.abs(np.where(np.isfinite(a) & np.isfinite(b), a - b, 0.0)), initial=0.0))
+               for a, b in zip(out_o, out_p))
+    same_inf = all(np.array_equal(np.isfinite(a), np.isfinite(b)) for a, b in zip(out_o, out_p))
+    ratio = {k[:-2] + "_ratio": round(peer[k] / max(ours[k], 1e-9), 2)
+             for k in ("trace_s", "lower_s", "compile_s", "run_s")}
+    print(json.dumps({"benchmark": "table_reads", "program": args.program, "batch": args.batch,
+                      "loadavg_1min": round(os.getloadavg()[0], 2),
+                      "steps": args.steps, "ours": ours, "peer": peer, **ratio, "max_abs_output_diff": diff,
+                      "same_finite_pattern": bool(same_inf), "cpus": os.cpu_count()}), flush=True)
 
 
 if __name__ == "__main__":

@@ -15,6 +15,7 @@ from stp_env.scenarios.catalog.city import CITY_CASES
 from stp_env.sim.bounds import bounds_row
 from stp_env.sim.config import EnvConfig
 from stp_env.sim.margins import default_avoid_margin
+from stp_env.sim.tables import pad_components, pad_periodic
 from stp_env.sim.types import EnvParams, replace
 
 
@@ -197,9 +198,9 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
         planning_v_max=jnp.asarray(scenario.planning_v[1], f32),
         sdf=jnp.asarray(sdf),
         avoid_taus=jnp.asarray(avoid.taus, f32),
-        avoid_values=jnp.asarray(avoid.values, f32),
+        avoid_values=jnp.asarray(pad_periodic(avoid.values, acfg.grid, lead=1), f32),
         detection_range=jnp.asarray(d_a, f32),
-        tracking_grads=tuple(jnp.asarray(g, f32) for g in grads),
+        tracking_grads=jnp.asarray(pad_components(grads, tcfg.grid), f32),
         tracking_bound=jnp.asarray(tracking.bound, f32),
         t_iat=jnp.asarray(t_iat, f32),
         appear_window=jnp.asarray([lo, hi], f32),
@@ -289,6 +290,8 @@ SHIPPED_PLANS: dict[str, tuple[str, dict]] = {
     "fig6-kbar3": ("fig6", {}),
     "city": ("city", {}),  # BEACLS Case 0
     **{f"city-case{c}": ("city", dict(case)) for c, case in CITY_CASES.items() if c != 0},
+    **{f"city-kbar{k}": ("city", {"kbar": k}) for k in (2, 3, 4)},  # intruder-aware Case 0
+    "bay-area": ("bay-area", {}),
 }
 """The plans ``stp_env/data/plans/<file>.npz`` may hold: file name -> (registered scenario, overrides), the plan
 being for ``make(scenario, **overrides)``. A listed file that is not there is simply not shipped

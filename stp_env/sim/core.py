@@ -43,7 +43,6 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from stp_env import hj
 from stp_env.sim import spawn as spawn_lib
 from stp_env.sim import tables
 from stp_env.sim import wind as wind_lib
@@ -75,7 +74,7 @@ def building_distance(params: EnvParams, p):
     grid = params.sdf_grid
     q = jnp.clip(p, jnp.asarray(grid.lo), jnp.asarray(grid.hi))
     flat = q.reshape(-1, 2)
-    d = jax.vmap(lambda z: hj.interpolation.interpolate(grid, params.sdf, z))(flat)
+    d = jax.vmap(lambda z: tables.interpolate(grid, params.sdf, z))(flat)
     return d.reshape(p.shape[:-1])
 
 

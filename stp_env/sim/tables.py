@@ -14,10 +14,145 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env import hj
-from stp_env.reach.avoid import avoid_table_input, avoid_table_value
 from stp_env.sim.physics import relative_state
 
 FAR = 1.0e6  # value reported outside the avoid-region grid [m]
+
+# ------------------------------------------------------------------------------------------------ block reads
+BLOCK = 4
+"""Nodes per axis of the block an avoid-table read takes around a state: the state's cell and one node on each
+side, enough for the value and its one-cell central differences (the reads of :func:`avoid_value_and_gradient`)."""
+PERIODIC_PAD = (1, 2)
+"""Nodes wrapped before and after every periodic axis of a block-read table (:func:`pad_periodic`), so that a
+block never needs to wrap: ``dynamic_slice`` cannot."""
+
+
+def pad_periodic(values, grid, lead: int = 0) -> np.ndarray:
+    """``values`` (``lead`` leading axes, then ``grid.shape``) with every periodic axis of ``grid`` wrapped by
+    :data:`PERIODIC_PAD` nodes: the layout :func:`avoid_value_and_gradient` reads (``EnvParams.avoid_values``)."""
+    v = np.asarray(values)
+    if v.shape[lead:] != tuple(grid.shape):
+        raise ValueError(f"values of shape {v.shape} do not match the grid {tuple(grid.shape)} after {lead} "
+                         f"leading axes.")
+    if any(n < BLOCK for n in grid.shape):
+        raise ValueError(f"block reads need at least {BLOCK} nodes per axis; the grid has {tuple(grid.shape)}.")
+    before, after = PERIODIC_PAD
+    for d in grid.periodic:
+        ax = lead + d
+        n = v.shape[ax]
+        v = np.concatenate([np.take(v, range(n - before, n), axis=ax), v, np.take(v, range(after), axis=ax)],
+                           axis=ax)
+    return v
+
+
+def _block_axis(grid, d: int, pos):
+    """Axis ``d`` of a block read at fractional index ``pos`` (``grid.fractional_index``, periodic axes in
+    ``[0, n]``): the block's first node in the padded table, and the ``BLOCK`` weights of the multilinear
+    interpolation at ``pos - 1``, ``pos`` and ``pos + 1`` (one cell back, the state, one cell on). Non-periodic axes
+    clamp as :func:`stp_env.hj.interpolation.interpolate` does (into ``[0, n - 1]``, the last cell ``n - 2``);
+    periodic ones wrap through the padding."""
+    n = grid.shape[d]
+    node = jnp.arange(BLOCK)
+    if d in grid.periodic:
+        i0 = jnp.minimum(jnp.floor(pos), n - 1).astype(jnp.int32)
+        base = i0 - 1                      # the block's first node, unpadded (may be -1: the wrapped one)
+        start = base + PERIODIC_PAD[0]     # ... in the padded table: in [0, n - 1]
+        points = (pos - 1.0, pos, pos + 1.0)
+    else:
+        centre = jnp.clip(pos, 0.0, n - 1.0)
+        i0 = jnp.minimum(jnp.floor(centre).astype(jnp.int32), n - 2)
+        base = jnp.clip(i0 - 1, 0, n - BLOCK)
+        start = base
+        points = (jnp.clip(pos - 1.0, 0.0, n - 1.0), centre, jnp.clip(pos + 1.0, 0.0, n - 1.0))
+    weights = []
+    for q in points:
+        lower = jnp.clip(jnp.floor(q).astype(jnp.int32) - base, 0, BLOCK - 2)
+        w1 = jnp.clip(q - (base + lower).astype(q.dtype), 0.0, 1.0)
+        weights.append(jnp.where(node == lower, 1.0 - w1, 0.0) + jnp.where(node == lower + 1, w1, 0.0))
+    return start, weights
+
+
+def _indices(*starts):
+    """Start indices of a ``dynamic_slice``, all int32 (with x64 enabled, literals and ``searchsorted`` are int64)."""
+    return tuple(jnp.asarray(i, jnp.int32) for i in starts)
+
+
+def _contract(block, weights):
+    """``sum_abc block[a, b, c] w0[a] w1[b] w2[c]`` for a 3-D block."""
+    return jnp.einsum("abc,a,b,c->", block, *weights)
+
+
+def avoid_value_and_gradient(grid, taus, padded, tau, x_rel):
+    """``V^A(tau, t_IAT)`` and its spatial gradient at ``x_rel`` (3,) from one ``2 x 4 x 4 x 4`` block of the
+    table ``padded`` (:func:`pad_periodic` of the slices at ascending ``taus``, one leading time axis): linear in
+    ``tau``, multilinear in the state, the gradient by one-cell central differences. The same function as
+    :func:`stp_env.reach.avoid.avoid_table_value` and the gradient of
+    :func:`stp_env.reach.avoid.avoid_table_input` up to rounding (``tests/test_sim.py`` compares them), read with
+    one block gather instead of 112 scalar ones: a smaller program, faster to compile and to run
+    (``python benchmarks/table_reads.py``)."""
+    if grid.ndim != 3:
+        raise ValueError(f"avoid tables are 3-D; got a {grid.ndim}-D grid.")
+    k = jnp.clip(jnp.searchsorted(taus, tau, side="right") - 1, 0, taus.shape[0] - 2)
+    span = taus[k + 1] - taus[k]
+    w = jnp.clip(jnp.where(span > 0, (tau - taus[k]) / span, 0.0), 0.0, 1.0)
+    pos = grid.fractional_index(x_rel)
+    axes = [_block_axis(grid, d, pos[d]) for d in range(3)]
+    block = jax.lax.dynamic_slice(padded, _indices(k, *(a[0] for a in axes)), (2, BLOCK, BLOCK, BLOCK))
+    block = (1.0 - w) * block[0] + w * block[1]
+    centre = [a[1][1] for a in axes]
+    value = _contract(block, centre)
+    spacing = np.asarray(grid.spacing)
+    grad = []
+    for d in range(3):
+        up = [axes[e][1][2] if e == d else centre[e] for e in range(3)]
+        down = [axes[e][1][0] if e == d else centre[e] for e in range(3)]
+        grad.append((_contract(block, up) - _contract(block, down)) / (2.0 * spacing[d]))
+    return value, jnp.stack(grad)
+
+
+def _cell_axis(grid, d: int, pos):
+    """Axis ``d`` of a one-cell read at fractional index ``pos``: the cell's first node in the padded table and the
+    two multilinear weights (clamped or wrapped as :func:`_block_axis`)."""
+    n = grid.shape[d]
+    if d in grid.periodic:
+        i0 = jnp.minimum(jnp.floor(pos), n - 1).astype(jnp.int32)
+        w1 = pos - i0.astype(pos.dtype)
+        start = i0 + PERIODIC_PAD[0]
+    else:
+        p = jnp.clip(pos, 0.0, n - 1.0)
+        i0 = jnp.minimum(jnp.floor(p).astype(jnp.int32), n - 2)
+        w1 = p - i0.astype(p.dtype)
+        start = i0
+    return start, jnp.stack([1.0 - w1, w1])
+
+
+def pad_components(fields, grid) -> np.ndarray:
+    """Arrays on ``grid`` (one per component, e.g. a gradient field) stacked on a trailing axis, periodic axes
+    padded (:func:`pad_periodic`): the layout :func:`interpolate_components` reads (``EnvParams.tracking_grads``)."""
+    return np.stack([pad_periodic(f, grid) for f in fields], axis=-1)
+
+
+def interpolate_components(grid, padded, state):
+    """Multilinear interpolation at ``state`` of every component of ``padded`` (:func:`pad_components`), ``(K,)``:
+    :func:`stp_env.hj.interpolation.interpolate_gradient` of the unstacked fields up to rounding
+    (``tests/test_block_reads.py``), read as one ``2 x ... x 2 x K`` block."""
+    pos = grid.fractional_index(state)
+    axes = [_cell_axis(grid, d, pos[d]) for d in range(grid.ndim)]
+    k = padded.shape[-1]
+    block = jax.lax.dynamic_slice(padded, _indices(*(a[0] for a in axes), 0), (2,) * grid.ndim + (k,))
+    for a in axes:  # contract the leading axis with its weights, one axis at a time
+        block = jnp.tensordot(a[1], block, axes=1)
+    return block
+
+
+# Every table read is its own jitted function (grids and dynamics static), called from the simulator's traced
+# programs: inlined, a read would be traced again at every call site (the step reads the tables at reset, at each
+# inner control step and at the step's end, for every policy that reads them) and re-batched by every enclosing
+# ``vmap`` and ``scan``; as a nested jitted call it is traced once per shape and batched once per batching pattern
+# (``python benchmarks/table_reads.py`` measures both).
+_avoid_read = jax.jit(avoid_value_and_gradient, static_argnums=(0,))
+interpolate = jax.jit(hj.interpolation.interpolate, static_argnums=(0, 3))
+_tracking_read = jax.jit(interpolate_components, static_argnums=(0,))
 
 
 def _inside(grid, x):
@@ -28,24 +163,28 @@ def _inside(grid, x):
 def avoid_value(params, tau, x_rel):
     """``V^A(tau, t_IAT)`` at the intruder's relative state ``x_rel`` (3,); ``FAR`` outside the grid."""
     grid = params.avoid_grid
-    v = avoid_table_value(grid, params.avoid_taus, params.avoid_values, tau, x_rel)
+    v, _ = _avoid_read(grid, params.avoid_taus, params.avoid_values, tau, x_rel)
     return jnp.where(_inside(grid, x_rel), v, FAR)
 
 
-def _avoid_input(params, player, tau, x_rel):
-    return avoid_table_input(params.avoid_dynamics, params.avoid_grid, params.avoid_taus, params.avoid_values,
-                             player, tau, x_rel)
+def _avoid_input_of(params, player, tau, x_rel):
+    """One player's optimal input of eq. (14) from the block-read gradient (as
+    :func:`stp_env.reach.avoid.avoid_table_input`)."""
+    _, p = _avoid_read(params.avoid_grid, params.avoid_taus, params.avoid_values, tau, x_rel)
+    dyn = params.avoid_dynamics
+    optimum = dyn.optimal_control if player == "vehicle" else dyn.optimal_disturbance
+    return jnp.stack(optimum((x_rel[0], x_rel[1], x_rel[2]), (p[0], p[1], p[2])))
 
 
 def avoidance_control(params, tau, x_rel):
     """``u^A`` (eq. 15): ``(v_i, omega_i)`` maximising ``dV^A/dt`` at ``x_rel``."""
-    return _avoid_input(params, "vehicle", tau, x_rel)
+    return _avoid_input_of(params, "vehicle", tau, x_rel)
 
 
 def pursuit_input(params, tau, x_rel):
     """The minimising player of eq. (14): ``(v_I, omega_I, w_x, w_y)``, the intruder's control and the worst
     combined wind ``R(-theta_i)(d_I - d_i)`` in the vehicle's body frame."""
-    return _avoid_input(params, "intruder", tau, x_rel)
+    return _avoid_input_of(params, "intruder", tau, x_rel)
 
 
 def vehicle_intruder_values(params, state):
@@ -74,7 +213,7 @@ def tracking_control(params, error):
     grid = params.tracking_grid
     lo, hi = jnp.asarray(grid.lo), jnp.asarray(grid.hi)
     e = jnp.clip(error, lo, hi)
-    p = hj.interpolation.interpolate_gradient(grid, params.tracking_grads, e)
+    p = _tracking_read(grid, params.tracking_grads, e)
     pp = tuple(p[i] for i in range(3))
     ee = tuple(e[i] for i in range(3))
     u = jnp.stack(dyn.optimal_control(ee, pp))
@@ -105,7 +244,7 @@ def buffer_value(params, x_rel):
     """``V^B(0, t_BRD)`` at the intruder's relative state ``x_rel`` (3,); ``FAR`` outside its grid."""
     _require_buffer(params)
     grid = params.buffer_grid
-    v = hj.interpolation.interpolate(grid, params.buffer_values, x_rel)
+    v = interpolate(grid, params.buffer_values, x_rel)
     return jnp.where(_inside(grid, x_rel), v, FAR)
 
 
@@ -114,8 +253,8 @@ def buffer_gradient(params, x_rel):
     _require_buffer(params)
     grid = params.buffer_grid
     steps = jnp.asarray(np.eye(3) * np.asarray(grid.spacing)[:, None], x_rel.dtype)
-    g = jnp.stack([(hj.interpolation.interpolate(grid, params.buffer_values, x_rel + steps[i])
-                    - hj.interpolation.interpolate(grid, params.buffer_values, x_rel - steps[i]))
+    g = jnp.stack([(interpolate(grid, params.buffer_values, x_rel + steps[i])
+                    - interpolate(grid, params.buffer_values, x_rel - steps[i]))
                    / (2 * steps[i, i]) for i in range(3)])
     return jnp.where(_inside(grid, x_rel), g, 0.0)
 

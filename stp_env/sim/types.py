@@ -106,9 +106,9 @@ class EnvParams:
     sdf: jax.Array                # sdf_grid.shape [m] signed distance to buildings (negative inside)
     # --- reachability tables
     avoid_taus: jax.Array         # (S,) [s] ascending
-    avoid_values: jax.Array       # (S, *avoid_grid.shape) V^A(tau_k, t_IAT) [m]
+    avoid_values: jax.Array       # (S, *avoid_grid.shape) V^A(tau_k, t_IAT) [m], periodic axes padded (tables.py)
     detection_range: jax.Array    # () d^A [m] (eq. 16)
-    tracking_grads: tuple         # 3 x tracking_grid.shape: gradient of W = -V of the tracking-error game
+    tracking_grads: jax.Array     # (*tracking_grid.shape, 3) gradient of W = -V of the tracking-error game, padded
     tracking_bound: jax.Array     # () r_e [m]
     # --- intruder
     t_iat: jax.Array              # () [s]
