@@ -40,13 +40,16 @@ SHIPPED = {name: entry for name, entry in SHIPPED_PLANS.items() if name != "fig6
 (``scripts/fig6_reproduction.py`` makes it)."""
 
 
-HORIZONS = {f"city-case{c}": 1200.0 for c in (1, 2, 3, 4)}
+HORIZONS = {**{f"city-case{c}": 1200.0 for c in (1, 2, 3, 4)}, **{f"city-kbar{k}": 3600.0 for k in (2, 3, 4)}}
 """Planning horizons [s] other than the default (twice the longest straight flight at the top planning speed, 676 s
 for the city): with STA spacing 5 s, city Case 2's 45th vehicle has no departure within 676 s (the 44 before it
-hold the shared origin), and at 11 m/s Case 1's 31st; with 1200 s every vehicle of Case 2 arrives."""
+hold the shared origin), and at 11 m/s Case 1's 31st; with 1200 s every vehicle of Case 2 arrives. The
+intruder-aware city (``city-kbar{k}``: every vehicle leaves the one origin, all STAs equal) spaces departures by
+the buffer: at k̄ = 3 the first 21 vehicles left 61 s apart (t_LDT -241 .. -1466 s) and the 22nd had no
+departure within 1500 s, so 50 vehicles need about 50 x 61 s: 3600 s."""
 
 
-SLICE_DT = {"city-case3": 3.0}
+SLICE_DT = {"city-case3": 3.0, **{f"city-kbar{k}": 3.0 for k in (2, 3, 4)}, "bay-area": 5.0}
 """A cap on the BRS slice spacing [s] (``plan_rtt``'s ``max_slice_dt``): with the 1200 s horizon the default is 6 s,
 and Case 3 then had one pair of trajectories 0.16 m beyond the planner's separation tolerance; with 3 s it passes
 (Cases 2 and 4 were planned with 6 s slices and pass; Case 1 fails either way and is not shipped)."""
