@@ -8,6 +8,8 @@ Prints one JSON line. Measured in the same run:
 * ``adapter_env_steps_per_s``: :func:`stp_env.env.parallel_env` on the scenario, the vehicles driven by the
   baseline controllers (``switching``, eq. 38, computed from the core state in one jitted call per step) and a
   random intruder, i.e. what a user's ``env.step`` loop with baseline agents costs.
+* ``adapter_builtin_env_steps_per_s``: the same with the vehicles flown inside the step
+  (``parallel_env(vehicle_policy="switching")``, one jitted call per step), as when training an intruder.
 * ``core_env_steps_per_s`` / ``core_agent_steps_per_s``: :func:`stp_env.sim.rollout` over ``--envs`` episodes
   (``switching`` vehicles, HJ-pursuit intruder), compile excluded.
 * ``--long N``: N adapter steps (zero actions, auto-reset), peak RSS growth and step-function traces.
@@ -75,6 +77,26 @@ def adapter_rate(scenario, params, n_steps: int) -> float:
     return n_steps / (time.perf_counter() - start)
 
 
+def builtin_policy_rate(scenario, params, n_steps: int) -> float:
+    """The adapter with the vehicles flown by the built-in switching controller (``vehicle_policy="switching"``:
+    one jitted call per step, the vehicles' actions ignored) and a random intruder: what training an intruder runs."""
+    from stp_env.env import STPParallelEnv
+
+    env = STPParallelEnv(scenario, params=params, max_cycles=10**9, vehicle_policy="switching")
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    zero = np.zeros(2, np.float32)
+    steps, start = 0, None
+    while steps < n_steps + 20:
+        if steps == 20:
+            start = time.perf_counter()
+        if not env.agents:
+            env.reset(seed=steps)
+        env.step({a: (rng.uniform(-1, 1, 2).astype(np.float32) if a == "intruder" else zero) for a in env.agents})
+        steps += 1
+    return n_steps / (time.perf_counter() - start)
+
+
 def core_rate(params, n_envs: int, n_steps: int) -> tuple[float, float]:
     from stp_env import sim
     from stp_env.baselines import INTRUDERS, switching
@@ -124,6 +146,9 @@ def main() -> None:
     result["mpe2_env_steps_per_s"] = round(mpe2_rate(args.mpe_steps), 1)
     result["adapter_env_steps_per_s"] = round(adapter_rate(scenario, params, args.adapter_steps), 1)
     result["adapter_over_mpe2"] = round(result["adapter_env_steps_per_s"] / result["mpe2_env_steps_per_s"], 2)
+    result["adapter_builtin_env_steps_per_s"] = round(builtin_policy_rate(scenario, params, args.adapter_steps), 1)
+    result["adapter_builtin_over_mpe2"] = round(result["adapter_builtin_env_steps_per_s"]
+                                                / result["mpe2_env_steps_per_s"], 2)
     env_steps, agent_steps = core_rate(params, args.envs, args.core_steps)
     result.update({"core_envs": args.envs, "core_env_steps_per_s": round(env_steps),
                    "core_agent_steps_per_s": round(agent_steps),

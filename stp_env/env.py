@@ -121,7 +121,7 @@ import numbers
 import reprlib
 import time
 import warnings
-from typing import ClassVar, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import gymnasium
 import jax
@@ -223,9 +223,6 @@ def _count_traces(fn):
     return wrapped
 
 
-_advance_jit = jax.jit(_count_traces(_advance))
-
-
 def _advance_scripted(key, state, actions, params, vehicle_policy):
     """:func:`_advance` with the vehicles flown by a scripted policy (their actions ignored)."""
     key, sub = jax.random.split(key)
@@ -235,7 +232,75 @@ def _advance_scripted(key, state, actions, params, vehicle_policy):
     return key, new, StepOutput(obs_v, obs_i, rewards, _step_info(state, new), term, trunc)
 
 
-_advance_scripted_jit = jax.jit(_advance_scripted, static_argnames=("vehicle_policy",))
+# ------------------------------------------------------------------------------------------------ one transfer
+# A step's outputs are a dozen small arrays; fetched one by one, each is a device-to-host copy with its own
+# overhead (about 30 us on a CPU, the largest single cost of a town adapter step when profiled). The step therefore
+# returns them packed into one int32 array (floats bit-cast, bools and ints widened) that the host unpacks with
+# numpy views: the same values, bit for bit (tests/test_env.py compares against the unpacked step).
+
+
+class Layout(NamedTuple):
+    """How :func:`pack` laid a pytree out: its structure and, per leaf, shape, dtype and number of int32 words."""
+
+    treedef: Any
+    leaves: tuple
+
+    @classmethod
+    def of(cls, tree) -> Layout:
+        """The layout of ``tree`` (arrays or ``jax.ShapeDtypeStruct`` leaves, e.g. from ``jax.eval_shape``)."""
+        leaves, treedef = jax.tree.flatten(tree)
+        out = []
+        for x in leaves:
+            dtype = np.dtype(x.dtype)
+            n = int(np.prod(x.shape, dtype=np.int64))
+            out.append((tuple(x.shape), dtype, n * max(1, dtype.itemsize // 4) if dtype != np.bool_ else n))
+        return cls(treedef, tuple(out))
+
+    def unpack(self, words: np.ndarray):
+        """The pytree from the host copy of :func:`pack`'s array."""
+        words = np.ascontiguousarray(words, np.int32)
+        total = sum(n for _, _, n in self.leaves)
+        if words.shape != (total,):
+            raise ValueError(f"packed step output of shape {words.shape}; the layout needs ({total},).")
+        out, i = [], 0
+        for shape, dtype, n in self.leaves:
+            chunk = words[i:i + n]
+            i += n
+            if dtype == np.bool_:
+                out.append((chunk != 0).reshape(shape))
+            elif dtype.itemsize < 4:
+                out.append(chunk.astype(dtype).reshape(shape))
+            else:
+                out.append(chunk.view(dtype).reshape(shape).copy())
+        return jax.tree.unflatten(self.treedef, out)
+
+
+def pack(tree):
+    """Every leaf of ``tree`` as int32 words in one flat array (4- and 8-byte leaves bit-cast, narrower ones and
+    bools widened); :meth:`Layout.unpack` inverts it."""
+    parts = []
+    for x in jax.tree.leaves(tree):
+        x = jnp.ravel(x)
+        if x.dtype == jnp.bool_ or x.dtype.itemsize < 4:
+            parts.append(x.astype(jnp.int32))
+        else:
+            parts.append(jnp.ravel(jax.lax.bitcast_convert_type(x, jnp.int32)))
+    return jnp.concatenate(parts) if parts else jnp.zeros((0,), jnp.int32)
+
+
+def _packed(fn):
+    """``fn`` returning ``(key, state, output)`` with the output :func:`pack`-ed."""
+
+    @functools.wraps(fn)
+    def wrapped(*args, **kwargs):
+        key, state, out = fn(*args, **kwargs)
+        return key, state, pack(out)
+
+    return wrapped
+
+
+_advance_jit = jax.jit(_count_traces(_packed(_advance)))
+_advance_scripted_jit = jax.jit(_packed(_advance_scripted), static_argnames=("vehicle_policy",))
 
 
 def _check_appear_window(params) -> None:
@@ -291,6 +356,7 @@ class STPParallelEnv(ParallelEnv):
         if vehicle_policy in BUFFER_GAME_VEHICLE_POLICIES and params.buffer_values is None:
             params = sim.build.with_buffer(params, sim.build.load_buffer(scenario, store=store, progress=False))
         self._vehicle_policy = None if vehicle_policy is None else VEHICLE_POLICIES[vehicle_policy]
+        self._step_layout = None  # Layout of the packed step output, found at the first step
         self.params = params
         self._base_params = params
         self.replan = bool(replan)
@@ -484,13 +550,18 @@ class STPParallelEnv(ParallelEnv):
 
     def step(self, actions):
         arr = self._parse_actions(actions)  # raises before anything changes
+        if self._step_layout is None:  # traced once per environment, not compiled
+            args = (self._key, self._state, arr, self.params)
+            self._step_layout = Layout.of(jax.eval_shape(_advance, *args)[2] if self._vehicle_policy is None else
+                                          jax.eval_shape(functools.partial(
+                                              _advance_scripted, vehicle_policy=self._vehicle_policy), *args)[2])
         if self._vehicle_policy is None:
-            self._key, self._state, out = _advance_jit(self._key, self._state, arr, self.params)
+            self._key, self._state, words = _advance_jit(self._key, self._state, arr, self.params)
         else:
-            self._key, self._state, out = _advance_scripted_jit(self._key, self._state, arr, self.params,
-                                                                self._vehicle_policy)
+            self._key, self._state, words = _advance_scripted_jit(self._key, self._state, arr, self.params,
+                                                                  self._vehicle_policy)
         self._steps += 1
-        out = jax.device_get(out)
+        out = self._step_layout.unpack(np.asarray(words))
         obs, rewards, info = self._observations(out.obs_vehicles, out.obs_intruder), out.rewards, out.info
         if self.replan:
             obs, info = self._maybe_replan(obs, info)

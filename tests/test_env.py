@@ -269,3 +269,35 @@ def test_long_run_without_recompiling_or_growing_memory(par):
                 rss.append(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
     assert TRACE_COUNTS["step"] == traces
     assert rss[-1] - rss[0] < 50_000, rss  # KiB: less than 50 MB growth after warm-up
+
+
+def test_packed_step_output_is_the_unpacked_one_bit_for_bit(par):
+    """The adapter fetches a step's outputs as one packed array: unpacked, they are exactly the step's outputs."""
+    par.reset(seed=3)
+    n = par.params.n_vehicles
+    acts = jnp.asarray(np.random.default_rng(1).uniform(-1, 1, (n + 1, 2)), jnp.float32)
+    key, state = par._key, par._state
+    _, _, direct = jax.jit(stp_module._advance)(key, state, acts, par.params)
+    _, _, words = stp_module._advance_jit(key, state, acts, par.params)
+    layout = stp_module.Layout.of(jax.eval_shape(stp_module._advance, key, state, acts, par.params)[2])
+    unpacked = layout.unpack(np.asarray(words))
+    for a, b in zip(jax.tree.leaves(jax.device_get(direct)), jax.tree.leaves(unpacked)):
+        assert a.dtype == b.dtype and a.shape == b.shape
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="packed step output"):
+        layout.unpack(np.asarray(words)[:-1])
+
+
+def test_pack_round_trips_every_dtype():
+    tree = {"f32": jnp.asarray([1.5, -np.inf, np.nan], jnp.float32), "i32": jnp.asarray([[-7, 2 ** 31 - 1]]),
+            "b": jnp.asarray([True, False, True]), "u8": jnp.asarray([0, 255], jnp.uint8), "s": jnp.asarray(3.25)}
+    back = stp_module.Layout.of(tree).unpack(np.asarray(jax.jit(stp_module.pack)(tree)))
+    for k, v in tree.items():
+        assert back[k].dtype == np.asarray(v).dtype
+        np.testing.assert_array_equal(back[k], np.asarray(v))
+    with jax.enable_x64(True):
+        wide = {"f64": jnp.asarray([np.pi, -1e300], jnp.float64), "i64": jnp.asarray([-(2 ** 40), 5], jnp.int64)}
+        back = stp_module.Layout.of(wide).unpack(np.asarray(jax.jit(stp_module.pack)(wide)))
+        for k, v in wide.items():
+            assert back[k].dtype == np.asarray(v).dtype
+            np.testing.assert_array_equal(back[k], np.asarray(v))
