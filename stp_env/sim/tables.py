@@ -87,8 +87,8 @@ def avoid_value_and_gradient(grid, taus, padded, tau, x_rel):
     table ``padded`` (:func:`pad_periodic` of the slices at ascending ``taus``, one leading time axis): linear in
     ``tau``, multilinear in the state, the gradient by one-cell central differences. The same function as
     :func:`stp_env.reach.avoid.avoid_table_value` and the gradient of
-    :func:`stp_env.reach.avoid.avoid_table_input` up to rounding (``tests/test_sim.py`` compares them), read with
-    one block gather instead of 112 scalar ones: a smaller program, faster to compile and to run
+    :func:`stp_env.reach.avoid.avoid_table_input` up to rounding (``tests/test_block_reads.py`` compares them),
+    read with one block gather instead of 112 scalar ones: a smaller program, faster to compile and to run
     (``python benchmarks/table_reads.py``)."""
     if grid.ndim != 3:
         raise ValueError(f"avoid tables are 3-D; got a {grid.ndim}-D grid.")
