@@ -16,6 +16,16 @@ from stp_env.dynamics import RelativeDubins
 from stp_env.reach.avoid import avoid_table_input, avoid_table_value
 from stp_env.sim import tables
 
+
+def _enable_x64(on: bool):
+    """``jax.enable_x64`` (newer JAX) or ``jax.experimental.enable_x64`` (older)."""
+    if hasattr(jax, "enable_x64"):
+        return jax.enable_x64(on)
+    from jax import experimental
+
+    return experimental.enable_x64(on)
+
+
 GRID = hj.Grid.from_bounds((-50.0, -40.0, -np.pi), (50.0, 40.0, np.pi), (9, 11, 8), periodic=2)
 TAUS = jnp.asarray([0.0, 1.5, 4.0, 6.0, 10.0], jnp.float32)
 
@@ -126,7 +136,7 @@ def test_block_reads_run_with_x64_enabled():
     table = _table()
     x, t = _queries(200)
     v32, _ = _block(table)(t, x)
-    with jax.enable_x64(True):
+    with _enable_x64(True):
         padded = jnp.asarray(tables.pad_periodic(table, GRID, lead=1), jnp.float64)
         taus = jnp.asarray(TAUS, jnp.float64)
         v64, _ = jax.vmap(lambda tt, xx: tables.avoid_value_and_gradient(GRID, taus, padded, tt, xx))(

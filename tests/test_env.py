@@ -28,6 +28,16 @@ from stp_env import sim
 from stp_env.env import TRACE_COUNTS, env, parallel_env, raw_env
 
 
+def _enable_x64(on: bool):
+    """``jax.enable_x64`` (newer JAX) or ``jax.experimental.enable_x64`` (older)."""
+    if hasattr(jax, "enable_x64"):
+        return jax.enable_x64(on)
+    from jax import experimental
+
+    return experimental.enable_x64(on)
+
+
+
 @pytest.fixture(scope="module")
 def par():
     return parallel_env()
@@ -295,7 +305,7 @@ def test_pack_round_trips_every_dtype():
     for k, v in tree.items():
         assert back[k].dtype == np.asarray(v).dtype
         np.testing.assert_array_equal(back[k], np.asarray(v))
-    with jax.enable_x64(True):
+    with _enable_x64(True):
         wide = {"f64": jnp.asarray([np.pi, -1e300], jnp.float64), "i64": jnp.asarray([-(2 ** 40), 5], jnp.int64)}
         back = stp_module.Layout.of(wide).unpack(np.asarray(jax.jit(stp_module.pack)(wide)))
         for k, v in wide.items():
