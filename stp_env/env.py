@@ -551,10 +551,9 @@ class STPParallelEnv(ParallelEnv):
     def step(self, actions):
         arr = self._parse_actions(actions)  # raises before anything changes
         if self._step_layout is None:  # traced once per environment, not compiled
-            args = (self._key, self._state, arr, self.params)
-            self._step_layout = Layout.of(jax.eval_shape(_advance, *args)[2] if self._vehicle_policy is None else
-                                          jax.eval_shape(functools.partial(
-                                              _advance_scripted, vehicle_policy=self._vehicle_policy), *args)[2])
+            advance = (_advance if self._vehicle_policy is None
+                       else functools.partial(_advance_scripted, vehicle_policy=self._vehicle_policy))
+            self._step_layout = Layout.of(jax.eval_shape(advance, self._key, self._state, arr, self.params)[2])
         if self._vehicle_policy is None:
             self._key, self._state, words = _advance_jit(self._key, self._state, arr, self.params)
         else:
