@@ -253,7 +253,7 @@ class Layout(NamedTuple):
         for x in leaves:
             dtype = np.dtype(x.dtype)
             n = int(np.prod(x.shape, dtype=np.int64))
-            out.append((tuple(x.shape), dtype, n * max(1, dtype.itemsize // 4) if dtype != np.bool_ else n))
+            out.append((tuple(x.shape), dtype, n * max(1, dtype.itemsize // 4)))  # 1 word, 2 for 8-byte leaves
         return cls(treedef, tuple(out))
 
     def unpack(self, words: np.ndarray):

@@ -45,6 +45,18 @@ def pad_periodic(values, grid, lead: int = 0) -> np.ndarray:
     return v
 
 
+def _cell(grid, d: int, pos):
+    """The cell of axis ``d`` holding fractional index ``pos``: its lower node ``i0`` (unpadded) and the position
+    the weights are taken at. Periodic axes: ``pos`` in ``[0, n]``, ``i0 <= n - 1`` (the last cell wraps);
+    non-periodic ones clamp as :func:`stp_env.hj.interpolation.interpolate` does (into ``[0, n - 1]``,
+    ``i0 <= n - 2``)."""
+    n = grid.shape[d]
+    if d in grid.periodic:
+        return jnp.minimum(jnp.floor(pos), n - 1).astype(jnp.int32), pos
+    p = jnp.clip(pos, 0.0, n - 1.0)
+    return jnp.minimum(jnp.floor(p).astype(jnp.int32), n - 2), p
+
+
 def _block_axis(grid, d: int, pos):
     """Axis ``d`` of a block read at fractional index ``pos`` (``grid.fractional_index``, periodic axes in
     ``[0, n]``): the block's first node in the padded table, and the ``BLOCK`` weights of the multilinear
@@ -53,14 +65,12 @@ def _block_axis(grid, d: int, pos):
     periodic ones wrap through the padding."""
     n = grid.shape[d]
     node = jnp.arange(BLOCK)
+    i0, centre = _cell(grid, d, pos)
     if d in grid.periodic:
-        i0 = jnp.minimum(jnp.floor(pos), n - 1).astype(jnp.int32)
         base = i0 - 1                      # the block's first node, unpadded (may be -1: the wrapped one)
         start = base + PERIODIC_PAD[0]     # ... in the padded table: in [0, n - 1]
         points = (pos - 1.0, pos, pos + 1.0)
     else:
-        centre = jnp.clip(pos, 0.0, n - 1.0)
-        i0 = jnp.minimum(jnp.floor(centre).astype(jnp.int32), n - 2)
         base = jnp.clip(i0 - 1, 0, n - BLOCK)
         start = base
         points = (jnp.clip(pos - 1.0, 0.0, n - 1.0), centre, jnp.clip(pos + 1.0, 0.0, n - 1.0))
@@ -113,16 +123,9 @@ def avoid_value_and_gradient(grid, taus, padded, tau, x_rel):
 def _cell_axis(grid, d: int, pos):
     """Axis ``d`` of a one-cell read at fractional index ``pos``: the cell's first node in the padded table and the
     two multilinear weights (clamped or wrapped as :func:`_block_axis`)."""
-    n = grid.shape[d]
-    if d in grid.periodic:
-        i0 = jnp.minimum(jnp.floor(pos), n - 1).astype(jnp.int32)
-        w1 = pos - i0.astype(pos.dtype)
-        start = i0 + PERIODIC_PAD[0]
-    else:
-        p = jnp.clip(pos, 0.0, n - 1.0)
-        i0 = jnp.minimum(jnp.floor(p).astype(jnp.int32), n - 2)
-        w1 = p - i0.astype(p.dtype)
-        start = i0
+    i0, p = _cell(grid, d, pos)
+    w1 = p - i0.astype(p.dtype)
+    start = i0 + PERIODIC_PAD[0] if d in grid.periodic else i0
     return start, jnp.stack([1.0 - w1, w1])
 
 
