@@ -145,11 +145,16 @@ def _add_episode_options(p, *, many: bool) -> None:
     from stp_env.sim import winds
 
     nargs = "+" if many else None
-    p.add_argument("--scenario", default="town", help="registered scenario name (see stp_env.scenarios.names())")
-    p.add_argument("--kbar", type=_positive(int), nargs=nargs, default=[1, 2, 3] if many else 2,
+    suite = (" (none: the default suite, see the description; town when another configuration option is "
+             "given)"
+             if many else "")
+    p.add_argument("--scenario", default=None if many else "town",
+                   help="registered scenario name (see stp_env.scenarios.names())" + suite)
+    p.add_argument("--kbar", type=_positive(int), nargs=nargs, default=None if many else 2,
                    help="k̄, the number of vehicles the intruder may force to avoid (>= 1); each value uses the "
-                        "scenario's plan for that k̄" + (" (several: one configuration each)" if many else ""))
-    p.add_argument("--intruder", nargs=nargs, default=["max-k"] if many else None,
+                        "scenario's plan for that k̄" + (" (several: one configuration each; default 1 2 3 "
+                                                        "outside the default suite)" if many else ""))
+    p.add_argument("--intruder", nargs=nargs, default=None,
                    help=f"intruder policy: one of {', '.join(INTRUDERS)}; 'learned:NAME_OR_PATH' for a learned "
                         "intruder (a shipped name or an .npz from stp_env.rl.policy.export_mlp); or "
                         "'package.module:policy' / 'package.module:factory=ARG' for any jittable policy "
@@ -164,10 +169,11 @@ def _add_episode_options(p, *, many: bool) -> None:
                    help="where the intruder appears: outside every avoid region (Assumption 3), on a vehicle's "
                         "avoid boundary (Observation 1), or auto (boundary for max-k and optimal-max-k, else "
                         "outside)")
-    p.add_argument("--vehicle-policy", choices=list(VEHICLE_POLICIES), default="switching",
+    p.add_argument("--vehicle-policy", choices=list(VEHICLE_POLICIES), default=None if many else "switching",
                    help="switching: u* (eq. 38) with the safety filter; nominal: u^PP, the filter off; worst: "
                         "every unforced vehicle flies the buffer game's control toward the intruder (the assumption "
-                        "behind V^B), forced ones u^A")
+                        "behind V^B), forced ones u^A" + (" (default: switching outside the default suite)"
+                                                          if many else ""))
     p.add_argument("--episode", choices=EPISODE_CHOICES, default="window",
                    help="window: from 5 s before the intruder's appearance window to 10 s after it can leave; "
                         "full: first departure to the last STA (slower)")
@@ -191,10 +197,13 @@ def _add_evaluate_parsers(sub) -> None:
                                     "Clopper-Pearson upper bound, collisions, guarantee violations, on-time "
                                     "arrivals and the smallest separation. Prints a markdown table; writes "
                                     "results.{json,csv,md}, events.{json,npz} (replayable bad episodes) and PNG "
-                                    "figures to --out.")
+                                    "figures to --out. The default suite (none of --scenario, --kbar, --intruder, "
+                                    "--vehicle-policy given): town at k̄ = 1, 2, 3 with the max-k intruder and "
+                                    "the vehicles on u*, and the crossing at k̄ = 2 with the optimal-max-k "
+                                    "intruder and the worst vehicles, where the bound binds.")
     _add_episode_options(ev, many=True)
     ev.add_argument("--episodes", type=_positive(int), default=500,
-                    help="episodes per configuration (the default run: 3 k̄ values x 500 = 1500 episodes of town)")
+                    help="episodes per configuration (the default suite: 4 configurations x 500 episodes)")
     ev.add_argument("--batch-size", type=_positive(int), default=250,
                     help="episodes per compiled batch (memory grows with it; every batch has this size)")
     ev.add_argument("--confidence", type=_probability, default=0.95,
@@ -300,16 +309,38 @@ def _precompute(args) -> int:
     return 0
 
 
-def _evaluation_configs(args, kbars, intruders):
+SUITE_OPTIONS = ("scenario", "kbar", "intruder", "vehicle_policy")
+"""The options that choose configurations: with none of them ``evaluate`` runs the default suite."""
+
+
+def _evaluation_configs(args):
+    """The configurations of ``evaluate``: the default suite (:data:`stp_env.evaluation.config.DEFAULT_SUITE`)
+    when none of :data:`SUITE_OPTIONS` is given, else every (intruder, k̄) of the one scenario, with the defaults
+    town, k̄ = 1 2 3, max-k, switching for the options not given. The common options (wind, wind model, spawn
+    mode, episode, backend) apply to every configuration."""
+    from stp_env.evaluation.config import default_suite
+
+    if all(getattr(args, name) is None for name in SUITE_OPTIONS):
+        return default_suite(**_common_options(args))
+    return _configurations(args, args.scenario or "town", args.kbar or [1, 2, 3], args.intruder or ["max-k"],
+                           args.vehicle_policy or "switching")
+
+
+def _common_options(args) -> dict:
+    return {"wind": args.wind, "wind_model": args.wind_model, "spawn_mode": args.spawn_mode,
+            "episode": args.episode, "backend": args.backend}
+
+
+def _configurations(args, scenario, kbars, intruders, vehicle_policy):
+    """Every (intruder, k̄) of one scenario, checked before any work (an unknown scenario or intruder fails)."""
     from stp_env.evaluation import Configuration, resolve_intruder
     from stp_env.scenarios import make
 
-    make(args.scenario)                      # an unknown scenario fails here, before any work
+    make(scenario)
     for spec in intruders:
         resolve_intruder(spec)
-    return [Configuration(scenario=args.scenario, kbar=k, intruder=i, wind=args.wind, wind_model=args.wind_model,
-                          spawn_mode=args.spawn_mode, vehicle_policy=args.vehicle_policy, episode=args.episode,
-                          backend=args.backend)
+    return [Configuration(scenario=scenario, kbar=k, intruder=i, vehicle_policy=vehicle_policy,
+                          **_common_options(args))
             for i in dict.fromkeys(intruders) for k in dict.fromkeys(kbars)]
 
 
@@ -317,7 +348,7 @@ def _evaluate(args) -> int:
     from stp_env.artifacts import ArtifactStore
     from stp_env.evaluation import pipeline
 
-    configs = _evaluation_configs(args, args.kbar, args.intruder)
+    configs = _evaluation_configs(args)
     for config in configs:
         config.make_scenario()               # a k̄ the scenario does not allow fails here
     result = pipeline.run(configs, args.out, episodes=args.episodes, seed=args.seed, batch_size=args.batch_size,
@@ -343,7 +374,7 @@ def _render(args) -> int:
         n_steps, batch_size, recorded = record["n_steps"], record["batch_size"], record["recorded"]
     else:
         intruder = "max-k" if args.intruder is None else args.intruder
-        config = _evaluation_configs(args, [args.kbar], [intruder])[0]
+        config = _configurations(args, args.scenario, [args.kbar], [intruder], args.vehicle_policy)[0]
         seed, index = args.seed, args.index
         params = build_params([config], store=store, progress=not args.no_progress)[0]
         n_steps, batch_size, recorded = steps_for(params), args.batch_size, True

@@ -79,8 +79,9 @@ def test_the_episode_summary_counts_by_hand_and_bounds_with_scipy():
         forced_summary(n_forced, 2, collided[:3], violations)
 
 def test_the_tracking_error_column_counts_only_vehicles_that_flew_with_kappa():
-    """A vehicle still waiting at the end has ``tracked`` set and error 0: it must not make a run in which no vehicle
-    tracked (every one flew the ``worst`` policy) report a measured 0 m; such a run reports ``n/a``."""
+    """A vehicle still waiting at the end, or already arrived when the episode started, has ``tracked`` set and
+    error 0: it must not make a run in which no vehicle tracked (every one flew the ``worst`` policy) report a
+    measured 0 m; such a run reports ``n/a``."""
     import types
 
     from stp_env.evaluation.report import markdown_table
@@ -101,6 +102,11 @@ def test_the_tracking_error_column_counts_only_vehicles_that_flew_with_kappa():
     summary = summarize(config, ep, params)
     assert summary["max_tracking_error_m"] is None
     assert "| n/a (5.00) |" in markdown_table([summary])
+    # nor does a vehicle that was already in its target when the episode started (it flew nothing in it)
+    ep["tracked"][1, 1], ep["arrival_time"][1, 1], ep["max_tracking_error"][1, 1] = True, 0.0, 0.0
+    assert summarize(config, ep, params)["max_tracking_error_m"] is None
+    ep["arrival_time"][1, 1] = 19.0                                        # arrived during the episode: counts
+    assert summarize(config, ep, params)["max_tracking_error_m"] == 0.0
 
 
 def test_rule_of_three_and_betainc():
@@ -159,7 +165,8 @@ def tiny_run(tmp_path_factory):
 
 def test_evaluate_writes_results(tiny_run):
     out, stdout = tiny_run
-    assert "| intruder | k̄ |" in stdout and "| greedy (outside) | 2 |" in stdout
+    assert "| scenario | intruder | vehicles | k̄ |" in stdout
+    assert "| tiny-intruder | greedy (outside) | nominal | 2 |" in stdout
     summary = json.loads((out / "results.json").read_text())["configurations"]
     assert len(summary) == 1
     s = summary[0]
@@ -185,7 +192,7 @@ def test_evaluate_writes_results(tiny_run):
     assert prov["source_hash"] == source_hash() and prov["numerics_code_version"] == CODE_VERSION
     assert prov["git_commit"] is None or re.fullmatch(r"[0-9a-f]{40}(-dirty)?", prov["git_commit"])
     assert (out / "results.csv").read_text().count("\n") == 2
-    assert (out / "results.md").read_text().startswith("| intruder |")
+    assert (out / "results.md").read_text().startswith("| scenario | intruder |")
     for name in ("forced_histogram.png", "summary.png", "episode.png", "distance_vs_time.png"):
         assert (out / name).stat().st_size > 10_000, name
 
@@ -253,6 +260,47 @@ def test_bad_options_exit_2(argv, message):
     code, _, stderr = _cli(argv)
     assert code == 2
     assert message in stderr, stderr
+
+
+def _configs(argv):
+    from stp_env import cli
+
+    return cli._evaluation_configs(cli._build_parser().parse_args(["evaluate", *argv]))
+
+
+def test_evaluate_without_configuration_options_runs_the_default_suite():
+    """The main job's default includes a configuration where the bound binds (the crossing with worst vehicles);
+    any option that chooses configurations replaces the suite by its cross product; the common options apply to
+    every configuration either way."""
+    from stp_env.evaluation.config import DEFAULT_SUITE
+
+    suite = _configs([])
+    assert suite == list(DEFAULT_SUITE)
+    assert [(c.scenario, c.kbar, c.intruder, c.vehicle_policy) for c in suite] == [
+        ("town", 1, "max-k", "switching"), ("town", 2, "max-k", "switching"), ("town", 3, "max-k", "switching"),
+        ("crossing", 2, "optimal-max-k", "worst")]
+    assert {(c.wind, c.wind_model, c.episode) for c in _configs(["--wind", "3", "--wind-model", "gusts",
+                                                                 "--episode", "full"])} == {(3.0, "gusts", "full")}
+    for argv, expected in [
+        (["--kbar", "2"], [("town", 2, "max-k", "switching")]),
+        (["--scenario", "crossing"], [("crossing", k, "max-k", "switching") for k in (1, 2, 3)]),
+        (["--vehicle-policy", "worst", "--kbar", "1"], [("town", 1, "max-k", "worst")]),
+        (["--intruder", "hj", "greedy", "--kbar", "3"], [("town", 3, "hj", "switching"),
+                                                        ("town", 3, "greedy", "switching")]),
+    ]:
+        assert [(c.scenario, c.kbar, c.intruder, c.vehicle_policy) for c in _configs(argv)] == expected, argv
+
+
+def test_figures_of_a_mixed_suite_name_each_series():
+    """Configurations of several scenarios or vehicle policies get distinct legend names (a run of one scenario
+    keeps the plain intruder names)."""
+    from stp_env.evaluation.plots import _with_series
+
+    town = {"scenario": "town", "intruder": "max-k", "vehicle_policy": "switching"}
+    cross = {"scenario": "crossing", "intruder": "max-k", "vehicle_policy": "worst"}
+    assert [s["series"] for s in _with_series([town, cross])] == ["town: max-k, switching vehicles",
+                                                                  "crossing: max-k, worst vehicles"]
+    assert [s["series"] for s in _with_series([town, {**town, "kbar": 2}])] == ["max-k", "max-k"]
 
 
 def test_render_rejects_a_missing_event(tiny_run):

@@ -164,3 +164,21 @@ class Configuration:
 
     def policies(self) -> tuple[Callable, Callable]:
         return resolve_vehicle_policy(self.vehicle_policy), resolve_intruder(self.intruder)
+
+
+DEFAULT_SUITE = (
+    *(Configuration(scenario="town", kbar=k, intruder="max-k") for k in (1, 2, 3)),
+    Configuration(scenario="crossing", kbar=2, intruder="optimal-max-k", vehicle_policy="worst"),
+)
+"""What ``stp-env evaluate`` runs when no configuration option is given: the default scenario ``town`` (7 vehicles
+planned intruder-aware for k̄ = 1, 2, 3, vehicles on ``u*`` with the safety filter, the max-k intruder of the
+intruder paper's Figs. 6-7), where no intruder forces more than one vehicle, and one configuration where the bound
+binds: the ``crossing`` (two streams of 10 vehicles at the tightest spacing the k̄ = 2 buffer allows) with the
+vehicles on the buffer game's worst control (the assumption behind ``V^B``) and the ``optimal-max-k`` intruder,
+which forces k̄ = 2 vehicles in some episodes and never more (docs/dense.md)."""
+
+
+def default_suite(**common) -> list[Configuration]:
+    """:data:`DEFAULT_SUITE` with the fields in ``common`` (wind, wind model, spawn mode, episode, backend)
+    replaced in every configuration."""
+    return [dataclasses.replace(config, **common) for config in DEFAULT_SUITE]

@@ -34,15 +34,30 @@ def _intruder_colors(names):
     return {name: cmap(i % 10) for i, name in enumerate(dict.fromkeys(names))}
 
 
+def _with_series(summaries: list[dict]) -> list[dict]:
+    """Copies of ``summaries`` with a ``"series"`` name for legends and colours: the intruder, prefixed by the
+    scenario and suffixed by the vehicles' policy where the configurations differ in them (the default suite mixes
+    both)."""
+    scenarios = len({s["scenario"] for s in summaries}) > 1
+    policies = len({s["vehicle_policy"] for s in summaries}) > 1
+    return [{**s, "series": (f"{s['scenario']}: " if scenarios else "") + s["intruder"]
+             + (f", {s['vehicle_policy']} vehicles" if policies else "")} for s in summaries]
+
+
+def _scenarios(summaries: list[dict]) -> str:
+    return ", ".join(dict.fromkeys(s["scenario"] for s in summaries))
+
+
 def plot_forced_histograms(summaries: list[dict], path: str) -> str:
     """One panel per k̄: the fraction of episodes with ``|N^RP| = m`` for each intruder (log scale, so that rare
     counts show), the bound k̄ as a dashed vertical line, and each intruder's exact upper bound on
     ``P(|N^RP| > k̄)`` as a dashed horizontal line over the region beyond k̄."""
     plt = _plt()
+    summaries = _with_series(summaries)
     kbars = sorted({s["kbar"] for s in summaries})
-    colors = _intruder_colors(s["intruder"] for s in summaries)
+    colors = _intruder_colors(s["series"] for s in summaries)
     n_lines = max(sum(s["kbar"] == k for s in summaries) for k in kbars)
-    fig, axes = plt.subplots(1, len(kbars), figsize=(max(6.5, 4.8 * len(kbars)), 4.4 + 0.25 * n_lines),
+    fig, axes = plt.subplots(1, len(kbars), figsize=(max(6.5, 5.4 * len(kbars)), 4.9 + 0.25 * n_lines),
                              squeeze=False, sharey=True, constrained_layout=True)
     conf = summaries[0]["confidence"]
     for ax, kbar in zip(axes[0], kbars):
@@ -56,12 +71,11 @@ def plot_forced_histograms(summaries: list[dict], path: str) -> str:
             hist[:min(m_show, len(s["forced_hist"]))] = s["forced_hist"][:m_show]
             frac = hist / s["episodes"]
             xs = np.arange(m_show) - 0.4 + width * (g + 0.5)
-            col = colors[s["intruder"]]
+            col = colors[s["series"]]
             ax.bar(xs, np.where(frac > 0, frac, np.nan), width=width, color=col,
-                   label=f"{s['intruder']} (n = {s['episodes']})")
+                   label=f"{s['series']} (n = {s['episodes']})")
             ax.hlines(s["exceed_upper"], kbar + 0.5, m_show - 0.5, colors=[col], linestyles="--", lw=1.5)
-            lines.append(f"{s['intruder']}: {s['exceed']}/{s['episodes']} above k̄, "
-                         f"P(|N^RP| > k̄) ≤ {_fmt_p(s['exceed_upper'])}")
+            lines.append(f"{s['series']}: {s['exceed']}/{s['episodes']} > k̄, P ≤ {_fmt_p(s['exceed_upper'])}")
         ax.axvline(kbar + 0.5, color="k", ls="--", lw=1.2)
         ax.text(kbar + 0.55, 0.03, "k̄", transform=ax.get_xaxis_transform(), fontsize=11)
         ax.set_yscale("log")
@@ -69,11 +83,16 @@ def plot_forced_histograms(summaries: list[dict], path: str) -> str:
         ax.set_xlim(-0.6, m_show - 0.4)
         ax.set_xticks(np.arange(m_show))
         ax.set_xlabel("|N^RP|: vehicles forced to avoid in an episode")
-        ax.set_title(f"k̄ = {kbar}\n" + "\n".join(lines), fontsize=9)
+        ax.set_title(f"k̄ = {kbar}\n" + "\n".join(lines), fontsize=8)
         ax.grid(alpha=0.3, axis="y")
     axes[0][0].set_ylabel("fraction of episodes")
-    axes[0][-1].legend(fontsize=8, loc="upper right")
-    fig.suptitle(f"{summaries[0]['scenario']}: vehicles forced to avoid\n(dashed horizontal: {100 * conf:g}% "
+    handles = {}
+    for ax in axes[0]:                       # every series once, whichever panels it appears in
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            handles.setdefault(label.split(" (n = ")[0], handle)
+    fig.legend(list(handles.values()), list(handles), fontsize=8, loc="outside lower center",
+               ncol=min(len(handles), 3))
+    fig.suptitle(f"{_scenarios(summaries)}: vehicles forced to avoid\n(dashed horizontal: {100 * conf:g}% "
                  "upper bound on P(|N^RP| > k̄))", fontsize=10)
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -214,15 +233,16 @@ def plot_summary(summaries: list[dict], path: str) -> str:
     ``|N^RP|`` against k̄; collisions and guarantee violations per 1000 episodes; the smallest separation against
     ``R_c`` and the on-time arrival rate."""
     plt = _plt()
-    colors = _intruder_colors(s["intruder"] for s in summaries)
+    summaries = _with_series(summaries)
+    colors = _intruder_colors(s["series"] for s in summaries)
     intruders = list(colors)
     kbars = sorted({s["kbar"] for s in summaries})
     fig, axes = plt.subplots(2, 2, figsize=(11, 8), constrained_layout=True)
     off = {name: (i - (len(intruders) - 1) / 2) * 0.12 for i, name in enumerate(intruders)}
     ax = axes[0, 0]
     for s in summaries:
-        x = s["kbar"] + off[s["intruder"]]
-        col = colors[s["intruder"]]
+        x = s["kbar"] + off[s["series"]]
+        col = colors[s["series"]]
         ax.plot([x, x], [max(s["exceed_rate"], 1e-5), s["exceed_upper"]], color=col, lw=2)
         ax.plot(x, s["exceed_upper"], "v", color=col, ms=7)
         ax.plot(x, max(s["exceed_rate"], 1e-5), "o", color=col, ms=6, mfc="white" if s["exceed"] == 0 else col)
@@ -234,7 +254,7 @@ def plot_summary(summaries: list[dict], path: str) -> str:
     ax.set_xticks(kbars)
     ax = axes[0, 1]
     for name in intruders:
-        group = sorted((s for s in summaries if s["intruder"] == name), key=lambda s: s["kbar"])
+        group = sorted((s for s in summaries if s["series"] == name), key=lambda s: s["kbar"])
         ks = [s["kbar"] + off[name] for s in group]
         ax.plot(ks, [s["forced_mean"] for s in group], "o-", color=colors[name], label=f"{name}: mean")
         ax.plot(ks, [s["forced_max"] for s in group], "s--", color=colors[name], mfc="white", label=f"{name}: max")
@@ -248,7 +268,7 @@ def plot_summary(summaries: list[dict], path: str) -> str:
     ax.set_title("vehicles forced to avoid", fontsize=10)
     ax.legend(fontsize=8, loc="upper left")
     ax = axes[1, 0]
-    labels = [f"{s['intruder']}\nk̄={s['kbar']}" for s in summaries]
+    labels = [f"{s['series']}\nk̄={s['kbar']}".replace(": ", "\n").replace(", ", "\n") for s in summaries]
     xs = np.arange(len(summaries))
     per = np.asarray([1000.0 / s["episodes"] for s in summaries])
     ax.bar(xs - 0.2, per * [s["collisions"] for s in summaries], width=0.4, color="tab:orange",
@@ -265,7 +285,7 @@ def plot_summary(summaries: list[dict], path: str) -> str:
     ax.legend(fontsize=8)
     ax = axes[1, 1]
     seps = np.asarray([s["min_separation_m"] if s["min_separation_m"] is not None else np.nan for s in summaries])
-    ax.bar(xs, seps, color=[colors[s["intruder"]] for s in summaries], alpha=0.8)
+    ax.bar(xs, seps, color=[colors[s["series"]] for s in summaries], alpha=0.8)
     r_c = summaries[0]["collision_radius_m"]
     ax.axhline(r_c, color="r", lw=1.2)
     ax.text(-0.45, r_c, f"R_c = {r_c:g} m", color="r", va="bottom", fontsize=8)
@@ -280,7 +300,7 @@ def plot_summary(summaries: list[dict], path: str) -> str:
                  fontsize=10)
     for a in axes.flat:
         a.grid(alpha=0.3)
-    fig.suptitle(f"{summaries[0]['scenario']}: evaluation summary ({summaries[0]['episodes']} episodes per "
+    fig.suptitle(f"{_scenarios(summaries)}: evaluation summary ({summaries[0]['episodes']} episodes per "
                  "configuration)", fontsize=12)
     fig.savefig(path, dpi=90)
     plt.close(fig)

@@ -41,15 +41,17 @@ def _pct(x) -> str:
 def markdown_table(summaries: list[dict]) -> str:
     """One row per configuration: what the report's numbers mean is in :func:`stp_env.evaluation.summarize`."""
     conf = summaries[0]["confidence"] if summaries else 0.95
-    head = ("| intruder | k̄ | wind [m/s] | episodes | mean \\|N^RP\\| | max \\|N^RP\\| | \\|N^RP\\| > k̄ | "
+    head = ("| scenario | intruder | vehicles | k̄ | wind [m/s] | episodes | mean \\|N^RP\\| | max \\|N^RP\\| | "
+            "\\|N^RP\\| > k̄ | "
             f"P(\\|N^RP\\| > k̄) ≤ ({100 * conf:g}%) | collisions (intruder) | guarantee violations | "
             "max tracking error [m] (r_e) | on time | min sep. [m] | \\|N^RP\\| ≥ k̄ | "
             "k-th avoid start, median (earliest) [s] |")
-    rows = [head, "|" + " --- |" * 15]
+    rows = [head, "|" + " --- |" * 17]
     for s in summaries:
         wind = f"{s['scenario_wind_mps']:g} {s['wind_model']}"
         rows.append(
-            f"| {s['intruder']} ({s['spawn_mode']}) | {s['kbar']} | {wind} | {s['episodes']} | "
+            f"| {s['scenario']} | {s['intruder']} ({s['spawn_mode']}) | {s['vehicle_policy']} | {s['kbar']} | "
+            f"{wind} | {s['episodes']} | "
             f"{s['forced_mean']:.2f} | {s['forced_max']} | {s['exceed']} | {_pct(s['exceed_upper'])} | "
             f"{s['collisions']} ({s['intruder_collisions']}) | {s['guarantee_violations']} | "
             f"{_num(s['max_tracking_error_m'])} ({s['tracking_bound_m']:.2f}) | "

@@ -162,7 +162,8 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
     n_due = int(due.sum())
     kth_min, kth_median = avoid_start_order_stats(ep, kbar + 1)
     per_episode_sep = np.min(ep["min_separation"], axis=1)
-    flew_tracked = ep["tracked"] & (ep["status"] != WAITING)  # a vehicle still waiting has tracked nothing
+    # a vehicle still waiting, or already in its target at the start, has tracked nothing in the episode
+    flew_tracked = ep["tracked"] & (ep["status"] != WAITING) & ~done_at_start
     finite = per_episode_sep[np.isfinite(per_episode_sep)]
     return {
         "label": config.label,
