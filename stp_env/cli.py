@@ -444,11 +444,15 @@ def _env_steps(text: str) -> int:
 
 
 def _add_train_intruder_parser(sub) -> None:
+    from stp_env.baselines import VEHICLE_POLICIES
+    from stp_env.sim.types import SPAWN_MODES
+
     tr = sub.add_parser("train-intruder", help="train a learned intruder with Stable-Baselines3 (needs the rl extra)",
                         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-                        description="PPO (or A2C) on stp_env.rl.IntruderVecEnv: the vehicles run u* with the HJ "
-                                    "safety filter; the intruder is rewarded per vehicle forced to avoid (eq. 39), "
-                                    "per collision, and by the avoid-region value (shaping).")
+                        description="PPO (or A2C) on stp_env.rl.IntruderVecEnv: the vehicles run --vehicle-policy "
+                                    "(u* with the HJ safety filter by default); the intruder is rewarded per vehicle "
+                                    "forced to avoid (eq. 39), per collision, and by the avoid-region value "
+                                    "(shaping).")
     tr.add_argument("--scenario", default="town", help="registered scenario name")
     tr.add_argument("--kbar", type=_positive(int), default=None, help="override the scenario's k̄")
     tr.add_argument("--algo", choices=["ppo", "a2c"], default="ppo")
@@ -459,6 +463,11 @@ def _add_train_intruder_parser(sub) -> None:
     tr.add_argument("--seed", type=int, default=0, help="seed of torch, SB3 and the JAX env keys")
     tr.add_argument("--horizon", choices=["intruder", "episode"], default="intruder",
                     help="intruder: appearance to departure; episode: the core's whole episode")
+    tr.add_argument("--vehicle-policy", choices=list(VEHICLE_POLICIES), default="switching",
+                    help="the vehicles' policy (worst: the buffer game's worst vehicles, as in `evaluate`)")
+    tr.add_argument("--spawn-mode", choices=SPAWN_MODES, default="outside",
+                    help="where the intruder appears: outside every avoid region, on a vehicle's avoid boundary "
+                         "(where the max-k intruders start), or either")
     tr.add_argument("--forced-reward", type=float, default=5.0, help="per vehicle newly forced to avoid")
     tr.add_argument("--collision-reward", type=float, default=10.0, help="per collision the intruder causes")
     tr.add_argument("--shaping-reward", type=float, default=0.01,
@@ -483,7 +492,8 @@ def _train_intruder(args) -> int:
     formats = ("stdout", "csv", "tensorboard") if args.tensorboard else ("stdout", "csv")
     config = TrainConfig(scenario=args.scenario, kbar=args.kbar, algo=args.algo, total_timesteps=args.timesteps,
                          n_envs=args.n_envs, n_steps=args.n_steps, batch_size=args.batch_size, seed=args.seed,
-                         horizon=args.horizon, forced_reward=args.forced_reward,
+                         horizon=args.horizon, vehicle_policy=args.vehicle_policy, spawn_mode=args.spawn_mode,
+                         forced_reward=args.forced_reward,
                          collision_reward=args.collision_reward, shaping_reward=args.shaping_reward,
                          eval_every=args.eval_every, eval_episodes=args.eval_episodes,
                          checkpoint_every=args.checkpoint_every, out_dir=args.out, log_formats=formats)

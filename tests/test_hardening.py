@@ -526,7 +526,8 @@ def test_an_unwritable_cache_is_reported_before_computing(tmp_path, monkeypatch)
 def _fake_results():
     from stp_env.evaluation.runner import ConfigResult
 
-    summary = {"label": "fake", "intruder": "hover", "spawn_mode": "outside", "kbar": 2, "scenario_wind_mps": 6.0,
+    summary = {"label": "fake", "scenario": "town", "intruder": "hover", "spawn_mode": "outside",
+               "vehicle_policy": "switching", "kbar": 2, "scenario_wind_mps": 6.0,
                "wind_model": "uniform", "episodes": 1, "forced_mean": 0.0, "forced_max": 0, "exceed": 0,
                "exceed_upper": 0.95, "confidence": 0.95, "collisions": 0, "intruder_collisions": 0,
                "guarantee_violations": 0, "tracking_violations": 0, "max_tracking_error_m": 0.0,

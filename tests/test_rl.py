@@ -172,3 +172,24 @@ def test_shipped_intruder_matches_its_sb3_model(params):
         np.testing.assert_allclose(mlp.action_numpy(np.asarray(obs)), expected, atol=1e-5)
     with pytest.raises(ValueError, match="unknown intruder"):
         load_intruder("no-such-intruder")
+
+
+def test_train_config_spawn_mode_and_the_buffer_of_worst_vehicles(monkeypatch):
+    """Training against worst vehicles loads the buffer table of the plan's k̄ (the worst policy reads it); other
+    vehicle policies do not; the spawn mode reaches the environment and an unknown one is refused."""
+    import types
+
+    from stp_env.rl import train as train_module
+
+    assert TrainConfig(spawn_mode="boundary").env_config().spawn_mode == "boundary"
+    assert TrainConfig().env_config().spawn_mode == "outside"
+    with pytest.raises(ValueError, match="spawn_mode 'sky'"):
+        TrainConfig(spawn_mode="sky")
+    calls = []
+    monkeypatch.setattr(sim, "params_for", lambda scenario, config, **kw: types.SimpleNamespace(kbar=scenario.kbar))
+    monkeypatch.setattr(sim.build, "load_buffer", lambda scenario, kbar, **kw: calls.append(kbar) or "V^B")
+    monkeypatch.setattr(sim.build, "with_buffer", lambda params, buffer: (params, buffer))
+    assert train_module.build_params(TrainConfig(scenario="town", kbar=3, vehicle_policy="worst"))[1] == "V^B"
+    assert calls == [3]
+    assert not isinstance(train_module.build_params(TrainConfig(scenario="town", kbar=3)), tuple)
+    assert calls == [3]

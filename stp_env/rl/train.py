@@ -49,6 +49,7 @@ import numpy as np
 
 from stp_env import sim
 from stp_env.evaluation.summary import forced_summary
+from stp_env.sim.types import SPAWN_MODES
 
 ALGORITHMS = ("ppo", "a2c")
 LOG_FORMATS = ("stdout", "csv", "tensorboard", "log", "json")
@@ -61,7 +62,10 @@ class TrainConfig:
     Attributes:
         scenario: registry name; kbar: override the scenario's k̄ (``None``: its default).
         horizon: ``"intruder"`` (appearance to departure) or ``"episode"`` (:mod:`stp_env.rl.functional`).
-        vehicle_policy: the vehicles' baseline policy (``"switching"``: u* with the safety filter).
+        vehicle_policy: the vehicles' baseline policy (``"switching"``: u* with the safety filter; ``"worst"``: the
+            buffer game's worst vehicles, for which the relative buffer table ``V^B`` of the k̄ is loaded).
+        spawn_mode: where the intruder appears (:class:`stp_env.sim.EnvConfig`): ``"outside"`` every avoid region
+            (Assumption 3), on a vehicle's avoid ``"boundary"`` (where the max-k intruders start) or ``"mixed"``.
         forced_reward: per vehicle newly forced to avoid (eq. 39); collision_reward: per collision the intruder
             causes; shaping_reward: times the decrease of ``min V^A`` over the vehicles unforced before each step
             [per m] (both potentials of a step over the same vehicles, so forcing one is rewarded; before that fix
@@ -83,6 +87,7 @@ class TrainConfig:
     kbar: int | None = None
     horizon: str = "intruder"
     vehicle_policy: str = "switching"
+    spawn_mode: str = "outside"
     forced_reward: float = 5.0
     collision_reward: float = 10.0
     shaping_reward: float = 0.01
@@ -112,6 +117,8 @@ class TrainConfig:
 
         check_horizon(self.horizon)
         check_vehicle_policy(self.vehicle_policy)
+        if self.spawn_mode not in SPAWN_MODES:
+            raise ValueError(f"spawn_mode {self.spawn_mode!r} is not known; allowed: {', '.join(SPAWN_MODES)}.")
         if self.algo not in ALGORITHMS:
             raise ValueError(f"algo {self.algo!r} is not known; allowed: {', '.join(ALGORITHMS)}.")
         for name in ("total_timesteps", "n_envs", "n_steps", "batch_size", "n_epochs", "eval_episodes",
@@ -144,7 +151,7 @@ class TrainConfig:
     def env_config(self) -> sim.EnvConfig:
         rewards = sim.RewardConfig(forced=self.forced_reward, intruder_collision=self.collision_reward,
                                    shaping=self.shaping_reward)
-        return sim.EnvConfig(rewards=rewards)
+        return sim.EnvConfig(rewards=rewards, spawn_mode=self.spawn_mode)
 
     def scenario_object(self):
         from stp_env.scenarios import make
@@ -269,6 +276,19 @@ def make_model(config: TrainConfig, venv):
                seed=config.seed, device="cpu", verbose=0)
 
 
+def build_params(config: TrainConfig, *, store=None, progress: bool = False) -> sim.EnvParams:
+    """The training environment's ``EnvParams``: the scenario's, with the relative buffer table ``V^B`` of its k̄
+    when the vehicles play the buffer game (``worst``)."""
+    from stp_env.baselines import BUFFER_GAME_VEHICLE_POLICIES
+
+    scenario = config.scenario_object()
+    params = sim.params_for(scenario, config.env_config(), store=store, progress=progress)
+    if config.vehicle_policy in BUFFER_GAME_VEHICLE_POLICIES:
+        params = sim.build.with_buffer(params, sim.build.load_buffer(scenario, int(params.kbar), store=store,
+                                                                     progress=progress))
+    return params
+
+
 def train(config: TrainConfig, *, params: sim.EnvParams | None = None):
     """Train an intruder (see the module docstring). ``params``: prebuilt :class:`EnvParams` (must match the
     config's scenario and rewards; used by tests to skip the build). Returns ``(model, eval_history)``."""
@@ -286,7 +306,7 @@ def train(config: TrainConfig, *, params: sim.EnvParams | None = None):
         (out / "evaluations.csv").unlink()
     (out / "config.json").write_text(json.dumps(config.to_json(), indent=2))
     if params is None:
-        params = sim.params_for(config.scenario_object(), config.env_config(), progress=False)
+        params = build_params(config)
     env_kwargs = {"params": params, "horizon": config.horizon, "vehicle_policy": config.vehicle_policy}
     venv = VecMonitor(IntruderVecEnv(config.n_envs, **env_kwargs),
                       info_keywords=("n_forced", "collisions", "guarantee_violations"))
@@ -302,6 +322,7 @@ def train(config: TrainConfig, *, params: sim.EnvParams | None = None):
     model.save(out / "model")
     export_mlp(model, out / "intruder.npz", metadata={
         "scenario": config.scenario, "kbar": kbar, "horizon": config.horizon, "seed": config.seed,
+        "vehicle_policy": config.vehicle_policy, "spawn_mode": config.spawn_mode,
         "total_timesteps": config.total_timesteps, "final_eval": {k: v for k, v in final.items()}})
     venv.close()
     eval_env.close()
