@@ -103,6 +103,21 @@ def test_the_attacks_find_violations_where_there_are_some():
     assert unguarded.margin(res.best_value) < 0
 
 
+def test_kbar_tie_breaker_measures_only_the_vehicles_never_forced():
+    """The tie-breaker guides the search toward one more forced vehicle: a vehicle forced during the episode (its
+    value fell to the avoid margin on the way) must not count, or every attack that forces anyone would score
+    about 0.98 whatever the others do (how an earlier version reported "within 5 m of the next vehicle")."""
+    from stp_env.falsify.kbar import closeness
+
+    d_a = 246.0
+    avoid_start = jnp.asarray([3.0, jnp.inf, jnp.inf])       # vehicle 0 forced at 3 s, 1 and 2 never
+    vmin = jnp.asarray([2.7, 200.0, 123.0])                   # each one's smallest V^A over the episode
+    assert float(closeness(avoid_start, vmin, d_a)) == pytest.approx(0.99 * (1 - 123.0 / d_a))
+    far = jnp.asarray([2.7, 400.0, jnp.inf])                  # nobody left within d^A (or never flying)
+    assert float(closeness(avoid_start, far, d_a)) == 0.0
+    assert float(closeness(jnp.asarray([3.0, 4.0, 5.0]), vmin, d_a)) == 0.0   # everyone forced
+
+
 def test_kbar_attack_vehicle_option_needs_the_buffer_table():
     params = _params()
     with pytest.raises(ValueError, match="vehicles must be one of"):

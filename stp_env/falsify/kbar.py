@@ -13,8 +13,10 @@ policies (``vehicles="worst"``, ``intruder="optimal-max-k"``) need ``V^B`` in th
 (:func:`stp_env.falsify.counterexample.environment` loads it for them).
 
 Objective: ``|N^RP|`` plus a tie-breaker in ``[0, 1)`` that grows as the intruder comes closer to the avoid
-boundary of a vehicle it has not forced yet (``1 - min V^A / d^A`` over the episode), so that the search climbs
-toward forcing one more; ``-1`` for an attack that broke Assumption 3. The bound is k̄ (``|N^RP| > k̄`` is a
+boundary of a vehicle it never forces (:func:`closeness`: ``1 - min V^A / d^A`` over the episode and over the
+vehicles not forced by its end), so that the search climbs toward forcing one more; a vehicle forced later in the
+episode does not count (its value reached the avoid margin on the way, which would pin the tie-breaker near 1 for
+every attack that forces anyone); ``-1`` for an attack that broke Assumption 3. The bound is k̄ (``|N^RP| > k̄`` is a
 violation); the simulator's guarantee violations and closest approach are reported beside it.
 """
 
@@ -38,6 +40,14 @@ from stp_env.sim.spawn import radius_on_level
 from stp_env.sim.types import FLYING, EnvParams, replace
 
 SCRIPTED = ("max-k", "hj", "optimal-max-k")
+
+
+def closeness(avoid_start, vmin, detection_range):
+    """The objective's tie-breaker in ``[0, 0.99]``: ``0.99 (1 - min V^A / d^A)``, the minimum over the vehicles
+    never forced (``avoid_start`` infinite at the end) of each one's smallest ``V^A`` over the episode (``vmin``,
+    ``(N,)``); 0 when none came within ``d^A``."""
+    left = jnp.min(jnp.where(jnp.isfinite(avoid_start), jnp.inf, vmin))
+    return 0.99 * (1.0 - jnp.clip(left / detection_range, 0.0, 1.0))
 VEHICLES = ("switching", "worst")
 
 
@@ -139,7 +149,7 @@ class KbarAttack:
         keys = jax.random.split(jax.random.key(1), self.n_steps)
 
         def body(carry, key):
-            s, vmin = carry
+            s, vmin = carry                  # vmin: (N,) each vehicle's smallest V^A while flying so far
             if policy is not None:
                 a_i = policy(jax.random.fold_in(key, 1), s, params)
             else:
@@ -147,20 +157,18 @@ class KbarAttack:
                 a_i = plan[k]
             actions = jnp.concatenate([jnp.zeros((n, 2), s.x.dtype), a_i[None, :]], axis=0)
             s2, _ = core.step(key, s, actions, params, vehicle_policy=VEHICLE_POLICIES[self.vehicles])
-            unforced = (s2.status == FLYING) & ~jnp.isfinite(s2.avoid_start)
-            vmin = jnp.minimum(vmin, jnp.min(jnp.where(unforced, s2.avoid_value, jnp.inf)))
+            vmin = jnp.minimum(vmin, jnp.where(s2.status == FLYING, s2.avoid_value, jnp.inf))
             out = (s2.x, s2.intruder_x, s2.t) if record else None
             return (s2, vmin), out
 
-        (final, vmin), traj = jax.lax.scan(body, (state, jnp.asarray(jnp.inf, jnp.float32)), keys)
+        (final, vmin), traj = jax.lax.scan(body, (state, jnp.full((n,), jnp.inf, jnp.float32)), keys)
         return final, vmin, traj
 
     def objective(self, z):
         final, vmin, _ = self.simulate(z)
         forced = jnp.sum(jnp.isfinite(final.avoid_start)).astype(jnp.float32)
-        closeness = 0.99 * (1.0 - jnp.clip(vmin / self.base.detection_range, 0.0, 1.0))
         valid = jnp.all(final.assumption_ok)
-        return jnp.where(valid, forced + closeness, -1.0)
+        return jnp.where(valid, forced + closeness(final.avoid_start, vmin, self.base.detection_range), -1.0)
 
     def outcome(self, z) -> dict:
         """The simulator's verdict on the attack at ``z``: forced count, guarantee violations, closest approach."""
