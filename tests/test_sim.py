@@ -44,6 +44,37 @@ def test_dubins_step_is_exact():
                                                            2 + (v * np.sin(0.3) - 0.2) * dt], rtol=1e-6)
 
 
+@pytest.mark.parametrize("t_start", [1621.25, 2096.25])
+def test_the_intruder_stays_exactly_t_iat_at_late_plan_times(t_start):
+    """Assumption 1: the intruder is present for t_IAT, not a step more. Times are float32; summing dt = 0.1 step
+    after step from 1,621.25 s gave 100 steps of 9.99756 s, so the intruder left one step late (10.1 s: a vehicle
+    forced 10.02 s after the appearance collided with it, a guarantee violation of the k̄ evaluation on the
+    crossing); from 2,096.25 s the sum runs ahead (10.0098 s) and the avoid tables were read at a shifted time.
+    Both plan times are the dense scenarios' episode windows. Every step's time stays on the grid to one ulp."""
+    import dataclasses
+
+    base = _params("outside")
+    f32 = jnp.float32
+    params = dataclasses.replace(base, t_start=jnp.asarray(t_start, f32), t_end=jnp.asarray(t_start + 30.0, f32),
+                                 appear_window=jnp.asarray([t_start + 5.0, t_start + 5.0], f32))
+    n_steps = 200
+
+    def body(state, key):
+        actions = jnp.zeros((params.n_vehicles + 1, 2), f32)
+        state, _ = sim.step(key, state, actions, params)
+        return state, (state.t, state.intruder_status, state.t_appear)
+
+    _, (ts, status, t_appear) = jax.lax.scan(body, sim.reset(jax.random.key(0), params),
+                                             jax.random.split(jax.random.key(1), n_steps))
+    ts, status, t_appear = np.asarray(ts, np.float64), np.asarray(status), float(np.asarray(t_appear)[-1])
+    exact = t_start + 0.1 * np.arange(1, n_steps + 1)
+    assert np.max(np.abs(ts - exact)) <= 2.5e-4                       # one float32 ulp at 2,000-4,000 s
+    present = ts[status == sim.PRESENT]
+    assert t_appear == pytest.approx(t_start + 5.0, abs=2.5e-4)
+    assert present.max() - t_appear == pytest.approx(9.9, abs=1e-3)   # the last step that starts with it present
+    assert ts[status == sim.GONE].min() - t_appear == pytest.approx(10.0, abs=1e-3)
+
+
 @pytest.mark.slow
 def test_switching_controller_keeps_the_guarantee_against_every_scripted_intruder():
     """About 500 episodes of each scripted intruder, 3,500 in all (a per-episode mixture: one compiled program),

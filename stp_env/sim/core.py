@@ -220,8 +220,11 @@ def lifecycle(state: EnvState, params: EnvParams) -> EnvState:
     """Items 1-3 of the module docstring at the state's time ``t``. ``reset`` and ``step`` end with it, so every
     state a policy sees is up to date (a vehicle knows it is forced in the step it is)."""
     t = state.t
-    # 1. the intruder leaves ...
-    leaving = intruder_present(state) & (t - state.t_appear >= params.t_iat - 1e-6 * params.dt)
+    # 1. the intruder leaves after the whole steps that fit in t_IAT (Assumption 1: present at most t_IAT). Half a
+    # step of tolerance: elapsed times on the grid carry float32 rounding (one ulp, about 1e-4 s at plan times of
+    # 1,000-2,000 s), far above any tolerance tied to exact arithmetic.
+    whole_steps = jnp.floor(params.t_iat / params.dt + 1e-3)
+    leaving = intruder_present(state) & (t - state.t_appear >= (whole_steps - 0.5) * params.dt)
     mode = jnp.where(leaving & (state.mode == AVOIDING), AFTER_AVOIDANCE, state.mode)
     intruder_status = jnp.where(leaving, GONE, state.intruder_status)
     state = replace(state, mode=mode, intruder_status=intruder_status)
@@ -290,7 +293,16 @@ def _motion(s: EnvState, a_veh, control_i, fly, present, winds, head_dist, h, pa
     control = model.action_to_control(a_veh, params.vehicle_bounds)
     x = jnp.where(fly[:, None], model.step(s.x, control, winds[:n], head_dist[:n], h), s.x)
     xi = jnp.where(present, dubins_step(s.intruder_x, v_i, om_i + head_dist[n], winds[n], h), s.intruder_x)
-    return replace(s, x=x, intruder_x=xi, t=s.t + h)
+    return replace(s, x=x, intruder_x=xi, t=on_grid(s.t + h, params.t_start, h))
+
+
+def on_grid(t, origin, spacing):
+    """``t`` rounded to the grid ``origin + k spacing``. Times are float32: adding ``dt = 0.1`` (itself rounded)
+    step after step to a plan time of 1,000-2,000 s drifts by 2e-3 to 1e-2 s per 100 steps, so the intruder
+    stayed one step longer than ``t_IAT`` (10.1 s) and the avoid tables were read at a shifted time. Rounding each
+    new time to the grid leaves one rounding error (one float32 ulp, about 2.4e-4 s at 2,000-4,000 s) instead of a
+    sum of them (``docs/numerics.md``)."""
+    return origin + jnp.round((t - origin) / spacing) * spacing
 
 
 def _closest_approach(closest: Closest, s: EnvState, params: EnvParams) -> Closest:
@@ -309,7 +321,7 @@ def _events(state: EnvState, sub: EnvState, closest: Closest, params: EnvParams)
     the :class:`Events`."""
     fly = flying(state)
     present = intruder_present(state)
-    x, xi, t = sub.x, sub.intruder_x, state.t + params.dt
+    x, xi, t = sub.x, sub.intruder_x, on_grid(state.t + params.dt, params.t_start, params.dt)
     p = x[:, :2]
     lo, hi = params.domain_lo, params.domain_hi
     out = fly & jnp.any((p < lo) | (p > hi), axis=1)
