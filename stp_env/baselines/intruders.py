@@ -157,9 +157,19 @@ def optimal_max_k(key, state, params):
     return _force_next(state, params, _buffer_hop)
 
 
+def _simulated_rows(params, fleet_indices):
+    """The simulated rows of the fleet's vehicles ``fleet_indices`` and whether each is simulated (part of a fleet,
+    :mod:`stp_env.sim.fleet`; every index is its own row otherwise)."""
+    if params.vehicle_ids is None:
+        return jnp.minimum(fleet_indices, params.n_vehicles - 1), fleet_indices < params.n_vehicles
+    ids = jnp.asarray(params.vehicle_ids, jnp.int32)
+    rows = jnp.minimum(jnp.searchsorted(ids, fleet_indices), params.n_vehicles - 1)
+    return rows, ids[rows] == fleet_indices
+
+
 def ordered_max_k(order):
-    """:func:`optimal_max_k` with a fixed order: the next vehicle is the first of ``order`` (vehicle indices) that
-    flies and is not yet forced."""
+    """:func:`optimal_max_k` with a fixed order: the next vehicle is the first of ``order`` (vehicle indices in the
+    fleet; an index beyond it is never next) that flies and is not yet forced."""
     order = tuple(int(i) for i in order)
     if not order or len(set(order)) != len(order) or min(order) < 0:
         raise ValueError(f"order must list distinct vehicle indices >= 0; got {order!r}.")
@@ -168,8 +178,9 @@ def ordered_max_k(order):
     def policy(key, state, params):
         fly = state.status == FLYING
         unforced = fly & ~jnp.isfinite(state.avoid_start)
-        ok = unforced[idx]
-        j = idx[jnp.argmax(ok)]
+        rows, listed = _simulated_rows(params, idx)
+        ok = unforced[rows] & listed
+        j = rows[jnp.argmax(ok)]
         rel = relative_state(state.x, state.intruder_x[None, :])
         return jnp.where(jnp.any(ok), _hop_to(state, params, j, rel), optimal_max_k(key, state, params))
 

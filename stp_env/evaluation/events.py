@@ -51,7 +51,8 @@ def _int(value, name: str, where: str, lo: int, hi: int | None = None) -> int:
 def check_event(record, where: str = "event") -> dict:
     """``record`` (an ``events.json`` entry) checked for what a replay uses: a ``config`` of
     :class:`Configuration` fields whose intruder is registered, learned or a plug-in spec (see the module
-    docstring), a seed, an index, the step count, plan length and batch size, and the ``recorded`` flag.
+    docstring), a seed, an index, the step count, plan length and batch size, the ``recorded`` flag and the
+    optional ``airborne_only`` flag (absent in records written before it existed: the whole fleet).
     Returns it unchanged; ``ValueError`` starting with ``where`` otherwise."""
     if not isinstance(record, dict):
         raise ValueError(f"{where}: a record must be a JSON object; got a {type(record).__name__}.")
@@ -83,6 +84,8 @@ def check_event(record, where: str = "event") -> dict:
     _int(record["batch_size"], "batch_size", where, 1, MAX_REPLAY_BATCH)
     if not isinstance(record["recorded"], bool):
         raise ValueError(f"{where}: recorded must be true or false; got {record['recorded']!r}.")
+    if not isinstance(record.get("airborne_only", False), bool):
+        raise ValueError(f"{where}: airborne_only must be true or false; got {record['airborne_only']!r}.")
     if "npz_prefix" in record and not isinstance(record["npz_prefix"], str):
         raise ValueError(f"{where}: npz_prefix must be a string; got {record['npz_prefix']!r}.")
     return record

@@ -29,7 +29,7 @@ def counterpart(result, vehicle_policy: str):
     params = dataclasses.replace(result.params, safety_filter=vehicle_policy != "nominal")
     _, intruder_policy = result.config.policies()
     return replay(result.seed, result.showcase["index"], params, resolve_vehicle_policy(vehicle_policy),
-                  intruder_policy, result.n_steps)
+                  intruder_policy, result.n_steps, airborne_only=result.airborne_only)
 
 
 OUTPUT_NAMES = ("results.json", "results.csv", "results.md", "events.json", "events.npz", "episodes.npz",

@@ -27,6 +27,7 @@ from stp_env import sim
 from stp_env.evaluation.config import Configuration
 from stp_env.evaluation.summary import forced_summary
 from stp_env.seeds import check_seed, prng_key
+from stp_env.sim import fleet
 from stp_env.sim.bounds import WIND
 from stp_env.sim.rollout import rollout_keys
 from stp_env.sim.types import ARRIVED, COLLIDED, OUT_OF_BOUNDS, WAITING
@@ -35,12 +36,32 @@ MAX_EPISODES = 2**30  # episode indices are int32 (the last batch runs past the 
 EVENT_KINDS = ("bound_exceeded", "collision", "guarantee_violation", "assumption_failed")
 
 
-@functools.partial(jax.jit, static_argnames=("vehicle_policy", "intruder_policy", "n_steps", "record"))
-def run_batch(key, indices, params, vehicle_policy, intruder_policy, n_steps: int, record: bool = False):
+@functools.partial(jax.jit, static_argnames=("vehicle_policy", "intruder_policy", "n_steps", "record", "active"))
+def run_batch(key, indices, params, vehicle_policy, intruder_policy, n_steps: int, record: bool = False,
+              active: tuple[int, ...] | None = None):
     """Episodes ``indices`` (B,) of the run keyed by ``key``: ``(final states, trajectories)`` batched over ``B``
-    (trajectories ``None`` unless ``record``; fields as in :func:`stp_env.sim.rollout`)."""
+    (trajectories ``None`` unless ``record``; fields as in :func:`stp_env.sim.rollout`), of the whole fleet.
+
+    ``active``: simulate only these vehicles (:func:`stp_env.sim.fleet.airborne`: every other vehicle stays on
+    the ground or in its target for the whole episode) and put the others back with :func:`stp_env.sim.fleet.expand`:
+    the same episodes (the same random numbers) at a fraction of the cost; ``None``: the whole fleet."""
     keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.fold_in(key, i), 0))(indices)
-    return rollout_keys(keys, params, vehicle_policy, intruder_policy, n_steps, record=record)
+    if active is None or len(active) == params.n_vehicles:
+        return rollout_keys(keys, params, vehicle_policy, intruder_policy, n_steps, record=record)
+    ids = np.asarray(active)
+    final, traj = rollout_keys(keys, fleet.select(params, ids), vehicle_policy, intruder_policy, n_steps,
+                               record=record)
+    parked = fleet.parked_state(params, np.setdiff1d(np.arange(params.n_vehicles), ids))
+    final = jax.vmap(lambda s: fleet.expand(s, params, ids, parked))(final)
+    return final, (None if traj is None else fleet.expand_trajectory(traj, params, ids, parked))
+
+
+def simulated_vehicles(params, airborne_only: bool) -> tuple[int, ...] | None:
+    """The ``active`` argument of :func:`run_batch`: the vehicles that can fly in the episode window
+    (:func:`stp_env.sim.fleet.airborne`) when ``airborne_only``, else ``None`` (the whole fleet)."""
+    if not airborne_only:
+        return None
+    return tuple(int(i) for i in fleet.airborne(params))
 
 
 def pad_plan(params, n_samples: int):
@@ -85,10 +106,11 @@ class ConfigResult:
     events: list
     showcase: dict | None
     params: object = dataclasses.field(repr=False, default=None)
+    airborne_only: bool = True
 
 
 def _events(config: Configuration, seed: int, n_steps: int, plan_samples: int, batch_size: int, recorded: bool,
-            ep: dict, kbar: int) -> list[dict]:
+            ep: dict, kbar: int, airborne_only: bool) -> list[dict]:
     n_forced = ep["n_forced"]
     kinds = {
         "bound_exceeded": n_forced > kbar,
@@ -103,7 +125,7 @@ def _events(config: Configuration, seed: int, n_steps: int, plan_samples: int, b
         out.append({
             "label": config.label, "config": dataclasses.asdict(config), "seed": seed, "index": int(ep["index"][j]),
             "n_steps": n_steps, "plan_samples": plan_samples, "batch_size": batch_size, "recorded": recorded,
-            "kinds": [k for k, v in kinds.items() if v[j]],
+            "airborne_only": airborne_only, "kinds": [k for k, v in kinds.items() if v[j]],
             "n_forced": int(n_forced[j]),
             "collided_vehicles": collided.tolist(),
             "collision_times_s": [round(float(ep["collision_time"][j, i]), 2) for i in collided],
@@ -242,14 +264,16 @@ def build_params(configs, *, store=None, progress: bool = True) -> list:
 
 def evaluate(configs, *, episodes: int = 1000, seed: int = 0, batch_size: int = 250, confidence: float = 0.95,
              max_events: int = 50, store=None, progress: bool = True, params=None,
-             showcase: bool = True) -> list[ConfigResult]:
+             showcase: bool = True, airborne_only: bool = True) -> list[ConfigResult]:
     """Evaluate each :class:`Configuration` on ``episodes`` episodes (the same seeds for each).
 
     Episodes run ``batch_size`` at a time (the last batch padded with extra episodes whose results are dropped),
     so that each set of static arguments compiles once. ``params``: optional prebuilt ``EnvParams`` per
     configuration (default :func:`build_params`). ``showcase``: record the batches' trajectories to keep the
     episode with the most forced vehicles for the figures (memory ``batch_size x steps x vehicles``: about 45 MB
-    per batch of 250 town episodes; off: ``ConfigResult.showcase`` is ``None``).
+    per batch of 250 town episodes; off: ``ConfigResult.showcase`` is ``None``). ``airborne_only``: simulate only
+    the vehicles that can fly in the episode window (:func:`run_batch`; the same episodes, 2-5x faster on the
+    shipped scenarios); off: the whole fleet, for comparison.
     """
     configs = list(configs)
     if not configs:
@@ -274,14 +298,15 @@ def evaluate(configs, *, episodes: int = 1000, seed: int = 0, batch_size: int = 
         vehicle_policy, intruder_policy = config.policies()
         results.append(_evaluate_one(config, params_i, vehicle_policy, intruder_policy, key, seed, episodes,
                                      batch_size, n_steps, plan_samples, confidence, max_events, progress,
-                                     showcase))
+                                     showcase, airborne_only))
     return results
 
 
 def _evaluate_one(config, params, vehicle_policy, intruder_policy, key, seed, episodes, batch_size, n_steps,
-                  plan_samples, confidence, max_events, progress, record) -> ConfigResult:
+                  plan_samples, confidence, max_events, progress, record, airborne_only) -> ConfigResult:
     from tqdm.auto import tqdm
 
+    active = simulated_vehicles(params, airborne_only)
     chunks: list[dict] = []
     showcase, best = None, -1
     start = time.perf_counter()
@@ -289,7 +314,7 @@ def _evaluate_one(config, params, vehicle_policy, intruder_policy, key, seed, ep
         for first in range(0, episodes, batch_size):
             indices = np.arange(first, first + batch_size, dtype=np.int32)
             final, traj = run_batch(key, jnp.asarray(indices), params, vehicle_policy, intruder_policy, n_steps,
-                                    record=record)
+                                    record=record, active=active)
             keep = min(batch_size, episodes - first)
             ep = {k: v[:keep] for k, v in host_state(final).items()}
             ep["n_forced"] = np.sum(np.isfinite(ep["avoid_start"]), axis=1)
@@ -305,15 +330,17 @@ def _evaluate_one(config, params, vehicle_policy, intruder_policy, key, seed, ep
     ep = {k: np.concatenate([c[k] for c in chunks]) for k in chunks[0]}
     summary = summarize(config, ep, params, confidence=confidence)
     summary.update(seed=seed, n_steps=n_steps, batch_size=batch_size, seconds=round(seconds, 2),
-                   episodes_per_s=round(episodes / seconds, 2))
-    events = _events(config, seed, n_steps, plan_samples, batch_size, record, ep, config.kbar)
+                   episodes_per_s=round(episodes / seconds, 2),
+                   simulated_vehicles=params.n_vehicles if active is None else len(active))
+    events = _events(config, seed, n_steps, plan_samples, batch_size, record, ep, config.kbar, airborne_only)
     summary["events_saved"] = min(len(events), max_events)
     return ConfigResult(config=config, seed=seed, n_steps=n_steps, plan_samples=plan_samples, episodes=ep,
-                        summary=summary, events=events[:max_events], showcase=showcase, params=params)
+                        summary=summary, events=events[:max_events], showcase=showcase, params=params,
+                        airborne_only=airborne_only)
 
 
 def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_steps: int, *, batch_size: int = 1,
-           record: bool = True):
+           record: bool = True, airborne_only: bool = True):
     """Episode ``index`` of the run with ``seed``: ``(final state, trajectory)`` as numpy dicts (the trajectory
     ``None`` without ``record``).
 
@@ -321,7 +348,8 @@ def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_ste
     in :func:`evaluate` when ``params``, ``n_steps``, ``batch_size`` and ``record`` are the same), so the replay
     is bit for bit the evaluated episode. Another batch size is another compiled program, which XLA may vectorize
     differently (10 of 10 town episodes of a batch of 250 replayed alone ended identically, BENCHMARKS.md). Either
-    way the reachability artifacts must be the same as in the evaluation.
+    way the reachability artifacts must be the same as in the evaluation. ``airborne_only`` as in
+    :func:`evaluate` (the whole fleet or part of it are also different programs).
     """
     check_seed(seed)
     for name, value, lo, hi in (("index", index, 0, MAX_EPISODES - 1), ("batch_size", batch_size, 1, MAX_EPISODES),
@@ -334,7 +362,7 @@ def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_ste
     first = (index // batch_size) * batch_size
     indices = jnp.arange(first, first + batch_size, dtype=jnp.int32)
     final, traj = run_batch(prng_key(seed), indices, params, vehicle_policy, intruder_policy, n_steps,
-                            record=record)
+                            record=record, active=simulated_vehicles(params, airborne_only))
     j = index - first
     state = {k: v[j] for k, v in host_state(final).items()}
     state["n_forced"] = np.sum(np.isfinite(state["avoid_start"]))
@@ -365,7 +393,8 @@ def replay_event(event: dict, *, store=None, progress: bool = False, intruder_po
     _, params, vehicle_policy, intruder_policy = prepare_event(event, store=store, progress=progress,
                                                                intruder_policy=intruder_policy)
     return replay(event["seed"], event["index"], params, vehicle_policy, intruder_policy, event["n_steps"],
-                  batch_size=event["batch_size"], record=event["recorded"])
+                  batch_size=event["batch_size"], record=event["recorded"],
+                  airborne_only=event.get("airborne_only", False))
 
 
 def same_outcome(a: dict, b: dict, *, atol: float = 1e-3) -> bool:

@@ -43,8 +43,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from stp_env.sim import fleet, tables
 from stp_env.sim import spawn as spawn_lib
-from stp_env.sim import tables
 from stp_env.sim import wind as wind_lib
 from stp_env.sim.physics import action_to_control, dubins_step, relative_state, rotate
 from stp_env.sim.reference import nominal_reference
@@ -520,9 +520,10 @@ def observe(state: EnvState, params: EnvParams):
     ====== =====================================================================================
 
     Intruder row: present flag; position ``/ L`` (2); ``cos, sin``; ``tau / t_IAT``; time until it appears
-    ``/ T``; ``|N^RP| / N``; then for the ``K`` nearest flying vehicles: present flag, their position in the
-    intruder's body frame ``/ d_sense`` (2), ``cos, sin`` of their heading relative to the intruder's, the avoid
-    value ``V^A / d_sense`` of that vehicle against the intruder, forced flag.
+    ``/ T``; ``|N^RP| / F`` (``F``: the whole fleet's size, :mod:`stp_env.sim.fleet`); then for the ``K`` nearest
+    flying vehicles: present flag, their position in the intruder's body frame ``/ d_sense`` (2), ``cos, sin`` of
+    their heading relative to the intruder's, the avoid value ``V^A / d_sense`` of that vehicle against the
+    intruder, forced flag.
     """
     n, k = params.n_vehicles, params.n_nearest
     center, half = _scale(params)
@@ -567,7 +568,7 @@ def observe(state: EnvState, params: EnvParams):
     own_i = jnp.stack([present.astype(x.dtype), (xi[0] - center[0]) / half, (xi[1] - center[1]) / half,
                        jnp.cos(xi[2]), jnp.sin(xi[2]), jnp.where(present, tau / params.t_iat, 0.0),
                        jnp.where(state.intruder_status == PENDING, (state.t_appear - state.t) / T, 0.0),
-                       jnp.sum(jnp.isfinite(state.avoid_start)) / n])
+                       jnp.sum(jnp.isfinite(state.avoid_start)) / fleet.fleet_size(params)])
     own_i = own_i * jnp.where(present, 1.0, jnp.asarray([1, 0, 0, 0, 0, 1, 1, 1], x.dtype))
     parts_i = [own_i]
     if k > 0:

@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 
 from stp_env.sim import tables
+from stp_env.sim.fleet import random_vehicle
 from stp_env.sim.physics import relative_state, rotate, wrap_angle
 from stp_env.sim.types import EnvParams
 
@@ -32,12 +33,6 @@ def _min_value(params: EnvParams, x, fly, xi):
     rel = relative_state(x, xi[None, :])
     vals = jax.vmap(lambda r: tables.avoid_value(params, 0.0, r))(rel)
     return jnp.min(jnp.where(fly, vals, tables.FAR))
-
-
-def _random_flying(key, fly):
-    logits = jnp.where(fly, 0.0, -jnp.inf)
-    j = jax.random.categorical(key, jnp.where(jnp.any(fly), logits, 0.0))
-    return j, jnp.any(fly)
 
 
 def radius_on_level(params: EnvParams, direction, rel_heading, level):
@@ -63,7 +58,7 @@ def radius_on_level(params: EnvParams, direction, rel_heading, level):
 
 def _candidate_outside(key, x, fly, params: EnvParams):
     k1, k2, k3, k4 = jax.random.split(key, 4)
-    j, any_fly = _random_flying(k1, fly)
+    j, any_fly = random_vehicle(k1, fly, params)
     u = jax.random.uniform(k2, (2,))
     r = params.collision_radius + (params.spawn_radius - params.collision_radius) * jnp.sqrt(u[0])
     a = 2 * jnp.pi * u[1]
@@ -76,7 +71,7 @@ def _candidate_outside(key, x, fly, params: EnvParams):
 
 def _candidate_boundary(key, x, fly, params: EnvParams):
     k1, k2, k3 = jax.random.split(key, 3)
-    j, any_fly = _random_flying(k1, fly)
+    j, any_fly = random_vehicle(k1, fly, params)
     bearing = jax.random.uniform(k2, (), minval=-jnp.pi, maxval=jnp.pi)
     rel_heading = jax.random.uniform(k3, (), minval=-jnp.pi, maxval=jnp.pi)
     direction = jnp.array([jnp.cos(bearing), jnp.sin(bearing)])

@@ -75,6 +75,13 @@ class EnvParams:
     Optional (``None`` unless loaded with :func:`stp_env.sim.build.with_buffer`; only the policies of the buffer
     game read it: the ``worst`` vehicles and the ``optimal-max-k`` intruder):
         buffer_values: ``V^B(0, t_BRD)`` of the plan's k̄ (intruder paper eqs. 46-47) on ``buffer_grid``.
+
+    Optional (``None`` unless made by :func:`stp_env.sim.fleet.select`: the simulation of part of a fleet, the
+    vehicles that can fly in the episode's window):
+        vehicle_ids: ``(N,)`` int32, each simulated vehicle's index in the whole fleet (ascending).
+        fleet_size: (static) the whole fleet's vehicle count. Per-agent random draws are made for the whole fleet
+            and the simulated agents' rows taken (:func:`stp_env.sim.fleet.agent_rows`), and the wind state
+            (``EnvState.wind``) is the whole fleet's, so part of a fleet sees the same random numbers as all of it.
     """
 
     # --- time
@@ -135,11 +142,15 @@ class EnvParams:
     # --- optional: the relative buffer region of the buffer game
     buffer_values: Any = None     # buffer_grid.shape V^B(0, t_BRD) [m], or None
     buffer_grid: Grid | None = None
+    # --- optional: part of a fleet (stp_env.sim.fleet)
+    vehicle_ids: Any = None       # (N,) int32 index of each simulated vehicle in the fleet, or None (all of it)
+    fleet_size: int | None = None
 
 
 EnvParams = _pytree(EnvParams, meta=("n_vehicles", "avoid_grid", "tracking_grid", "sdf_grid", "avoid_dynamics",
                                      "tracking_dynamics", "wind_model", "vehicle_model",
-                                     "safety_filter", "n_nearest", "control_substeps", "buffer_grid"))
+                                     "safety_filter", "n_nearest", "control_substeps", "buffer_grid",
+                                     "fleet_size"))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,7 +171,8 @@ class EnvState:
     collision_time: jax.Array     # (N,) [s] (inf: none)
     collided_with_intruder: jax.Array  # (N,) bool
     guarantee_violation: jax.Array     # (N,) bool
-    wind: jax.Array               # (N + 1, 2) [m/s] current wind per agent (constant and gust models)
+    wind: jax.Array               # (F + 1, 2) [m/s] wind state per agent of the whole fleet (F = N unless part of
+    #                               a fleet is simulated; constant and gust models), the intruder last
     intruder_x: jax.Array         # (3,) [m, m, rad]
     intruder_status: jax.Array    # () int, PENDING / PRESENT / GONE
     t_appear: jax.Array           # () [s] t_
@@ -178,6 +190,13 @@ class EnvState:
 
 
 EnvState = _pytree(EnvState)
+
+# EnvState fields with one row per simulated vehicle (axis 0 unbatched); the others are global or, ``wind``, the
+# whole fleet's (stp_env.sim.fleet.expand relies on this list; tests/test_fleet.py checks it against the shapes).
+VEHICLE_FIELDS = ("x", "status", "mode", "avoid_start", "complied", "assumption_ok", "used_filter", "min_separation",
+                  "arrival_time", "collision_time", "collided_with_intruder", "guarantee_violation",
+                  "intruder_distance", "avoid_value", "avoid_action", "track_action", "tracking_error",
+                  "max_tracking_error", "tracked", "tracking_violation")
 
 
 def replace(obj: Any, **changes) -> Any:

@@ -10,13 +10,20 @@ import jax
 import jax.numpy as jnp
 
 from stp_env.sim.bounds import HEADING_DISTURBANCE, WIND
+from stp_env.sim.fleet import agent_rows, fleet_size
 from stp_env.sim.physics import disk_sample
 
 
-def radii(params):
-    """Each agent's wind bound ``(N + 1,)`` [m/s]: ``d_r`` for the vehicles, then ``d_I`` for the intruder."""
-    n = params.n_vehicles
+def radii(params, n: int | None = None):
+    """Each agent's wind bound ``(n + 1,)`` [m/s] (``n``: the simulated vehicles by default): ``d_r`` for the
+    vehicles, then ``d_I`` for the intruder."""
+    n = params.n_vehicles if n is None else n
     return jnp.concatenate([jnp.full((n,), params.vehicle_bounds[WIND]), params.intruder_bounds[WIND:WIND + 1]])
+
+
+def fleet_radii(params):
+    """:func:`radii` of the whole fleet ``(F + 1,)`` (the wind state's rows; :mod:`stp_env.sim.fleet`)."""
+    return radii(params, fleet_size(params))
 
 
 def heading_bounds(params):
@@ -26,9 +33,14 @@ def heading_bounds(params):
                             params.intruder_bounds[HEADING_DISTURBANCE:HEADING_DISTURBANCE + 1]])
 
 
+def uniform_in_fleet_disks(key, params):
+    """A wind uniformly in each disk of the whole fleet's agents ``(F + 1, 2)``."""
+    return disk_sample(jax.random.uniform(key, (fleet_size(params) + 1, 2)), fleet_radii(params))
+
+
 def uniform_in_disks(key, params):
-    """A wind uniformly in each agent's disk ``(N + 1, 2)``."""
-    return disk_sample(jax.random.uniform(key, (params.n_vehicles + 1, 2)), radii(params))
+    """A wind uniformly in each simulated agent's disk ``(N + 1, 2)`` (drawn for the whole fleet)."""
+    return agent_rows(params, uniform_in_fleet_disks(key, params))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,28 +49,32 @@ class WindModel(abc.ABC):
     ``__post_init__``. Subclasses set :attr:`name` and :attr:`help` and implement :meth:`draw` (abstract: a
     subclass without it fails at instantiation with a ``TypeError``), and override :meth:`initial` if the wind
     persists across steps, :meth:`inner` if it depends on the state within a step. All methods are pure and
-    jittable."""
+    jittable.
+
+    The wind state has a row per agent of the whole fleet ``(F + 1, 2)``, the winds a row per simulated agent
+    ``(N + 1, 2)`` (``F = N`` unless part of a fleet is simulated: random draws are made for the whole fleet and
+    :func:`stp_env.sim.fleet.agent_rows` taken, so that part of a fleet sees the same winds)."""
 
     name: ClassVar[str] = ""
     help: ClassVar[str] = ""
     order: ClassVar[int] = 100  # position in listings (the papers' model first)
 
     def initial(self, key, params):
-        """The wind state at reset ``(N + 1, 2)`` (:attr:`~stp_env.sim.types.EnvState.wind`); zeros here."""
+        """The wind state at reset ``(F + 1, 2)`` (:attr:`~stp_env.sim.types.EnvState.wind`); zeros here."""
         del key
-        return jnp.zeros((params.n_vehicles + 1, 2))
+        return jnp.zeros((fleet_size(params) + 1, 2))
 
     @abc.abstractmethod
     def draw(self, key, state, params):
-        """``(winds (N + 1, 2), new wind state (N + 1, 2))`` for the step starting at ``state``."""
+        """``(winds (N + 1, 2), new wind state (F + 1, 2))`` for the step starting at ``state``."""
         raise NotImplementedError
 
     def sample(self, key, state, params):
-        """``(winds (N + 1, 2), heading disturbances (N + 1,), new wind state (N + 1, 2))`` for this step: the
+        """``(winds (N + 1, 2), heading disturbances (N + 1,), new wind state (F + 1, 2))`` for this step: the
         winds are held over its inner steps unless :meth:`inner` replaces them; the heading disturbances are
         uniform in their bounds."""
         k1, k2 = jax.random.split(key)
-        hd = (2 * jax.random.uniform(k2, (params.n_vehicles + 1,)) - 1) * heading_bounds(params)
+        hd = (2 * agent_rows(params, jax.random.uniform(k2, (fleet_size(params) + 1,))) - 1) * heading_bounds(params)
         winds, new = self.draw(k1, state, params)
         return winds, hd, new
 

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 
+from stp_env.sim.fleet import agent_rows
 from stp_env.sim.winds import register
-from stp_env.sim.winds.base import WindModel, uniform_in_disks
+from stp_env.sim.winds.base import WindModel, uniform_in_fleet_disks
 
 
 @register
@@ -16,8 +17,8 @@ class Constant(WindModel):
     order = 1
 
     def initial(self, key, params):
-        return uniform_in_disks(key, params)
+        return uniform_in_fleet_disks(key, params)
 
     def draw(self, key, state, params):
         del key
-        return state.wind, state.wind
+        return agent_rows(params, state.wind), state.wind

@@ -9,12 +9,13 @@ import math
 import jax
 import jax.numpy as jnp
 
+from stp_env.sim.fleet import agent_rows
 from stp_env.sim.winds import register
-from stp_env.sim.winds.base import WindModel, radii, uniform_in_disks
+from stp_env.sim.winds.base import WindModel, fleet_radii, uniform_in_fleet_disks
 
 
 def project(w, radius):
-    """``w`` ``(N + 1, 2)`` scaled back into the disks of ``radius`` ``(N + 1,)`` where it left them."""
+    """``w`` ``(M, 2)`` scaled back into the disks of ``radius`` ``(M,)`` where it left them."""
     norm = jnp.linalg.norm(w, axis=-1, keepdims=True)
     return w * jnp.minimum(1.0, radius[:, None] / jnp.maximum(norm, 1e-12))
 
@@ -35,13 +36,13 @@ class Gusts(WindModel):
             raise ValueError(f"wind_model gusts: time_constant must be a finite number of seconds > 0; got {t!r}.")
 
     def initial(self, key, params):
-        return uniform_in_disks(key, params)
+        return uniform_in_fleet_disks(key, params)
 
     def draw(self, key, state, params):
-        r = radii(params)
+        r = fleet_radii(params)
         tc = jnp.asarray(self.time_constant, jnp.float32)
         sigma = 0.5 * r[:, None] * jnp.sqrt(2.0 / tc)
         w = state.wind - state.wind / tc * params.dt + sigma * jnp.sqrt(params.dt) * jax.random.normal(
             key, state.wind.shape)
         w = project(w, r)
-        return w, w
+        return agent_rows(params, w), w

@@ -1,0 +1,148 @@
+"""Simulating part of a fleet, exactly: only the vehicles that can fly in an episode's window.
+
+An evaluation episode covers a window of a plan (town: 73-93 s of a 7-vehicle plan; the dense scenarios: 26-53 s of a
+20-vehicle plan, ``stp_env.sim.build.busiest_window``). Vehicles that arrived before the window starts, or depart
+after it ends, stay outside the airspace for the whole episode: the core neither moves them nor lets them collide,
+their avoid values are ``FAR``, spawns and observations consider flying vehicles only. Simulating only the others
+(3 of 7 on town, 4 of 20 on the crossing) gives the same episode at a fraction of the cost: the pair distances
+grow with the square of the count, the table reads linearly.
+
+"The same episode" needs the same random numbers. Per-agent draws (winds, heading disturbances, the vehicle the
+intruder spawns next to) have one row per agent, so part of a fleet draws for the whole fleet and takes its rows
+(:func:`agent_rows`, :func:`random_vehicle`), and the wind state stays the whole fleet's. The vehicles left out are
+put back by :func:`expand` with the state the full simulation gives them: their reset state, with the controllers'
+outputs (``u^A``, ``kappa``, the tracking error) refreshed at the final time as every step's lifecycle does.
+
+* :func:`airborne`: the vehicles that can fly in ``[t_start, t_end]`` (host side, from the plan).
+* :func:`select`: ``EnvParams`` of those vehicles (``vehicle_ids``, ``fleet_size`` set).
+* :func:`expand`: a state of the selected vehicles as the whole fleet's state.
+
+``tests/test_fleet.py`` compares whole evaluations against the full simulation (statuses, modes, forced sets and
+flags equal; times and states within float32 rounding) and shows that leaving out a vehicle that flies is caught.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from stp_env.sim.types import VEHICLE_FIELDS, EnvParams, EnvState, replace
+
+# EnvParams fields with one entry per vehicle (axis 0); select() slices them.
+PARAM_VEHICLE_FIELDS = ("departure", "sta", "nominal_arrival", "starts", "targets", "target_radii", "nominal_t0",
+                        "nominal_states", "nominal_controls", "nominal_len")
+
+
+def fleet_size(params: EnvParams) -> int:
+    """The whole fleet's vehicle count (``n_vehicles`` unless part of a fleet is simulated)."""
+    return params.n_vehicles if params.fleet_size is None else params.fleet_size
+
+
+def agent_rows(params: EnvParams, draws):
+    """The simulated agents' rows ``(N + 1, ...)`` of a per-agent array of the whole fleet ``(F + 1, ...)``
+    (vehicles, then the intruder)."""
+    if params.vehicle_ids is None:
+        return draws
+    ids = jnp.asarray(params.vehicle_ids, jnp.int32)
+    return draws[jnp.concatenate([ids, jnp.full((1,), fleet_size(params), jnp.int32)])]
+
+
+def random_vehicle(key, mask, params: EnvParams):
+    """A simulated vehicle drawn uniformly among those in ``mask`` ``(N,)`` (any vehicle if none is), as the whole
+    fleet would draw it: ``(index, any)``."""
+    if params.vehicle_ids is None:
+        logits = jnp.where(mask, 0.0, -jnp.inf)
+        return jax.random.categorical(key, jnp.where(jnp.any(mask), logits, 0.0)), jnp.any(mask)
+    ids = jnp.asarray(params.vehicle_ids, jnp.int32)
+    full = jnp.zeros((fleet_size(params),), bool).at[ids].set(mask)
+    logits = jnp.where(full, 0.0, -jnp.inf)
+    j_full = jax.random.categorical(key, jnp.where(jnp.any(full), logits, 0.0))
+    # j_full is a simulated vehicle whenever any is in mask; otherwise the caller ignores the index
+    return jnp.argmax(ids == j_full), jnp.any(mask)
+
+
+def airborne(params: EnvParams) -> np.ndarray:
+    """Indices (ascending) of the vehicles that can fly in ``[t_start, t_end]``: not in their target at the start
+    (by their nominal state at ``t_start``, as :func:`stp_env.sim.core.reset` decides) and departing no later than
+    one step after ``t_end``. The others never leave ``WAITING`` or ``ARRIVED`` in an episode."""
+    if params.vehicle_ids is not None:
+        raise ValueError("these params already simulate part of a fleet.")
+    from stp_env.sim.reference import nominal_reference
+
+    t0, t1, dt = float(params.t_start), float(params.t_end), float(params.dt)
+    x_nom, _ = nominal_reference(params, params.t_start)
+    dep = np.asarray(params.departure, np.float64)
+    in_target = np.hypot(*(np.asarray(x_nom)[:, :2] - np.asarray(params.targets)).T) <= np.asarray(
+        params.target_radii)
+    arrived = (dep <= t0) & in_target
+    return np.flatnonzero(~arrived & (dep <= t1 + dt))
+
+
+def select(params: EnvParams, ids) -> EnvParams:
+    """``params`` for the vehicles ``ids`` (ascending, distinct) of the whole fleet. Only exact when every vehicle
+    left out stays outside the airspace for the whole episode (:func:`airborne`)."""
+    if params.vehicle_ids is not None:
+        raise ValueError("these params already simulate part of a fleet.")
+    ids = np.asarray(ids)
+    n = params.n_vehicles
+    if ids.ndim != 1 or ids.size == 0 or not np.issubdtype(ids.dtype, np.integer):
+        raise ValueError(f"ids must be a non-empty 1-d array of vehicle indices; got {ids!r}.")
+    if np.any(np.diff(ids) <= 0) or ids[0] < 0 or ids[-1] >= n:
+        raise ValueError(f"ids must be ascending, distinct and in [0, {n}); got {ids.tolist()}.")
+    sliced = {f: getattr(params, f)[jnp.asarray(ids)] for f in PARAM_VEHICLE_FIELDS}
+    return dataclasses.replace(params, n_vehicles=int(ids.size), vehicle_ids=jnp.asarray(ids, jnp.int32),
+                               fleet_size=n, **sliced)
+
+
+def parked_state(params: EnvParams, ids) -> EnvState:
+    """The reset state of the fleet's vehicles ``ids`` (of ``params``, the whole fleet), which the episode never
+    changes when they are outside the airspace throughout (their rows only; the global fields are unused)."""
+    from stp_env.sim import core
+
+    return core.reset(jax.random.key(0), select(params, ids))
+
+
+def expand(state: EnvState, params: EnvParams, ids, parked: EnvState | None) -> EnvState:
+    """The whole fleet's state (one episode) from ``state``, of the fleet's vehicles ``ids`` (numpy, as given to
+    :func:`select`), and the ``parked`` rows of the others (:func:`parked_state`; ``None`` when none is left
+    out). The parked rows get the controllers' outputs at ``state``'s time and intruder, as the full simulation's
+    lifecycle computes them for vehicles on the ground."""
+    from stp_env.sim import core
+
+    n = params.n_vehicles
+    ids = np.asarray(ids)
+    rest = np.setdiff1d(np.arange(n), ids)
+    if rest.size == 0:
+        return state
+    if parked is None:
+        raise ValueError("the vehicles left out need their parked state.")
+    now = replace(parked, t=state.t, intruder_x=state.intruder_x, intruder_status=state.intruder_status,
+                  t_appear=state.t_appear)
+    now = core.refresh_controllers(now, select(params, rest))
+    rows = {}
+    for name in VEHICLE_FIELDS:
+        a, b = getattr(state, name), getattr(now, name)
+        full = jnp.zeros((n, *a.shape[1:]), a.dtype)
+        rows[name] = full.at[jnp.asarray(ids)].set(a).at[jnp.asarray(rest)].set(b.astype(a.dtype))
+    return replace(state, **rows)
+
+
+def expand_trajectory(traj: dict, params: EnvParams, ids, parked: EnvState) -> dict:
+    """A recorded trajectory (:func:`stp_env.sim.rollout`, batched ``(B, T, ...)``) of the vehicles ``ids`` as the
+    whole fleet's: the others keep their parked pose, status and mode, and get zero rewards (the core rewards
+    only flying vehicles)."""
+    n = params.n_vehicles
+    ids = np.asarray(ids)
+    rest = np.setdiff1d(np.arange(n), ids)
+    out = dict(traj)
+    for name in ("x", "status", "mode"):
+        a = traj[name]
+        full = jnp.broadcast_to(getattr(parked, name).astype(a.dtype), (*a.shape[:2], rest.size, *a.shape[3:]))
+        out[name] = jnp.zeros((*a.shape[:2], n, *a.shape[3:]), a.dtype).at[:, :, ids].set(a).at[:, :, rest].set(
+            full)
+    r = traj["rewards"]
+    out["rewards"] = jnp.zeros((*r.shape[:2], n + 1), r.dtype).at[:, :, np.append(ids, n)].set(r)
+    return out

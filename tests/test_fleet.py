@@ -1,0 +1,122 @@
+"""Simulating part of a fleet (``stp_env.sim.fleet``): only the vehicles that can fly in the episode window, with
+the same random numbers and the same outcomes as the whole fleet."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from stp_env import sim
+from stp_env.baselines.intruders import _simulated_rows
+from stp_env.evaluation import Configuration, build_params
+from stp_env.evaluation.runner import host_state, run_batch, same_outcome, simulated_vehicles
+from stp_env.sim import fleet
+from stp_env.sim.types import VEHICLE_FIELDS, WAITING
+from stp_env.sim.winds.base import uniform_in_disks
+
+EPISODES = 32
+DISCRETE = ("status", "mode", "complied", "assumption_ok", "collided_with_intruder", "guarantee_violation",
+            "tracked", "tracking_violation")
+
+
+@pytest.fixture(scope="module")
+def crossing():
+    """The crossing (20 vehicles, 4 of them airborne in the window), Ornstein-Uhlenbeck gusts (a wind state that
+    persists), intruders on the avoid boundaries playing max-k."""
+    config = Configuration(scenario="crossing", kbar=2, intruder="max-k", wind_model="gusts")
+    return config, build_params([config], progress=False)[0]
+
+
+def test_vehicle_fields_are_exactly_the_state_fields_with_a_row_per_vehicle(crossing):
+    _, params = crossing
+    full = jax.eval_shape(sim.reset, jax.random.key(0), params)
+    part = jax.eval_shape(sim.reset, jax.random.key(0), fleet.select(params, np.array([1, 5, 6])))
+    changed = {f.name for f in dataclasses.fields(full)
+               if getattr(full, f.name).shape != getattr(part, f.name).shape}
+    assert changed == set(VEHICLE_FIELDS)
+    assert all(getattr(part, name).shape[0] == 3 for name in VEHICLE_FIELDS)
+    assert part.wind.shape == full.wind.shape == (params.n_vehicles + 1, 2)   # the wind state is the fleet's
+
+
+def test_random_draws_are_the_whole_fleets(crossing):
+    _, params = crossing
+    ids = np.array([0, 3, 4, 11, 19])
+    part = fleet.select(params, ids)
+    for seed in range(50):
+        key = jax.random.key(seed)
+        # winds: the simulated agents' rows of the fleet's draw (the intruder's row last)
+        np.testing.assert_array_equal(uniform_in_disks(key, part), uniform_in_disks(key, params)[np.append(ids, 20)])
+        # the vehicle an intruder spawns next to: the fleet's draw among the same flying vehicles
+        mask = np.array(jax.random.bernoulli(jax.random.fold_in(key, 1), 0.5, (ids.size,)))
+        mask[seed % ids.size] = True
+        full_mask = np.zeros(params.n_vehicles, bool)
+        full_mask[ids] = mask
+        j_full, _ = fleet.random_vehicle(key, jnp.asarray(full_mask), params)
+        j_part, any_part = fleet.random_vehicle(key, jnp.asarray(mask), part)
+        assert bool(any_part) and ids[int(j_part)] == int(j_full)
+
+
+def test_select_refuses_bad_ids(crossing):
+    _, params = crossing
+    for bad in ([], [3, 1], [1, 1], [-1, 2], [0, 20], [[1, 2]]):
+        with pytest.raises(ValueError, match="ids must"):
+            fleet.select(params, np.asarray(bad, int))
+    with pytest.raises(ValueError, match="already"):
+        fleet.select(fleet.select(params, np.array([1, 2])), np.array([0]))
+
+
+def test_ordered_intruders_read_fleet_indices(crossing):
+    _, params = crossing
+    part = fleet.select(params, np.array([2, 7, 9]))
+    rows, listed = _simulated_rows(part, jnp.asarray([9, 3, 2, 25], jnp.int32))
+    assert np.asarray(listed).tolist() == [True, False, True, False]
+    assert np.asarray(rows)[np.asarray(listed)].tolist() == [2, 0]
+
+
+def test_part_of_the_fleet_plays_the_same_episodes(crossing):
+    """The same episodes from the airborne vehicles alone as from all 20: every discrete outcome, forced set and
+    avoid start equal; states within float32 rounding (closed-loop bang-bang controls amplify a last-bit
+    difference between two compiled programs, as a different batch size does); the vehicles left out put back
+    exactly as the whole fleet's simulation leaves them. The premise is checked too: in the whole fleet's
+    episodes the vehicles ``airborne`` leaves out never change status, and some it keeps do (so a wrong
+    ``airborne`` would be caught here)."""
+    config, params = crossing
+    active = simulated_vehicles(params, True)
+    assert 1 <= len(active) < params.n_vehicles
+    vehicle_policy, intruder_policy = config.policies()
+    n_steps = sim.steps_for(params)
+    idx = jnp.arange(EPISODES, dtype=jnp.int32)
+    out = {}
+    for name, act in (("full", None), ("part", active)):
+        final, traj = run_batch(jax.random.key(3), idx, params, vehicle_policy, intruder_policy, n_steps,
+                                record=True, active=act)
+        out[name] = host_state(final), jax.tree.map(np.asarray, traj)
+    (a, ta), (b, tb) = out["full"], out["part"]
+    assert set(a) == set(b) and all(a[k].shape == b[k].shape for k in a)
+    for k in (*DISCRETE, "intruder_status", "step_count", "t", "t_appear"):
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    np.testing.assert_array_equal(a["avoid_start"], b["avoid_start"])
+    assert np.isfinite(a["avoid_start"]).sum() >= EPISODES // 2          # the episodes force vehicles
+    matched = [same_outcome({k: v[i] for k, v in a.items()}, {k: v[i] for k, v in b.items()})
+               for i in range(EPISODES)]
+    assert np.mean(matched) >= 0.75, matched
+    for k in ("status", "mode", "t", "intruder_status"):
+        np.testing.assert_array_equal(ta[k], tb[k], err_msg=k)
+    np.testing.assert_allclose(ta["x"], tb["x"], atol=2.0)
+    # the vehicles left out: exactly the whole fleet's rows (float fields up to rounding)
+    rest = np.setdiff1d(np.arange(params.n_vehicles), active)
+    for k in (*VEHICLE_FIELDS, "wind"):
+        x, y = np.asarray(a[k], float)[:, rest], np.asarray(b[k], float)[:, rest]
+        np.testing.assert_allclose(np.where(np.isfinite(x), x, 0), np.where(np.isfinite(y), y, 0), atol=1e-4,
+                                   err_msg=k)
+    # the premise: left-out vehicles never leave their reset status in the whole fleet's episodes ...
+    assert np.all(ta["status"][:, :, rest] == ta["status"][:, :1, rest])
+    assert set(np.unique(ta["status"][:, :, rest])) <= {WAITING, sim.ARRIVED}
+    # ... and the comparison above can fail: every vehicle airborne() keeps moves in the whole fleet's episodes, so
+    # putting any of them back parked would not match
+    moved = np.any(ta["x"][:, -1, list(active)] != ta["x"][:, 0, list(active)], axis=-1)
+    assert np.all(np.any(moved, axis=0))
