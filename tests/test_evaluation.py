@@ -203,6 +203,7 @@ def test_saved_events_replay(tiny_run):
     # vehicles that ignore an intruder flying straight at them collide: the run has events to replay
     assert records and any("collision" in r["kinds"] for r in records)
     for record in records:
+        assert record["airborne_only"] is True           # the evaluator's default, replayed the same way
         saved = load_event_state(out / "events.npz", record)
         replayed, traj = replay_event(record)
         assert same_outcome(saved, replayed), record

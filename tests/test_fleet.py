@@ -120,3 +120,34 @@ def test_part_of_the_fleet_plays_the_same_episodes(crossing):
     # putting any of them back parked would not match
     moved = np.any(ta["x"][:, -1, list(active)] != ta["x"][:, 0, list(active)], axis=-1)
     assert np.all(np.any(moved, axis=0))
+
+
+def test_wind_models_may_answer_for_the_whole_fleet(crossing):
+    """A model that sizes its winds like the wind state (the whole fleet) still gives each simulated agent its own
+    row; one whose state is not the fleet's is refused."""
+    from stp_env.sim import wind as wind_lib
+    from stp_env.sim.winds.base import WindModel
+
+    @dataclasses.dataclass(frozen=True)
+    class PerAgent(WindModel):
+        name = "per-agent"
+
+        def draw(self, key, state, params):
+            rows = jnp.arange(state.wind.shape[0], dtype=jnp.float32)          # the fleet's row numbers
+            return jnp.stack([rows, -rows], axis=1), state.wind
+
+    @dataclasses.dataclass(frozen=True)
+    class Undersized(PerAgent):
+        name = "undersized"
+
+        def initial(self, key, params):
+            return jnp.zeros((params.n_vehicles + 1, 2))
+
+    _, params = crossing
+    ids = np.array([2, 7, 9])
+    part = fleet.select(dataclasses.replace(params, wind_model=PerAgent()), ids)
+    state = sim.reset(jax.random.key(0), part)
+    winds, heading, new = wind_lib.sample(jax.random.key(1), state, part)
+    assert np.asarray(winds)[:, 0].tolist() == [2, 7, 9, 20] and heading.shape == (4,) and new.shape == (21, 2)
+    with pytest.raises(ValueError, match="whole fleet"):
+        sim.reset(jax.random.key(0), fleet.select(dataclasses.replace(params, wind_model=Undersized()), ids))

@@ -72,9 +72,9 @@ def _publish(staging: Path, out: Path) -> list[str]:
 
 
 def run(configs, out_dir, *, episodes: int = 1000, seed: int = 0, batch_size: int = 250, confidence: float = 0.95,
-        store=None, progress: bool = True, figures: bool = True) -> dict:
+        store=None, progress: bool = True, figures: bool = True, airborne_only: bool = True) -> dict:
     """Evaluate ``configs`` and write everything to ``out_dir``; returns ``{"summaries", "markdown", "files",
-    "seconds"}``.
+    "seconds"}``. ``airborne_only``: as in :func:`stp_env.evaluation.evaluate`.
 
     ``out_dir`` is checked to be writable before anything is computed (:func:`check_output_dir`). The files are
     written into a staging directory inside it and then replace the outputs of an earlier run (see
@@ -86,7 +86,7 @@ def run(configs, out_dir, *, episodes: int = 1000, seed: int = 0, batch_size: in
     out = check_output_dir(out_dir)
     remove_stale_temporaries(out, STAGING_PREFIX)
     results = evaluate(configs, episodes=episodes, seed=seed, batch_size=batch_size, confidence=confidence,
-                       store=store, progress=progress)
+                       store=store, progress=progress, airborne_only=airborne_only)
     staging = Path(tempfile.mkdtemp(dir=out, prefix=STAGING_PREFIX + writer_tag()))
     try:
         summaries, markdown = _write_all(results, staging, seed=seed, episodes=episodes, batch_size=batch_size,

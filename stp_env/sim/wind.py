@@ -9,6 +9,7 @@ eq. 28).
 from __future__ import annotations
 
 from stp_env.sim import winds
+from stp_env.sim.fleet import agent_rows, fleet_size
 from stp_env.sim.types import EnvParams, EnvState
 from stp_env.sim.winds.worst import worst_winds
 
@@ -19,20 +20,37 @@ def model(params: EnvParams) -> winds.WindModel:
 
 
 def initial_wind(key, params: EnvParams):
-    """Wind state at reset ``(N + 1, 2)``."""
-    return model(params).initial(key, params)
+    """Wind state at reset ``(F + 1, 2)``: a row per agent of the whole fleet (``F = N`` unless part of a fleet is
+    simulated, :mod:`stp_env.sim.fleet`); ``ValueError`` for a model that gives another shape."""
+    wind = model(params).initial(key, params)
+    expected = (fleet_size(params) + 1, 2)
+    if tuple(wind.shape) != expected:
+        raise ValueError(f"wind model {model(params).name!r}: initial() must return the wind state of the whole "
+                         f"fleet, shape {expected}; got {tuple(wind.shape)} (size it with "
+                         "stp_env.sim.fleet.fleet_size(params), not params.n_vehicles).")
+    return wind
+
+
+def _simulated(params: EnvParams, per_agent):
+    """A model's per-agent output for the simulated agents ``(N + 1, ...)``: a model may return it for the whole
+    fleet ``(F + 1, ...)`` (shaped like the wind state), whose rows are then taken (:mod:`stp_env.sim.fleet`)."""
+    n, f = params.n_vehicles, fleet_size(params)
+    if f != n and per_agent.shape[0] == f + 1:
+        return agent_rows(params, per_agent)
+    return per_agent
 
 
 def sample(key, state: EnvState, params: EnvParams):
-    """``(winds (N + 1, 2), heading disturbances (N + 1,), new wind state (N + 1, 2))`` for this step (held over
+    """``(winds (N + 1, 2), heading disturbances (N + 1,), new wind state (F + 1, 2))`` for this step (held over
     its inner steps unless the model is state-dependent: see :func:`inner`)."""
-    return model(params).sample(key, state, params)
+    winds_now, heading, new = model(params).sample(key, state, params)
+    return _simulated(params, winds_now), _simulated(params, heading), new
 
 
 def inner(state: EnvState, params: EnvParams, held):
     """The winds at an inner step's state: ``held`` (this step's :func:`sample`) unless the model recomputes them
     from the state (``"worst"``)."""
-    return model(params).inner(state, params, held)
+    return _simulated(params, model(params).inner(state, params, held))
 
 
 def worst(state: EnvState, params: EnvParams):

@@ -51,9 +51,11 @@ class WindModel(abc.ABC):
     persists across steps, :meth:`inner` if it depends on the state within a step. All methods are pure and
     jittable.
 
-    The wind state has a row per agent of the whole fleet ``(F + 1, 2)``, the winds a row per simulated agent
-    ``(N + 1, 2)`` (``F = N`` unless part of a fleet is simulated: random draws are made for the whole fleet and
-    :func:`stp_env.sim.fleet.agent_rows` taken, so that part of a fleet sees the same winds)."""
+    The wind state has a row per agent of the whole fleet ``(F + 1, 2)``; the winds and heading disturbances a
+    model returns may have a row per simulated agent ``(N + 1, ...)`` or per agent of the whole fleet (shaped like
+    the wind state: :mod:`stp_env.sim.wind` then takes the simulated agents' rows). ``F = N`` unless part of a
+    fleet is simulated (:mod:`stp_env.sim.fleet`): random draws are then made for the whole fleet and the rows
+    taken (:func:`stp_env.sim.fleet.agent_rows`), so that part of a fleet sees the same winds."""
 
     name: ClassVar[str] = ""
     help: ClassVar[str] = ""
