@@ -4,6 +4,7 @@ the same random numbers and the same outcomes as the whole fleet."""
 from __future__ import annotations
 
 import dataclasses
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -146,8 +147,36 @@ def test_wind_models_may_answer_for_the_whole_fleet(crossing):
     _, params = crossing
     ids = np.array([2, 7, 9])
     part = fleet.select(dataclasses.replace(params, wind_model=PerAgent()), ids)
-    state = sim.reset(jax.random.key(0), part)
+    state = SimpleNamespace(wind=wind_lib.initial_wind(jax.random.key(0), part))   # all draw() reads
     winds, heading, new = wind_lib.sample(jax.random.key(1), state, part)
     assert np.asarray(winds)[:, 0].tolist() == [2, 7, 9, 20] and heading.shape == (4,) and new.shape == (21, 2)
     with pytest.raises(ValueError, match="whole fleet"):
-        sim.reset(jax.random.key(0), fleet.select(dataclasses.replace(params, wind_model=Undersized()), ids))
+        wind_lib.initial_wind(jax.random.key(0), fleet.select(dataclasses.replace(params, wind_model=Undersized()),
+                                                              ids))
+
+
+def test_part_of_a_fleet_ends_when_the_whole_fleet_would(crossing):
+    """The episode of part of a fleet ends early (every vehicle done, the intruder gone) only if no vehicle left
+    out still waits to take off, as for the whole fleet."""
+    _, params = crossing
+    t0 = jnp.sort(params.departure)[10] + 1.0           # a window in the middle of the plan
+    params = dataclasses.replace(params, t_start=t0, t_end=t0 + 30.0)
+    arrived = np.asarray(fleet.arrived_at_start(params))
+    airborne = fleet.airborne(params)
+    later = np.setdiff1d(np.flatnonzero(~arrived), airborne)          # they take off after the window
+    assert arrived.any() and later.size
+    for ids, waits in ((airborne, True), (np.flatnonzero(~arrived), False)):
+        part = fleet.select(params, ids)
+        assert bool(part.outside_waiting) is waits
+        done = SimpleNamespace(status=jnp.full((ids.size,), sim.ARRIVED), intruder_status=jnp.asarray(sim.GONE),
+                               t=part.t_start)                 # what episode_over reads
+        terminated, _ = sim.episode_over(done, part)
+        assert bool(terminated) is not waits
+
+
+def test_select_slices_every_per_vehicle_parameter(crossing):
+    _, params = crossing
+    n = params.n_vehicles
+    per_vehicle = {f.name for f in dataclasses.fields(params)
+                   if hasattr(getattr(params, f.name), "shape") and getattr(params, f.name).shape[:1] == (n,)}
+    assert per_vehicle == set(fleet.PARAM_VEHICLE_FIELDS)

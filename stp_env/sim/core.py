@@ -90,7 +90,7 @@ def reset(key, params: EnvParams) -> EnvState:
     model = params.vehicle_model
     x_nom, _ = nominal_reference(params, t0)
     departed = params.departure <= t0
-    arrived = departed & (jnp.hypot(*(x_nom[:, :2] - params.targets).T) <= params.target_radii)
+    arrived = fleet.arrived_at_start(params)
     status = jnp.where(arrived, ARRIVED, jnp.where(departed, FLYING, WAITING)).astype(jnp.int32)
     x = jnp.where(departed[:, None], model.from_pose(x_nom), model.from_pose(params.starts))
     # The spawn state, drawn now from the nominal states at the first step time >= t_ (see spawn.spawn).
@@ -209,8 +209,11 @@ def done_vehicles(state: EnvState):
 
 
 def episode_over(state: EnvState, params: EnvParams):
-    """``(terminated, truncated)``: every vehicle done and the intruder gone; or the time limit."""
+    """``(terminated, truncated)``: every vehicle done and the intruder gone; or the time limit. (Part of a fleet:
+    every vehicle of the whole fleet, :mod:`stp_env.sim.fleet`.)"""
     terminated = jnp.all(done_vehicles(state)) & (state.intruder_status == GONE)
+    if params.outside_waiting is not None:
+        terminated = terminated & ~params.outside_waiting
     truncated = (state.t >= params.t_end - 1e-6 * params.dt) & ~terminated
     return terminated, truncated
 

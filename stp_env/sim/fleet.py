@@ -70,15 +70,10 @@ def airborne(params: EnvParams) -> np.ndarray:
     one step after ``t_end``. The others never leave ``WAITING`` or ``ARRIVED`` in an episode."""
     if params.vehicle_ids is not None:
         raise ValueError("these params already simulate part of a fleet.")
-    from stp_env.sim.reference import nominal_reference
-
-    t0, t1, dt = float(params.t_start), float(params.t_end), float(params.dt)
-    x_nom, _ = nominal_reference(params, params.t_start)
-    dep = np.asarray(params.departure, np.float64)
-    in_target = np.hypot(*(np.asarray(x_nom)[:, :2] - np.asarray(params.targets)).T) <= np.asarray(
-        params.target_radii)
-    arrived = (dep <= t0) & in_target
-    return np.flatnonzero(~arrived & (dep <= t1 + dt))
+    t1, dt = float(params.t_end), float(params.dt)
+    # within 1 mm of the target's edge counts as not arrived: simulating a vehicle that is done is harmless
+    arrived = np.asarray(jax.jit(arrived_at_start)(params, 1e-3))
+    return np.flatnonzero(~arrived & (np.asarray(params.departure, np.float64) <= t1 + dt))
 
 
 def select(params: EnvParams, ids) -> EnvParams:
@@ -93,8 +88,20 @@ def select(params: EnvParams, ids) -> EnvParams:
     if np.any(np.diff(ids) <= 0) or ids[0] < 0 or ids[-1] >= n:
         raise ValueError(f"ids must be ascending, distinct and in [0, {n}); got {ids.tolist()}.")
     sliced = {f: getattr(params, f)[jnp.asarray(ids)] for f in PARAM_VEHICLE_FIELDS}
+    rest = np.setdiff1d(np.arange(n), ids)
+    waiting = ~arrived_at_start(params)[jnp.asarray(rest)] if rest.size else jnp.zeros((0,), bool)
     return dataclasses.replace(params, n_vehicles=int(ids.size), vehicle_ids=jnp.asarray(ids, jnp.int32),
-                               fleet_size=n, **sliced)
+                               outside_waiting=jnp.any(waiting), fleet_size=n, **sliced)
+
+
+def arrived_at_start(params: EnvParams, slack=0.0):
+    """``(N,)`` bool: in its target at ``t_start``: departed, and its nominal position at least ``slack`` [m] inside
+    the target disk (``slack = 0``: what :func:`stp_env.sim.core.reset` decides). Jittable."""
+    from stp_env.sim.reference import nominal_reference
+
+    x_nom, _ = nominal_reference(params, params.t_start)
+    departed = params.departure <= params.t_start
+    return departed & (jnp.hypot(*(x_nom[:, :2] - params.targets).T) <= params.target_radii - slack)
 
 
 def parked_state(params: EnvParams, ids) -> EnvState:

@@ -79,6 +79,8 @@ class EnvParams:
     Optional (``None`` unless made by :func:`stp_env.sim.fleet.select`: the simulation of part of a fleet, the
     vehicles that can fly in the episode's window):
         vehicle_ids: ``(N,)`` int32, each simulated vehicle's index in the whole fleet (ascending).
+        outside_waiting: ``()`` bool, whether a vehicle left out is still waiting to take off: the whole fleet is
+            then never all done, so the episode does not end before ``t_end`` (:func:`stp_env.sim.core.episode_over`).
         fleet_size: (static) the whole fleet's vehicle count. Per-agent random draws are made for the whole fleet
             and the simulated agents' rows taken (:func:`stp_env.sim.fleet.agent_rows`), and the wind state
             (``EnvState.wind``) is the whole fleet's, so part of a fleet sees the same random numbers as all of it.
@@ -144,6 +146,7 @@ class EnvParams:
     buffer_grid: Grid | None = None
     # --- optional: part of a fleet (stp_env.sim.fleet)
     vehicle_ids: Any = None       # (N,) int32 index of each simulated vehicle in the fleet, or None (all of it)
+    outside_waiting: Any = None   # () bool: a vehicle left out waits to take off (the fleet is never all done)
     fleet_size: int | None = None
 
 
