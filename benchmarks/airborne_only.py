@@ -12,7 +12,8 @@ which shows what float rounding alone does to these closed loops.
 
 Cases: ``town`` (k̄ = 2, max-k, ``u*``, trajectories recorded as ``stp-env evaluate`` does), ``crossing`` (k̄ = 2,
 optimal-max-k, worst vehicles, recorded: the default suite's binding configuration), ``city`` (the shipped Case 0
-plan, 50 vehicles, max-k, not recorded).
+plan, 50 vehicles, max-k, not recorded), ``falsify`` (the k̄ attack of ``stp-env falsify``, crossing, k̄ = 2,
+max-k intruder: ``--attacks`` random attacks as one batch, whole fleet against airborne vehicles).
 """
 
 from __future__ import annotations
@@ -71,15 +72,47 @@ def agreement(a: dict, b: dict) -> dict:
             "max_position_difference_m": round(float(moved.max()), 3)}
 
 
+def falsify_case(attacks: int) -> dict:
+    """The falsifier's k̄ attack (crossing, k̄ = 2, max-k) on ``attacks`` random inputs, one batched program per
+    fleet: seconds per batch (compile excluded) and how far the objectives agree."""
+    import jax
+
+    from stp_env.falsify.kbar import KbarAttack
+
+    config = Configuration(scenario="crossing", kbar=2, intruder="max-k")
+    params = build_params([config], progress=False)[0]
+    z = jax.random.uniform(jax.random.key(0), (attacks, 5))
+    out, values = {}, {}
+    for which in ("whole", "airborne"):
+        attack = KbarAttack(base=params, intruder="max-k", fleet=which)
+        f = jax.jit(jax.vmap(attack.objective))
+        start = time.perf_counter()
+        jax.block_until_ready(f(z))
+        first = time.perf_counter() - start
+        start = time.perf_counter()
+        values[which] = np.asarray(f(z * 0.999))
+        seconds = time.perf_counter() - start
+        out[which] = {"vehicles": attack.params.n_vehicles, "seconds": round(seconds, 2),
+                      "compile_s": round(first - seconds, 1)}
+    out["ratio"] = round(out["whole"]["seconds"] / out["airborne"]["seconds"], 2)
+    out["same_forced"] = bool(np.array_equal(np.floor(values["whole"]), np.floor(values["airborne"])))
+    out["max_objective_difference"] = float(np.max(np.abs(values["whole"] - values["airborne"])))
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--episodes", type=int, default=1000)
     parser.add_argument("--batch-size", type=int, default=250)
-    parser.add_argument("--cases", nargs="+", default=["town", "crossing", "city"])
+    parser.add_argument("--cases", nargs="+", default=["town", "crossing", "city", "falsify"])
+    parser.add_argument("--attacks", type=int, default=256, help="attacks per batch of the falsify case")
     args = parser.parse_args()
     out = {"case": "airborne_only", "episodes": args.episodes, "batch_size": args.batch_size,
            "loadavg_1min_before": round(os.getloadavg()[0], 2)}
     for name in args.cases:
+        if name == "falsify":
+            out[name] = falsify_case(args.attacks)
+            continue
         config, params, record = case(name)
         whole, t_whole = timed(config, params, args.episodes, args.batch_size, record, airborne_only=False)
         part, t_part = timed(config, params, args.episodes, args.batch_size, record, airborne_only=True)

@@ -180,3 +180,22 @@ def test_select_slices_every_per_vehicle_parameter(crossing):
     per_vehicle = {f.name for f in dataclasses.fields(params)
                    if hasattr(getattr(params, f.name), "shape") and getattr(params, f.name).shape[:1] == (n,)}
     assert per_vehicle == set(fleet.PARAM_VEHICLE_FIELDS)
+
+
+def test_the_kbar_attack_on_the_airborne_vehicles_scores_as_on_the_whole_fleet(crossing):
+    """The falsifier's k̄ attack (default ``fleet="airborne"``) gives every attack the objective the whole fleet
+    gives it (forced counts equal, tie-breakers within float rounding), from fewer vehicles."""
+    from stp_env.falsify.kbar import KbarAttack
+
+    _, params = crossing
+    z = jax.random.uniform(jax.random.key(0), (16, 5))
+    values = {}
+    for which in ("whole", "airborne"):
+        attack = KbarAttack(base=params, intruder="max-k", fleet=which)
+        values[which] = np.asarray(jax.jit(jax.vmap(attack.objective))(z))
+    assert attack.params.n_vehicles < params.n_vehicles
+    np.testing.assert_array_equal(np.floor(values["whole"]), np.floor(values["airborne"]))
+    assert np.mean(values["whole"] >= 1) >= 0.5                            # the attacks force vehicles
+    np.testing.assert_allclose(values["whole"], values["airborne"], atol=1e-3)
+    with pytest.raises(ValueError, match="fleet"):
+        KbarAttack(base=params, fleet="some")

@@ -18,11 +18,17 @@ vehicles not forced by its end), so that the search climbs toward forcing one mo
 episode does not count (its value reached the avoid margin on the way, which would pin the tie-breaker near 1 for
 every attack that forces anyone); ``-1`` for an attack that broke Assumption 3. The bound is k̄ (``|N^RP| > k̄`` is a
 violation); the simulator's guarantee violations and closest approach are reported beside it.
+
+``fleet="airborne"`` (the default) simulates only the vehicles that can fly while the attack runs
+(:mod:`stp_env.sim.fleet`; the others never leave the ground or their targets, so the attack and its objective are
+the same, up to float rounding, at a fraction of the cost); ``"whole"`` simulates every vehicle. The trace then
+lists the simulated vehicles only.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import jax
@@ -32,7 +38,7 @@ import numpy as np
 from stp_env.baselines.intruders import BUFFER_GAME_INTRUDERS, INTRUDERS
 from stp_env.baselines.vehicles import BUFFER_GAME_VEHICLE_POLICIES, VEHICLE_POLICIES
 from stp_env.falsify import harness
-from stp_env.sim import core
+from stp_env.sim import core, fleet
 from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN
 from stp_env.sim.physics import control_to_action, rotate, wrap_angle
 from stp_env.sim.reference import nominal_reference
@@ -40,6 +46,7 @@ from stp_env.sim.spawn import radius_on_level
 from stp_env.sim.types import FLYING, EnvParams, replace
 
 SCRIPTED = ("max-k", "hj", "optimal-max-k")
+FLEETS = ("airborne", "whole")
 
 
 def closeness(avoid_start, vmin, detection_range):
@@ -65,6 +72,7 @@ class KbarAttack:
     segment: float = 0.5
     max_level: float = 20.0
     vehicles: str = "switching"
+    fleet: str = "airborne"
     name: str = "kbar"
 
     def __post_init__(self) -> None:
@@ -72,6 +80,8 @@ class KbarAttack:
             raise ValueError(f"intruder must be 'search' or one of {SCRIPTED}; got {self.intruder!r}.")
         if self.vehicles not in VEHICLES:
             raise ValueError(f"vehicles must be one of {VEHICLES}; got {self.vehicles!r}.")
+        if self.fleet not in FLEETS:
+            raise ValueError(f"fleet must be one of {FLEETS}; got {self.fleet!r}.")
         if self.needs_buffer and self.base.buffer_values is None:
             raise ValueError(f"vehicles={self.vehicles!r} / intruder={self.intruder!r} play the buffer game: the "
                              "params need V^B (stp_env.sim.build.with_buffer).")
@@ -79,6 +89,19 @@ class KbarAttack:
             raise ValueError(f"segment must be at least the step dt = {float(self.base.dt)} s; got {self.segment}.")
         if int(self.base.kbar) < 1:
             raise ValueError("the scenario has no k̄ (plan it intruder-aware) to attack.")
+
+    @functools.cached_property
+    def params(self) -> EnvParams:
+        """The simulated environment: ``base``, or its vehicles that can fly from ``t_start`` to the attack's last
+        step (``fleet="airborne"``)."""
+        base = self.base
+        if self.fleet == "whole" or base.vehicle_ids is not None:
+            return base
+        # computed once, eagerly even when first asked inside a trace (the result is cached on the attack)
+        with jax.ensure_compile_time_eval():
+            last = max(float(base.t_end), float(base.t_start) + self.n_steps * float(base.dt))
+            ids = fleet.airborne(replace(base, t_end=jnp.asarray(last, base.t_end.dtype)))
+            return base if ids.size in (0, base.n_vehicles) else fleet.select(base, ids)
 
     @property
     def needs_buffer(self) -> bool:
@@ -134,7 +157,7 @@ class KbarAttack:
         return t_app, jnp.stack([p[0], p[1], wrap_angle(x_app[j, 2] + rel_heading)])
 
     def simulate(self, z, record: bool = False):
-        params = self.base
+        params = self.params
         rep, n_seg = self._split()
         t_app, xi0 = self.spawn(z[:5], params)
         state = core.reset(jax.random.key(0), params)
