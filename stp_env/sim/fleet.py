@@ -1,4 +1,5 @@
-"""Simulating part of a fleet, exactly: only the vehicles that can fly in an episode's window.
+"""Simulating part of a fleet: only the vehicles that can fly in an episode's window, with the whole fleet's
+random numbers.
 
 An evaluation episode covers a window of a plan (town: 73-93 s of a 7-vehicle plan; the dense scenarios: 26-53 s of a
 20-vehicle plan, ``stp_env.sim.build.busiest_window``). Vehicles that arrived before the window starts, or depart
@@ -17,8 +18,11 @@ outputs (``u^A``, ``kappa``, the tracking error) refreshed at the final time as 
 * :func:`select`: ``EnvParams`` of those vehicles (``vehicle_ids``, ``fleet_size`` set).
 * :func:`expand`: a state of the selected vehicles as the whole fleet's state.
 
-``tests/test_fleet.py`` compares whole evaluations against the full simulation (statuses, modes, forced sets and
-flags equal; times and states within float32 rounding) and shows that leaving out a vehicle that flies is caught.
+``tests/test_fleet.py`` compares evaluations against the whole fleet's (statuses, modes, forced sets, avoid starts
+and flags equal; states up to rounding) and shows that leaving out a vehicle that flies is caught. Part of a fleet
+is another compiled program of the same arithmetic: a last-bit difference can flip a bang-bang control at a tie
+and part two trajectories by up to 200 m (more than 1 m in 2-6 episodes of 1,000), as another batch size does
+(``docs/numerics.md``, "Two compiled programs of the same episode"; ``benchmarks/airborne_only.py``).
 """
 
 from __future__ import annotations
