@@ -28,7 +28,6 @@ lists the simulated vehicles only.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 
 import jax
@@ -89,19 +88,25 @@ class KbarAttack:
             raise ValueError(f"segment must be at least the step dt = {float(self.base.dt)} s; got {self.segment}.")
         if int(self.base.kbar) < 1:
             raise ValueError("the scenario has no k̄ (plan it intruder-aware) to attack.")
+        object.__setattr__(self, "_ids", self._simulated_ids())
 
-    @functools.cached_property
-    def params(self) -> EnvParams:
-        """The simulated environment: ``base``, or its vehicles that can fly from ``t_start`` to the attack's last
-        step (``fleet="airborne"``)."""
+    def _simulated_ids(self):
+        """The vehicles that can fly from ``t_start`` to the attack's last step (``None``: all of them, or
+        ``fleet="whole"``), from the concrete ``base`` at construction."""
         base = self.base
         if self.fleet == "whole" or base.vehicle_ids is not None:
-            return base
-        # computed once, eagerly even when first asked inside a trace (the result is cached on the attack)
-        with jax.ensure_compile_time_eval():
-            last = max(float(base.t_end), float(base.t_start) + self.n_steps * float(base.dt))
-            ids = fleet.airborne(replace(base, t_end=jnp.asarray(last, base.t_end.dtype)))
-            return base if ids.size in (0, base.n_vehicles) else fleet.select(base, ids)
+            return None
+        last = max(float(base.t_end), float(base.t_start) + self.n_steps * float(base.dt))
+        ids = fleet.airborne(replace(base, t_end=jnp.asarray(last, base.t_end.dtype)))
+        return None if ids.size in (0, base.n_vehicles) else ids
+
+    @property
+    def params(self) -> EnvParams:
+        """The simulated environment: ``base``, or its vehicles that can fly while the attack runs. Built from
+        ``base`` at every call (the search traces ``base``'s tables, :func:`stp_env.falsify.search.compiled`); the
+        vehicles were chosen at construction."""
+        ids = self.__dict__["_ids"]
+        return self.base if ids is None else fleet.select(self.base, ids)
 
     @property
     def needs_buffer(self) -> bool:
