@@ -4,7 +4,9 @@
 * :mod:`~stp_env.sim.config`: ``EnvConfig`` and ``RewardConfig`` (typed).
 * :mod:`~stp_env.sim.build`: ``make_params`` / ``params_for`` (scenario + plan + artifacts -> ``EnvParams``).
 * :mod:`~stp_env.sim.core`: ``reset``, ``step``, ``observe`` and the events of a step.
-* :mod:`~stp_env.sim.rollout`: ``rollout`` (``vmap`` of ``lax.scan``).
+* :mod:`~stp_env.sim.rollout`: ``rollout`` (a ``lax.scan`` over steps of the ``vmap``-ed step).
+* :mod:`~stp_env.sim.fleet`: simulating only the vehicles that can fly in an episode window, with the whole
+  fleet's random numbers.
 * :mod:`~stp_env.sim.wind`, :mod:`~stp_env.sim.spawn`, :mod:`~stp_env.sim.tables`,
   :mod:`~stp_env.sim.physics`: wind models, intruder spawning, value-table reads, kinematics.
 """
