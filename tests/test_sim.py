@@ -45,6 +45,19 @@ def test_dubins_step_is_exact():
                                                            2 + (v * np.sin(0.3) - 0.2) * dt], rtol=1e-6)
 
 
+@jax.jit
+def _late_plan_run(key, params, step_keys):
+    """Reset, then idle vehicles and the scripted intruder for ``len(step_keys)`` steps (one compiled program for
+    every plan time: the times are arguments, not constants)."""
+
+    def body(state, k):
+        actions = jnp.zeros((params.n_vehicles + 1, 2), jnp.float32)
+        state, _ = sim.step(k, state, actions, params)
+        return state, (state.t, state.intruder_status, state.t_appear)
+
+    return jax.lax.scan(body, sim.reset(key, params), step_keys)
+
+
 @pytest.mark.parametrize("t_start", [1621.25, 2096.25])
 def test_the_intruder_stays_exactly_t_iat_at_late_plan_times(t_start):
     """Assumption 1: the intruder is present for t_IAT, not a step more. Times are float32; summing dt = 0.1 step
@@ -59,14 +72,7 @@ def test_the_intruder_stays_exactly_t_iat_at_late_plan_times(t_start):
     params = dataclasses.replace(base, t_start=jnp.asarray(t_start, f32), t_end=jnp.asarray(t_start + 30.0, f32),
                                  appear_window=jnp.asarray([t_start + 5.0, t_start + 5.0], f32))
     n_steps = 200
-
-    def body(state, key):
-        actions = jnp.zeros((params.n_vehicles + 1, 2), f32)
-        state, _ = sim.step(key, state, actions, params)
-        return state, (state.t, state.intruder_status, state.t_appear)
-
-    _, (ts, status, t_appear) = jax.lax.scan(body, jax.jit(sim.reset)(jax.random.key(0), params),
-                                             jax.random.split(jax.random.key(1), n_steps))
+    _, (ts, status, t_appear) = _late_plan_run(jax.random.key(0), params, jax.random.split(jax.random.key(1), n_steps))
     ts, status, t_appear = np.asarray(ts, np.float64), np.asarray(status), float(np.asarray(t_appear)[-1])
     exact = t_start + 0.1 * np.arange(1, n_steps + 1)
     assert np.max(np.abs(ts - exact)) <= 2.5e-4                       # one float32 ulp at 2,000-4,000 s
