@@ -4,7 +4,8 @@
 :class:`VehiclePlan` its entry in a scenario's :class:`Plan` (:mod:`stp_env.planning.stp` for robust trajectory
 tracking, :mod:`stp_env.planning.methods` for the centralized and least-restrictive methods, both of which import
 these types from here). :func:`plan_to_arrays` / :func:`plan_from_arrays` turn a plan into ``.npz``-ready arrays
-and back (shipped plans, the artifact cache, planning checkpoints).
+and back (shipped plans, the artifact cache, planning checkpoints); :func:`pack_trajectories` stores the
+trajectories of a large shipped plan losslessly in a form that compresses about three times better.
 """
 
 from __future__ import annotations
@@ -109,8 +110,84 @@ def plan_to_arrays(plan: Plan) -> dict[str, np.ndarray]:
     }
 
 
+TRAJECTORY_FIELDS = (("times", 1), ("states", 3), ("controls", 2))
+"""The padded trajectory arrays of :func:`plan_to_arrays` and their columns per sample."""
+
+
+def pack_trajectories(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """``arrays`` of :func:`plan_to_arrays` with the padded float64 trajectories replaced by one lossless, compact
+    ``uint8`` array ``packed_trajectories`` (for shipped plan files; :func:`plan_from_arrays` reads both forms).
+
+    The valid samples of every vehicle are laid end to end (``lengths`` says where each starts), the six columns'
+    float64 bit patterns are differenced sample to sample (modulo 2**64, so the inverse is a cumulative sum), and
+    each column's bytes are stored byte plane by byte plane. Consecutive samples of a trajectory share their sign,
+    exponent and leading mantissa bits, so the high byte planes are almost all zero and ``np.savez_compressed``
+    shrinks them to nearly nothing: a city plan of 49 vehicles that zlib keeps at 6.4 MB in the padded form takes
+    about a third of that. Nothing is rounded: unpacking gives the same bits."""
+    lengths = np.asarray(arrays["lengths"], np.int64)
+    columns = np.concatenate([np.concatenate([np.asarray(arrays[key][i, :m], np.float64).reshape(m, width)
+                                              for i, m in enumerate(lengths)] or [np.zeros((0, width))])
+                              for key, width in TRAJECTORY_FIELDS], axis=1)           # (samples, 6)
+    bits = columns.view(np.uint64)
+    delta = np.concatenate([bits[:1], bits[1:] - bits[:-1]])                            # modulo 2**64
+    planes = np.ascontiguousarray(delta.T, dtype="<u8").view(np.uint8)
+    planes = planes.reshape(delta.shape[1], delta.shape[0], 8).transpose(0, 2, 1)
+    out = {k: v for k, v in arrays.items() if k not in dict(TRAJECTORY_FIELDS)}
+    out["packed_trajectories"] = np.ascontiguousarray(planes)                           # (6, 8, samples)
+    return out
+
+
+def _unpack_trajectories(arrays) -> dict[str, np.ndarray]:
+    """The padded ``times``, ``states``, ``controls`` of a plan stored by :func:`pack_trajectories`."""
+    lengths = np.asarray(arrays["lengths"], np.int64)
+    planes = np.asarray(arrays["packed_trajectories"])
+    n_cols = sum(width for _, width in TRAJECTORY_FIELDS)
+    if (planes.dtype != np.uint8 or planes.ndim != 3 or planes.shape[:2] != (n_cols, 8)
+            or np.any(lengths < 0) or planes.shape[2] != int(lengths.sum())):
+        raise ValueError(f"packed_trajectories must be uint8 of shape ({n_cols}, 8, {int(lengths.sum())}) (the "
+                         f"sum of lengths); got {planes.dtype} {planes.shape}.")
+    delta = np.ascontiguousarray(planes.transpose(0, 2, 1)).view("<u8")[..., 0].T.astype(np.uint64)
+    columns = np.cumsum(delta, axis=0, dtype=np.uint64).view(np.float64)               # modulo 2**64
+    n, k = len(lengths), int(lengths.max(initial=0))
+    starts = np.concatenate([[0], np.cumsum(lengths)])
+    out, col = {}, 0
+    for key, width in TRAJECTORY_FIELDS:
+        padded = np.full((n, k, width), np.nan)
+        for i, m in enumerate(lengths):
+            padded[i, :m] = columns[starts[i]:starts[i] + m, col:col + width]
+        out[key] = padded[..., 0] if width == 1 else padded
+        col += width
+    return out
+
+
+
+def trim_after_arrival(arrays: dict[str, np.ndarray], keep: float) -> dict[str, np.ndarray]:
+    """``arrays`` (:func:`plan_to_arrays`) with every trajectory cut ``keep`` seconds after
+    its vehicle's arrival (vehicles that never arrive keep all their samples). A vehicle leaves the airspace at
+    its arrival, so nothing of the model reads the later samples but a vehicle running late (an avoidance
+    manoeuvre), which tracks the reference ``keep`` seconds on and then its last sample; the planner integrates
+    every trajectory to its horizon, which in a long plan is most of the samples."""
+    if not (math.isfinite(keep) and keep >= 0):
+        raise ValueError(f"keep must be a non-negative number of seconds; got {keep}.")
+    lengths = np.asarray(arrays["lengths"]).copy()
+    for i, m in enumerate(lengths):
+        arrival = float(arrays["arrival_time"][i])
+        if math.isfinite(arrival):
+            lengths[i] = min(m, int(np.searchsorted(arrays["times"][i, :m], arrival + keep, side="right")))
+    width = int(lengths.max())
+    out = dict(arrays, lengths=lengths)
+    for key in ("times", "states", "controls"):
+        cut = np.array(arrays[key][:, :width], copy=True)
+        for i, m in enumerate(lengths):
+            cut[i, m:] = np.nan
+        out[key] = cut
+    return out
+
+
 def plan_from_arrays(arrays) -> Plan:
-    """Inverse of :func:`plan_to_arrays`."""
+    """Inverse of :func:`plan_to_arrays` (and of :func:`pack_trajectories`)."""
+    if "packed_trajectories" in arrays:
+        arrays = {**{k: arrays[k] for k in arrays if k != "packed_trajectories"}, **_unpack_trajectories(arrays)}
     vehicles = []
     for i, m in enumerate(np.asarray(arrays["lengths"])):
         single = SinglePlan(t_ldt=float(arrays["t_ldt"][i]), sta=float(arrays["sta"][i]),
