@@ -187,3 +187,28 @@ def test_every_town_plan_is_tracked_within_r_e(wind_model):
     assert err.max() > 0.3 * r_e  # the wind does push: the bound is not vacuous
     assert (np.asarray(final.status) == sim.ARRIVED).all()
     assert (np.asarray(final.arrival_time) <= np.asarray(params.sta)[None, :] + 1e-4).all()
+
+
+def test_a_plan_without_kbar_promises_nothing_to_vehicles_that_left_it():
+    """A collision between two vehicles is a guarantee violation when both fly their plans (any plan), or when
+    the plan is intruder-aware (k̄: buffer regions); with a plan that is not (no k̄), a vehicle avoiding the
+    intruder has left a plan that never accounted for it, and its collisions are only collisions."""
+    import dataclasses
+
+    from stp_env.sim.core import Closest, _events
+
+    params = _params("outside")
+    n = params.n_vehicles
+    state = jax.jit(sim.reset)(jax.random.key(0), params)
+    status = jnp.where(jnp.arange(n) < 2, sim.FLYING, sim.ARRIVED).astype(jnp.int32)     # two in the air
+    state = dataclasses.replace(state, status=status, assumption_ok=jnp.ones(n, bool),
+                                complied=jnp.ones(n, bool))
+    pair = jnp.full((n, n), 1e30).at[0, 1].set(50.0).at[1, 0].set(50.0)      # vehicles 0 and 1 within R_c
+    closest = Closest(pair=pair, intruder=jnp.full(n, jnp.inf), building=jnp.full(n, jnp.inf))
+    for mode, kbar, violation in ((sim.AVOIDING, 2, True), (sim.AVOIDING, -1, False),
+                                  (sim.NOMINAL, 2, True), (sim.NOMINAL, -1, True)):
+        s = dataclasses.replace(state, mode=jnp.full(n, sim.NOMINAL, jnp.int32).at[0].set(mode))
+        p = dataclasses.replace(params, kbar=jnp.asarray(kbar, jnp.int32))
+        new, _ = _events(s, s, closest, p)
+        assert np.asarray(new.status)[:2].tolist() == [sim.COLLIDED] * 2
+        assert np.asarray(new.guarantee_violation)[:2].tolist() == [violation] * 2, (mode, kbar)

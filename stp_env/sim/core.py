@@ -336,7 +336,13 @@ def _events(state: EnvState, sub: EnvState, closest: Closest, params: EnvParams)
     # A vehicle flying the after-avoidance fallback (eq. 40 without replanning) has no guarantee: collisions it
     # takes part in are collisions, not guarantee violations (the paper's guarantee after t_IAT rests on Algorithm 4).
     fallback = fly & (state.mode == AFTER_AVOIDANCE)
-    no_fallback_pair = ~(fallback[:, None] | fallback[None, :])
+    # A plan that is not intruder-aware (no k̄: no buffer regions, induced obstacles of R_c + 2 r_e only) promises
+    # nothing about a vehicle that leaves its plan to avoid the intruder: its collisions with other vehicles and
+    # buildings are collisions, not guarantee violations. Its avoidance of the intruder itself (V^A, a game of the
+    # pair) and the tracking of vehicles on their plans are guaranteed by any plan.
+    unplanned = fly & (state.mode != NOMINAL) & (params.kbar < 0)
+    unguarded = fallback | unplanned
+    no_fallback_pair = ~(unguarded[:, None] | unguarded[None, :])
     hit_guarded_vehicle = jnp.any(near & no_fallback_pair, axis=1)
     d_int = jnp.where(fly & present, closest.intruder, jnp.inf)
     hit_intruder = d_int <= params.collision_radius
@@ -345,7 +351,7 @@ def _events(state: EnvState, sub: EnvState, closest: Closest, params: EnvParams)
     arrived = fly & ~collided & ~out & (d_target <= params.target_radii)
     status = jnp.where(collided, COLLIDED, jnp.where(out, OUT_OF_BOUNDS, jnp.where(arrived, ARRIVED, state.status)))
     min_sep = jnp.minimum(state.min_separation, jnp.where(fly, jnp.minimum(jnp.min(dist, axis=1), d_int), jnp.inf))
-    guarded_hit = hit_guarded_vehicle | hit_intruder | (hit_building & ~fallback)
+    guarded_hit = hit_guarded_vehicle | hit_intruder | (hit_building & ~unguarded)
     violation = collided & guarded_hit & sub.assumption_ok & sub.complied
 
     new_state = replace(
