@@ -66,10 +66,8 @@ KEEP_AFTER_ARRIVAL = {**{f"city-kbar{k}": 30.0 for k in (2, 3, 4)}, "bay-area": 
 A vehicle leaves the airspace when it reaches its target (``SinglePlan.arrival_time``), but the planner integrates
 every trajectory to its BRS horizon: at k̄ = 2 in the city, where departures are spaced 67.5 s apart back from one
 STA, 58 % of the samples of the first 49 vehicles lie after their arrival and the file would be about 14 MB (2.6 MB
-trimmed and packed). The
-30 s kept after the arrival are the reference a vehicle delayed by an avoidance manoeuvre (t_IAT = 10 s) tracks
-until it reaches its target; after the last sample the reference stays there."""
-
+trimmed and packed). The 30 s kept after the arrival are the reference a vehicle delayed by an avoidance manoeuvre
+(t_IAT = 10 s) tracks until it reaches its target; after the last sample the reference stays there."""
 
 
 def generate(name: str, *, tracking_bound: float | None = None, checkpoint=None, horizon: float | None = None,

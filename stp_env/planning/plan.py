@@ -160,7 +160,6 @@ def _unpack_trajectories(arrays) -> dict[str, np.ndarray]:
     return out
 
 
-
 def trim_after_arrival(arrays: dict[str, np.ndarray], keep: float) -> dict[str, np.ndarray]:
     """``arrays`` (:func:`plan_to_arrays`) with every trajectory cut ``keep`` seconds after
     its vehicle's arrival (vehicles that never arrive keep all their samples). A vehicle leaves the airspace at

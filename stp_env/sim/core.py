@@ -342,8 +342,8 @@ def _events(state: EnvState, sub: EnvState, closest: Closest, params: EnvParams)
     # pair) and the tracking of vehicles on their plans are guaranteed by any plan.
     unplanned = fly & (state.mode != NOMINAL) & (params.kbar < 0)
     unguarded = fallback | unplanned
-    no_fallback_pair = ~(unguarded[:, None] | unguarded[None, :])
-    hit_guarded_vehicle = jnp.any(near & no_fallback_pair, axis=1)
+    guarded_pair = ~(unguarded[:, None] | unguarded[None, :])
+    hit_guarded_vehicle = jnp.any(near & guarded_pair, axis=1)
     d_int = jnp.where(fly & present, closest.intruder, jnp.inf)
     hit_intruder = d_int <= params.collision_radius
     collided = fly & (hit_vehicle | hit_intruder | hit_building)
