@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -183,6 +184,49 @@ def test_early_stop_gives_the_full_solve_t_ldt_with_fewer_steps():
     later = plan_single(GRID, PLANNER, start, target, r, sta=0.0, horizon=10.0, depart_at=full.t_ldt - 3.0)
     assert later.times[0] == pytest.approx(full.t_ldt - 3.0)
     assert later.arrival_time <= 0.05
+
+
+AGILE = DubinsWind(v_min=0.5, v_max=0.6, omega_max=2.0, wind=0.0)
+
+
+def test_a_vehicle_with_time_to_spare_flies_to_its_target():
+    # Departing 10 s before its latest departure time, the vehicle is deep inside the tube, where V is flat (the
+    # target's depth): the controller of V(t) alone wandered and arrived 0.63 s after the STA (13.95 s of flight
+    # for a 3.35 s trip). The goal-directed control (the latest slice containing the state) flies the direct trip.
+    start, target, r = (-1.0, 0.3, 0.5), (1.0, -0.2), 0.2
+    direct = plan_single(GRID, PLANNER, start, target, r, sta=0.0, horizon=20.0)
+    early = plan_single(GRID, PLANNER, start, target, r, sta=0.0, horizon=20.0, depart_at=direct.t_ldt - 10.0)
+    assert early.arrival_time - early.t_ldt <= direct.arrival_time - direct.t_ldt + 0.1
+
+
+def test_the_goal_directed_control_is_filtered_by_the_tube_of_its_own_time():
+    # A disk sweeps across the straight route, centred on it 1.7 s after an early departure: the goal-directed
+    # control (from a later slice, where the disk has gone) would fly into it. The filter keeps each sample in the
+    # tube of its own time: the trajectory dodges the disk and still arrives early. The controller of V(t) alone
+    # never arrived (it wandered on the flat plateau).
+    def sweeper(t, p):
+        return jnp.hypot(p["xs"][:, None], p["ys"][None, :] - 0.3 * (t + 13.3)) - 0.3
+
+    axis = jnp.linspace(-1.5, 1.5, 61)
+    plan = plan_single(GRID, AGILE, (-1.0, 0.0, 0.0), (1.0, 0.0), 0.2, sta=0.0, horizon=20.0, depart_at=-15.0,
+                       obstacle_fn=sweeper, obstacle_params={"xs": axis, "ys": axis})
+    t, x = plan.flight()
+    assert plan.arrival_time <= plan.t_ldt + 1.5 * 1.8 / AGILE.v_max   # 1.8 m to the target's edge
+    assert np.hypot(x[:, 0], x[:, 1] - 0.3 * (t + 13.3)).min() >= 0.3 - 0.5 * GRID.spacing[0]
+
+
+def test_a_trajectory_that_leaves_the_tube_is_reported():
+    # A disk appears on the target 3 s after an early departure, just before the direct trip would arrive: the
+    # trajectory enters the target as the disk appears (the tube's values are sampled in time), i.e. inside an
+    # obstacle. The check must see it: the tube value along the flight exceeds a cell.
+    def cover(t, p):
+        d = jnp.hypot(p["xs"][:, None] - 1.0, p["ys"][None, :]) - 0.3
+        return jnp.where((t >= -12.0) & (t <= -5.0), d, jnp.inf)
+
+    axis = jnp.linspace(-1.5, 1.5, 61)
+    with pytest.warns(UserWarning, match="leaves the reach-avoid tube"):
+        plan_single(GRID, AGILE, (-1.0, 0.0, 0.0), (1.0, 0.0), 0.2, sta=0.0, horizon=20.0, depart_at=-15.0,
+                    obstacle_fn=cover, obstacle_params={"xs": axis, "ys": axis})
 
 
 def test_folded_lag_disks_are_a_superset_of_the_lag_profiles():
