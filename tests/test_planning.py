@@ -8,7 +8,7 @@ import pytest
 
 from stp_env import hj
 from stp_env.dynamics import DubinsWind
-from stp_env.planning.single import InfeasiblePlanError, plan_single
+from stp_env.planning.single import InfeasiblePlanError, TubeExcursionWarning, plan_single
 from stp_env.planning.stp import plan_rtt
 
 VEHICLE = DubinsWind(v_min=0.0, v_max=1.0, omega_max=1.0, wind=0.1)
@@ -224,7 +224,7 @@ def test_a_trajectory_that_leaves_the_tube_is_reported():
         return jnp.where((t >= -12.0) & (t <= -5.0), d, jnp.inf)
 
     axis = jnp.linspace(-1.5, 1.5, 61)
-    with pytest.warns(UserWarning, match="leaves the reach-avoid tube"):
+    with pytest.warns(TubeExcursionWarning, match="leaves the reach-avoid tube"):
         plan_single(GRID, AGILE, (-1.0, 0.0, 0.0), (1.0, 0.0), 0.2, sta=0.0, horizon=20.0, depart_at=-15.0,
                     obstacle_fn=cover, obstacle_params={"xs": axis, "ys": axis})
 

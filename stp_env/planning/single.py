@@ -72,6 +72,11 @@ EXTRACTIONS = ("goal", "tube")
 """The nominal-trajectory controllers of :func:`_rollout`: ``"goal"`` the least-restrictive one (a goal-directed
 control filtered by the tube), ``"tube"`` the control of eqs. (11), (37) on the current slice alone."""
 
+class TubeExcursionWarning(UserWarning):
+    """A nominal trajectory left its reach-avoid tube by more than :data:`TUBE_TOLERANCE_CELLS`: it may enter an
+    obstacle (:func:`stp_env.planning.stp.plan_rtt` then plans the vehicle again with the unsplit solver)."""
+
+
 TUBE_TOLERANCE_CELLS = 1.0
 """A nominal trajectory whose tube value ``V(t, x(t))`` exceeds this many cells (of the finest position axis) before
 its arrival or the STA has left the reach-avoid tube: it may enter an obstacle (:func:`plan_single_with_slices`
@@ -271,7 +276,7 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
     if excursion > tolerance:
         warnings.warn(f"the nominal trajectory from {tuple(round(float(c), 3) for c in start)} leaves the "
                       f"reach-avoid tube by {excursion:.3g} (more than a cell, {tolerance:.3g}) with either "
-                      "extraction; it may enter an obstacle.", stacklevel=3)
+                      "extraction; it may enter an obstacle.", TubeExcursionWarning, stacklevel=3)
     # The samples go on past the arrival (into the target, with the same controller) until the STA: a tracking
     # vehicle that trails its reference by up to the error bound still has a moving reference to follow.
     plan = SinglePlan(t_ldt=t_start, sta=float(sta), times=sample_times, states=xs, controls=us,
