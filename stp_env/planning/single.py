@@ -72,6 +72,7 @@ EXTRACTIONS = ("goal", "tube")
 """The nominal-trajectory controllers of :func:`_rollout`: ``"goal"`` the least-restrictive one (a goal-directed
 control filtered by the tube), ``"tube"`` the control of eqs. (11), (37) on the current slice alone."""
 
+
 class TubeExcursionWarning(UserWarning):
     """A nominal trajectory left its reach-avoid tube by more than :data:`TUBE_TOLERANCE_CELLS`: it may enter an
     obstacle (:func:`stp_env.planning.stp.plan_rtt` then plans the vehicle again with the unsplit solver)."""
@@ -105,8 +106,9 @@ def _rollout(key, x0, t0, dt, slice_times, stack, time_to_reach, *, grid, dynami
     tube's time-to-reach, so ``x`` lies on the zero level of ``V(t', .)`` and the gradient points to the fastest
     arrival); it is used when the next sample stays inside the tube of its own time, ``V(t + dt, x') <= -margin``
     (:data:`EXTRACTION_MARGIN_CELLS`), and otherwise the control of ``V(t, .)`` itself, which keeps the state in
-    the tube (the tube is controlled invariant). Without slack ``t' = t`` and the two coincide. With
-    ``extraction="tube"`` the control of ``V(t, .)`` is used throughout (the papers' extraction).
+    the tube in exact arithmetic (numerically it need not: :func:`plan_single_with_slices` checks the values).
+    Without slack ``t' = t`` and the two coincide. With ``extraction="tube"`` the control of ``V(t, .)`` is used
+    throughout (the papers' extraction).
 
     Returns ``(states, controls, values)`` at the samples; ``values`` is the tube value ``V(t, x(t))`` (positive:
     the trajectory has left the tube)."""
