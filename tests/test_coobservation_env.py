@@ -78,3 +78,12 @@ def test_parallel_env_api_and_infos():
     assert obs["attacker"].shape == (attackers.OBS_SIZE,) and np.abs(obs["attacker"]).max() > 0
     with pytest.raises(ValueError, match="finite"):
         env.step({"attacker": np.array([np.nan, 0.0])})
+
+
+def test_training_outcome_rates_count_only_finished_episodes():
+    from stp_env.coobservation.learned import outcome_rates
+
+    infos = [{"entered": True, "detected": False}, {"entered": True, "detected": True},
+             {"entered": False, "detected": True}, {}, {"entered": True, "detected": False}]
+    dones = [True, True, True, False, False]  # the last one has not ended: not counted
+    assert outcome_rates(infos, dones) == (3, 2, 2, 1)

@@ -180,9 +180,47 @@ class AttackerTrainConfig:
     torch_threads: int = 1
 
 
+def outcome_rates(infos, dones) -> tuple[int, int, int, int]:
+    """``(finished, entered, detected, succeeded)`` counts of the episodes that ended in one vector step of
+    :class:`AttackerVecEnv` (its ``infos`` carry ``entered`` and ``detected`` at an episode's end; success is an
+    entry that was not detected)."""
+    n = e = d = s = 0
+    for info, done in zip(infos, dones):
+        if done and "entered" in info:
+            n += 1
+            e += info["entered"]
+            d += info["detected"]
+            s += info["entered"] and not info["detected"]
+    return n, e, d, s
+
+
+def _outcome_logger():
+    """An SB3 callback that logs, per PPO iteration, the share of the finished episodes that entered a zone
+    (``rollout/entered_rate``), were detected (``rollout/detected_rate``) and got in undetected
+    (``rollout/success_rate``): the reward mixes these with the shaping, so it alone does not say which."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class OutcomeLogger(BaseCallback):
+        def _on_rollout_start(self) -> None:
+            self.counts = np.zeros(4, int)
+
+        def _on_step(self) -> bool:
+            self.counts += outcome_rates(self.locals["infos"], self.locals["dones"])
+            return True
+
+        def _on_rollout_end(self) -> None:
+            n = self.counts[0]
+            if n:
+                for name, k in zip(("entered", "detected", "success"), self.counts[1:]):
+                    self.logger.record(f"rollout/{name}_rate", k / n)
+
+    return OutcomeLogger()
+
+
 def train(params, tp, t_window, config: AttackerTrainConfig, out_dir, progress: bool = True) -> Path:
     """Train PPO on :class:`AttackerVecEnv` and write ``out_dir/attacker.npz`` (and ``config.json``, the
-    training log ``progress.csv``). Returns the path of the ``.npz``."""
+    training log ``progress.csv`` with the outcome rates of :func:`_outcome_logger`). Returns the path of the
+    ``.npz``."""
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.logger import configure
@@ -199,7 +237,7 @@ def train(params, tp, t_window, config: AttackerTrainConfig, out_dir, progress: 
                 policy_kwargs={"net_arch": list(config.net_arch), "activation_fn": torch.nn.Tanh}, verbose=0,
                 device="cpu")
     model.set_logger(configure(str(out), ["csv"]))
-    model.learn(config.total_timesteps, progress_bar=progress)
+    model.learn(config.total_timesteps, callback=_outcome_logger(), progress_bar=progress)
     meta = {"objective": "enter a forbidden zone without missing an observation",
             "config": dataclasses.asdict(config), "t_window": [float(t) for t in t_window]}
     (out / "config.json").write_text(json.dumps(meta, indent=1))
