@@ -1,13 +1,16 @@
-"""The compromised-vehicle threat in the UAV simulator: under the secured schedule the opportunistic attacker never
-finds a window and the reckless one is always caught; under the unsecured one (every 90 s) some attacks succeed,
-so the check can fail. And the PettingZoo adapter passes PettingZoo's API test."""
+"""The compromised-vehicle threat in the UAV simulator: under the secured schedule even the attacker the ellipses
+are built against (the fastest ground speed, a tailwind) never finds a window; under a schedule that leaves the
+wind out, or the unsecured one (every 90 s), it gets in undetected, so the check can fail. And the PettingZoo
+adapter passes PettingZoo's API test."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import itertools
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from pettingzoo.test import parallel_api_test
@@ -47,22 +50,53 @@ def test_secured_schedule_ellipses_miss_the_zones_and_the_unsecured_do_not():
 
 
 @pytest.mark.slow
-def test_attacks_succeed_only_against_the_unsecured_schedule():
-    params, threats, _ = _setup()
+def test_the_ellipses_worst_case_attacker_beats_only_schedules_that_leave_something_out():
+    """The optimistic attacker (ground speed ``v_max + wind``, back to the nearest point its observers still see)
+    under the ``tailwind`` model, which gives it that speed: the schedule secured by the ellipses holds; the one
+    secured as if there were no wind, and the unsecured one, do not (so the check can fail)."""
+    sc = dataclasses.replace(SCENARIO, wind_model="tailwind")
+    params = sc.params(artifacts=SCENARIO.coarse_artifacts())
+    speeds = {"secured": sc.attacker_speed, "windless": sc.v_max}
+    times = {k: sc.secured_times(checkpoints.ellipse_test(sc.forbidden, v, sc.ellipse_radius))
+             for k, v in speeds.items()}
+    times["unsecured"] = sc.uniform_times(90.0)
+    assert len(times["windless"]) < len(times["secured"])
+    m = max(len(sc.schedule(t)) for t in times.values())
     n_steps = threat.steps_for(params)
-    attacker = attackers.ATTACKERS["opportunistic"]  # one function object: one compilation for both schedules
+    attacker = attackers.ATTACKERS["optimistic"]  # one function object: one compilation for every schedule
     out = {}
-    for name, tp in threats.items():
+    for name, t in times.items():
+        tp = threat.threat_params(sc.schedule(t), sc.forbidden, sc.observation_radius, pad_to=m)
         final, _ = threat.rollout(jax.random.key(3), params, tp, attacker, 12, n_steps, (90.0, 96.0))
         out[name] = threat.outcomes(jax.device_get(final))
-    sec, uns = out["secured"], out["unsecured"]
+    sec = out["secured"]
     assert sec["entered"].sum() == 0 and sec["detected"].sum() == 0 and sec["success"].sum() == 0
-    assert uns["success"].sum() > 0  # the same attacker gets in undetected when the schedule is not secured
-    for o in (sec, uns):
+    assert out["windless"]["success"].sum() > 0 and out["unsecured"]["success"].sum() > 0
+    for o in out.values():
         assert o["all_checked"].all() and o["honest_entries"].sum() == 0
         # other vehicles' observations fail only where the attacker rammed a teammate (both are lost)
         assert o["false_alarms"][o["collisions"] == 0].sum() == 0
         assert o["max_track_error"].max() < SCENARIO.tracking_margin
+
+
+def test_the_tailwind_blows_along_each_heading_at_full_strength():
+    from stp_env.sim import winds
+
+    params = SCENARIO.params(artifacts=SCENARIO.coarse_artifacts())
+    state = threat.reset(jax.random.key(0), params, _setup()[1]["secured"], -1, 0.0).sim
+    w = winds.make("tailwind").inner(state, params, None)
+    heading = np.asarray(state.x[:, 2])
+    np.testing.assert_allclose(np.asarray(w[:-1]), SCENARIO.wind * np.stack([np.cos(heading), np.sin(heading)], 1),
+                               rtol=1e-6, atol=1e-6)
+
+
+def test_the_optimistic_attacker_returns_where_every_observer_still_sees_it():
+    centres = jnp.asarray([[0.0, 0.0], [100.0, 0.0], [1e4, 1e4]])
+    mask = jnp.asarray([True, True, False])  # the third disk is not due: ignored
+    a = attackers.toward_within(jnp.asarray([50.0, 0.0]), jnp.asarray([50.0, 1000.0]), centres, mask, 80.0)
+    np.testing.assert_allclose(np.asarray(a), [50.0, np.sqrt(80.0**2 - 50.0**2)], rtol=1e-5)
+    inside = attackers.toward_within(jnp.asarray([50.0, 0.0]), jnp.asarray([50.0, 10.0]), centres, mask, 80.0)
+    np.testing.assert_allclose(np.asarray(inside), [50.0, 10.0], rtol=1e-6)  # already seen: the point itself
 
 
 @pytest.mark.slow

@@ -19,6 +19,7 @@ that it waits there if early), and back on its nominal trajectory (the tracker) 
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 from stp_env.coobservation import threat as threat_lib
@@ -103,13 +104,84 @@ def opportunistic(slack: float = 5.0):
     return policy
 
 
+def _observer_disks(params, threat, c, t_next):
+    """The observers of vehicle ``c`` at its next observation time ``t_next``: centres ``(M, 2)`` (the partner's
+    nominal position then, or the fixed point) and a mask ``(M,)`` of the observations that are due then and
+    involve ``c``."""
+    x_ref, _ = core.nominal_reference(params, jnp.where(jnp.isfinite(t_next), t_next, params.t_end))
+    due = ((threat.obs_agent == c) | (threat.obs_partner == c)) & (jnp.abs(threat.obs_time - t_next) < 1e-3)
+    other = jnp.where(threat.obs_agent == c, threat.obs_partner, threat.obs_agent)
+    centre = jnp.where((other >= 0)[:, None], x_ref[jnp.maximum(other, 0), :2], threat.obs_point)
+    return centre, due
+
+
+def toward_within(o, p, centres, mask, radius):
+    """The point of the segment from ``o`` to ``p`` farthest toward ``p`` that stays within ``radius`` of every
+    masked centre (``o`` itself must be within: the vehicle's own nominal position is). The observation disks'
+    intersection is convex, so the points of the segment inside it are a segment from ``o``."""
+    d = p - o
+    f = o - centres                                            # (M, 2)
+    dd = jnp.maximum(d @ d, 1e-9)
+    df = f @ d
+    ff = jnp.sum(f * f, axis=-1) - radius**2
+    root = (-df + jnp.sqrt(jnp.maximum(df**2 - dd * ff, 0.0))) / dd
+    s = jnp.clip(jnp.min(jnp.where(mask, root, 1.0)), 0.0, 1.0)
+    return o + s * d
+
+
+def optimistic(slack: float = 2.0, margin: float = 10.0):
+    """The attacker the reachability ellipses are built against (their worst case, up to turns): it counts on the
+    fastest ground speed, ``v_max + wind`` (which the ``tailwind`` wind model gives it), and it returns not to its
+    own formation slot but to the nearest point from which every observer of its next observation still sees it
+    (``margin`` [m] inside the observation radius, around the observers' nominal positions). It attacks when the
+    detour ``|p - e| + |e - a(e)|`` (``a(e)``: that point, toward the entry point ``e``) fits before that
+    observation with ``slack`` seconds for the turns; after the entry it flies to ``a`` (waiting there if early),
+    and after that observation back to its plan. Against a schedule secured by ellipses of speed ``v_max + wind``
+    grown by the observation radius no window can open; against one that leaves out the wind, or the radius, it
+    can."""
+
+    def policy(key, state, params, threat, planned):
+        del key, planned
+        c = jnp.maximum(state.compromised, 0)
+        sim = state.sim
+        x, t = sim.x[c], sim.t
+        b = params.vehicle_bounds
+        t_next, own = next_observation(state, params, threat, c, t)
+        centres, due = _observer_disks(params, threat, c, t_next)
+        r = threat.radius - margin
+        # before the entry: the entry point with the shortest detour through the nearest visible point
+        e = threat.entry_points
+        aims = jax.vmap(lambda q: toward_within(own, q, centres, due, r))(e)
+        detour = jnp.linalg.norm(e - x[:2], axis=-1) + jnp.linalg.norm(aims - e, axis=-1)
+        k = jnp.argmin(detour)
+        go = detour[k] / (b[V_MAX] + b[WIND]) <= t_next - t - slack
+        to_zone = steer(x, e[k], b[V_MAX], b)
+        # after the entry, until the first observation after it: the nearest visible point toward here
+        aim = toward_within(own, x[:2], centres, due, r)
+        dist_aim = jnp.linalg.norm(aim - x[:2])
+        back = steer(x, aim, jnp.clip(dist_aim / ARRIVE_TIME, b[V_MIN], b[V_MAX]), b)
+        entered = state.entered[c]
+        involves = (threat.obs_agent == c) | (threat.obs_partner == c)
+        seen_since = jnp.any(involves & (threat.obs_time > state.entry_time[c]) & (threat.obs_time <= t))
+        x_ref, _ = core.nominal_reference(params, t)
+        rejoined = jnp.linalg.norm(x_ref[c, :2] - x[:2]) < REJOIN_DISTANCE
+        dist_own = jnp.linalg.norm(own - x[:2])
+        rejoin = jnp.where(rejoined, threat_lib.FLY_PLAN,
+                           steer(x, own, jnp.clip(dist_own / ARRIVE_TIME, b[V_MIN], b[V_MAX]), b))
+        before = jnp.where(go, to_zone, threat_lib.FLY_PLAN)
+        return jnp.where(entered, jnp.where(seen_since, rejoin, back), before)
+
+    policy.__name__ = "optimistic"
+    return policy
+
+
 def honest(key, state, params, threat, planned):
     """No attack: the compromised vehicle keeps flying its plan (the false-alarm baseline)."""
     del key, state, params, threat, planned
     return threat_lib.FLY_PLAN
 
 
-ATTACKERS = {"reckless": reckless, "opportunistic": opportunistic(), "honest": honest}
+ATTACKERS = {"reckless": reckless, "opportunistic": opportunistic(), "optimistic": optimistic(), "honest": honest}
 
 
 # ------------------------------------------------------------------------------------------------ observation

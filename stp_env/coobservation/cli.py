@@ -1,10 +1,12 @@
 """``stp-env coobservation``: attacks on co-observation schedules in the UAV simulator.
 
 Evaluates a UAV formation flying past two forbidden zones under a secured schedule (the fewest co-observation
-times whose reachability ellipses miss the zones), an unsecured one (every --period seconds) and the schedule
-secured with the exact reachable sets of the Dubins vehicle in wind (--schedules exact), against scripted
-attackers (reckless, opportunistic), an honest control (honest: nobody deviates) and learned ones
-(learned:<path to attacker.npz>). Prints a markdown table and writes results.json and results.md to --out.
+times whose reachability ellipses miss the zones), an unsecured one (every --period seconds), the schedule
+secured with the exact reachable sets of the Dubins vehicle in wind (--schedules exact) and one secured as if there
+were no wind (--schedules windless, a control that must fail), against scripted
+attackers (reckless, opportunistic, optimistic: the ellipses' own worst case, best with --wind-model tailwind), an
+honest control (honest: nobody deviates) and learned ones (learned:<path to attacker.npz>). Prints a markdown table
+and writes results.json and results.md to --out.
 """
 
 from __future__ import annotations
@@ -14,24 +16,29 @@ import json
 import time
 from pathlib import Path
 
-SCHEDULES = ("secured", "unsecured", "exact")
+SCHEDULES = ("secured", "unsecured", "exact", "windless")
 
 
 def add_parser(sub) -> None:
     """Register the ``coobservation`` subcommand on an argparse sub-parser collection."""
     from stp_env.cli import _positive  # the command line's number checks (same messages)
+    from stp_env.sim import winds
 
     p = sub.add_parser("coobservation", help="attack co-observation schedules in the UAV simulator (success rate "
                                              "with exact bounds, detection rate and delay)",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter, description=__doc__.split("\n\n")[1])
     p.add_argument("--episodes", type=_positive(int), default=10_000, help="episodes per (schedule, attacker)")
     p.add_argument("--batch", type=_positive(int), default=1000, help="episodes per batched rollout")
-    p.add_argument("--attackers", nargs="+", default=["honest", "reckless", "opportunistic"],
-                   help="honest, reckless, opportunistic, or learned:<attacker.npz>")
+    p.add_argument("--attackers", nargs="+", default=["honest", "reckless", "opportunistic", "optimistic"],
+                   help="honest, reckless, opportunistic, optimistic, or learned:<attacker.npz>")
     p.add_argument("--schedules", nargs="+", choices=SCHEDULES, default=["secured", "unsecured"],
                    help="which schedules to attack (exact: secured with the exact regions, a level-set solve on "
-                        "first use, about 10 minutes on 2 cores)")
+                        "first use, about 10 minutes on 2 cores; windless: secured with ellipses that leave the "
+                        "wind out of the attacker's speed, deliberately unsound: the control showing that the "
+                        "wind term is needed)")
     p.add_argument("--period", type=_positive(float), default=90.0, help="the unsecured schedule's period [s]")
+    p.add_argument("--wind-model", choices=winds.names(), default="uniform",
+                   help="how each vehicle's wind (6 m/s disk) is drawn: " + winds.describe().replace("\n", "; "))
     p.add_argument("--seed", type=int, default=0, help="seed of the episodes (the same for every pair)")
     p.add_argument("--out", default="coobservation-eval", help="output folder")
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")
@@ -70,6 +77,9 @@ def schedules_for(scenario, names, period: float, progress: bool = True) -> dict
             out[name] = scenario.secured_times(ell)
         elif name == "unsecured":
             out[name] = scenario.uniform_times(period)
+        elif name == "windless":
+            out[name] = scenario.secured_times(checkpoints.ellipse_test(scenario.forbidden, scenario.v_max,
+                                                                        scenario.ellipse_radius))
         else:
             from stp_env.coobservation import exact
 
@@ -92,7 +102,7 @@ def run(args) -> int:
 
     attackers = resolve_attackers(args.attackers)  # bad names fail before any computation
     out = check_output_dir(args.out)  # so that the results are not lost at the end
-    scenario = FormationScenario()
+    scenario = FormationScenario(wind_model=args.wind_model)
     start = time.time()
     params = scenario.params(progress=not args.no_progress)
     times = schedules_for(scenario, args.schedules, args.period, progress=not args.no_progress)

@@ -65,6 +65,10 @@ class FormationScenario:
             ``docs/coobservation.md``).
         target_radius: the goal disk each vehicle lands in [m].
         v_max, omega_max, wind: the vehicle (the city UAV of the intruder paper, eq. 43 bounds).
+        wind_model: how the wind in each vehicle's disk of radius ``wind`` is drawn (a registered model of
+            :mod:`stp_env.sim.winds`, by name): ``"uniform"`` (anew every step, the papers'), or ``"tailwind"``
+            (full strength along each vehicle's heading: a compromised vehicle flies over the ground at
+            ``v_max + wind``, the speed the reachability ellipses assume).
         dt: simulator step [s]; control_dt: the core's inner control period [s] (the tracker runs at every inner
             step; the attacker's action is held over a step); sample_period: nominal trajectory samples [s].
     """
@@ -85,8 +89,14 @@ class FormationScenario:
     dt: float = 0.2
     control_dt: float = 0.02
     sample_period: float = 0.5
+    wind_model: str = "uniform"
 
     def __post_init__(self):
+        from stp_env.sim import winds
+
+        if not isinstance(self.wind_model, str):
+            raise ValueError(f"wind_model must be the name of a registered wind model; got {self.wind_model!r}.")
+        winds.make(self.wind_model)  # raises ValueError naming the registered models
         for name in ("speed", "observation_radius", "target_radius", "v_max", "omega_max", "dt", "control_dt",
                      "sample_period"):
             v = getattr(self, name)
@@ -205,7 +215,7 @@ class FormationScenario:
         else:
             avoid, tracking = artifacts
         config = sim.EnvConfig(dt=self.dt, control_dt=self.control_dt, episode="full", appear_window=(0.0, 0.0),
-                               tail=0.0)
+                               tail=0.0, wind_model=self.wind_model)
         params = sim.make_params(scenario, self.plan(), avoid, tracking, config)
         never = jnp.asarray([1e9, 1e9], jnp.float32)
         return replace(params, appear_window=never, t_start=jnp.asarray(0.0, jnp.float32),

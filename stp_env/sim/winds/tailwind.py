@@ -1,0 +1,43 @@
+"""``tailwind``: every agent's wind at the full bound of its disk, blowing along the agent's current heading,
+re-evaluated at every inner step of the core. It is the wind that makes every agent as fast over the ground as it
+can ever be (``v + d``) in whatever direction it flies: the case a reachability bound built on the speed
+``v_max + d`` (the co-observation ellipses, ``stp_env.coobservation``) has to cover, and the one an attacker would
+pick. No heading disturbance."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax.numpy as jnp
+
+from stp_env.sim.winds import register
+from stp_env.sim.winds.base import WindModel, radii
+
+
+def tailwinds(state, params):
+    """The tailwinds ``(N + 1, 2)`` at ``state`` (world frame, each on its disk's boundary)."""
+    heading = jnp.concatenate([params.vehicle_model.pose(state.x)[:, 2], state.intruder_x[2:3]])
+    return jnp.stack([jnp.cos(heading), jnp.sin(heading)], axis=1) * radii(params)[:, None]
+
+
+@register
+@dataclasses.dataclass(frozen=True)
+class Tailwind(WindModel):
+    name = "tailwind"
+    help = "full strength along each agent's heading (the fastest ground speed)"
+    order = 4
+    state_dependent = True
+
+    def draw(self, key, state, params):
+        """Zeros (held winds unused: :meth:`inner` computes the winds at every inner step); the state unchanged."""
+        del key
+        return jnp.zeros((params.n_vehicles + 1, 2)), state.wind
+
+    def sample(self, key, state, params):
+        """No random heading disturbance either."""
+        winds, new = self.draw(key, state, params)
+        return winds, jnp.zeros((params.n_vehicles + 1,)), new
+
+    def inner(self, state, params, held):
+        del held
+        return tailwinds(state, params)
