@@ -7,6 +7,7 @@ observation) under the secured and the unsecured schedule, for each attacker (``
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 import jax
@@ -32,20 +33,23 @@ def main(argv=None):
 
     sc = FormationScenario()
     params = sc.params()
+    # the optimistic attacker flies in the tailwind it counts on (the ellipses' worst case)
+    tail_params = dataclasses.replace(sc, wind_model="tailwind").params()
     secure = checkpoints.ellipse_test(sc.forbidden, sc.attacker_speed, sc.ellipse_radius)
     times = {"secured": sc.secured_times(secure), "unsecured": sc.uniform_times(UNSECURED_PERIOD)}
     m = max(len(sc.schedule(t)) for t in times.values())
-    pols = {"reckless": attackers.reckless, "opportunistic": attackers.opportunistic()}
+    pols = {"reckless": (attackers.reckless, params), "opportunistic": (attackers.opportunistic(), params),
+            "optimistic (tailwind)": (attackers.optimistic(), tail_params)}
     if args.learned:
         from stp_env.coobservation.learned import mlp_attacker
 
-        pols["learned"] = mlp_attacker(args.learned)
+        pols["learned"] = (mlp_attacker(args.learned), params)
     n_steps = threat.steps_for(params)
     t_c = args.compromise_time
     fig, axes = plt.subplots(len(pols), 2, figsize=(10, 5 * len(pols)), squeeze=False)
     for col, (s_name, ts) in enumerate(times.items()):
         tp = threat.threat_params(sc.schedule(ts), sc.forbidden, sc.observation_radius, pad_to=m)
-        for row, (a_name, pol) in enumerate(pols.items()):
+        for row, (a_name, (pol, params)) in enumerate(pols.items()):
             # the compromise time is pinned (a window of width 0); the first of 16 episodes whose draw compromised
             # vehicle 0 is drawn
             final, xs = threat.rollout(jax.random.key(0), params, tp, pol, 16, n_steps, (t_c, t_c), record=True)

@@ -121,3 +121,32 @@ def test_training_outcome_rates_count_only_finished_episodes():
              {"entered": False, "detected": True}, {}, {"entered": True, "detected": False}]
     dones = [True, True, True, False, False]  # the last one has not ended: not counted
     assert outcome_rates(infos, dones) == (3, 2, 2, 1)
+
+
+def _zero_mlp(path, **meta):
+    import json
+
+    from stp_env.rl.policy import FORMAT_VERSION
+
+    arrays = {"w0": np.zeros((4, attackers.OBS_SIZE), np.float32), "b0": np.zeros(4, np.float32),
+              "w1": np.zeros((2, 4), np.float32), "b1": np.zeros(2, np.float32)}
+    header = {"format_version": FORMAT_VERSION, "activation": "tanh", "n_layers": 2, **meta}
+    np.savez(path, metadata=np.asarray(json.dumps(header)), **arrays)
+    return path
+
+
+def test_a_residual_attacker_with_zero_output_flies_the_plan(tmp_path):
+    from stp_env.coobservation.learned import RESIDUAL_SCALE, mlp_attacker
+
+    params, threats, _ = _setup()
+    ts = threat.reset(jax.random.key(0), params, threats["unsecured"], 0, 0.0)
+    planned = jnp.asarray([0.3, -0.7])
+    residual = mlp_attacker(_zero_mlp(tmp_path / "r.npz", residual=True, residual_scale=RESIDUAL_SCALE))
+    direct = mlp_attacker(_zero_mlp(tmp_path / "d.npz"))  # files without the entry: the action is the command
+    key = jax.random.key(1)
+    np.testing.assert_array_equal(np.asarray(residual(key, ts, params, threats["unsecured"], planned)), planned)
+    np.testing.assert_array_equal(np.asarray(direct(key, ts, params, threats["unsecured"], planned)), [0.0, 0.0])
+    with pytest.raises(ValueError, match="residual_scale"):
+        mlp_attacker(_zero_mlp(tmp_path / "bad.npz", residual=True, residual_scale=1.0))
+    with pytest.raises(ValueError, match="residual"):
+        mlp_attacker(_zero_mlp(tmp_path / "bad2.npz", residual="yes"))

@@ -6,6 +6,10 @@ observation, trained on the batched JAX wrapper, and exported to a small ``.npz`
   ``t_window``; the core is reset *at* that time with every vehicle on its plan, as the intruder's training env
   does) and ends at the end of the schedule or at the detection. The attacker decides every ``action_repeat``
   simulator steps. Observation: :func:`stp_env.coobservation.attackers.attacker_observation`.
+* Action (``residual``, the default): a correction to the tracker's action, applied as
+  ``clip(planned + RESIDUAL_SCALE * a, -1, 1)`` with ``planned`` recomputed every simulator step, so that the zero
+  action flies the plan and training starts from an honest vehicle (residual policy learning); every action is
+  still reachable. ``residual=False``: the action is the vehicle's command itself.
 * Reward: ``+1`` at the first entry into a forbidden zone, ``-2`` at the detection (an entry that is detected nets
   ``-1``, so entering is only worth it undetected), plus a potential-based shaping ``gamma phi(s') - phi(s)`` with
   ``phi = -shaping * distance / 1 km`` to the best entry point before the entry and to the next observation point
@@ -30,6 +34,15 @@ from stp_env.coobservation import attackers, threat
 from stp_env.sim.types import replace
 
 ACTIVATIONS = {"tanh": jnp.tanh, "relu": lambda x: jnp.maximum(x, 0.0)}
+RESIDUAL_SCALE = 2.0  # a residual action of +-1 moves the command across its whole range [-1, 1]
+
+
+def command(planned, action, residual: bool):
+    """The compromised vehicle's command in ``[-1, 1]`` from the policy's ``action``: ``planned`` (the tracker's)
+    plus the scaled correction when ``residual``, else the action itself."""
+    if residual:
+        return jnp.clip(planned + RESIDUAL_SCALE * action, -1.0, 1.0)
+    return action
 
 
 def _phi(ts, params, tp, shaping):
@@ -50,8 +63,9 @@ def reset_one(key, params, tp, t_window):
     return ts, attackers.attacker_observation(ts, params, tp)
 
 
-def step_one(key, ts, action, params, tp, action_repeat: int, gamma: float, shaping: float):
-    """``action_repeat`` simulator steps with the attacker's ``action``; returns ``(state, obs, reward, done)``."""
+def step_one(key, ts, action, params, tp, action_repeat: int, gamma: float, shaping: float, residual: bool = True):
+    """``action_repeat`` simulator steps with the attacker's ``action`` (:func:`command`); returns ``(state, obs,
+    reward, done)``."""
     phi0 = _phi(ts, params, tp, shaping)
     c = jnp.maximum(ts.compromised, 0)
 
@@ -59,7 +73,7 @@ def step_one(key, ts, action, params, tp, action_repeat: int, gamma: float, shap
         s, r, done = carry
         k_v, k_s = jax.random.split(k)
         a_v = nominal_tracking(k_v, s.sim, params)
-        new = threat.step(k_s, s, a_v, action, params, tp)
+        new = threat.step(k_s, s, a_v, command(a_v[c], action, residual), params, tp)
         entered = new.entered[c] & ~s.entered[c]
         detected = jnp.isfinite(new.detect_time) & ~jnp.isfinite(s.detect_time)
         rew = 1.0 * entered - 2.0 * detected
@@ -74,13 +88,14 @@ def step_one(key, ts, action, params, tp, action_repeat: int, gamma: float, shap
     return ts, attackers.attacker_observation(ts, params, tp), r, done
 
 
-@functools.partial(jax.jit, static_argnames=("action_repeat",))
-def batch_step(keys, states, actions, params, tp, t_window, action_repeat: int, gamma: float, shaping: float):
+@functools.partial(jax.jit, static_argnames=("action_repeat", "residual"))
+def batch_step(keys, states, actions, params, tp, t_window, action_repeat: int, gamma: float, shaping: float,
+               residual: bool = True):
     """One decision of ``n`` envs with auto-reset. Returns ``(keys, states, obs, rewards, dones, terminal_obs,
     stats)``; ``stats``: ``entered``, ``detected`` of the finished episode."""
     def one(key, ts, a):
         key, k_step, k_reset = jax.random.split(key, 3)
-        ts, obs, r, done = step_one(k_step, ts, a, params, tp, action_repeat, gamma, shaping)
+        ts, obs, r, done = step_one(k_step, ts, a, params, tp, action_repeat, gamma, shaping, residual)
         c = jnp.maximum(ts.compromised, 0)
         stats = jnp.stack([ts.entered[c], jnp.isfinite(ts.detect_time)]).astype(jnp.float32)
         new_ts, new_obs = reset_one(k_reset, params, tp, t_window)
@@ -101,7 +116,7 @@ def batch_reset(keys, params, tp, t_window):
 
 
 def make_vec_env(n_envs: int, params, tp, t_window, *, action_repeat: int = 5, gamma: float = 0.99,
-                 shaping: float = 1.0, seed: int = 0):
+                 shaping: float = 1.0, seed: int = 0, residual: bool = True):
     """A Stable-Baselines3 ``VecEnv`` (imported lazily: needs the ``rl`` extra)."""
     import gymnasium as gym
     from stable_baselines3.common.vec_env.base_vec_env import VecEnv
@@ -130,7 +145,7 @@ def make_vec_env(n_envs: int, params, tp, t_window, *, action_repeat: int = 5, g
 
         def step_wait(self):
             out = batch_step(self._keys, self._states, self._actions, params, tp, self.window, action_repeat,
-                             gamma, shaping)
+                             gamma, shaping, residual)
             self._keys, self._states = out[0], out[1]
             obs, rew, done, term_obs, stats = jax.device_get(out[2:])
             self._returns += rew
@@ -176,6 +191,8 @@ class AttackerTrainConfig:
     net_arch: tuple[int, ...] = (64, 64)
     action_repeat: int = 5
     shaping: float = 1.0
+    residual: bool = True
+    log_std_init: float = -1.0  # exploration noise std e^-1 = 0.37 (of the residual: about 9 m/s and 1.5 rad/s)
     seed: int = 0
     torch_threads: int = 1
 
@@ -231,38 +248,45 @@ def train(params, tp, t_window, config: AttackerTrainConfig, out_dir, progress: 
     out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(config.torch_threads)
     venv = make_vec_env(config.n_envs, params, tp, t_window, action_repeat=config.action_repeat, gamma=config.gamma,
-                        shaping=config.shaping, seed=config.seed)
+                        shaping=config.shaping, seed=config.seed, residual=config.residual)
     model = PPO("MlpPolicy", venv, n_steps=config.n_steps, batch_size=config.batch_size, n_epochs=config.n_epochs,
                 learning_rate=config.learning_rate, gamma=config.gamma, ent_coef=config.ent_coef, seed=config.seed,
-                policy_kwargs={"net_arch": list(config.net_arch), "activation_fn": torch.nn.Tanh}, verbose=0,
+                policy_kwargs={"net_arch": list(config.net_arch), "activation_fn": torch.nn.Tanh,
+                               "log_std_init": config.log_std_init}, verbose=0,
                 device="cpu")
     model.set_logger(configure(str(out), ["csv"]))
     model.learn(config.total_timesteps, callback=_outcome_logger(), progress_bar=progress)
     meta = {"objective": "enter a forbidden zone without missing an observation",
-            "config": dataclasses.asdict(config), "t_window": [float(t) for t in t_window]}
+            "config": dataclasses.asdict(config), "t_window": [float(t) for t in t_window],
+            "residual": config.residual, "residual_scale": RESIDUAL_SCALE}
     (out / "config.json").write_text(json.dumps(meta, indent=1))
     return export_mlp(model, out / "attacker.npz", metadata=meta)
 
 
 def mlp_attacker(path, name: str = "learned"):
     """The exported MLP as a jittable attacker ``(key, state, params, threat, planned) -> (2,)`` (the deterministic
-    action)."""
+    action, through :func:`command`: a residual policy corrects ``planned``, the tracker's action; files without
+    the ``residual`` entry are direct policies)."""
     from stp_env.rl.policy import load_mlp
 
     mlp = load_mlp(path)
     if mlp.obs_size != attackers.OBS_SIZE:
         raise ValueError(f"{path}: the MLP takes {mlp.obs_size} inputs; the attacker observation has "
                          f"{attackers.OBS_SIZE}.")
+    residual, scale = mlp.metadata.get("residual", False), mlp.metadata.get("residual_scale")
+    if not isinstance(residual, bool) or (residual and scale != RESIDUAL_SCALE):
+        raise ValueError(f"{path}: metadata 'residual' must be true or false, and a residual policy's "
+                         f"'residual_scale' {RESIDUAL_SCALE}; got {residual!r}, {scale!r}.")
     act = ACTIVATIONS[mlp.activation]
     hidden = [(jnp.asarray(w), jnp.asarray(b)) for w, b in mlp.hidden]
     w_out, b_out = jnp.asarray(mlp.action[0]), jnp.asarray(mlp.action[1])
 
     def policy(key, state, params, tp, planned):
-        del key, planned
+        del key
         h = attackers.attacker_observation(state, params, tp)
         for w, b in hidden:
             h = act(w @ h + b)
-        return jnp.clip(w_out @ h + b_out, -1.0, 1.0)
+        return command(planned, jnp.clip(w_out @ h + b_out, -1.0, 1.0), residual)
 
     policy.__name__ = name
     return policy
