@@ -150,3 +150,36 @@ def test_a_residual_attacker_with_zero_output_flies_the_plan(tmp_path):
         mlp_attacker(_zero_mlp(tmp_path / "bad.npz", residual=True, residual_scale=1.0))
     with pytest.raises(ValueError, match="residual"):
         mlp_attacker(_zero_mlp(tmp_path / "bad2.npz", residual="yes"))
+
+
+def test_teacher_residuals_reproduce_the_teachers_commands_and_cloning_fits_them():
+    import gymnasium as gym
+    import torch
+    from stable_baselines3.common.policies import ActorCriticPolicy
+
+    from stp_env.baselines import nominal_tracking
+    from stp_env.coobservation import learned
+
+    params, threats, _ = _setup()
+    tp = threats["unsecured"]
+    keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.key(0), i))(jnp.arange(4))
+    _, states, _obs = learned.batch_reset(keys, params, tp, jnp.asarray([100.0, 100.0]))
+    res = learned.teacher_residuals(keys, states, params, tp, attackers.reckless)
+    honest = learned.teacher_residuals(keys, states, params, tp, attackers.honest)
+    np.testing.assert_array_equal(np.asarray(honest), 0.0)  # flying the plan is the zero residual
+    for i in range(4):
+        ts = jax.tree.map(lambda a, i=i: a[i], states)
+        k_v, k_t = jax.random.split(keys[i])
+        planned = nominal_tracking(k_v, ts.sim, params)[ts.compromised]
+        want = attackers.reckless(k_t, ts, params, tp, planned)
+        np.testing.assert_allclose(np.asarray(learned.command(planned, res[i], True)), np.asarray(want), atol=1e-6)
+    # behaviour cloning fits a smooth target to a small loss
+    torch.manual_seed(0)
+    space = gym.spaces.Box(-2.0, 2.0, (attackers.OBS_SIZE,), np.float32)
+    policy = ActorCriticPolicy(space, gym.spaces.Box(-1.0, 1.0, (2,), np.float32), lambda _: 1e-3,
+                               net_arch=[32, 32], activation_fn=torch.nn.Tanh)
+    x = np.random.default_rng(0).uniform(-1, 1, (4096, attackers.OBS_SIZE)).astype(np.float32)
+    y = np.stack([np.tanh(x[:, 0] - x[:, 1]), 0.5 * x[:, 2]], axis=1).astype(np.float32)
+    before = learned.imitate(policy, x, y, epochs=1, lr=0.0)
+    after = learned.imitate(policy, x, y, epochs=60, lr=3e-3, batch=256)
+    assert after < 0.05 * before

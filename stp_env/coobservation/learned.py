@@ -14,7 +14,9 @@ observation, trained on the batched JAX wrapper, and exported to a small ``.npz`
   ``-1``, so entering is only worth it undetected), plus a potential-based shaping ``gamma phi(s') - phi(s)`` with
   ``phi = -shaping * distance / 1 km`` to the best entry point before the entry and to the next observation point
   after it (it does not change which policies are optimal).
-* :func:`train` (PPO, modest budgets) writes ``attacker.npz`` with :func:`stp_env.rl.policy.export_mlp`;
+* :func:`train` (PPO, modest budgets; optionally started from a scripted ``teacher`` by behaviour cloning,
+  :func:`demonstrations` and :func:`imitate`, since the reward of an entry is rare under random exploration)
+  writes ``attacker.npz`` with :func:`stp_env.rl.policy.export_mlp`;
   :func:`mlp_attacker` turns it into a jittable attacker for :func:`stp_env.coobservation.threat.rollout`.
 """
 
@@ -193,6 +195,9 @@ class AttackerTrainConfig:
     shaping: float = 1.0
     residual: bool = True
     log_std_init: float = -1.0  # exploration noise std e^-1 = 0.37 (of the residual: about 9 m/s and 1.5 rad/s)
+    teacher: str | None = None  # a scripted attacker (attackers.ATTACKERS) to imitate before PPO (residual only)
+    demo_decisions: int = 3000  # decisions of every env recorded from the teacher
+    imitation_epochs: int = 20
     seed: int = 0
     torch_threads: int = 1
 
@@ -234,6 +239,62 @@ def _outcome_logger():
     return OutcomeLogger()
 
 
+@functools.partial(jax.jit, static_argnames=("teacher",))
+def teacher_residuals(keys, states, params, tp, teacher):
+    """The residual actions (:func:`command`) that reproduce a scripted ``teacher``'s command at each env's state
+    ``(n, 2)``: ``(command - planned) / RESIDUAL_SCALE``, and 0 where the teacher flies the plan."""
+    def one(key, ts):
+        c = jnp.maximum(ts.compromised, 0)
+        k_v, k_t = jax.random.split(key)
+        planned = nominal_tracking(k_v, ts.sim, params)[c]
+        cmd = teacher(k_t, ts, params, tp, planned)
+        return jnp.where(jnp.any(jnp.isnan(cmd)), 0.0, jnp.clip((cmd - planned) / RESIDUAL_SCALE, -1.0, 1.0))
+
+    return jax.vmap(one)(keys, states)
+
+
+def demonstrations(venv, params, tp, teacher, n_decisions: int, progress: bool = True):
+    """``(observations, residual actions)`` of ``teacher`` flying every env of ``venv`` (an
+    :func:`make_vec_env` env, residual) for ``n_decisions`` decisions, episodes restarting as in training."""
+    from tqdm.auto import tqdm
+
+    obs = venv.reset()
+    xs, ys = [], []
+    for _ in tqdm(range(n_decisions), desc="teacher demonstrations", unit="decision", disable=not progress):
+        keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(venv._keys)  # not the keys the step will use
+        act = np.asarray(teacher_residuals(keys, venv._states, params, tp, teacher))
+        xs.append(obs)
+        ys.append(act)
+        venv.step_async(act)
+        obs, _rew, _done, _infos = venv.step_wait()
+    return np.concatenate(xs).astype(np.float32), np.concatenate(ys).astype(np.float32)
+
+
+def imitate(policy, obs, actions, epochs: int, lr: float = 1e-3, batch: int = 1024, seed: int = 0) -> float:
+    """Fit the mean action of an SB3 actor-critic ``policy`` to ``actions`` (behaviour cloning, mean squared
+    error); returns the final epoch's loss."""
+    import torch
+
+    params = [*policy.mlp_extractor.policy_net.parameters(), *policy.action_net.parameters()]
+    opt = torch.optim.Adam(params, lr=lr)
+    x, y = torch.as_tensor(obs), torch.as_tensor(actions)
+    gen = torch.Generator().manual_seed(seed)
+    loss_value = float("nan")
+    for _ in range(epochs):
+        perm = torch.randperm(len(x), generator=gen)
+        total = 0.0
+        for i in range(0, len(x), batch):
+            idx = perm[i:i + batch]
+            latent = policy.mlp_extractor.forward_actor(policy.pi_features_extractor(x[idx]))
+            loss = torch.mean((policy.action_net(latent) - y[idx]) ** 2)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            total += float(loss) * len(idx)
+        loss_value = total / len(x)
+    return loss_value
+
+
 def train(params, tp, t_window, config: AttackerTrainConfig, out_dir, progress: bool = True) -> Path:
     """Train PPO on :class:`AttackerVecEnv` and write ``out_dir/attacker.npz`` (and ``config.json``, the
     training log ``progress.csv`` with the outcome rates of :func:`_outcome_logger`). Returns the path of the
@@ -255,10 +316,21 @@ def train(params, tp, t_window, config: AttackerTrainConfig, out_dir, progress: 
                                "log_std_init": config.log_std_init}, verbose=0,
                 device="cpu")
     model.set_logger(configure(str(out), ["csv"]))
+    imitation = None
+    if config.teacher is not None:
+        if not config.residual:
+            raise ValueError("teacher: imitation needs the residual action (residual=True).")
+        if config.teacher not in attackers.ATTACKERS:
+            raise ValueError(f"teacher {config.teacher!r} is not a scripted attacker; allowed: "
+                             f"{', '.join(attackers.ATTACKERS)}.")
+        obs, act = demonstrations(venv, params, tp, attackers.ATTACKERS[config.teacher], config.demo_decisions,
+                                  progress)
+        imitation = {"teacher": config.teacher, "samples": len(obs),
+                     "loss": imitate(model.policy, obs, act, config.imitation_epochs, seed=config.seed)}
     model.learn(config.total_timesteps, callback=_outcome_logger(), progress_bar=progress)
     meta = {"objective": "enter a forbidden zone without missing an observation",
             "config": dataclasses.asdict(config), "t_window": [float(t) for t in t_window],
-            "residual": config.residual, "residual_scale": RESIDUAL_SCALE}
+            "residual": config.residual, "residual_scale": RESIDUAL_SCALE, "imitation": imitation}
     (out / "config.json").write_text(json.dumps(meta, indent=1))
     return export_mlp(model, out / "attacker.npz", metadata=meta)
 
