@@ -290,7 +290,7 @@ def imitate(policy, obs, actions, epochs: int, lr: float = 1e-3, batch: int = 10
             opt.zero_grad()
             loss.backward()
             opt.step()
-            total += float(loss) * len(idx)
+            total += loss.item() * len(idx)
         loss_value = total / len(x)
     return loss_value
 
