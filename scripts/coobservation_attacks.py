@@ -69,13 +69,13 @@ def main(argv=None):
             tag = ("SUCCESS (entered, never missed)" if o["success"][0] else
                    "entered, detected" if o["entered"][0] else "detected, no entry" if o["detected"][0]
                    else "no attack")
-            ax.set_title(f"{a_name} vs {s_name} schedule: {tag}", fontsize=10)
+            ax.set_title(f"{a_name} vs {s_name} schedule:\n{tag}", fontsize=10)
             ax.set_xlim(sc.domain_lo[0], sc.domain_hi[0])
             ax.set_ylim(sc.domain_lo[1], sc.domain_hi[1])
             ax.set_aspect("equal")
     fig.suptitle(f"The left vehicle (blue) compromised at t = {t_c:g} s (x); magenta: its positions at the scheduled "
                  "co-observations", fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.985))
     fig.savefig(args.out, dpi=90)
     print(f"wrote {args.out}")
 
