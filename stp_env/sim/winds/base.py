@@ -87,3 +87,26 @@ class WindModel(abc.ABC):
         """The winds ``(N + 1, 2)`` at an inner step's state; ``held`` (this step's draw) here."""
         del state, params
         return held
+
+
+@dataclasses.dataclass(frozen=True)
+class StateFeedbackWind(WindModel):
+    """A wind that is a function of the state, computed afresh at every inner step by :meth:`inner` (which
+    subclasses implement): nothing is drawn or held, and there is no random heading disturbance."""
+
+    state_dependent: ClassVar[bool] = True
+
+    def draw(self, key, state, params):
+        """Zeros (held winds unused: :meth:`inner` computes the winds at every inner step); the state unchanged."""
+        del key
+        return jnp.zeros((params.n_vehicles + 1, 2)), state.wind
+
+    def sample(self, key, state, params):
+        """No random heading disturbance either: the wind is all :meth:`inner`'s."""
+        winds, new = self.draw(key, state, params)
+        return winds, jnp.zeros((params.n_vehicles + 1,)), new
+
+    @abc.abstractmethod
+    def inner(self, state, params, held):
+        """The winds ``(N + 1, 2)`` at an inner step's state (``held`` is unused)."""
+        raise NotImplementedError

@@ -11,7 +11,7 @@ import dataclasses
 import jax.numpy as jnp
 
 from stp_env.sim.winds import register
-from stp_env.sim.winds.base import WindModel, radii
+from stp_env.sim.winds.base import StateFeedbackWind, radii
 
 
 def tailwinds(state, params):
@@ -22,21 +22,10 @@ def tailwinds(state, params):
 
 @register
 @dataclasses.dataclass(frozen=True)
-class Tailwind(WindModel):
+class Tailwind(StateFeedbackWind):
     name = "tailwind"
     help = "full strength along each agent's heading (the fastest ground speed)"
     order = 4
-    state_dependent = True
-
-    def draw(self, key, state, params):
-        """Zeros (held winds unused: :meth:`inner` computes the winds at every inner step); the state unchanged."""
-        del key
-        return jnp.zeros((params.n_vehicles + 1, 2)), state.wind
-
-    def sample(self, key, state, params):
-        """No random heading disturbance either."""
-        winds, new = self.draw(key, state, params)
-        return winds, jnp.zeros((params.n_vehicles + 1,)), new
 
     def inner(self, state, params, held):
         del held

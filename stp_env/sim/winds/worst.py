@@ -15,7 +15,7 @@ from stp_env.sim.physics import relative_state, rotate
 from stp_env.sim.reference import nominal_reference
 from stp_env.sim.types import AVOIDING, FLYING, PRESENT
 from stp_env.sim.winds import register
-from stp_env.sim.winds.base import WindModel, radii
+from stp_env.sim.winds.base import StateFeedbackWind, radii
 
 
 def worst_winds(state, params):
@@ -49,21 +49,10 @@ def worst_winds(state, params):
 
 @register
 @dataclasses.dataclass(frozen=True)
-class Worst(WindModel):
+class Worst(StateFeedbackWind):
     name = "worst"
     help = "the HJ games' worst-case wind"
     order = 3
-    state_dependent = True
-
-    def draw(self, key, state, params):
-        """Zeros (held winds unused: :meth:`inner` computes the winds at every inner step); the state unchanged."""
-        del key
-        return jnp.zeros((params.n_vehicles + 1, 2)), state.wind
-
-    def sample(self, key, state, params):
-        """No random heading disturbance either: the worst case is :meth:`inner`'s."""
-        winds, new = self.draw(key, state, params)
-        return winds, jnp.zeros((params.n_vehicles + 1,)), new
 
     def inner(self, state, params, held):
         del held
