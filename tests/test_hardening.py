@@ -657,3 +657,20 @@ def test_render_refuses_an_unwritable_out_before_computing(tmp_path, no_work):
 def test_cli_seeds_are_checked(no_work, seed):
     code, _, stderr = _cli(["evaluate", "--seed", seed])
     assert code == 2 and "--seed" in stderr
+
+
+def test_results_written_atomically_are_as_readable_as_plainly_written_files(tmp_path):
+    """The temporary file behind an atomic write is private (0o600); the result moved into place gets the
+    permissions a plain ``open`` would give (here 0o644 under umask 022), not the temporary's."""
+    from stp_env.evaluation.report import atomic_open, write_text
+
+    old = os.umask(0o022)
+    try:
+        (tmp_path / "plain.json").write_text("{}")
+        write_text("{}", tmp_path / "atomic.json")
+        with atomic_open(tmp_path / "results.csv", newline="") as fh:
+            fh.write("a,b\n")
+    finally:
+        os.umask(old)
+    modes = {p.name: p.stat().st_mode & 0o777 for p in tmp_path.iterdir()}
+    assert modes == {"plain.json": 0o644, "atomic.json": 0o644, "results.csv": 0o644}

@@ -94,6 +94,7 @@ def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float 
     out = Path(path)
     if importlib.util.find_spec("PIL") is not None:
         from stp_env.artifacts import TEMP_PREFIX, writer_tag
+        from stp_env.evaluation.report import plain_file_mode
 
         anim = animation.FuncAnimation(fig, draw, frames=list(steps), blit=False)
         # written beside the target and moved onto it: an interrupted render leaves no half-written GIF
@@ -101,6 +102,7 @@ def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float 
         os.close(fd)
         try:
             anim.save(tmp, writer=animation.PillowWriter(fps=fps), dpi=dpi)
+            os.chmod(tmp, plain_file_mode())
             os.replace(tmp, out)
         finally:
             plt.close(fig)

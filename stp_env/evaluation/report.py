@@ -71,10 +71,20 @@ def _kth_times(s: dict) -> str:
     return ", ".join("-" if m is None else f"{m:g} ({lo:g})" for m, lo in zip(meds, lows)) or "-"
 
 
+def plain_file_mode() -> int:
+    """The permissions ``open(path, "w")`` gives a new file (``0o666`` less the process's umask). A temporary file
+    from ``tempfile.mkstemp`` is private (``0o600``); results moved into place from one get these instead, so that
+    they are as readable as any other file the user writes."""
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
 @contextlib.contextmanager
 def atomic_open(path, mode: str = "w", **kwargs):
     """Open a temporary file beside ``path`` for writing and move it onto ``path`` (``os.replace``) when the block
-    ends without an error: ``path`` is either its old content or the complete new one, never half written."""
+    ends without an error: ``path`` is either its old content or the complete new one, never half written. The
+    file gets the permissions of a plainly written one (:func:`plain_file_mode`)."""
     from stp_env.artifacts import TEMP_PREFIX, writer_tag
 
     path = Path(path)
@@ -82,6 +92,7 @@ def atomic_open(path, mode: str = "w", **kwargs):
     try:
         with os.fdopen(fd, mode, **kwargs) as fh:
             yield fh
+        os.chmod(tmp, plain_file_mode())
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
