@@ -41,8 +41,9 @@ def main(argv=None):
     sc = FormationScenario()
     params = sc.params()
     tp = threat.threat_params(sc.schedule(sc.uniform_times(UNSECURED_PERIOD)), sc.forbidden, sc.observation_radius)
+    teacher = None if args.teacher == "none" else args.teacher
     cfg = learned.AttackerTrainConfig(total_timesteps=args.timesteps, n_envs=args.n_envs, seed=args.seed,
-                                      teacher=None if args.teacher == "none" else args.teacher, learning_rate=args.learning_rate,
+                                      teacher=teacher, learning_rate=args.learning_rate,
                                       log_std_init=args.log_std_init)
     start = time.time()
     path = learned.train(params, tp, (0.0, sc.duration - 10.0), cfg, args.out)
