@@ -41,7 +41,7 @@ def run_one(scenario: str, mode: str, n_envs: int, n_steps: int) -> float:
     if mode in ("pairs", "all"):
         def no_pairs(closest, s, params):
             p = s.x[:, :2]
-            return core.Closest(pair=closest.pair,
+            return core.Closest(pair_sq=closest.pair_sq,
                                 intruder=jnp.minimum(closest.intruder, jnp.hypot(*(p - s.intruder_x[None, :2]).T)),
                                 building=jnp.minimum(closest.building, core.building_distance(params, p)))
         core._closest_approach = no_pairs

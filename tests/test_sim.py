@@ -4,6 +4,8 @@ k̄ vehicles forced) against every scripted intruder, and a check that can fail 
 from __future__ import annotations
 
 import functools
+import types
+import unittest.mock
 
 import jax
 import jax.numpy as jnp
@@ -189,6 +191,40 @@ def test_every_town_plan_is_tracked_within_r_e(wind_model):
     assert (np.asarray(final.arrival_time) <= np.asarray(params.sta)[None, :] + 1e-4).all()
 
 
+def test_squared_closest_approaches_give_the_distances_of_one_root_per_inner_step():
+    """The step keeps the smallest *squared* vehicle-vehicle distance over its inner steps and takes one square
+    root at its end (``core._closest_approach``, ``core._events``). Compiled, that is the smallest of the distances
+    themselves to the bit, as the root per inner step it replaced: positions at scales from 1 cm to 20 km (float32,
+    where rounding shows) and ties. A version that differs in one rounding is seen, so the comparison can fail."""
+    from stp_env.sim.core import Closest, _closest_approach
+
+    rng = np.random.default_rng(3)
+    m, n = 5, 12
+    pos = rng.normal(size=(m, n, 2)) * 10.0 ** rng.uniform(-2, 4.3, size=(m, n, 1))
+    pos[:, 1] = pos[:, 0]                    # two vehicles at the same place: distance 0
+    pos[2:, 3] = pos[1, 3]                   # a pair whose distance repeats over the inner steps (ties)
+    pos[2:, 4] = pos[1, 4]
+    pos = jnp.asarray(pos, jnp.float32)
+    params = types.SimpleNamespace(n_vehicles=n)
+
+    @jax.jit
+    def both(pos):
+        closest = Closest(pair_sq=jnp.full((n, n), jnp.inf), intruder=jnp.full(n, jnp.inf),
+                          building=jnp.full(n, jnp.inf))
+        old = jnp.full((n, n), jnp.inf)
+        for k in range(m):
+            closest = _closest_approach(closest, types.SimpleNamespace(x=pos[k], intruder_x=jnp.zeros(3)), params)
+            diff = pos[k][:, None, :] - pos[k][None, :, :]
+            old = jnp.minimum(old, jnp.sqrt(jnp.sum(diff ** 2, axis=-1) + jnp.eye(n) * 1e30))
+        return jnp.sqrt(closest.pair_sq), old, jnp.sqrt(closest.pair_sq * (1 + 2 ** -22))
+
+    with unittest.mock.patch("stp_env.sim.core.building_distance", lambda params, p: p[:, 0]):  # no buildings
+        new, old, perturbed = (np.asarray(a) for a in both(pos))
+    assert np.array_equal(new, old)
+    assert new[0, 1] == 0.0 and np.isfinite(new).all()
+    assert not np.array_equal(perturbed, old)
+
+
 def test_a_plan_without_kbar_promises_nothing_to_vehicles_that_left_it():
     """A collision between two vehicles is a guarantee violation when both fly their plans (any plan), or when
     the plan is intruder-aware (k̄: buffer regions); with a plan that is not (no k̄), a vehicle avoiding the
@@ -203,8 +239,8 @@ def test_a_plan_without_kbar_promises_nothing_to_vehicles_that_left_it():
     status = jnp.where(jnp.arange(n) < 2, sim.FLYING, sim.ARRIVED).astype(jnp.int32)     # two in the air
     state = dataclasses.replace(state, status=status, assumption_ok=jnp.ones(n, bool),
                                 complied=jnp.ones(n, bool))
-    pair = jnp.full((n, n), 1e30).at[0, 1].set(50.0).at[1, 0].set(50.0)      # vehicles 0 and 1 within R_c
-    closest = Closest(pair=pair, intruder=jnp.full(n, jnp.inf), building=jnp.full(n, jnp.inf))
+    pair_sq = jnp.full((n, n), 1e30).at[0, 1].set(50.0 ** 2).at[1, 0].set(50.0 ** 2)  # 0 and 1 within R_c
+    closest = Closest(pair_sq=pair_sq, intruder=jnp.full(n, jnp.inf), building=jnp.full(n, jnp.inf))
     for mode, kbar, violation in ((sim.AVOIDING, 2, True), (sim.AVOIDING, -1, False),
                                   (sim.NOMINAL, 2, True), (sim.NOMINAL, -1, True)):
         s = dataclasses.replace(state, mode=jnp.full(n, sim.NOMINAL, jnp.int32).at[0].set(mode))

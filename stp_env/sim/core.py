@@ -255,9 +255,12 @@ def lifecycle(state: EnvState, params: EnvParams) -> EnvState:
 
 
 class Closest(NamedTuple):
-    """Closest approaches over a step's inner steps (the events of item 6 are decided on them) [m]."""
+    """Closest approaches over a step's inner steps (the events of item 6 are decided on them) [m]. The pairs'
+    are kept squared: the minimum of squares is the square of the minimum (the square root rounds monotonically),
+    so one square root per step at its end gives the same distances as one per inner step (bit for bit,
+    ``tests/test_sim.py``; ``python benchmarks/pair_distances.py`` measures the saving)."""
 
-    pair: jax.Array       # (N, N) vehicle-vehicle (the diagonal is huge)
+    pair_sq: jax.Array    # (N, N) vehicle-vehicle, squared [m^2] (the diagonal is huge)
     intruder: jax.Array   # (N,) vehicle-intruder
     building: jax.Array   # (N,) signed distance to the buildings
 
@@ -313,7 +316,7 @@ def _closest_approach(closest: Closest, s: EnvState, params: EnvParams) -> Close
     n = params.n_vehicles
     p = s.x[:, :2]
     diff = p[:, None, :] - p[None, :, :]
-    return Closest(pair=jnp.minimum(closest.pair, jnp.sqrt(jnp.sum(diff ** 2, axis=-1) + jnp.eye(n) * 1e30)),
+    return Closest(pair_sq=jnp.minimum(closest.pair_sq, jnp.sum(diff ** 2, axis=-1) + jnp.eye(n) * 1e30),
                    intruder=jnp.minimum(closest.intruder, jnp.hypot(*(p - s.intruder_x[None, :2]).T)),
                    building=jnp.minimum(closest.building, building_distance(params, p)))
 
@@ -330,7 +333,7 @@ def _events(state: EnvState, sub: EnvState, closest: Closest, params: EnvParams)
     out = fly & jnp.any((p < lo) | (p > hi), axis=1)
     hit_building = fly & (closest.building <= 0.0)
     pair_ok = fly[:, None] & fly[None, :]
-    dist = jnp.where(pair_ok, closest.pair, jnp.inf)
+    dist = jnp.where(pair_ok, jnp.sqrt(closest.pair_sq), jnp.inf)
     near = dist <= params.collision_radius
     hit_vehicle = jnp.any(near, axis=1)
     # A vehicle flying the after-avoidance fallback (eq. 40 without replanning) has no guarantee: collisions it
@@ -425,7 +428,7 @@ def step(key, state: EnvState, actions, params: EnvParams, vehicle_policy=None):
         return (avoid_start(observe_controllers(s, params), params), closest, s), None
 
     far = jnp.full((n,), jnp.inf, state.x.dtype)
-    init = (state, Closest(pair=jnp.full((n, n), jnp.inf, state.x.dtype), intruder=far, building=far), state)
+    init = (state, Closest(pair_sq=jnp.full((n, n), jnp.inf, state.x.dtype), intruder=far, building=far), state)
     # Every inner step ends with the controllers refreshed for the next one; the step continues from the last inner
     # step's state before that refresh (the lifecycle at t + dt comes first). One scan over all M inner steps, not
     # M - 1 plus a last one written apart: the step's program holds the inner step once, which halves its compile.

@@ -1,0 +1,122 @@
+"""The batched core of this tree against the core of another git revision, in the same run: rollout time and
+whether the two compute the same episodes.
+
+    python benchmarks/core_revisions.py --base REV [--scenarios town city] [--envs 256] [--steps 50] [--reps 3]
+
+``REV``'s ``stp_env`` package is exported with ``git archive`` into a temporary directory and imported from there
+(this tree's ``stp_env`` otherwise); everything else is the same: the scenario's shipped plan, ``switching``
+vehicles, the HJ intruder, ``sim.rollout`` over ``--envs`` episodes of ``--steps`` steps, the whole fleet. Each
+(tree, scenario) runs in its own process; its time is the fastest of three calls after a first (compiling) one.
+The two trees alternate ``--reps`` times and the fastest run of each is kept (the machine is noisy). The final
+states and per-step records of the first call are hashed: ``same_episodes`` says whether both trees computed them
+bit for bit. Prints one JSON line per scenario; ``speedup`` is the base's time over this tree's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+
+
+def _digest(tree) -> str:
+    import jax
+    import numpy as np
+
+    h = hashlib.sha256()
+    for leaf in jax.tree_util.tree_leaves(tree):
+        if jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
+            leaf = jax.random.key_data(leaf)
+        h.update(np.ascontiguousarray(np.asarray(leaf)).tobytes())
+    return h.hexdigest()[:16]
+
+
+def run_one(scenario: str, n_envs: int, n_steps: int) -> dict:
+    import jax
+
+    sys.path.insert(0, HERE)
+    import env_throughput
+
+    from stp_env import sim
+    from stp_env.baselines import INTRUDERS, switching
+
+    _, params = env_throughput._params(scenario)
+
+    def go(seed):
+        return jax.block_until_ready(sim.rollout(jax.random.key(seed), params, switching, INTRUDERS["hj"], n_envs,
+                                                 n_steps, record=True))
+
+    t0 = time.perf_counter()
+    first = go(0)
+    first_s = time.perf_counter() - t0
+    times = []
+    for i in range(3):
+        t0 = time.perf_counter()
+        go(i + 1)
+        times.append(time.perf_counter() - t0)
+    import stp_env
+
+    return {"first_s": first_s, "run_s": min(times), "digest": _digest(first), "package": stp_env.__file__}
+
+
+def export(rev: str, into: str) -> str:
+    """``rev``'s ``stp_env`` package under ``into`` (``git archive``); returns the directory to import from."""
+    archive = subprocess.run(["git", "-C", ROOT, "archive", rev, "stp_env"], capture_output=True, check=True)
+    subprocess.run(["tar", "-x", "-C", into], input=archive.stdout, check=True)
+    return into
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--base", help="the git revision to compare against (e.g. HEAD~1)")
+    parser.add_argument("--scenarios", nargs="+", default=["town", "city"])
+    parser.add_argument("--envs", type=int, default=256)
+    parser.add_argument("--steps", type=int, default=50)
+    parser.add_argument("--reps", type=int, default=3)
+    parser.add_argument("--one", action="store_true", help="run one case in this process (used internally)")
+    args = parser.parse_args()
+    if args.one:
+        print(json.dumps(run_one(args.scenarios[0], args.envs, args.steps)))
+        return
+    if not args.base:
+        parser.error("--base REV is required")
+    rev = subprocess.run(["git", "-C", ROOT, "rev-parse", "--short", args.base], capture_output=True, text=True,
+                         check=True).stdout.strip()
+    with tempfile.TemporaryDirectory() as tmp:
+        trees = {"this": ROOT, "base": export(rev, tmp)}
+        for scenario in args.scenarios:
+            load = round(os.getloadavg()[0], 2)
+            runs = {name: [] for name in trees}
+            for _ in range(args.reps):
+                for name, path in trees.items():
+                    env = dict(os.environ, PYTHONPATH=os.pathsep.join([path, os.environ.get("PYTHONPATH", "")]))
+                    res = subprocess.run([sys.executable, __file__, "--one", "--scenarios", scenario, "--envs",
+                                          str(args.envs), "--steps", str(args.steps)], capture_output=True,
+                                         text=True, check=True, env=env, cwd=tmp)
+                    out = json.loads(res.stdout.strip().splitlines()[-1])
+                    if not out["package"].startswith(path):
+                        raise SystemExit(f"the {name} run imported {out['package']}, not the package in {path}")
+                    runs[name].append(out)
+            best = {name: min(r["run_s"] for r in runs[name]) for name in trees}
+            print(json.dumps({
+                "benchmark": "core_revisions", "scenario": scenario, "base": rev, "envs": args.envs,
+                "steps": args.steps, "reps": args.reps, "loadavg_1min_before": load,
+                "run_s": {name: round(best[name], 3) for name in trees},
+                "run_s_all": {name: [round(r["run_s"], 3) for r in runs[name]] for name in trees},
+                "first_call_s": {name: round(min(r["first_s"] for r in runs[name]), 1) for name in trees},
+                "speedup": round(best["base"] / best["this"], 2),
+                "same_episodes": len({r["digest"] for name in trees for r in runs[name]}) == 1,
+                "env_steps_per_s_this": round(args.envs * args.steps / best["this"]),
+            }), flush=True)
+
+
+if __name__ == "__main__":
+    main()
