@@ -441,8 +441,33 @@ def test_report_thresholds_rates_and_cli_on_a_hand_built_study(tmp_path):
     assert lo < 0.8 < hi and hi < 1.0                             # Clopper-Pearson for 8 of 10
     assert report["comparisons"]["100,50"]["survival-success[S]"]["diff"] == pytest.approx(0.2)
     assert report["timing"]["mean_instance_setup_s"] == 1.0 and report["timing"]["mean_mission_s"] == 0.25
+    assert report["goal_loss"]["100,50"]["S"] == {"missions": 10, "lost": 0, "by_window": {}}
     assert (tmp_path / "results.md").exists() and (tmp_path / "fig9_survival_vs_nu.png").exists()
     code, _, err = run_cli(["survivability", "--out", str(tmp_path), "--worker", "2/2"])
     assert code == 2 and "0 <= I < N" in err
     code, _, err = run_cli(["survivability", "--out", str(tmp_path / "empty"), "--report-only"])
     assert code == 2 and err.count("\n") == 1 and "no completed missions" in err
+
+
+def test_goal_loss_counts_when_the_goal_was_lost_and_what_followed():
+    """Hand-built missions: the losses are counted by window and by what followed (an alternative site, an
+    emergency landing in the window of the loss, one later); missions that kept the goal and instances not flown
+    by every policy do not count; a mission that lost the goal and landed there is refused."""
+    from stp_env.survivability.analysis import goal_loss
+
+    def row(i, policy, outcome, switch, windows):
+        return {"n_partial": 100, "n_unknown": 50, "instance": i, "policy": policy, "outcome": outcome,
+                "omega_switch": switch, "windows": windows}
+
+    rows = [row(0, "S", "A", 6, 8), row(1, "S", "L", 7, 7), row(2, "S", "L", 7, 9), row(3, "S", "G", -1, 9),
+            row(4, "S", "A", 7, 9),
+            row(0, "Nf", "G", -1, 9), row(1, "Nf", "L", 8, 8), row(2, "Nf", "G", -1, 9), row(3, "Nf", "A", 5, 9),
+            row(4, "Nf", "L", 3, 3),
+            row(5, "S", "L", 2, 2)]                       # instance 5: only pi_S flew it, so it does not count
+    out = goal_loss(rows, ("S", "Nf"))[(100, 50)]
+    assert out["S"] == {"missions": 5, "lost": 4, "by_window": {6: {"A": 1, "L_at_loss": 0, "L_later": 0},
+                                                                7: {"A": 1, "L_at_loss": 1, "L_later": 1}}}
+    assert out["Nf"]["lost"] == 3 and list(out["Nf"]["by_window"]) == [3, 5, 8]
+    assert out["Nf"]["by_window"][3] == {"A": 0, "L_at_loss": 1, "L_later": 0}
+    with pytest.raises(ValueError, match="lost the goal and then landed there"):
+        goal_loss(rows + [row(5, "Nf", "G", 4, 9)], ("S", "Nf"))

@@ -147,3 +147,33 @@ def comparisons(rows, policies) -> dict:
                     entry[f"survival[{p}]-survival[{ref}]"] = paired(surv, other)
         out[key] = entry
     return out
+
+
+def goal_loss(rows, policies) -> dict:
+    """When the goal was lost, and what followed, per scenario and policy: the missions whose terminal set was
+    widened to the alternative sites (``omega_switch >= 0``: no known-feasible trajectory reached the goal any
+    more), counted by the cruise window of the loss and split by outcome: ``A`` (landed at an alternative site),
+    ``L_at_loss`` (an emergency landing in the window of the loss: no site was reachable, or the conflicts revealed
+    in that window closed every way to one) and ``L_later`` (a site was reachable for at least one more window).
+    Knowledge only grows, so a mission that lost the goal cannot land there: such a row is refused. Only instances flown
+    by every policy count (as :func:`outcome_table`). Returns ``{(n_p, n_u): {policy: {"missions": n, "lost": k,
+    "by_window": {window: {"A": a, "L_at_loss": b, "L_later": c}}}}}``."""
+    flown = {key: {p: set(per[p]) for p in policies} for key, per in outcome_table(rows, policies).items()}
+    out: dict = {}
+    for key, per in flown.items():
+        out[key] = {p: {"missions": len(per[p]), "lost": 0, "by_window": {}} for p in policies}
+    for r in rows:
+        key, p = (r["n_partial"], r["n_unknown"]), r["policy"]
+        if p not in policies or r["instance"] not in flown.get(key, {}).get(p, ()) or r["omega_switch"] < 0:
+            continue
+        if r["outcome"] == "G":
+            raise ValueError(f"mission {key} instance {r['instance']} ({p}) lost the goal and then landed there.")
+        entry = out[key][p]
+        entry["lost"] += 1
+        kind = "A" if r["outcome"] == "A" else ("L_at_loss" if r["windows"] == r["omega_switch"] else "L_later")
+        cell = entry["by_window"].setdefault(int(r["omega_switch"]), {"A": 0, "L_at_loss": 0, "L_later": 0})
+        cell[kind] += 1
+    for per in out.values():
+        for entry in per.values():
+            entry["by_window"] = dict(sorted(entry["by_window"].items()))
+    return out

@@ -50,6 +50,7 @@ def build_report(config: StudyConfig, out, n_boot: int = 2000) -> dict:
         "thresholds": {"phi": {str(k): v for k, v in thr["phi"].items()},
                        "eta": {str(k): v for k, v in thr["eta"].items()}},
         "comparisons": {f"{k[0]},{k[1]}": v for k, v in comp.items()},
+        "goal_loss": {f"{k[0]},{k[1]}": v for k, v in analysis.goal_loss(rows, policies).items()},
         "paper": PAPER,
     }
     report["findings"] = findings(summary, thr, comp, config)
