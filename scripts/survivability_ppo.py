@@ -3,7 +3,10 @@
     python scripts/survivability_ppo.py train [--timesteps 60000] [--out runs/survivability-ppo] [--ship]
     python scripts/survivability_ppo.py compare [--policy ppo|PATH.npz] [--instances 200] [--out DIR]
 
-``train``: PPO (SB3 ``MlpPolicy``, a 64 x 64 tanh MLP, CPU) on :class:`stp_env.survivability.gym_env.SurvivabilityEnv`
+``train``: PPO with action masking (sb3-contrib's ``MaskablePPO``: only the valid primitives of
+:meth:`~stp_env.survivability.gym_env.SurvivabilityEnv.action_masks` are sampled; ``--no-masking`` for SB3's plain
+PPO, which never learns to land: every one of its episodes ends in an emergency landing), ``MlpPolicy``, a 64 x 64
+tanh MLP, CPU, on :class:`stp_env.survivability.gym_env.SurvivabilityEnv`
 on a pool of 1,800 training instances (50 per scenario of the 36-scenario grid, seeds ``(1, j)``, one drawn at
 each reset), segment robustness from 500 Monte Carlo realisations (for speed; the comparison uses 2,500 like the
 study) and rewards 1 (goal), 0.5 (alternative site),
@@ -74,15 +77,21 @@ def train(args) -> None:
             self.bar.close()
 
     cb = Progress()
-    model = PPO("MlpPolicy", env, n_steps=1024, batch_size=256, n_epochs=10, learning_rate=3e-4, gamma=0.99,
-                ent_coef=0.01, seed=args.seed, device="cpu", verbose=0,
-                policy_kwargs={"net_arch": [64, 64], "activation_fn": torch.nn.Tanh})
+    algo = PPO
+    if args.masking:
+        from sb3_contrib import MaskablePPO
+
+        algo = MaskablePPO
+    model = algo("MlpPolicy", env, n_steps=1024, batch_size=256, n_epochs=10, learning_rate=3e-4, gamma=0.99,
+                 ent_coef=0.01, seed=args.seed, device="cpu", verbose=0,
+                 policy_kwargs={"net_arch": [64, 64], "activation_fn": torch.nn.Tanh})
     t0 = time.perf_counter()
     model.learn(total_timesteps=args.timesteps, callback=cb)
     seconds = time.perf_counter() - t0
     model.save(out / "model.zip")
-    meta = {"algo": "PPO", "timesteps": args.timesteps, "seed": args.seed, "train_n_mc": args.train_n_mc,
-            "pool": args.pool, "scenarios": "36-scenario grid", "rewards": [1.0, 0.5, -1.0], "net_arch": [64, 64]}
+    meta = {"algo": "MaskablePPO" if args.masking else "PPO", "action_masking": bool(args.masking),
+            "timesteps": args.timesteps, "seed": args.seed, "train_n_mc": args.train_n_mc, "pool": args.pool,
+            "scenarios": "36-scenario grid", "rewards": [1.0, 0.5, -1.0], "net_arch": [64, 64]}
     path = export_mlp(model, out / "ppo.npz", metadata=meta)
     # Learning curve: outcome shares over successive blocks of episodes.
     outcomes = [o for _, o in cb.log]
@@ -177,6 +186,8 @@ def main() -> None:
     sub = ap.add_subparsers(dest="cmd", required=True)
     tr = sub.add_parser("train")
     tr.add_argument("--timesteps", type=int, default=60_000)
+    tr.add_argument("--no-masking", dest="masking", action="store_false",
+                    help="plain PPO: invalid primitives are sampled too (and end the episode)")
     tr.add_argument("--seed", type=int, default=0)
     tr.add_argument("--train-n-mc", type=int, default=500)
     tr.add_argument("--pool", type=int, default=1800, help="training instances (50 per scenario)")

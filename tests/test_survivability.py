@@ -401,6 +401,41 @@ def test_exported_ppo_policy_matches_sb3(tmp_path):
         load_policy(str(tmp_path / "p.npz"))
 
 
+def test_exported_maskable_ppo_policy_matches_sb3_contrib_with_masks(tmp_path):
+    """An actor trained with action masking (sb3-contrib's MaskablePPO) is exported like a plain one and, read back
+    with numpy, picks the valid primitive MaskablePPO's deterministic predict picks under the observation's valid
+    flags; the environment's action_masks are those flags. Without the mask the numpy argmax would differ (the check
+    can fail)."""
+    pytest.importorskip("sb3_contrib")
+    import torch
+    from sb3_contrib import MaskablePPO
+
+    from stp_env.rl.policy import export_mlp
+    from stp_env.survivability.gym_env import N_ACTION_FEATURES, N_STATE_FEATURES, SurvivabilityEnv
+    from stp_env.survivability.learned import load_policy
+
+    env = SurvivabilityEnv(((0, 0),), mission=small(), planner=PlannerConfig(n_mc=64, n_survival=64))
+    obs, info = env.reset(seed=0)
+    flags = obs[N_STATE_FEATURES::N_ACTION_FEATURES][:env.action_space.n] > 0.5
+    assert np.array_equal(env.action_masks(), info["valid"]) and np.array_equal(env.action_masks(), flags)
+    assert 0 < flags.sum() < env.action_space.n
+    model = MaskablePPO("MlpPolicy", env, n_steps=64, batch_size=64, seed=0, device="cpu",
+                        policy_kwargs={"net_arch": [16, 16], "activation_fn": torch.nn.Tanh})
+    policy = load_policy(str(export_mlp(model, tmp_path / "m.npz", metadata={"action_masking": True})),
+                         n_actions=env.action_space.n)
+    plain = load_policy(str(export_mlp(model, tmp_path / "p.npz")), n_actions=env.action_space.n)
+    rng = np.random.default_rng(1)
+    obs = rng.uniform(-1, 1, (200, env.observation_space.shape[0])).astype(np.float32)
+    idx = N_STATE_FEATURES + N_ACTION_FEATURES * np.arange(env.action_space.n)
+    obs[:, idx] = (rng.random((200, env.action_space.n)) < 0.2).astype(np.float32)
+    obs[np.arange(200), idx[rng.integers(0, env.action_space.n, 200)]] = 1.0      # at least one valid
+    masks = obs[:, idx] > 0.5
+    want = [int(model.predict(o, deterministic=True, action_masks=m)[0]) for o, m in zip(obs, masks)]
+    assert [policy(o) for o in obs] == want
+    assert all(m[a] for m, a in zip(masks, want))
+    assert [plain(o) for o in obs] != want
+
+
 def _write_missions(path, outcomes):
     """A study's missions file from ``{(n_p, n_u): {policy: [outcome per instance]}}``."""
     with open(path, "w", newline="") as f:
@@ -470,4 +505,46 @@ def test_goal_loss_counts_when_the_goal_was_lost_and_what_followed():
     assert out["Nf"]["lost"] == 3 and list(out["Nf"]["by_window"]) == [3, 5, 8]
     assert out["Nf"]["by_window"][3] == {"A": 0, "L_at_loss": 1, "L_later": 0}
     with pytest.raises(ValueError, match="lost the goal and then landed there"):
-        goal_loss(rows + [row(5, "Nf", "G", 4, 9)], ("S", "Nf"))
+        goal_loss([*rows, row(5, "Nf", "G", 4, 9)], ("S", "Nf"))
+
+
+def test_goal_corridor_against_enumerated_trajectories():
+    """The share of goal trajectories whose state at each window could reach an alternative site instead
+    (``analysis.goal_corridor``, forward and backward counts) equals the share found by listing every trajectory
+    from the origin to the goal on the small network and checking each of its states by brute force (a depth-first
+    search to an alternative site). With the alternative site north of the origin, away from the goal, the
+    shares fall from 1 to 0 along the way (the comparison can fail)."""
+    from stp_env.survivability.analysis import goal_corridor
+
+    def brute(g):
+        memo = {}
+
+        def reaches_alt(s):
+            if s not in memo:
+                memo[s] = bool(g.term_alt[s]) or any(reaches_alt(int(t)) for t in g.succ[s] if t >= 0)
+            return memo[s]
+
+        paths, stack = [], [(g.origin,)]
+        while stack:
+            path = stack.pop()
+            s = path[-1]
+            if g.term_goal[s]:
+                paths.append(path)
+                continue
+            stack.extend((*path, int(t)) for t in g.succ[s] if t >= 0)
+        shares = {}
+        for k in range(max(len(p) for p in paths)):
+            through = [p for p in paths if len(p) > k + 1]          # the state at window k is not the goal itself
+            if through:
+                shares[k] = sum(reaches_alt(p[k]) for p in through) / len(through)
+        return len(paths), shares
+
+    for endurance in (45, 50):     # the alternative site to the north of the origin, away from the goal
+        g = build_graph(build_network(small(endurance_min=endurance, positions_km=((1.5, 1.5), (6.5, 4.5),
+                                                                                   (1.5, 4.5)))))
+        n_paths, shares = brute(g)
+        assert n_paths >= 8
+        rows = goal_corridor(g)
+        assert {r["window"]: r["trajectories"] for r in rows} == pytest.approx(shares)
+        assert all(0 <= r["states_alt"] <= r["states"] for r in rows)
+        assert shares[0] == 1.0 and shares[max(shares)] == 0.0 and any(0 < v < 1 for v in shares.values())

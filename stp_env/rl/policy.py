@@ -59,14 +59,16 @@ class MLPIntruder:
 
 
 def export_mlp(model, path, metadata: dict | None = None) -> Path:
-    """Write the deterministic actor of an SB3 ``ActorCriticPolicy`` model to ``path`` (``.npz``)."""
+    """Write the deterministic actor of an SB3 ``ActorCriticPolicy`` model (or of sb3-contrib's maskable one: the
+    same layers) to ``path`` (``.npz``)."""
     import torch
     from stable_baselines3.common.policies import ActorCriticPolicy
     from stable_baselines3.common.torch_layers import FlattenExtractor
 
     policy = model.policy
-    if not isinstance(policy, ActorCriticPolicy):
-        raise ValueError(f"export_mlp needs an ActorCriticPolicy (PPO, A2C); got {type(policy).__name__}.")
+    if not isinstance(policy, ActorCriticPolicy) and type(policy).__name__ != "MaskableActorCriticPolicy":
+        raise ValueError(f"export_mlp needs an ActorCriticPolicy (PPO, A2C, sb3-contrib's MaskablePPO); got "
+                         f"{type(policy).__name__}.")
     if not isinstance(policy.pi_features_extractor, FlattenExtractor) or policy.squash_output:
         raise ValueError("export_mlp supports a flat MLP actor without squashing only.")
     layers = list(policy.mlp_extractor.policy_net)

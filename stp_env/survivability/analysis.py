@@ -177,3 +177,38 @@ def goal_loss(rows, policies) -> dict:
         for entry in per.values():
             entry["by_window"] = dict(sorted(entry["by_window"].items()))
     return out
+
+
+def goal_corridor(graph) -> list[dict]:
+    """With no traffic: per cruise window ``k``, the states on the way to the goal (reachable from the origin, some
+    trajectory from them reaches the goal) and how many of them could still reach an alternative site instead,
+    counted as states and weighted by the goal trajectories through them (``trajectories``: the share of the
+    origin's goal trajectories whose state at window ``k`` can reach an alternative site). Where that share is 0,
+    losing the goal in that window leaves no landing site at all: an emergency landing, whatever the policy.
+    Terminal states of the goal absorb; the alternative sites do not (a goal trajectory may pass one)."""
+    from stp_env.survivability import dp
+
+    feasible = np.ones(graph.n_segments, bool)
+    n_goal = np.asarray(dp.counts(graph, feasible, "goal"), float)
+    n_alt = np.asarray(dp.counts(graph, feasible, "alt"), float)
+    forward = np.zeros(graph.n_states)
+    forward[graph.origin] = 1.0
+    n_windows = len(graph.window_start) - 1
+    for k in range(n_windows):
+        states = np.arange(graph.window_start[k], graph.window_start[k + 1])
+        states = states[(forward[states] > 0) & ~graph.term_goal[states]]
+        for a in range(graph.succ.shape[1]):
+            nxt = graph.succ[states, a]
+            ok = nxt >= 0
+            np.add.at(forward, nxt[ok], forward[states[ok]])
+    out = []
+    for k in range(n_windows):
+        sl = slice(graph.window_start[k], graph.window_start[k + 1])
+        on = (n_goal[sl] > 0) & (forward[sl] > 0) & ~graph.term_goal[sl]
+        if not on.any():
+            continue
+        weight = forward[sl] * n_goal[sl] * on
+        alt = n_alt[sl] > 0
+        out.append({"window": k, "states": int(on.sum()), "states_alt": int((on & alt).sum()),
+                    "trajectories": float((weight * alt).sum() / weight.sum())})
+    return out

@@ -20,11 +20,15 @@ SHIPPED = "ppo"
 
 class DiscretePolicy:
     """Deterministic actions of an exported actor: ``argmax`` of its logits (as ``model.predict(obs,
-    deterministic=True)`` for a ``Discrete`` action space)."""
+    deterministic=True)`` for a ``Discrete`` action space). An actor trained with action masking (metadata
+    ``"action_masking": true``, sb3-contrib's ``MaskablePPO``) takes the argmax over the valid primitives only, read
+    from the observation's per-primitive valid flags (:mod:`stp_env.survivability.gym_env`), as ``predict`` does
+    with ``action_masks``; with no valid primitive (the episode is over) it takes the plain argmax."""
 
     def __init__(self, mlp: MLPIntruder):
         self.mlp = mlp
         self.act = {"tanh": np.tanh, "relu": lambda x: np.maximum(x, 0.0)}[mlp.activation]
+        self.masked = bool(mlp.metadata.get("action_masking", False))
 
     @property
     def obs_size(self) -> int:
@@ -36,8 +40,21 @@ class DiscretePolicy:
             h = self.act(h @ w.T + b)
         return h @ self.mlp.action[0].T + self.mlp.action[1]
 
+    def valid(self, obs) -> np.ndarray:
+        """The valid flags of the observation's primitives, ``(A,)`` bool."""
+        from stp_env.survivability.gym_env import N_ACTION_FEATURES, N_STATE_FEATURES
+
+        n = self.mlp.action[1].shape[0]
+        flags = np.asarray(obs, np.float32)[N_STATE_FEATURES:N_STATE_FEATURES + N_ACTION_FEATURES * n]
+        return flags[::N_ACTION_FEATURES] > 0.5
+
     def __call__(self, obs) -> int:
-        return int(np.argmax(self.logits(obs)))
+        z = self.logits(obs)
+        if self.masked:
+            ok = self.valid(obs)
+            if ok.any():
+                z = np.where(ok, z, -np.inf)
+        return int(np.argmax(z))
 
 
 def load_policy(name_or_path: str = SHIPPED, n_actions: int = 25) -> DiscretePolicy:
