@@ -17,26 +17,12 @@ episodes: the outputs of their first call are compared (``same_as_two_reads``). 
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 import subprocess
 import sys
-import time
 
 VARIANTS = ("two_reads", "one_read", "k_nearest")
-
-
-def _digest(tree) -> str:
-    import jax
-    import numpy as np
-
-    h = hashlib.sha256()
-    for leaf in jax.tree_util.tree_leaves(tree):
-        if jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
-            leaf = jax.random.key_data(leaf)
-        h.update(np.ascontiguousarray(np.asarray(leaf)).tobytes())
-    return h.hexdigest()[:16]
 
 
 def run_one(scenario: str, variant: str, n_envs: int, n_steps: int, k: int) -> dict:
@@ -45,9 +31,8 @@ def run_one(scenario: str, variant: str, n_envs: int, n_steps: int, k: int) -> d
 
     sys.path.insert(0, os.path.dirname(__file__))
     import env_throughput
+    from core_revisions import time_rollout
 
-    from stp_env import sim
-    from stp_env.baselines import INTRUDERS, switching
     from stp_env.sim import core, tables
     from stp_env.sim.physics import relative_state
 
@@ -95,19 +80,7 @@ def run_one(scenario: str, variant: str, n_envs: int, n_steps: int, k: int) -> d
     if reads is not None:
         core.refresh_controllers = patched_refresh
 
-    def go(seed):
-        return jax.block_until_ready(sim.rollout(jax.random.key(seed), params, switching, INTRUDERS["hj"], n_envs,
-                                                 n_steps))
-
-    t0 = time.perf_counter()
-    first = go(0)
-    first_s = time.perf_counter() - t0
-    times = []
-    for i in range(3):
-        t0 = time.perf_counter()
-        go(i + 1)
-        times.append(time.perf_counter() - t0)
-    return {"first_s": first_s, "run_s": min(times), "digest": _digest(first)}
+    return time_rollout(params, n_envs, n_steps)
 
 
 def main() -> None:

@@ -39,20 +39,17 @@ def _digest(tree) -> str:
     return h.hexdigest()[:16]
 
 
-def run_one(scenario: str, n_envs: int, n_steps: int) -> dict:
+def time_rollout(params, n_envs: int, n_steps: int, record: bool = False) -> dict:
+    """``sim.rollout`` of ``switching`` vehicles against the HJ intruder: the first (compiling) call's seconds, the
+    fastest of three more calls, and the digest of the first call's output."""
     import jax
-
-    sys.path.insert(0, HERE)
-    import env_throughput
 
     from stp_env import sim
     from stp_env.baselines import INTRUDERS, switching
 
-    _, params = env_throughput._params(scenario)
-
     def go(seed):
         return jax.block_until_ready(sim.rollout(jax.random.key(seed), params, switching, INTRUDERS["hj"], n_envs,
-                                                 n_steps, record=True))
+                                                 n_steps, record=record))
 
     t0 = time.perf_counter()
     first = go(0)
@@ -62,9 +59,17 @@ def run_one(scenario: str, n_envs: int, n_steps: int) -> dict:
         t0 = time.perf_counter()
         go(i + 1)
         times.append(time.perf_counter() - t0)
+    return {"first_s": first_s, "run_s": min(times), "digest": _digest(first)}
+
+
+def run_one(scenario: str, n_envs: int, n_steps: int) -> dict:
+    sys.path.insert(0, HERE)
+    import env_throughput
+
     import stp_env
 
-    return {"first_s": first_s, "run_s": min(times), "digest": _digest(first), "package": stp_env.__file__}
+    _, params = env_throughput._params(scenario)
+    return {**time_rollout(params, n_envs, n_steps, record=True), "package": stp_env.__file__}
 
 
 def export(rev: str, into: str) -> str:
