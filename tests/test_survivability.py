@@ -548,3 +548,25 @@ def test_goal_corridor_against_enumerated_trajectories():
         assert {r["window"]: r["trajectories"] for r in rows} == pytest.approx(shares)
         assert all(0 <= r["states_alt"] <= r["states"] for r in rows)
         assert shares[0] == 1.0 and shares[max(shares)] == 0.0 and any(0 < v < 1 for v in shares.values())
+
+
+def test_shipped_policy_is_masked_and_flies_only_valid_primitives():
+    """The shipped learned policy (MaskablePPO, ``docs/survivability.md``) loads with numpy, declares its masking,
+    and on the paper's mission picks a valid primitive at every decision of a few missions."""
+    from stp_env.survivability.gym_env import SurvivabilityEnv
+    from stp_env.survivability.learned import load_policy
+
+    policy = load_policy("ppo")
+    assert policy.masked and policy.mlp.metadata["algo"] == "MaskablePPO"
+    env = SurvivabilityEnv(((100, 100),), planner=PlannerConfig(n_mc=256))
+    outcomes = []
+    for seed in range(3):
+        obs, info = env.reset(seed=seed)
+        done = False
+        while not done:
+            a = policy(obs)
+            assert info["valid"][a], (seed, a)
+            obs, _, term, trunc, info = env.step(a)
+            done = term or trunc
+        outcomes.append(info["outcome"])
+    assert set(outcomes) <= {"G", "A", "L"}
