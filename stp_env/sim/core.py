@@ -255,10 +255,11 @@ def lifecycle(state: EnvState, params: EnvParams) -> EnvState:
 
 
 class Closest(NamedTuple):
-    """Closest approaches over a step's inner steps (the events of item 6 are decided on them) [m]. The pairs'
-    are kept squared: the minimum of squares is the square of the minimum (the square root rounds monotonically),
-    so one square root per step at its end gives the same distances as one per inner step (bit for bit,
-    ``tests/test_sim.py``; ``python benchmarks/pair_distances.py`` measures the saving)."""
+    """Closest approaches over a step's inner steps (the events of item 6 are decided on them) [m]. The
+    vehicle-vehicle distances are kept squared: the minimum of the squares is the square of the minimum (the square
+    root rounds monotonically), so one square root per step, at its end, gives the same distances as one per inner
+    step, bit for bit (``tests/test_sim.py``; ``python benchmarks/core_revisions.py --base REV`` measures the
+    saving against an earlier core)."""
 
     pair_sq: jax.Array    # (N, N) vehicle-vehicle, squared [m^2] (the diagonal is huge)
     intruder: jax.Array   # (N,) vehicle-intruder
