@@ -570,3 +570,52 @@ def test_shipped_policy_is_masked_and_flies_only_valid_primitives():
             done = term or trunc
         outcomes.append(info["outcome"])
     assert set(outcomes) <= {"G", "A", "L"}
+
+
+@pytest.mark.slow
+def test_study_shares_robustness_across_n_u_and_workers_split_whole_groups(tmp_path):
+    """Instance ``i`` of scenarios with the same N_p computes its robustness once (the key check refuses another
+    seed, N_p or Monte Carlo setting); two workers split the study by (instance, N_p) groups; the missions equal
+    those flown without sharing, and a rerun adds nothing."""
+    from stp_env.survivability.study import StudyConfig, read_missions, read_study, run_instance, run_study
+
+    planner = PlannerConfig(n_mc=64, n_survival=64)
+    config = StudyConfig(n_partial=(3, 6), n_unknown=(4, 20, 60), n_instances=4, mission=small(),
+                         traffic=TrafficConfig(reach_km=4), planner=planner)
+    g = build_graph(build_network(config.mission))
+
+    def traffic(p, u):
+        return config.traffic.with_overrides(n_partial=p, n_unknown=u)
+
+    base = make_instance(g, traffic(6, 4), planner, (0, 1))
+    assert base.robustness.min() < 1.0                               # the partially known traffic matters here
+    same = make_instance(g, traffic(6, 20), planner, (0, 1), reuse=base)
+    assert same.robustness is base.robustness and same.blocked_bits is base.blocked_bits
+    assert same.occupancy.shape[1] == 26
+    fresh = make_instance(g, traffic(6, 20), planner, (0, 1))
+    assert np.array_equal(fresh.robustness, base.robustness) and np.array_equal(fresh.blocked_bits, base.blocked_bits)
+    others = (make_instance(g, traffic(6, 4), planner, (0, 0), reuse=base),                          # another seed
+              make_instance(g, traffic(3, 4), planner, (0, 1), reuse=base),                          # another N_p
+              make_instance(g, traffic(6, 4), PlannerConfig(n_mc=128, n_survival=64), (0, 1), reuse=base))
+    assert all(o.robustness is not base.robustness for o in others)
+    assert not np.array_equal(others[0].robustness, base.robustness)          # sharing it would have been wrong
+
+    for w in (0, 1):
+        run_study(config, tmp_path, progress=False, worker=(w, 2))
+    rows = read_study(tmp_path)
+    assert len(rows) == 2 * 4 * 3 * len(POLICIES)
+    owner = {}
+    for w in (0, 1):
+        for r in read_missions(tmp_path / f"missions-{w}of2.csv"):
+            owner.setdefault((r["instance"], r["n_partial"]), set()).add(w)
+    assert len(owner) == 8 and all(len(ws) == 1 for ws in owner.values())
+    assert set().union(*owner.values()) == {0, 1}
+
+    keys = ("outcome", "reveals", "omega_switch", "n_dp", "windows")
+    plain = {(r["n_partial"], r["n_unknown"], r["instance"], r["policy"]): tuple(r[k] for k in keys)
+             for p, u in config.scenarios for i in range(4) for r in run_instance(g, config, p, u, i)}
+    shared = {(r["n_partial"], r["n_unknown"], r["instance"], r["policy"]): tuple(r[k] for k in keys) for r in rows}
+    assert shared == plain
+    assert any(r["reveals"] for r in rows) and {r["outcome"] for r in rows} >= {"G", "L"}      # traffic mattered
+    run_study(config, tmp_path, progress=False, worker=(0, 2))
+    assert len(read_study(tmp_path)) == len(rows)

@@ -56,8 +56,9 @@ def add_parser(sub) -> None:
     sp.add_argument("--max-hours", type=t["hours"], default=None,
                     help="stop after this much wall time (rerun the same command to resume)")
     sp.add_argument("--worker", type=_worker, default=(0, 1), metavar="I/N",
-                    help="run every N-th remaining instance starting at the I-th (I = 0 .. N-1), so that N processes "
-                         "with the same options share the study")
+                    help="run every N-th group of instances (one instance of the scenarios with the same N_p) "
+                         "starting at the I-th (I = 0 .. N-1), so that N processes with the same options share the "
+                         "study")
     sp.add_argument("--bootstrap", type=t["positive_int"], default=2000, help="bootstrap resamples for thresholds")
     sp.add_argument("--report-only", action="store_true", help="only (re)write results and figures from OUT")
     sp.add_argument("--no-figures", action="store_true", help="skip the figures")

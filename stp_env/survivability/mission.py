@@ -23,6 +23,7 @@ known-feasible way to ``Omega`` remains at every decision.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 
 import numpy as np
 
@@ -45,21 +46,47 @@ class Instance:
     robustness: np.ndarray     # (n_seg,) float32
     occupancy: np.ndarray      # (n_cells, N) bool: cells of each intruder's actual path
     blocked_bits: np.ndarray | None = None   # (n_seg, W) uint32: realisations blocking each segment (pi_S's R)
+    known_key: bytes = b""     # digest of everything the robustness depends on (see make_instance's ``reuse``)
 
 
-def make_instance(graph: Graph, traffic_config: TrafficConfig, planner: PlannerConfig, seed) -> Instance:
+def make_instance(graph: Graph, traffic_config: TrafficConfig, planner: PlannerConfig, seed,
+                  reuse: Instance | None = None) -> Instance:
     """Draw the traffic of ``seed`` (see :func:`stp_env.survivability.traffic.sample_traffic`) and compute its
-    segment robustness with ``planner.n_mc`` realisations."""
+    segment robustness with ``planner.n_mc`` realisations.
+
+    ``reuse``: an instance of the same graph whose robustness (and ``pi_S``'s realisation bits) this one may
+    share. The robustness depends only on the partially known intruders, the Monte Carlo stream of ``seed`` and the
+    Monte Carlo settings, so the instances of one seed in scenarios that differ only in ``N_u`` share it (common
+    random numbers). It is shared only when a digest of all of these (the partially known intruders' arrays
+    included) matches; otherwise it is computed."""
     seq = np.random.SeedSequence(seed)
     traffic_seq, mc_seq = seq.spawn(2)
     mission = graph.net.mission
     traffic = sample_traffic(traffic_seq, mission, traffic_config)
-    out = segment_robustness(np.random.default_rng(mc_seq), graph, traffic,
-                             uncertainty_km=traffic_config.uncertainty_km, n_mc=planner.n_mc,
-                             samples_per_min=traffic_config.samples_per_min, keep=planner.n_survival)
-    p, bits = out if planner.n_survival else (out, None)
+    key = _known_key(traffic, traffic_config, planner, mc_seq)
+    if reuse is not None and reuse.known_key == key:
+        p, bits = reuse.robustness, reuse.blocked_bits
+    else:
+        out = segment_robustness(np.random.default_rng(mc_seq), graph, traffic,
+                                 uncertainty_km=traffic_config.uncertainty_km, n_mc=planner.n_mc,
+                                 samples_per_min=traffic_config.samples_per_min, keep=planner.n_survival)
+        p, bits = out if planner.n_survival else (out, None)
     occ = occupancy(traffic, mission, traffic_config.samples_per_min, graph.cell_id, graph.n_cells)
-    return Instance(traffic, p, occ, bits)
+    return Instance(traffic, p, occ, bits, key)
+
+
+def _known_key(traffic: Traffic, config: TrafficConfig, planner: PlannerConfig, mc_seq) -> bytes:
+    """Digest of what :func:`segment_robustness` reads: the partially known intruders' nominal curves and times,
+    the uncertainty and rasterisation settings, the Monte Carlo settings and the Monte Carlo stream's seed."""
+    n = traffic.n_partial
+    h = hashlib.sha256()
+    for a in (traffic.nominal[:n], traffic.t_in[:n], traffic.duration[:n]):
+        a = np.ascontiguousarray(a)
+        h.update(repr((a.dtype.str, a.shape)).encode())
+        h.update(a.tobytes())
+    h.update(repr((n, config.uncertainty_km, config.samples_per_min, planner.n_mc, planner.n_survival,
+                   mc_seq.entropy, mc_seq.spawn_key)).encode())
+    return h.digest()
 
 
 @dataclasses.dataclass(frozen=True)

@@ -113,12 +113,22 @@ def completed(rows, policies) -> set[tuple[int, int, int]]:
     return {key for key, pols in seen.items() if set(policies) <= pols}
 
 
-def run_instance(graph, config: StudyConfig, n_partial: int, n_unknown: int, i: int) -> list[dict]:
-    """Every policy's mission through instance ``i`` of scenario ``(n_partial, n_unknown)``."""
+def run_instance(graph, config: StudyConfig, n_partial: int, n_unknown: int, i: int,
+                 shared: dict | None = None) -> list[dict]:
+    """Every policy's mission through instance ``i`` of scenario ``(n_partial, n_unknown)``. ``shared``: a dict
+    kept between calls; instance ``i`` of scenarios with the same ``N_p`` then computes its segment robustness and
+    the policies' first tables once (they depend only on the partially known traffic, see
+    :func:`stp_env.survivability.mission.make_instance`); the missions are the same as without it."""
     t0 = time.perf_counter()
     traffic = config.traffic.with_overrides(n_partial=n_partial, n_unknown=n_unknown)
-    inst = make_instance(graph, traffic, config.planner, (config.seed, i))
-    first = initial_tables(graph, inst, config.policies)
+    shared = {} if shared is None else shared
+    prev = shared.get("instance")
+    inst = make_instance(graph, traffic, config.planner, (config.seed, i), reuse=prev)
+    if prev is not None and inst.robustness is prev.robustness and shared.get("policies") == config.policies:
+        first = shared["first"]
+    else:
+        first = initial_tables(graph, inst, config.policies)
+    shared.update(instance=inst, first=first, policies=config.policies)
     t_inst = time.perf_counter() - t0
     rows = []
     for policy in config.policies:
@@ -136,7 +146,8 @@ def run_study(config: StudyConfig, out: str | os.PathLike, *, progress: bool = T
               worker: tuple[int, int] = (0, 1)) -> Path:
     """Run (or resume) the study into directory ``out``; returns the path of the missions file written.
     ``max_seconds``: stop cleanly after this much wall time (the study can be resumed). ``worker = (i, n)``: run
-    every ``n``-th remaining (scenario, instance), starting at the ``i``-th, into ``missions-{i}of{n}.csv`` (``n``
+    every ``n``-th group of instances (instance ``j`` of the scenarios with the same ``N_p``), starting at the
+    ``i``-th, into ``missions-{i}of{n}.csv`` (``n``
     processes with ``i = 0 .. n - 1`` share a study; run them with the same options)."""
     i_worker, n_workers = worker
     if not (isinstance(n_workers, int) and n_workers >= 1 and isinstance(i_worker, int) and 0 <= i_worker < n_workers):
@@ -158,7 +169,10 @@ def run_study(config: StudyConfig, out: str | os.PathLike, *, progress: bool = T
     rows = read_missions(path)
     done = completed(read_study(out), config.policies)
     todo = [(p, u, i) for i in range(config.n_instances) for (p, u) in config.scenarios if (p, u, i) not in done]
-    todo = todo[i_worker::n_workers]
+    # Workers split whole groups (instance i, N_p), whose scenarios share the segment robustness, by a fixed rule
+    # (not by what is left), so that a worker restarted alone takes the same groups.
+    rank = {p: j for j, p in enumerate(config.n_partial)}
+    todo = [(p, u, i) for p, u, i in todo if (i * len(rank) + rank[p]) % n_workers == i_worker]
     if not todo:
         return path
     graph = build_graph(build_network(config.mission))
@@ -171,10 +185,11 @@ def run_study(config: StudyConfig, out: str | os.PathLike, *, progress: bool = T
         bar = tqdm(total=len(todo), disable=not progress, unit="instance",
                    desc="survivability" if n_workers == 1 else f"survivability {i_worker}/{n_workers}",
                    smoothing=0.05)
+        shared: dict = {}
         for p, u, i in todo:
             if max_seconds is not None and time.perf_counter() - start > max_seconds:
                 break
-            for row in run_instance(graph, config, p, u, i):
+            for row in run_instance(graph, config, p, u, i, shared):
                 writer.writerow(row)
             f.flush()
             os.fsync(f.fileno())
