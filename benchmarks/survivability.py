@@ -1,6 +1,6 @@
 """Survivability study throughput, one JSON line per case, each with a peer measured in the same run.
 
-    python benchmarks/survivability.py [--instances 12] [--segments 300]
+    python benchmarks/survivability.py [--instances 12] [--segments 300] [--cases counts robustness instance study]
 
 * ``counts``: trajectory counts to any landing site with no traffic, on the compact mission graph
   (:func:`stp_env.survivability.dp.counts`) against the dense network of every cell, heading and speed
@@ -10,7 +10,11 @@
   in numpy (timed on ``--segments`` random segments and scaled to all of them); both give the same values.
 * ``instance``: one traffic instance flown by the four policies (set-up: traffic, robustness, the first DP sweep
   shared by the policies; then the missions), at (N_p, N_u) = (50, 50), (175, 175) ~ the grid's mean, (300, 300);
-  peer: the same instances with every DP sweep restarted from the first window.
+  peers: the same instances with every recomputation over all states from the current window (``no_cone``: no
+  numpy sweep over the states reachable from the current one) and from the first window (``full``); the
+  missions (outcomes, reveals, sweeps, windows) must be the same in all three.
+* ``study``: a group of scenarios with one N_p and all six N_u (the study's unit of work), instances sharing
+  their robustness and first tables (``run_instance(..., shared)``) against the same instances computed alone.
 
 Times exclude compilation (a warm-up pass over the same instances first); ``cpu_s`` is this process's user +
 system time, ``loadavg`` the machine's 1-minute load average before the case (the machine is shared).
@@ -114,37 +118,73 @@ def case_instance(graph, n_instances: int, scenario) -> dict:
     for i in range(n_instances):                                                # warm-up: compile every shape
         run_instance(graph, config, *scenario, 20_000 + i)
     out = {}
-    for name, threshold in (("skip", mission.SWEEP_FROM_CURRENT_ABOVE), ("full", 10**12)):
-        mission.SWEEP_FROM_CURRENT_ABOVE = threshold
+    defaults = mission.SWEEP_FROM_CURRENT_ABOVE, mission.CONE_STATES_MAX
+    keys = ("outcome", "reveals", "omega_switch", "n_dp", "windows")
+    for name, (threshold, cone_max) in (("cone", defaults), ("no_cone", (defaults[0], 0)), ("full", (10**12, 0))):
+        mission.SWEEP_FROM_CURRENT_ABOVE, mission.CONE_STATES_MAX = threshold, cone_max
         c0, t0 = cpu(), time.perf_counter()
         rows = [r for i in range(n_instances) for r in run_instance(graph, config, *scenario, 20_000 + i)]
-        out[name] = (time.perf_counter() - t0, cpu() - c0, rows)
-    mission.SWEEP_FROM_CURRENT_ABOVE = 20_000
-    wall, c, rows = out["skip"]
+        out[name] = (time.perf_counter() - t0, cpu() - c0, [tuple(r[k] for k in keys) for r in rows], rows)
+    mission.SWEEP_FROM_CURRENT_ABOVE, mission.CONE_STATES_MAX = defaults
+    wall, c, missions, rows = out["cone"]
     setup = float(np.mean([r["instance_s"] for r in rows[::4]]))
     per_mission = float(np.mean([r["mission_s"] for r in rows]))
-    same = [r["outcome"] for r in rows] == [r["outcome"] for r in out["full"][2]]
     return {"case": "instance", "scenario": list(scenario), "instances": n_instances,
             "wall_s_per_instance": round(wall / n_instances, 3), "cpu_s_per_instance": round(c / n_instances, 3),
             "setup_s": round(setup, 3), "mission_s": round(per_mission, 4),
             "dp_sweeps_per_mission": round(float(np.mean([r["n_dp"] for r in rows])) - 0.75, 2),
             "reveals_per_mission": round(float(np.mean([r["reveals"] for r in rows])), 2),
+            "peer_no_cone_wall_s_per_instance": round(out["no_cone"][0] / n_instances, 3),
             "peer_full_sweeps_wall_s_per_instance": round(out["full"][0] / n_instances, 3),
-            "ratio": round(out["full"][0] / wall, 2), "same_outcomes": same, "loadavg": load}
+            "ratio_vs_no_cone": round(out["no_cone"][0] / wall, 2), "ratio_vs_full": round(out["full"][0] / wall, 2),
+            "same_missions": all(out[k][2] == missions for k in out), "loadavg": load}
+
+
+def case_study(graph, n_instances: int, n_partial: int = 175) -> dict:
+    from stp_env.survivability.study import LEVELS, StudyConfig, run_instance
+
+    load = os.getloadavg()[0]
+    config = StudyConfig()
+    keys = ("outcome", "reveals", "omega_switch", "n_dp", "windows")
+    run_instance(graph, config, n_partial, LEVELS[0], 30_000)                   # warm-up
+    out = {}
+    for name in ("alone", "shared"):
+        c0, t0 = cpu(), time.perf_counter()
+        rows = []
+        for i in range(n_instances):
+            shared = {} if name == "shared" else None
+            for u in LEVELS:
+                rows += run_instance(graph, config, n_partial, u, 31_000 + i, shared)
+        out[name] = (time.perf_counter() - t0, cpu() - c0, [tuple(r[k] for k in keys) for r in rows])
+    n = n_instances * len(LEVELS)
+    return {"case": "study", "n_partial": n_partial, "n_unknown": list(LEVELS), "instances": n,
+            "wall_s_per_instance": round(out["shared"][0] / n, 3), "cpu_s_per_instance": round(out["shared"][1] / n, 3),
+            "peer_alone_wall_s_per_instance": round(out["alone"][0] / n, 3),
+            "ratio": round(out["alone"][0] / out["shared"][0], 2),
+            "same_missions": out["alone"][2] == out["shared"][2], "loadavg": load}
+
+
+CASES = ("counts", "robustness", "instance", "study")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--instances", type=int, default=12)
     ap.add_argument("--segments", type=int, default=300)
+    ap.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES))
     args = ap.parse_args()
     from stp_env.survivability.graph import build_graph
 
     graph = build_graph()
-    print(json.dumps(case_counts(graph)), flush=True)
-    print(json.dumps(case_robustness(graph, args.segments)), flush=True)
-    for scenario in ((50, 50), (175, 175), (300, 300)):
-        print(json.dumps(case_instance(graph, args.instances, scenario)), flush=True)
+    if "counts" in args.cases:
+        print(json.dumps(case_counts(graph)), flush=True)
+    if "robustness" in args.cases:
+        print(json.dumps(case_robustness(graph, args.segments)), flush=True)
+    if "instance" in args.cases:
+        for scenario in ((50, 50), (175, 175), (300, 300)):
+            print(json.dumps(case_instance(graph, args.instances, scenario)), flush=True)
+    if "study" in args.cases:
+        print(json.dumps(case_study(graph, max(1, args.instances // 4))), flush=True)
 
 
 if __name__ == "__main__":

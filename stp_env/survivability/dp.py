@@ -179,12 +179,12 @@ def tables_jit(meta: _Meta, c, feasible, robustness, start, bits, policies, omeg
             return _pad(x, fill)[succ]
 
         tg, ta = c["term_goal"][k], c["term_goal"][k] | c["term_alt"][k]
-        n_goal = jnp.where(tg, 1.0, jnp.sum(jnp.where(f, at(n_goal1), 0.0), axis=1))
-        n_all = jnp.where(ta, 1.0, jnp.sum(jnp.where(f, at(n_all1), 0.0), axis=1))
+        n_goal = jnp.where(tg, 1.0, _total(jnp.where(f, at(n_goal1), 0.0)))
+        n_all = jnp.where(ta, 1.0, _total(jnp.where(f, at(n_all1), 0.0)))
         w = r = jnp.zeros_like(n_all)
         reach = words(n_all.shape[0])
         if need_w:
-            w = jnp.where(ta, 1.0, jnp.sum(jnp.where(f, p * at(w1), 0.0), axis=1))
+            w = jnp.where(ta, 1.0, _total(jnp.where(f, p * at(w1), 0.0)))
         if need_r and exact:
             # Realisations in which some trajectory from the state stays free: OR over the primitives of
             # (segment free AND continuation free).
@@ -194,7 +194,7 @@ def tables_jit(meta: _Meta, c, feasible, robustness, start, bits, policies, omeg
             reach = jnp.where(ta[:, None], ones, reach)
             r = jnp.sum(jax.lax.population_count(reach), axis=1).astype(jnp.float32) / (32.0 * n_words)
         elif need_r:
-            log_fail = jnp.sum(jnp.where(f, jnp.log(jnp.maximum(1.0 - p * at(r1), 1e-30)), 0.0), axis=1)
+            log_fail = _total(jnp.where(f, jnp.log(jnp.maximum(1.0 - p * at(r1), 1e-30)), 0.0))
             r = jnp.where(ta, 1.0, -jnp.expm1(log_fail))
         n_om, t_om = (n_goal, tg) if omega == "goal" else (n_all, ta)
         vs, js = {}, {}
@@ -233,6 +233,15 @@ def tables_jit(meta: _Meta, c, feasible, robustness, start, bits, policies, omeg
     return tuple(Tables(cat(0), cat(1), cat(4, q), cat(5, q)) for q in policies)
 
 
+def _total(x):
+    """Sum over the primitives (axis 1), left to right: a fixed order of float32 additions, which
+    :func:`cone_tables` repeats in numpy bit for bit (``jnp.sum``'s order is XLA's choice)."""
+    acc = x[:, 0]
+    for a in range(1, x.shape[1]):
+        acc = acc + x[:, a]
+    return acc
+
+
 def scores(policy: str, beta: float, tables: Tables, succ, first_robustness):
     """(numpy) The receding-horizon objective (eq. 5) of each primitive, given the successors ``succ`` ``(A,)`` (global
     state indices; invalid entries are masked by the caller) and the first segments' robustness ``(A,)``:
@@ -249,3 +258,95 @@ def scores(policy: str, beta: float, tables: Tables, succ, first_robustness):
     if policy == "Nf":
         return val + beta * fut
     return first_robustness + beta * (val + fut)
+
+
+def cone(graph: Graph, root: int) -> list[np.ndarray]:
+    """The states reachable from state ``root``, window by window: ``layers[j]`` (sorted global indices) at window
+    ``window_of(root) + j``. A mission at ``root`` only ever visits these, and their DP entries depend only on
+    each other."""
+    layers = [np.array([root], np.int64)]
+    for _ in range(graph.window_of(root), graph.net.n_windows):
+        nxt = graph.succ[layers[-1]].ravel()
+        layers.append(np.unique(nxt[nxt >= 0]))
+    return layers
+
+
+def cone_tables(graph: Graph, feasible, robustness, policy: str, omega: str, root: int,
+                blocked_bits=None, layers=None) -> Tables | None:
+    """(numpy) :func:`tables` on the states reachable from ``root`` only (:func:`cone`), equal to it there
+    entry for entry (the same float32 operations in the same order: sums run over the primitives left to right in
+    both, see :func:`_total`); other entries are 0 (``-inf`` for ``future``). A mission deciding at ``root`` and
+    after it reads no other entry. From the third window on the cone holds a few percent of the remaining states
+    (:mod:`stp_env.survivability.mission` uses it there). ``None`` when it does not apply: ``pi_S`` without
+    ``blocked_bits`` (its tree recursion's logarithms are not reproduced bit for bit in numpy). ``layers``:
+    :func:`cone` of ``root``, if already computed."""
+    if policy not in POLICIES:
+        raise ValueError(f"unknown policy {policy!r}; allowed: {', '.join(POLICIES)}.")
+    if omega not in OMEGAS:
+        raise ValueError(f"omega must be 'goal' or 'all'; got {omega!r}.")
+    if policy == "S" and blocked_bits is None:
+        return None
+    feasible = np.asarray(feasible, bool)
+    robustness = np.asarray(robustness, np.float32)
+    layers = cone(graph, root) if layers is None else layers
+    S, A = graph.n_states, graph.succ.shape[1]
+    out = Tables(np.zeros(S, np.float32), np.zeros(S, np.float32), np.zeros(S, np.float32),
+                 np.full(S, -np.inf, np.float32))
+    f32 = np.float32
+    n_words = 0 if blocked_bits is None else blocked_bits.shape[1]
+    nxt = None
+    for layer in layers[::-1]:
+        tg = graph.term_goal[layer]
+        ta = tg | graph.term_alt[layer]
+        t_om = tg if omega == "goal" else ta
+        if nxt is None:                                                     # the last window: terminal values
+            n_goal, n_all = tg.astype(f32), ta.astype(f32)
+            w = n_all
+            reach = np.where(ta[:, None], np.uint32(0xFFFFFFFF), np.uint32(0)) * np.ones((1, n_words), np.uint32)
+            r = n_all
+            fut = np.where(t_om, f32(0.0), f32(-np.inf))
+        else:
+            n_goal1, n_all1, w1, reach1, v1, j1, nlayer = nxt
+            succ = graph.succ[layer]
+            ok = succ >= 0
+            pos = np.where(ok, np.searchsorted(nlayer, np.where(ok, succ, 0)), len(nlayer))   # pad row last
+            seg = graph.seg[layer]
+            f = ok & feasible[np.where(ok, seg, 0)]
+            p = np.where(ok, robustness[np.where(ok, seg, 0)], f32(0.0))
+
+            def at(x, fill=0.0, pos=pos):
+                return np.concatenate([x, np.array([fill], f32)])[pos]
+
+            def total(x):
+                acc = x[:, 0]
+                for a in range(1, A):
+                    acc = acc + x[:, a]
+                return acc
+
+            zero = f32(0.0)
+            n_goal = np.where(tg, f32(1.0), total(np.where(f, at(n_goal1), zero)))
+            n_all = np.where(ta, f32(1.0), total(np.where(f, at(n_all1), zero)))
+            w = np.where(ta, f32(1.0), total(np.where(f, p * at(w1), zero))) if policy == "AvgR" else None
+            r = reach = None
+            if policy == "S":
+                free = ~blocked_bits[np.where(ok, seg, 0)]                                  # (n, A, W)
+                cont = np.concatenate([reach1, np.zeros((1, n_words), np.uint32)])[pos]
+                both = np.where(f[..., None], free & cont, np.uint32(0))
+                reach = np.bitwise_or.reduce(both, axis=1)
+                reach = np.where(ta[:, None], np.uint32(0xFFFFFFFF), reach)
+                r = (np.bitwise_count(reach).astype(np.int32).sum(axis=1).astype(f32) / f32(32.0 * n_words))
+            n_om = n_goal if omega == "goal" else n_all
+            reward = p if policy == "R" else zero
+            cand = np.where(f, reward + at(v1) + at(j1, -np.inf), f32(-np.inf))
+            fut = np.where(n_om > 0, np.where(t_om, zero, cand.max(axis=1)), f32(-np.inf))
+        if policy == "Nf":
+            v = n_all
+        elif policy == "S":
+            v = r
+        elif policy == "AvgR":
+            v = np.where(n_all > 0, w / np.maximum(n_all, f32(1.0)), f32(0.0))
+        else:
+            v = np.zeros_like(n_all)
+        out.n_goal[layer], out.n_all[layer], out.value[layer], out.future[layer] = n_goal, n_all, v, fut
+        nxt = (n_goal, n_all, w, reach, v, fut, layer)
+    return out

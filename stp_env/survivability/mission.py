@@ -35,6 +35,7 @@ from stp_env.survivability.traffic import Traffic, occupancy, sample_traffic
 
 OUTCOMES = ("G", "A", "L")
 SWEEP_FROM_CURRENT_ABOVE = 20_000   # graph states
+CONE_STATES_MAX = 4_000             # a recomputation over at most this many reachable states runs in numpy
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -161,6 +162,15 @@ def run_mission(graph: Graph, instance: Instance, policy: str, planner: PlannerC
     def compute():
         nonlocal n_dp
         n_dp += 1
+        # Only the states reachable from here matter from now on: from the third window on they are a few percent
+        # of the graph, and a numpy sweep over them gives the same entries as the compiled sweep over all states.
+        if graph.window_of(g) > 0:
+            layers = dp.cone(graph, g)
+            if sum(len(x) for x in layers) <= CONE_STATES_MAX:
+                out = dp.cone_tables(graph, know.feasible, instance.robustness, policy, omega, g,
+                                     instance.blocked_bits, layers)
+                if out is not None:
+                    return out
         # Windows before the current one do not matter; on small graphs a full sweep is cheaper than compiling
         # one program per starting window.
         start = graph.window_of(g) if graph.n_states > SWEEP_FROM_CURRENT_ABOVE else 0
