@@ -14,7 +14,7 @@ import pytest
 from stp_env.survivability import backtrack, dense, dp
 from stp_env.survivability.config import POLICIES, SFO, MissionConfig, PlannerConfig, TrafficConfig
 from stp_env.survivability.graph import build_graph, feasible_from_blocked
-from stp_env.survivability.mission import Instance, choose, initial_tables, make_instance, run_mission
+from stp_env.survivability.mission import Instance, Knowledge, choose, initial_tables, make_instance, run_mission
 from stp_env.survivability.network import build_network, segment_box_distance
 from stp_env.survivability.robustness import interior_reach, segment_robustness
 from stp_env.survivability.study import FIELDS
@@ -293,6 +293,21 @@ def test_cone_tables_equal_the_compiled_sweep_on_the_reachable_states():
                 assert np.array_equal(a[idx], np.asarray(b)[idx]), (policy, omega, name)
             assert np.isfinite(fast.future[root]) == ((fast.n_goal if omega == "goal" else fast.n_all)[root] > 0)
     assert dp.cone_tables(g, feasible, p, "S", "goal", root) is None        # the tree recursion: compiled only
+
+
+def test_knowledge_reveal_blocks_exactly_the_segments_through_revealed_cells():
+    """Feasibility after successive reveals (updated through the cells' segment lists) equals its definition: no
+    cell of the segment is on a revealed intruder's actual path."""
+    g = build_graph(build_network(small()))
+    rng = np.random.default_rng(5)
+    occ = rng.random((g.n_cells, 6)) < 0.01
+    know = Knowledge(g, _instance(g, occ))
+    for group in ([2], [0, 4], [2, 5]):
+        before = know.feasible
+        know.reveal(group)
+        blocked = np.append(occ[:, know.revealed].any(axis=1), False)
+        assert np.array_equal(know.feasible, ~blocked[g.seg_cells].any(axis=1))
+        assert not know.feasible.all() and before is not know.feasible
 
 
 def test_survivability_from_realisations_matches_brute_force():

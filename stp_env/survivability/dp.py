@@ -265,9 +265,12 @@ def cone(graph: Graph, root: int) -> list[np.ndarray]:
     ``window_of(root) + j``. A mission at ``root`` only ever visits these, and their DP entries depend only on
     each other."""
     layers = [np.array([root], np.int64)]
-    for _ in range(graph.window_of(root), graph.net.n_windows):
+    ws = graph.window_start
+    for k in range(graph.window_of(root) + 1, graph.net.n_windows + 1):
         nxt = graph.succ[layers[-1]].ravel()
-        layers.append(np.unique(nxt[nxt >= 0]))
+        mark = np.zeros(ws[k + 1] - ws[k], bool)
+        mark[nxt[nxt >= 0] - ws[k]] = True
+        layers.append(np.flatnonzero(mark) + ws[k])
     return layers
 
 

@@ -155,3 +155,25 @@ def feasible_from_blocked(graph: Graph, blocked) -> np.ndarray:
     blocked = np.asarray(blocked, bool)
     cell_blocked = np.append(blocked[graph.cells[:, 2], graph.cells[:, 0], graph.cells[:, 1]], False)
     return ~cell_blocked[graph.seg_cells].any(axis=1)
+
+
+@functools.lru_cache(maxsize=4)
+def _cell_segments(graph: Graph) -> tuple[np.ndarray, np.ndarray]:
+    """``(indptr, segs)``: the segments through each cell (``segs[indptr[c]:indptr[c + 1]]``, sorted)."""
+    seg, slot = np.nonzero(graph.seg_cells >= 0)
+    cell = graph.seg_cells[seg, slot]
+    order = np.argsort(cell, kind="stable")
+    indptr = np.zeros(graph.n_cells + 1, np.int64)
+    np.cumsum(np.bincount(cell, minlength=graph.n_cells), out=indptr[1:])
+    return indptr, seg[order]
+
+
+def segments_through(graph: Graph, cells) -> np.ndarray:
+    """The segments (with repeats) through any of ``cells`` (cell ids)."""
+    indptr, segs = _cell_segments(graph)
+    cells = np.asarray(cells, np.int64)
+    lo, n = indptr[cells], indptr[cells + 1] - indptr[cells]
+    if not n.sum():
+        return np.zeros(0, np.int64)
+    start = np.repeat(lo - np.cumsum(n) + n, n)
+    return segs[start + np.arange(n.sum())]

@@ -29,7 +29,7 @@ import numpy as np
 
 from stp_env.survivability import dp
 from stp_env.survivability.config import POLICIES, MissionConfig, PlannerConfig, TrafficConfig
-from stp_env.survivability.graph import Graph
+from stp_env.survivability.graph import Graph, segments_through
 from stp_env.survivability.robustness import segment_robustness
 from stp_env.survivability.traffic import Traffic, occupancy, sample_traffic
 
@@ -119,8 +119,12 @@ class Knowledge:
     def reveal(self, intruders) -> None:
         for i in intruders:
             self.revealed.append(int(i))
-        self.blocked[:-1] |= self.instance.occupancy[:, list(intruders)].any(axis=1)
-        self.feasible = ~self.blocked[self.graph.seg_cells].any(axis=1)
+        new = self.instance.occupancy[:, list(intruders)].any(axis=1) & ~self.blocked[:-1]
+        self.blocked[:-1] |= new
+        # Only the segments through a newly blocked cell change (a new array: earlier ones may be held elsewhere).
+        feasible = self.feasible.copy()
+        feasible[segments_through(self.graph, np.flatnonzero(new))] = False
+        self.feasible = feasible
 
     def conflicts(self, segment: int) -> np.ndarray:
         """Intruders whose actual path blocks a cell of ``segment``."""
