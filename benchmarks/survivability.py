@@ -16,8 +16,9 @@
 * ``study``: a group of scenarios with one N_p and all six N_u (the study's unit of work), instances sharing
   their robustness and first tables (``run_instance(..., shared)``) against the same instances computed alone.
 
-Times exclude compilation (a warm-up pass over the same instances first); ``cpu_s`` is this process's user +
-system time, ``loadavg`` the machine's 1-minute load average before the case (the machine is shared).
+Times exclude compilation (a warm-up pass over the same instances first, for each variant); ``cpu_s`` is this
+process's user + system time, ``loadavg`` the machine's 1-minute load average before the case (the machine is
+shared).
 """
 
 from __future__ import annotations
@@ -115,13 +116,13 @@ def case_instance(graph, n_instances: int, scenario) -> dict:
 
     load = os.getloadavg()[0]
     config = StudyConfig()
-    for i in range(n_instances):                                                # warm-up: compile every shape
-        run_instance(graph, config, *scenario, 20_000 + i)
     out = {}
     defaults = mission.SWEEP_FROM_CURRENT_ABOVE, mission.CONE_STATES_MAX
     keys = ("outcome", "reveals", "omega_switch", "n_dp", "windows")
     for name, (threshold, cone_max) in (("cone", defaults), ("no_cone", (defaults[0], 0)), ("full", (10**12, 0))):
         mission.SWEEP_FROM_CURRENT_ABOVE, mission.CONE_STATES_MAX = threshold, cone_max
+        for i in range(n_instances):                                            # warm-up: compile every shape
+            run_instance(graph, config, *scenario, 20_000 + i)
         c0, t0 = cpu(), time.perf_counter()
         rows = [r for i in range(n_instances) for r in run_instance(graph, config, *scenario, 20_000 + i)]
         out[name] = (time.perf_counter() - t0, cpu() - c0, [tuple(r[k] for k in keys) for r in rows], rows)
@@ -135,6 +136,7 @@ def case_instance(graph, n_instances: int, scenario) -> dict:
             "dp_sweeps_per_mission": round(float(np.mean([r["n_dp"] for r in rows])) - 0.75, 2),
             "reveals_per_mission": round(float(np.mean([r["reveals"] for r in rows])), 2),
             "peer_no_cone_wall_s_per_instance": round(out["no_cone"][0] / n_instances, 3),
+            "peer_no_cone_mission_s": round(float(np.mean([r["mission_s"] for r in out["no_cone"][3]])), 4),
             "peer_full_sweeps_wall_s_per_instance": round(out["full"][0] / n_instances, 3),
             "ratio_vs_no_cone": round(out["no_cone"][0] / wall, 2), "ratio_vs_full": round(out["full"][0] / wall, 2),
             "same_missions": all(out[k][2] == missions for k in out), "loadavg": load}
