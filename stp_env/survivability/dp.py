@@ -234,8 +234,9 @@ def tables_jit(meta: _Meta, c, feasible, robustness, start, bits, policies, omeg
 
 
 def _total(x):
-    """Sum over the primitives (axis 1), left to right: a fixed order of float32 additions, which
-    :func:`cone_tables` repeats in numpy bit for bit (``jnp.sum``'s order is XLA's choice)."""
+    """Sum over the primitives (axis 1), left to right: a fixed order of float32 additions, the same on jax and numpy
+    arrays, so that :func:`cone_tables` (numpy) repeats the compiled sweep bit for bit (``jnp.sum``'s order is
+    XLA's choice)."""
     acc = x[:, 0]
     for a in range(1, x.shape[1]):
         acc = acc + x[:, a]
@@ -292,7 +293,7 @@ def cone_tables(graph: Graph, feasible, robustness, policy: str, omega: str, roo
     feasible = np.asarray(feasible, bool)
     robustness = np.asarray(robustness, np.float32)
     layers = cone(graph, root) if layers is None else layers
-    S, A = graph.n_states, graph.succ.shape[1]
+    S = graph.n_states
     out = Tables(np.zeros(S, np.float32), np.zeros(S, np.float32), np.zeros(S, np.float32),
                  np.full(S, -np.inf, np.float32))
     f32 = np.float32
@@ -320,16 +321,10 @@ def cone_tables(graph: Graph, feasible, robustness, policy: str, omega: str, roo
             def at(x, fill=0.0, pos=pos):
                 return np.concatenate([x, np.array([fill], f32)])[pos]
 
-            def total(x):
-                acc = x[:, 0]
-                for a in range(1, A):
-                    acc = acc + x[:, a]
-                return acc
-
             zero = f32(0.0)
-            n_goal = np.where(tg, f32(1.0), total(np.where(f, at(n_goal1), zero)))
-            n_all = np.where(ta, f32(1.0), total(np.where(f, at(n_all1), zero)))
-            w = np.where(ta, f32(1.0), total(np.where(f, p * at(w1), zero))) if policy == "AvgR" else None
+            n_goal = np.where(tg, f32(1.0), _total(np.where(f, at(n_goal1), zero)))
+            n_all = np.where(ta, f32(1.0), _total(np.where(f, at(n_all1), zero)))
+            w = np.where(ta, f32(1.0), _total(np.where(f, p * at(w1), zero))) if policy == "AvgR" else None
             r = reach = None
             if policy == "S":
                 free = ~blocked_bits[np.where(ok, seg, 0)]                                  # (n, A, W)

@@ -147,8 +147,8 @@ def run_study(config: StudyConfig, out: str | os.PathLike, *, progress: bool = T
     """Run (or resume) the study into directory ``out``; returns the path of the missions file written.
     ``max_seconds``: stop cleanly after this much wall time (the study can be resumed). ``worker = (i, n)``: run
     every ``n``-th group of instances (instance ``j`` of the scenarios with the same ``N_p``), starting at the
-    ``i``-th, into ``missions-{i}of{n}.csv`` (``n``
-    processes with ``i = 0 .. n - 1`` share a study; run them with the same options)."""
+    ``i``-th, into ``missions-{i}of{n}.csv`` (``n`` processes with ``i = 0 .. n - 1`` share a study; run them with
+    the same options)."""
     i_worker, n_workers = worker
     if not (isinstance(n_workers, int) and n_workers >= 1 and isinstance(i_worker, int) and 0 <= i_worker < n_workers):
         raise ValueError(f"worker must be (i, n) with 0 <= i < n; got {worker!r}.")
