@@ -1,6 +1,6 @@
-"""The dense scenarios (``corridor``, ``crossing``) and the plan checker they are built on: the checker measures
-clearances a closed form gives, the straight plans hold the planner's constraint at the catalog's spacing and break
-it one second tighter (so the spacing is the tightest, and the check can fail)."""
+"""The dense scenarios (``corridor``, ``crossing``, ``pinwheel``) and the plan checker they are built on: the checker
+measures clearances a closed form gives, the straight plans hold the planner's constraint at the catalog's spacing
+and break it one second tighter (so the spacing is the tightest, and the check can fail)."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from stp_env.planning.verify import ObstacleDisks, obstacle_margin, planner_disk
 from stp_env.scenarios import make
 from stp_env.scenarios.catalog.corridor import CORRIDOR_SPACING
 from stp_env.scenarios.catalog.crossing import CROSSING_SPACING
+from stp_env.scenarios.catalog.pinwheel import PINWHEEL_RADIUS, PINWHEEL_SPACING
 from stp_env.sim.build import load_artifacts
 
 
@@ -65,6 +66,45 @@ def test_dense_scenarios_sit_at_the_tightest_spacing_the_planner_constraint_allo
             straight_plan(make(name, kbar=kbar, sta_spacing=spacings[kbar] - 1.0), tracking.bound, disks=disks)
 
 
+def test_a_pinwheel_wave_is_an_equilateral_triangle_at_its_closest():
+    # Closed form (no artifacts): the three vehicles of a wave pass their tangent points together, sqrt(3) rho apart
+    # pairwise, and are never closer; the routes stay in the domain with their target disks.
+    rho = 389.0
+    scenario = make("pinwheel", kbar=3, radius=rho, sta_spacing=400.0, n_waves=2)
+    plan = straight_plan(scenario, 5.0, check=False)
+    wave = plan.vehicles[:3]
+    times = wave[0].plan.times
+    assert all(np.array_equal(v.plan.times, times) for v in wave)
+    pos = np.stack([v.plan.states[:, :2] for v in wave])  # (3, T, 2)
+    pair = [np.hypot(*(pos[a] - pos[b]).T) for a, b in ((0, 1), (1, 2), (0, 2))]
+    closest = [float(d.min()) for d in pair]
+    assert closest == pytest.approx([math.sqrt(3) * rho] * 3, abs=0.05)
+    at_tangent = np.hypot(*(pos[:, :, :] - np.asarray([2000.0, 2000.0])).transpose(2, 0, 1)).min(axis=1)
+    assert at_tangent == pytest.approx([rho] * 3, abs=0.05)  # each route touches the circle
+    lo, hi = np.asarray(scenario.domain_lo), np.asarray(scenario.domain_hi)
+    for spec in scenario.vehicles:
+        for point in (np.asarray(spec.start[:2]), np.asarray(spec.target)):
+            assert np.all(point - spec.target_radius >= lo) and np.all(point + spec.target_radius <= hi)
+
+
+@pytest.mark.slow  # the reachability artifacts (shared with town)
+def test_pinwheel_sits_at_the_tightest_radius_and_spacing():
+    kbar = 3  # the k̄ it is for; the other radii and spacings come from the same script
+    scenario = make("pinwheel", kbar=kbar)
+    assert len(scenario.vehicles) >= 20 and scenario.method == "straight"
+    _, tracking = load_artifacts(scenario, progress=False)
+    disks = planner_disks(scenario, tracking.bound)
+    margin, _ = obstacle_margin(plan_scenario(scenario, tracking_bound=tracking.bound, progress=False), disks)
+    assert 0.0 <= margin < 2.0, margin  # within one metre of radius (sqrt(3) m of side) of the boundary
+    # the triangle's side is the buffer radius, to the metre of radius
+    assert 0.0 <= math.sqrt(3) * PINWHEEL_RADIUS[kbar] - disks.radii[0] < math.sqrt(3)
+    with pytest.raises(InfeasiblePlanError, match="inside the obstacle"):
+        straight_plan(make("pinwheel", kbar=kbar, radius=PINWHEEL_RADIUS[kbar] - 1.0), tracking.bound, disks=disks)
+    with pytest.raises(InfeasiblePlanError, match="inside the obstacle"):
+        straight_plan(make("pinwheel", kbar=kbar, sta_spacing=PINWHEEL_SPACING[kbar] - 1.0), tracking.bound,
+                      disks=disks)
+
+
 def test_dense_scenario_arguments_are_checked():
     with pytest.raises(ValueError, match="kbar"):
         make("corridor", kbar=5)
@@ -72,6 +112,12 @@ def test_dense_scenario_arguments_are_checked():
         make("crossing", kbar=0)
     with pytest.raises(ValueError, match="n_vehicles"):
         make("corridor", n_vehicles=0)
+    with pytest.raises(ValueError, match="kbar"):
+        make("pinwheel", kbar=5)
+    with pytest.raises(ValueError, match="n_waves"):
+        make("pinwheel", n_waves=0)
+    with pytest.raises(ValueError, match="radius"):
+        make("pinwheel", radius=1500.0)
     with pytest.raises(ValueError, match="does not point"):
         straight_plan(make("town").with_overrides(method="straight"), 5.0,
                       disks=ObstacleDisks(np.zeros(1), np.ones(1)))

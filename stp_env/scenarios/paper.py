@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from stp_env.dynamics import DubinsWind
+from stp_env.scenarios.config import Scenario
 
 BEACLS_PLANNING_V = (11.0, 13.0)
 BEACLS_PLANNING_OMEGA_MAX = 1.2
@@ -40,3 +41,14 @@ def paper_fields(wind: float) -> dict:
     planning set ``U^p`` and ``R_c = 100 m``."""
     return {"vehicle": paper_vehicle(wind), "planning_v": BEACLS_PLANNING_V,
             "planning_omega_max": BEACLS_PLANNING_OMEGA_MAX, "collision_radius": 100.0}
+
+
+def dense_scenario(name: str, *, domain, vehicles, kbar: int, wind: float, grid_points: tuple[int, int, int],
+                   seed: int, description: str):
+    """A dense scenario of straight routes (``corridor``, ``crossing``, ``pinwheel``): the papers' vehicle and
+    planning set (:func:`paper_fields`), ``t_IAT = 10 s``, plan samples every 0.25 s, and the method ``"straight"``
+    (straight flights checked against the intruder-aware planner's disks,
+    :func:`stp_env.planning.verify.straight_plan`); ``domain = (lo, hi)``."""
+    return Scenario(name=name, domain_lo=domain[0], domain_hi=domain[1], **paper_fields(wind), vehicles=vehicles,
+                    method="straight", kbar=int(kbar), t_iat=10.0, grid_points=grid_points, time_step=0.25, seed=seed,
+                    description=description)

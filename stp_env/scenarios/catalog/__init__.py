@@ -10,6 +10,10 @@ looked up by name (:func:`stp_env.scenarios.registry.names`), so a new scenario 
 | ``tiny`` | ours | 2 | 2 km x 2 km | rtt | two vehicles crossing, 41 x 41 x 40 grid |
 | ``tiny-intruder`` | ours | 2 | 2 km x 2 km | rtt | ``tiny`` with ``kbar=2`` |
 | ``town`` | ours | 7 | 4 km x 4 km | rtt | the environment's default; two buildings, ``kbar`` 1-4 |
+| ``fig6`` | intruder paper Fig. 6 | 4 | 3.6 km x 1.6 km | straight lines | the worst case placed for ``kbar`` 3 |
+| ``corridor`` | ours | 20 | 3.6 km x 1.6 km | straight | one trail, spaced by the buffer, ``kbar`` 1-4 |
+| ``crossing`` | ours | 20 | 4 km x 4 km | straight | two streams crossing, spaced by the buffer, ``kbar`` 1-4 |
+| ``pinwheel`` | ours | 21 | 4 km x 4 km | straight | three streams, waves of three one buffer radius apart |
 
 Scheduled times of arrival. For the city and bay-area studies ``STA_i = sta_spacing * priority`` [s]: the
 highest-priority vehicle is due at 0 and each next rank ``sta_spacing`` seconds later, BEACLS's ``t_i^STA = 5 (i -

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from stp_env.scenarios.config import Scenario, VehicleSpec
-from stp_env.scenarios.paper import check_factory_args, paper_fields
+from stp_env.scenarios.paper import check_factory_args, dense_scenario
 from stp_env.scenarios.registry import register
 
 CORRIDOR_DOMAIN = ((0.0, 0.0), (3600.0, 1600.0))
@@ -49,18 +49,7 @@ def corridor(*, kbar: int = 2, n_vehicles: int = 20, wind: float = 6.0, sta_spac
     check_factory_args(n_vehicles=n_vehicles, sta_spacing=sta_spacing, seed=seed)
     vehicles = tuple(VehicleSpec(start=CORRIDOR_START, target=CORRIDOR_TARGET, target_radius=CORRIDOR_TARGET_RADIUS,
                                  sta=300.0 + float(sta_spacing) * i, priority=i) for i in range(n_vehicles))
-    return Scenario(
-        name="corridor",
-        domain_lo=CORRIDOR_DOMAIN[0],
-        domain_hi=CORRIDOR_DOMAIN[1],
-        **paper_fields(wind),
-        vehicles=vehicles,
-        method="straight",
-        kbar=int(kbar),
-        t_iat=10.0,
-        grid_points=(73, 33, 24),
-        time_step=0.25,
-        seed=seed,
-        description=f"Corridor (dense, the buffer binds): {n_vehicles} vehicles in trail on one 3 km route, kbar "
-                    f"{kbar}, STA spacing {sta_spacing} s, wind {wind} m/s.",
-    )
+    description = (f"Corridor (dense, the buffer binds): {n_vehicles} vehicles in trail on one 3 km route, kbar "
+                   f"{kbar}, STA spacing {sta_spacing} s, wind {wind} m/s.")
+    return dense_scenario("corridor", domain=CORRIDOR_DOMAIN, vehicles=vehicles, kbar=kbar, wind=wind,
+                          grid_points=(73, 33, 24), seed=seed, description=description)

@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from stp_env.scenarios.config import Scenario, VehicleSpec
-from stp_env.scenarios.paper import check_factory_args, paper_fields
+from stp_env.scenarios.paper import check_factory_args, dense_scenario
 from stp_env.scenarios.registry import register
 
 CROSSING_DOMAIN = ((0.0, 0.0), (4000.0, 4000.0))
@@ -50,18 +50,7 @@ def crossing(*, kbar: int = 2, n_vehicles: int = 20, wind: float = 6.0, sta_spac
     vehicles = tuple(VehicleSpec(start=CROSSING_STREAMS[i % 2][0], target=CROSSING_STREAMS[i % 2][1],
                                  target_radius=CROSSING_TARGET_RADIUS, sta=300.0 + float(sta_spacing) * i,
                                  priority=i) for i in range(n_vehicles))
-    return Scenario(
-        name="crossing",
-        domain_lo=CROSSING_DOMAIN[0],
-        domain_hi=CROSSING_DOMAIN[1],
-        **paper_fields(wind),
-        vehicles=vehicles,
-        method="straight",
-        kbar=int(kbar),
-        t_iat=10.0,
-        grid_points=(81, 81, 24),
-        time_step=0.25,
-        seed=seed,
-        description=f"Crossing (dense, the buffer binds): {n_vehicles} vehicles in two streams crossing at right "
-                    f"angles in a 4 km square, kbar {kbar}, STA spacing {sta_spacing} s, wind {wind} m/s.",
-    )
+    description = (f"Crossing (dense, the buffer binds): {n_vehicles} vehicles in two streams crossing at right "
+                   f"angles in a 4 km square, kbar {kbar}, STA spacing {sta_spacing} s, wind {wind} m/s.")
+    return dense_scenario("crossing", domain=CROSSING_DOMAIN, vehicles=vehicles, kbar=kbar, wind=wind,
+                          grid_points=(81, 81, 24), seed=seed, description=description)
