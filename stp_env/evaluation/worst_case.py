@@ -1,5 +1,6 @@
 """The intruder paper's worst case on the core: the ``fig6`` scenario with a fixed intruder spawn, played by the
-buffer game's worst vehicles (Fig. 6) or by the vehicles' own controller ``u*`` (Fig. 7).
+buffer game's worst vehicles (Fig. 6) or by the vehicles' own controller ``u*`` (Fig. 7); and the same attack
+designed on a planned layout, one wave of the ``pinwheel`` (:func:`pinwheel_run`).
 
 :func:`fig6_params` builds the simulator constants (straight-line plan, the intruder appearing ``FIG6_LEAD`` s after
 departure, the ``V^B`` table for the buffer-game policies); :func:`run_fixed_spawn` runs one episode from a given
@@ -103,3 +104,83 @@ def reproduce(params, vehicle_policy, intruder_policy, *, seed: int = 0, spawn=N
         "trajectory": {k: np.asarray(v) for k, v in traj.items()},
         "final": final,
     }
+
+
+def boundary_spawn(avoid, margin: float, vehicle, bearing: float, heading_offset: float = 0.0, *,
+                   level_above: float = 1.0) -> np.ndarray:
+    """An intruder state ``(x, y, theta)`` on a vehicle's avoid boundary: along the ray at ``bearing`` [rad, relative
+    to the vehicle's heading] from ``vehicle = (x, y, theta)``, where ``V^A(0, t_IAT)`` equals ``margin +
+    level_above`` (bisection in the avoid table: just outside the simulator's avoid margin, so that Assumption 3
+    holds and the vehicle is forced within the first inner steps), heading ``heading_offset`` [rad] off the outward
+    ray. Raises ``ValueError`` when the ray never leaves the region inside the table."""
+    import jax.numpy as jnp
+
+    from stp_env import hj
+
+    grid, taus, values = avoid.grid, jnp.asarray(avoid.taus), jnp.asarray(avoid.values)
+    x0, y0, th0 = (float(v) for v in vehicle)
+    rel_heading = bearing + heading_offset
+
+    def value(r):
+        rel = jnp.asarray([r * math.cos(bearing), r * math.sin(bearing), rel_heading], jnp.float32)
+        return float(hj.interpolation.interpolate_slices(grid, taus, values, 0.0, rel))
+
+    level = margin + level_above
+    lo, hi = 0.0, 0.99 * min(float(grid.hi[0]), float(grid.hi[1]))
+    if value(hi) <= level:
+        raise ValueError(f"the avoid region reaches the table's edge at bearing {bearing:.3f} rad.")
+    if value(lo) > level:
+        raise ValueError("the intruder is outside the avoid region even at the vehicle's position.")
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if value(mid) <= level else (lo, mid)
+    world = th0 + bearing
+    return np.asarray([x0 + hi * math.cos(world), y0 + hi * math.sin(world), th0 + rel_heading], np.float32)
+
+
+PINWHEEL_SPAWN = (math.pi / 2, 0.0, -3.0)
+"""The designed attack on a ``pinwheel`` wave: ``(bearing, heading offset, appearance)``: the intruder appears on
+the avoid boundary of the wave's stream-0 vehicle straight to its left (toward the centre, where the other two are
+equally far), heading outward along that ray, 3 s before the wave's triangle (the three at their tangent points);
+``scripts/pinwheel_worst_case.py`` searches the neighbourhood."""
+
+
+def pinwheel_params(kbar: int = 3, *, wind_model="converging", appear: float = PINWHEEL_SPAWN[2],
+                    config: sim.EnvConfig | None = None, store=None, progress: bool = False):
+    """``(EnvParams, avoid region, plan)`` of one ``pinwheel`` wave (3 vehicles, ``make("pinwheel", kbar=kbar,
+    n_waves=1)``, its straight plan) with the ``V^B`` table, the intruder appearing ``appear`` s after the wave's
+    triangle (negative: before), and ``wind_model`` (default ``converging``: the buffer game's helping winds)."""
+    from stp_env.planning.verify import straight_plan
+    from stp_env.scenarios import make
+    from stp_env.scenarios.catalog.pinwheel import PINWHEEL_BEFORE
+
+    scenario = make("pinwheel", kbar=kbar, n_waves=1)
+    avoid, tracking = sim.load_artifacts(scenario, store=store, progress=progress)
+    plan = straight_plan(scenario, tracking.bound, check=False)
+    config = sim.EnvConfig() if config is None else config
+    # on the step grid from the departure; the window half a step early (as fig6_params) against float32 step times
+    at = config.dt * round((PINWHEEL_BEFORE / float(scenario.planning_v[1]) + appear) / config.dt)
+    if at <= config.dt:
+        raise ValueError(f"appear = {appear} s puts the appearance before the wave departs.")
+    lo = at - 0.5 * config.dt
+    config = config.with_overrides(wind_model=wind_model, appear_window=(lo, lo), lead=lo)
+    params = sim.make_params(scenario, plan, avoid, tracking, config)
+    return with_buffer(params, load_buffer(scenario, store=store, progress=progress)), avoid, plan
+
+
+def pinwheel_run(kbar: int = 3, bearing: float = PINWHEEL_SPAWN[0], heading_offset: float = PINWHEEL_SPAWN[1],
+                 appear: float = PINWHEEL_SPAWN[2], *, wind_model="converging", vehicle_policy=None,
+                 intruder_policy=None, seed: int = 0, setup=None, store=None):
+    """One designed episode on a ``pinwheel`` wave (:func:`pinwheel_params`): the intruder appears on vehicle 0's
+    avoid boundary (:func:`boundary_spawn`) and by default the ``worst`` vehicles play against ``optimal-max-k``;
+    returns :func:`reproduce`'s summary. ``setup`` reuses a :func:`pinwheel_params` result."""
+    from stp_env.baselines import optimal_max_k, worst
+
+    params, avoid, plan = pinwheel_params(kbar, wind_model=wind_model, appear=appear, store=store) \
+        if setup is None else setup
+    single = plan.vehicles[0].plan
+    t = float(params.appear_window[0]) + 0.5 * float(params.dt)  # the step the intruder appears at
+    vehicle = [np.interp(t, single.times, single.states[:, i]) for i in range(2)] + [float(single.states[0, 2])]
+    spawn = boundary_spawn(avoid, float(params.avoid_margin), vehicle, bearing, heading_offset)
+    return reproduce(params, worst if vehicle_policy is None else vehicle_policy,
+                     optimal_max_k if intruder_policy is None else intruder_policy, seed=seed, spawn=spawn)
