@@ -173,7 +173,8 @@ def pinwheel_run(kbar: int = 3, bearing: float = PINWHEEL_SPAWN[0], heading_offs
                  intruder_policy=None, seed: int = 0, setup=None, store=None):
     """One designed episode on a ``pinwheel`` wave (:func:`pinwheel_params`): the intruder appears on vehicle 0's
     avoid boundary (:func:`boundary_spawn`) and by default the ``worst`` vehicles play against ``optimal-max-k``;
-    returns :func:`reproduce`'s summary. ``setup`` reuses a :func:`pinwheel_params` result."""
+    returns :func:`reproduce`'s summary. ``setup`` reuses a :func:`pinwheel_params` result, which must have been made
+with the same ``kbar``, ``wind_model`` and ``appear`` (they are not read again)."""
     from stp_env.baselines import optimal_max_k, worst
 
     params, avoid, plan = pinwheel_params(kbar, wind_model=wind_model, appear=appear, store=store) \
