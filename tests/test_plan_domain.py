@@ -1,6 +1,6 @@
-"""The planner keeps nominal trajectories in the scenario's domain, and the shipped city plans (BEACLS city cases, 50
-vehicles each) hold the planner's constraints: every vehicle arrives by its STA, stays r_e inside the domain and
-outside the other vehicles' disks (to the grid's resolution)."""
+"""The planner keeps nominal trajectories in the scenario's domain, and the shipped city plans (BEACLS city cases
+and the city with an intruder, 50 vehicles each) hold the planner's constraints: every vehicle arrives by its STA,
+stays r_e inside the domain and outside the other vehicles' disks (to the grid's resolution)."""
 
 from __future__ import annotations
 
@@ -113,7 +113,7 @@ def test_plan_mismatch_names_kbar_stas_and_vehicle_count():
     assert "tracking-error bound" in plan_mismatch(tiny, make("tiny-intruder"), tiny.tracking_bound + 1.0)
 
 
-CITY = [s for s in SHIPPED if s[1] == "city"]
+CITY = [s for s in SHIPPED if s[1] in ("city", "city-intruder")]
 
 
 @pytest.mark.parametrize("file,name,overrides", CITY, ids=[s[0] for s in CITY])

@@ -95,6 +95,30 @@ def test_city_overrides_go_to_factory_and_fields():
         assert scenarios.make("city", n_vehicles=2, **case).vehicle.wind == case["wind"]
 
 
+def test_city_intruder_is_the_city_with_departure_slots():
+    from stp_env.scenarios.catalog.city_intruder import CITY_INTRUDER_SLOT
+
+    base = scenarios.make("city", kbar=3, n_vehicles=12)
+    s = scenarios.make("city-intruder", kbar=3, n_vehicles=12)
+    assert s.name == "city-intruder" and s.kbar == 3 and s.buildings == base.buildings
+    assert [(v.start, v.target, v.priority) for v in s.vehicles] == [(v.start, v.target, v.priority)
+                                                                     for v in base.vehicles]
+    # STA = slot x priority + the straight flight to the target's edge at 13 m/s, rounded up to whole seconds;
+    # e.g. the origin (300, 2500) to (2600, 4500): (3048.0 - 100) / 13 = 226.8 -> 227 s
+    for v in s.vehicles:
+        flight = math.ceil((math.dist(v.start[:2], v.target) - v.target_radius) / 13.0)
+        assert v.sta == CITY_INTRUDER_SLOT * v.priority + flight
+    near = [v for v in s.vehicles if v.target == (2600.0, 4500.0)]
+    assert near and all(v.sta == CITY_INTRUDER_SLOT * v.priority + 227.0 for v in near)
+    # consecutive priorities are due at least one slot apart less the flights' spread, never together
+    stas = s.stas()[np.argsort(s.priorities())]
+    assert np.all(np.diff(stas) >= CITY_INTRUDER_SLOT - 110.0)
+    assert scenarios.make("city-intruder", kbar=2, slot=200.0).vehicles[0].sta != s.vehicles[0].sta
+    for bad in ({"kbar": 1}, {"kbar": 5}, {"kbar": True}, {"slot": 0.0}, {"slot": float("nan")}, {"slot": "90"}):
+        with pytest.raises(ValueError, match="city-intruder"):
+            scenarios.make("city-intruder", **bad)
+
+
 def test_bay_area_setup():
     s = scenarios.make("bay-area")
     (x0, y0), (x1, y1) = s.domain_lo, s.domain_hi

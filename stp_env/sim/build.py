@@ -291,6 +291,7 @@ SHIPPED_PLANS: dict[str, tuple[str, dict]] = {
     "city": ("city", {}),  # BEACLS Case 0
     **{f"city-case{c}": ("city", dict(case)) for c, case in CITY_CASES.items() if c != 0},
     **{f"city-kbar{k}": ("city", {"kbar": k}) for k in (2, 3, 4)},  # intruder-aware Case 0
+    **{f"city-intruder-kbar{k}": ("city-intruder", {"kbar": k}) for k in (2, 3, 4)},  # BEACLS Section VII
     "bay-area": ("bay-area", {}),
 }
 """The plans ``stp_env/data/plans/<file>.npz`` may hold: file name -> (registered scenario, overrides), the plan

@@ -6,6 +6,7 @@ looked up by name (:func:`stp_env.scenarios.registry.names`), so a new scenario 
 | --- | --- | --- | --- | --- | --- |
 | ``four-vehicle`` | SPP paper Section V, eqs. (28)-(30) | 4 | ``[-1, 1]^2`` | centralized | unit-free toy scale |
 | ``city`` | BEACLS Section V, intruder paper Section V-A | 50 | 5 km x 5 km | rtt | synthetic downtown |
+| ``city-intruder`` | BEACLS Section VII | 50 | 5 km x 5 km | rtt | ``city``, ``kbar`` 2-4, a departure per 150 s |
 | ``bay-area`` | BEACLS Section VI | 200 | 20 km x 15 km | rtt | four cities, no buildings |
 | ``tiny`` | ours | 2 | 2 km x 2 km | rtt | two vehicles crossing, 41 x 41 x 40 grid |
 | ``tiny-intruder`` | ours | 2 | 2 km x 2 km | rtt | ``tiny`` with ``kbar=2`` |
