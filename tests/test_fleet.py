@@ -174,6 +174,35 @@ def test_part_of_a_fleet_ends_when_the_whole_fleet_would(crossing):
         assert bool(terminated) is not waits
 
 
+def test_a_vehicle_whose_trajectory_flies_on_past_its_target_has_arrived(crossing):
+    """A vehicle leaves the airspace when its nominal trajectory reaches the target, even where the trajectory then
+    flies on out of the target disk (the city planner's do, by up to 1 km): at the episode's start it is ARRIVED,
+    not simulated and no spawn anchor, and its position after the arrival is never read as a flight."""
+    _, params = crossing
+    order = np.argsort(np.asarray(params.nominal_arrival))
+    i = int(order[0])                                                   # the first to arrive
+    t_arr = float(params.nominal_arrival[i])
+    t0 = t_arr + 20.0
+    assert t0 < float(np.sort(np.asarray(params.nominal_arrival))[1])   # nobody else has arrived yet
+    last = int(params.nominal_len[i]) - 1        # the reference stays at the last sample after it
+    k = min(int(np.ceil((t_arr + 1.0 - float(params.nominal_t0[i])) / float(params.nominal_dt))), last)
+    states = np.array(params.nominal_states)
+    states[i, k:, :2] = np.asarray(params.targets[i]) + np.array([0.0, 400.0])  # 400 m north of the centre
+    flown_on = dataclasses.replace(params, nominal_states=jnp.asarray(states), t_start=jnp.float32(t0),
+                                   t_end=jnp.float32(t0 + 30.0),
+                                   appear_window=jnp.asarray([t0, t0 + 1.0], jnp.float32))
+    x_nom, _ = sim.nominal_reference(flown_on, flown_on.t_start)
+    assert np.hypot(*(np.asarray(x_nom[i, :2]) - np.asarray(params.targets[i]))) > 300.0  # outside by position
+    arrived = np.asarray(fleet.arrived_at_start(flown_on))
+    assert arrived[i] and arrived.sum() == 1
+    assert i not in fleet.airborne(flown_on)
+    state = sim.reset(jax.random.key(0), flown_on)
+    assert int(state.status[i]) == sim.ARRIVED and float(state.arrival_time[i]) == pytest.approx(t_arr)
+    # the position rule alone (the mutant) would have put it back in the air, 400 m from its target
+    mutant = dataclasses.replace(flown_on, nominal_arrival=jnp.full_like(params.nominal_arrival, jnp.inf))
+    assert not np.asarray(fleet.arrived_at_start(mutant))[i]
+
+
 def test_select_slices_every_per_vehicle_parameter(crossing):
     _, params = crossing
     n = params.n_vehicles

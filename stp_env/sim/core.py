@@ -97,7 +97,7 @@ def reset(key, params: EnvParams) -> EnvState:
     t_app = t0 + jnp.ceil(jnp.maximum(t_appear - t0, 0.0) / params.dt - 1e-4) * params.dt
     x_app, _ = nominal_reference(params, t_app)
     d_app = jnp.hypot(*(x_app[:, :2] - params.targets).T)
-    fly_app = (params.departure <= t_app) & (d_app > params.target_radii)
+    fly_app = (params.departure <= t_app) & (params.nominal_arrival > t_app) & (d_app > params.target_radii)
     x_spawn = spawn_lib.spawn(k_spawn, x_app, fly_app, params)
     inf = jnp.full((n,), jnp.inf, t0.dtype)
     state = EnvState(

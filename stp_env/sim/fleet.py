@@ -69,8 +69,8 @@ def random_vehicle(key, mask, params: EnvParams):
 
 
 def airborne(params: EnvParams) -> np.ndarray:
-    """Indices (ascending) of the vehicles that can fly in ``[t_start, t_end]``: not in their target at the start
-    (by their nominal state at ``t_start``, as :func:`stp_env.sim.core.reset` decides) and departing no later than
+    """Indices (ascending) of the vehicles that can fly in ``[t_start, t_end]``: not arrived at the start (by their
+    nominal arrival and state at ``t_start``, as :func:`stp_env.sim.core.reset` decides) and departing no later than
     one step after ``t_end``. The others never leave ``WAITING`` or ``ARRIVED`` in an episode."""
     if params.vehicle_ids is not None:
         raise ValueError("these params already simulate part of a fleet.")
@@ -99,13 +99,20 @@ def select(params: EnvParams, ids) -> EnvParams:
 
 
 def arrived_at_start(params: EnvParams, slack=0.0):
-    """``(N,)`` bool: in its target at ``t_start``: departed, and its nominal position at least ``slack`` [m] inside
-    the target disk (``slack = 0``: what :func:`stp_env.sim.core.reset` decides). Jittable."""
+    """``(N,)`` bool: out of the airspace at ``t_start`` because it arrived: departed, and either its nominal
+    trajectory reached the target by then (``nominal_arrival <= t_start``) or its nominal position is at least
+    ``slack`` [m] inside the target disk (``slack = 0``: what :func:`stp_env.sim.core.reset` decides). Jittable.
+
+    The arrival time decides, not only the position: a vehicle leaves the airspace when it reaches its target, and
+    the planner's trajectory after that instant is not a flight. The city planner's trajectories fly on through the
+    target disk (by up to 1 km in the shipped city plans), and judged by position alone those vehicles would be
+    back in the air at the episode's start, on top of each other at the trajectories' last samples."""
     from stp_env.sim.reference import nominal_reference
 
     x_nom, _ = nominal_reference(params, params.t_start)
     departed = params.departure <= params.t_start
-    return departed & (jnp.hypot(*(x_nom[:, :2] - params.targets).T) <= params.target_radii - slack)
+    landed = params.nominal_arrival <= params.t_start
+    return departed & (landed | (jnp.hypot(*(x_nom[:, :2] - params.targets).T) <= params.target_radii - slack))
 
 
 def parked_state(params: EnvParams, ids) -> EnvState:
