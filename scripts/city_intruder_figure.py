@@ -17,8 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from stp_env.planning.plots import plot_plan
+from stp_env.planning.stp import shipped_plan
 from stp_env.scenarios import make
-from stp_env.sim.build import _shipped_plan
+from stp_env.sim.build import plan_mismatch
 
 
 def airborne_counts(plan, times: np.ndarray) -> np.ndarray:
@@ -35,10 +36,15 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     for kbar in args.kbars:
         scenario = make("city-intruder", kbar=kbar)
-        plan = _shipped_plan(scenario)
-        if plan is None:
+        try:
+            plan = shipped_plan(f"city-intruder-kbar{kbar}")
+        except ValueError:
             print(json.dumps({"kbar": kbar, "shipped": False}), flush=True)
             continue
+        mismatch = plan_mismatch(plan, scenario, plan.tracking_bound)
+        if mismatch is not None:
+            raise SystemExit(f"the shipped city-intruder-kbar{kbar} plan is not for make('city-intruder', "
+                             f"kbar={kbar}): {mismatch}")
         start = min(v.plan.t_ldt for v in plan.vehicles)
         end = max(v.plan.arrival_time for v in plan.vehicles)
         times = np.arange(start, end, 1.0)

@@ -51,7 +51,8 @@ the buffer: at k̄ = 3 the first 21 vehicles left 61 s apart (t_LDT -241 .. -146
 departure within 1500 s, so 50 vehicles need about 50 x 61 s: 3600 s. At k̄ = 2 they leave 67.5 s apart (t_LDT
 -241 .. -3545 s for the first 49) and the 50th has no departure within 3600 s: 3800 s. ``city-intruder-kbar2``
 (one departure slot per 150 s): with 676 s its 46th vehicle had no departure (a departure held back at the origin
-goes back past the earlier ones, up to 256 s before its slot); ``city-intruder-kbar3`` plans at 676 s."""
+goes back past the earlier ones: up to 382 s before its slot in the 1200 s plan); ``city-intruder-kbar3`` plans at
+676 s."""
 
 
 SLICE_DT = {"city-case3": 3.0, **{f"city-{kind}{k}": 3.0 for kind in ("kbar", "intruder-kbar") for k in (2, 3, 4)},
