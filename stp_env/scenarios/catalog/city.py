@@ -97,7 +97,10 @@ def city(*, n_vehicles: int = 50, wind: float = 6.0, sta_spacing: float = 0.0, k
       robust-trajectory-tracking planning set ``U^p = [11, 13] m/s x |omega| <= 1.2 rad/s`` (BEACLS).
     * ``STA_i = sta_spacing * priority`` [s] (0, 5 or 10 s in BEACLS Cases 0-4, :data:`CITY_CASES`).
     * ``R_c = 100 m``, ``t_IAT = 10 s``; ``kbar=None`` plans without regard to an intruder (BEACLS Section V);
-      ``kbar=3`` is the intruder paper's setting.
+      ``kbar=3`` is the intruder paper's setting. With ``kbar`` and all STAs equal, the one origin releases a
+      vehicle a minute and the last ones wait an hour near their targets; no such plan ships (it is planned on
+      first use). The shipped intruder-aware city is ``city-intruder``
+      (:mod:`stp_env.scenarios.catalog.city_intruder`): the same city with one departure slot per vehicle.
     * Grid 151 x 151 x 24: 33.3 m in position (6 cells across a target, docs/numerics.md asks for >= 5), 15 degrees in
       heading. The solver's time step is set by the heading axis (CFL rate ``omega / dtheta`` = 4.6 /s against
       ``v / dx`` = 0.39 /s at ``U^p``) and the planning turn radius (13 / 1.2 = 11 m) is a third of a cell: with
