@@ -19,13 +19,7 @@ import numpy as np
 from stp_env.planning.plots import plot_plan
 from stp_env.planning.stp import shipped_plan
 from stp_env.scenarios import make
-from stp_env.sim.build import plan_mismatch
-
-
-def airborne_counts(plan, times: np.ndarray) -> np.ndarray:
-    """How many vehicles fly (departure to arrival) at each of ``times``."""
-    windows = np.asarray([(v.plan.t_ldt, v.plan.arrival_time) for v in plan.vehicles])
-    return ((windows[:, :1] <= times[None, :]) & (times[None, :] <= windows[:, 1:])).sum(axis=0)
+from stp_env.sim.build import flying_counts, plan_mismatch
 
 
 def main() -> None:
@@ -48,7 +42,7 @@ def main() -> None:
         start = min(v.plan.t_ldt for v in plan.vehicles)
         end = max(v.plan.arrival_time for v in plan.vehicles)
         times = np.arange(start, end, 1.0)
-        counts = airborne_counts(plan, times)
+        counts = flying_counts(plan, times)
         snapshot = float(times[int(np.argmax(counts))])
         path = args.out / f"city_intruder_k{kbar}.png"
         plot_plan(plan, scenario, str(path), snapshot_time=snapshot)
