@@ -139,6 +139,9 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
                                                                      planning_v[1])
 
     order = sorted(range(n), key=lambda i: priorities[i])
+    # The solves ask for the obstacles between the earliest STA's horizon and the latest STA (one span for all
+    # vehicles: the obstacle arrays keep one shape).
+    span = (float(np.min(stas)) - arrival_margin - horizon, float(np.max(stas)) + 1.0)
     done: dict[int, VehiclePlan] = {}
     trajectories = []
     key = None
@@ -165,7 +168,7 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
                                   obstacle_radii=rads_arr)
             continue
         kwargs = planning_obstacles(grid, trajectories, lags_arr, rads_arr, static_obstacle, n_slots=n - 1,
-                                    n_samples=math.ceil(1.1 * horizon / time_step) + 1)
+                                    n_samples=math.ceil(1.1 * horizon / time_step) + 1, span=span)
         aim = float(stas[i]) - arrival_margin
         depart_at, vehicle_solver, retries = None, solver, 0
         while True:
