@@ -84,3 +84,22 @@ def test_buckets_are_left_out_when_they_would_list_most_of_the_fleet():
 def test_time_buckets_rejects_an_empty_span():
     with pytest.raises(ValueError, match="span"):
         time_buckets(np.zeros(1), np.ones(1), np.zeros((1, 1)), (5.0, 5.0))
+
+
+def test_moving_disks_are_the_per_disk_signed_distance():
+    """Against the definition, disk by disk in float64: ``min_{j, l present} ||p - p_j(t + lambda_l)|| - r_l``."""
+    fleet = _fleet()
+    params = disk_params(GRID, fleet, LAGS, RADII, n_slots=16, span=(-400.0, 300.0))
+    xs, ys = GRID.coordinate_vector(0), GRID.coordinate_vector(1)
+    px, py = np.meshgrid(np.asarray(xs, np.float64), np.asarray(ys, np.float64), indexing="ij")
+    for t in (-290.0, -250.0, -170.0, -41.3, 100.0, 150.0):
+        want = np.full(px.shape, np.inf)
+        for ts, xy, start, end in fleet:
+            for lag, r in zip(LAGS, RADII):
+                if start <= t + lag <= end:
+                    cx, cy = np.interp(t + lag, ts, xy[:, 0]), np.interp(t + lag, ts, xy[:, 1])
+                    want = np.minimum(want, np.hypot(px - cx, py - cy) - r)
+        got = np.asarray(moving_disks(jnp.float32(t), params))
+        assert np.isfinite(want).any(), t
+        np.testing.assert_array_equal(np.isinf(got), np.isinf(want))
+        np.testing.assert_allclose(got[np.isfinite(want)], want[np.isfinite(want)], atol=0.05)

@@ -38,9 +38,11 @@ def moving_disks(t, params):
     ``end`` ``(J,)``. Returns ``(nx, ny)``; ``inf`` (or the static value) where no obstacle is present.
 
     Since the radius depends on the lag only, ``min_j (||p - c_jl|| - r_l) = sqrt(min_j ||p - c_jl||^2) - r_l``: one
-    square root per lag instead of one per disk, and the minimum over the vehicles runs along the leading axis
-    (measured on the city grid with 49 vehicle slots: 10.7 -> 1.4 ms of CPU per evaluation). ``sqrt`` is
-    correctly rounded and monotone, so the values are those of the per-disk formula, bit for bit.
+    square root per lag instead of one per disk (measured on the city grid with 49 vehicle slots: 10.7 -> 1.4 ms of
+    CPU per evaluation). ``sqrt`` is correctly rounded and monotone, so the values are those of the per-disk
+    formula, bit for bit. The minimum over the vehicles is a ``scan`` that keeps one ``(L, nx, ny)`` running minimum:
+    XLA wrote the whole ``(J, L, nx, ny)`` array of squared distances before reducing it, 16x slower at 199 vehicles
+    on the bay-area grid (158 against 9.7 ms per evaluation), 17x at 49 vehicles with 17 lags on the city grid.
 
     With ``bucket_rows`` ``(B, M)``, ``bucket_t0`` and ``bucket_dt`` (:func:`time_buckets`) only the ``M`` rows listed
     for ``t``'s time bucket are evaluated: every vehicle with a disk present at ``t`` is among them, so the values are
@@ -55,10 +57,15 @@ def moving_disks(t, params):
     tq = t + lags
     centres = interpolate_positions(times, positions, tq)  # (J, L, 2)
     active = (tq >= start[:, None]) & (tq <= end[:, None])
-    cx = centres[..., 0][:, :, None, None]
-    cy = centres[..., 1][:, :, None, None]
-    d2 = (params["xs"][None, None, :, None] - cx) ** 2 + (params["ys"][None, None, None, :] - cy) ** 2
-    d2 = jnp.min(jnp.where(active[:, :, None, None], d2, jnp.inf), axis=0)  # (L, nx, ny)
+    cx = jnp.where(active, centres[..., 0], jnp.inf)  # an absent disk: infinitely far, d2 = inf
+    cy = jnp.where(active, centres[..., 1], jnp.inf)
+    xs, ys = params["xs"][None, :, None], params["ys"][None, None, :]
+
+    def nearer(d2, c):  # one vehicle's L disks into the running minimum
+        return jnp.minimum(d2, (xs - c[0][:, None, None]) ** 2 + (ys - c[1][:, None, None]) ** 2), None
+
+    d2 = jnp.full((tq.shape[1], xs.shape[1], ys.shape[2]), jnp.inf, xs.dtype)
+    d2, _ = jax.lax.scan(nearer, d2, (cx, cy))  # (L, nx, ny)
     g = jnp.min(jnp.sqrt(d2) - params["radii"][:, None, None], axis=0)
     if "static" in params:
         g = jnp.minimum(g, params["static"])
