@@ -1,8 +1,11 @@
 """The sequential planner of this tree against the planner of another git revision, in the same run: seconds per
 vehicle and whether the two plan the same trajectories.
 
-    python benchmarks/plan_revisions.py --base REV [--scenario city-intruder] [--kbar 4] [--vehicles 4]
+    python benchmarks/plan_revisions.py --base REV [--scenario city-intruder] [--kbar K] [--vehicles 4]
         [--tracking-bound 5.337635040283203] [--max-slice-dt 3.0] [--horizon H]
+
+for example ``--scenario city-intruder --kbar 4``, or ``--scenario bay-area --tracking-bound 35.391876220703125
+--max-slice-dt 5`` (the settings ``scripts/generate_plans.py`` plans these files with).
 
 ``REV``'s ``stp_env`` package is exported with ``git archive`` into a temporary directory and imported from there
 (this tree's ``stp_env`` otherwise). Each tree plans the whole scenario (every vehicle counts for the obstacle
@@ -75,7 +78,7 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--base", help="the git revision to compare against (e.g. HEAD~1)")
     parser.add_argument("--scenario", default="city-intruder")
-    parser.add_argument("--kbar", type=int, default=4)
+    parser.add_argument("--kbar", type=int, help="the scenario's k̄ (passed to make() when given)")
     parser.add_argument("--vehicles", type=int, default=4, help="single-vehicle plans to time (>= 2)")
     parser.add_argument("--tracking-bound", type=float, default=5.337635040283203)
     parser.add_argument("--max-slice-dt", type=float, default=3.0)
