@@ -41,8 +41,9 @@ def moving_disks(t, params):
     square root per lag instead of one per disk (measured on the city grid with 49 vehicle slots: 10.7 -> 1.4 ms of
     CPU per evaluation). ``sqrt`` is correctly rounded and monotone, so the values are those of the per-disk
     formula, bit for bit. The minimum over the vehicles is a ``scan`` that keeps one ``(L, nx, ny)`` running minimum:
-    XLA wrote the whole ``(J, L, nx, ny)`` array of squared distances before reducing it, 16x slower at 199 vehicles
-    on the bay-area grid (158 against 9.7 ms per evaluation), 17x at 49 vehicles with 17 lags on the city grid.
+    with the whole ``(J, L, nx, ny)`` array of squared distances written before its minimum, an evaluation took 11x
+    as long at 199 vehicles on the bay-area grid and 17x at 49 vehicles with 17 lags on the city grid
+    (``benchmarks/disk_obstacles.py``, BENCHMARKS.md).
 
     With ``bucket_rows`` ``(B, M)``, ``bucket_t0`` and ``bucket_dt`` (:func:`time_buckets`) only the ``M`` rows listed
     for ``t``'s time bucket are evaluated: every vehicle with a disk present at ``t`` is among them, so the values are
@@ -127,8 +128,8 @@ def disk_params(grid, trajectories, lags, radii, dtype=np.float32, n_slots: int 
             passes arrays of one shape and the solver compiles once.
         span: ``(lo, hi)``, the times the solver will ask about. With it, each evaluation reads only the vehicles
             that can be present in its time bucket (:func:`time_buckets`; the values are the same, bit for bit),
-            unless that would be most of them: with the intruder's 17 lag disks, 49 rows took 194 ms per
-            evaluation on the city grid and 8 rows 14 ms.
+            unless that would be most of them. With the intruder's 17 lag disks on the city grid, 8 rows cost
+            2.4x less than 49 (``benchmarks/disk_obstacles.py``).
     """
     if not trajectories:
         raise ValueError("disk_params needs at least one trajectory.")
