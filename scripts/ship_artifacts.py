@@ -6,8 +6,9 @@
 What ships: every artifact the default scenario's parameters read (:func:`stp_env.sim.params_for` of ``town``, the
 default ``stp-env evaluate`` run) whose array file is at most ``--max-mb`` (the tracking-error bound: a 3-minute solve
 on 2 cores; the 55 MB avoid region, a 1-minute solve, does not ship). A shipped copy is keyed like a cache entry
-(parameters, format and code version, content hash), so any edit to the numerical code makes it stale:
-``tests/test_artifacts.py`` then fails until this script is run again. The cache (``STP_ENV_CACHE_DIR``) is used
+(parameters, format and code version, content hash), so any edit to the code that computes it (the solver, the
+dynamics, the reachability sets: :func:`stp_env.artifacts.code_version`; not the planner or the scenarios) makes it
+stale: ``tests/test_artifacts.py`` then fails until this script is run again. The cache (``STP_ENV_CACHE_DIR``) is used
 for the computation, so a second run is a copy.
 """
 

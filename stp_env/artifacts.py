@@ -1,10 +1,10 @@
 """A cache of computed artifacts (reachability tables, plans): ``.npz`` arrays plus JSON metadata.
 
 Every artifact is keyed by a hash of its *kind*, every parameter that shaped it, :data:`FORMAT_VERSION` and
-:data:`CODE_VERSION` (a hash of the code of the modules that compute artifacts: the solver, the dynamics, the
-sets, the planner and the scenarios, read as syntax trees without docstrings and comments, so that editing prose
-keeps the cache; a float32 solve compiled differently can move a boundary node, so results of
-older code are recomputed rather than reused).
+the version of the code that computes it (:func:`code_version`: a hash of the modules it depends on, the solver,
+the dynamics and the reachability sets for the reachability tables, and the planner and the scenarios too for plans,
+read as syntax trees without docstrings and comments, so that editing prose keeps the cache; a float32 solve
+compiled differently can move a boundary node, so results of older code are recomputed rather than reused).
 Loading checks all of it, and the content hash of the array file; anything that does not match (a changed
 parameter, another format version, a truncated or tampered file, unreadable JSON) is reported with a warning and
 recomputed, never silently reused. The metadata must be a JSON object of the expected structure (array names,
@@ -46,7 +46,14 @@ except ImportError:  # pragma: no cover
 FORMAT_VERSION = 1
 CACHE_ENV_VAR = "STP_ENV_CACHE_DIR"
 SHIPPED_DIR = Path(__file__).resolve().parent / "data" / "artifacts"  # artifacts that ship with the package
-_NUMERICS = ("hj", "dynamics.py", "reach", "planning", "scenarios")
+_REACHABILITY = ("hj", "dynamics.py", "angles.py", "reach")
+_NUMERICS = (*_REACHABILITY, "planning", "scenarios")
+_COOBSERVATION = (*_REACHABILITY, "coobservation")
+REACHABILITY_KINDS = frozenset({"tracking_bound", "avoid_region", "relative_buffer"})
+"""Kinds computed by the solver, the dynamics and the reachability sets alone: their key holds
+:data:`REACHABILITY_CODE_VERSION`, so that an edit to the planner or the scenarios keeps them (and the shipped tracking
+bound) valid. Kinds named ``coobs_*`` hold :data:`COOBSERVATION_CODE_VERSION`; every other kind (plans)
+:data:`CODE_VERSION`."""
 
 
 def code_fingerprint(source: str) -> str:
@@ -62,10 +69,10 @@ def code_fingerprint(source: str) -> str:
     return ast.dump(tree, annotate_fields=False, include_attributes=False)
 
 
-def _code_version() -> str:
+def _code_version(names) -> str:
     root = Path(__file__).resolve().parent
     h = hashlib.sha256()
-    for name in _NUMERICS:
+    for name in names:
         path = root / name
         for file in sorted(path.rglob("*.py")) if path.is_dir() else [path]:  # subpackages too (scenarios/catalog)
             h.update(file.relative_to(root).as_posix().encode())
@@ -73,7 +80,18 @@ def _code_version() -> str:
     return h.hexdigest()[:16]
 
 
-CODE_VERSION = _code_version()
+CODE_VERSION = _code_version(_NUMERICS)
+REACHABILITY_CODE_VERSION = _code_version(_REACHABILITY)
+COOBSERVATION_CODE_VERSION = _code_version(_COOBSERVATION)
+
+
+def code_version(kind: str) -> str:
+    """The version of the code that computes artifacts of ``kind``, part of their key (:data:`REACHABILITY_KINDS`)."""
+    if kind in REACHABILITY_KINDS:
+        return REACHABILITY_CODE_VERSION
+    if kind.startswith("coobs_"):
+        return COOBSERVATION_CODE_VERSION
+    return CODE_VERSION
 
 
 class StaleArtifactWarning(UserWarning):
@@ -226,7 +244,7 @@ def to_jsonable(obj: Any) -> Any:
 
 
 def parameter_key(kind: str, params: Any) -> str:
-    text = json.dumps({"kind": kind, "format_version": FORMAT_VERSION, "code_version": CODE_VERSION,
+    text = json.dumps({"kind": kind, "format_version": FORMAT_VERSION, "code_version": code_version(kind),
                        "params": to_jsonable(params)},
                       sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
@@ -262,8 +280,8 @@ def _identity_problem(meta: dict, npz_path: Path, kind: str, params: Any, key: s
     """Whether well-formed metadata describes this artifact as computed by this code (``None``: it does)."""
     if meta.get("format_version") != FORMAT_VERSION:
         return f"format version {meta.get('format_version')} != {FORMAT_VERSION}"
-    if meta.get("code_version") != CODE_VERSION:
-        return f"computed by other code (code version {meta.get('code_version')} != {CODE_VERSION})"
+    if meta.get("code_version") != code_version(kind):
+        return f"computed by other code (code version {meta.get('code_version')} != {code_version(kind)})"
     if meta.get("key") != key or meta.get("kind") != kind \
             or meta.get("params") != json.loads(json.dumps(to_jsonable(params))):
         return "parameters changed"
@@ -301,7 +319,7 @@ class ArtifactStore:
 
     ``shipped``: a read-only directory of artifacts that came with the package (:data:`SHIPPED_DIR`; ``None``:
     none), consulted when the cache has no file for an artifact. A shipped file is only used if it was computed by
-    the current code (:data:`CODE_VERSION`) with the same parameters; ``scripts/ship_artifacts.py`` regenerates
+    the current code (:func:`code_version`) with the same parameters; ``scripts/ship_artifacts.py`` regenerates
     them and ``tests/test_artifacts.py`` fails while one is stale."""
 
     def __init__(self, root: str | os.PathLike | None = None, *, shipped: str | os.PathLike | None = SHIPPED_DIR):
@@ -368,7 +386,7 @@ class ArtifactStore:
                 "kind": kind,
                 "key": key,
                 "format_version": FORMAT_VERSION,
-                "code_version": CODE_VERSION,
+                "code_version": code_version(kind),
                 "params": to_jsonable(params),
                 "arrays": sorted(arrays),
                 "shapes": {name: list(a.shape) for name, a in arrays.items()},

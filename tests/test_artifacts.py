@@ -114,6 +114,40 @@ def test_artifacts_of_other_code_are_recomputed(tmp_path, monkeypatch):
     assert len(calls) == 3
 
 
+def test_reachability_tables_keep_their_key_when_only_the_planner_changes(tmp_path, monkeypatch):
+    """A tracking bound is keyed by the reachability code alone: another planner (``CODE_VERSION``) finds it, other
+    reachability code does not; a plan is keyed by the whole numerics code."""
+    store = ArtifactStore(tmp_path)
+    calls, compute = _compute_counter()
+    first = store.load_or_compute("tracking_bound", Params(), compute)
+    plan = store.load_or_compute("plan", Params(), compute)
+    assert len(calls) == 2
+    monkeypatch.setattr(artifacts, "CODE_VERSION", "0123456789abcdef")
+    assert store.load_or_compute("tracking_bound", Params(), compute).path == first.path and len(calls) == 2
+    assert store.load_or_compute("plan", Params(), compute).path != plan.path and len(calls) == 3
+    monkeypatch.setattr(artifacts, "REACHABILITY_CODE_VERSION", "fedcba9876543210")
+    assert store.load_or_compute("tracking_bound", Params(), compute).path != first.path and len(calls) == 4
+
+
+def test_the_reachability_code_version_covers_what_the_reachability_code_imports():
+    """Every ``stp_env`` module that ``stp_env.reach`` (or the solver and dynamics it uses) imports is hashed into
+    :data:`REACHABILITY_CODE_VERSION` but ``artifacts`` itself (the store, not the numerics)."""
+    import ast
+    from pathlib import Path
+
+    root = Path(artifacts.__file__).parent
+    hashed = set(artifacts._REACHABILITY)
+    files = [f for name in hashed for f in ((root / name).rglob("*.py") if (root / name).is_dir() else [root / name])]
+    for file in files:
+        for node in ast.walk(ast.parse(file.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("stp_env"):
+                parts = node.module.split(".")[1:] or [a.name for a in node.names]
+                top = parts[0]
+                if top == "artifacts":
+                    continue
+                assert top in hashed or f"{top}.py" in hashed, (file.name, node.module)
+
+
 def test_edited_metadata_params_detected(tmp_path):
     store = ArtifactStore(tmp_path)
     calls, compute = _compute_counter()
@@ -213,8 +247,9 @@ def test_the_shipped_artifacts_are_current_and_serve_the_default_scenario(tmp_pa
     assert metas, "no shipped artifacts"
     for path in metas:
         meta = json.loads(path.read_text())
-        assert meta["code_version"] == artifacts.CODE_VERSION, (
-            f"{path.name} is stale (computed by code {meta['code_version']}, this is {artifacts.CODE_VERSION}): "
+        current = artifacts.code_version(meta["kind"])
+        assert meta["code_version"] == current, (
+            f"{path.name} is stale (computed by code {meta['code_version']}, this is {current}): "
             "run python scripts/ship_artifacts.py")
         assert meta["content_sha256"] == artifacts._file_sha256(path.with_suffix(".npz")), path.name
     town = make("town")
