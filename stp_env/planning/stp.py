@@ -137,6 +137,11 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
             rads.extend((prof.radii + tracking_bound).tolist())
     lags_arr, rads_arr, pad_before, pad_after = fold_contained_disks(np.asarray(lags), np.asarray(rads),
                                                                      planning_v[1])
+    # A higher-priority vehicle's disks are kept one BRS slice longer on either side of its flight: the nominal
+    # trajectory is extracted from slices stored every ``slice_dt`` and interpolated linearly in time, so a disk that
+    # appears (departure) or vanishes (arrival) between two slices is only partly there in between. Without this,
+    # city Case 1 had a pair 41.8 m inside the separation at the instant the higher-priority vehicle arrived.
+    pad_before, pad_after = pad_before + slice_dt, pad_after + slice_dt
 
     order = sorted(range(n), key=lambda i: priorities[i])
     # The solves ask for the obstacles between the earliest STA's horizon and the latest STA (one span for all
