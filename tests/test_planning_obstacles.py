@@ -103,3 +103,46 @@ def test_moving_disks_are_the_per_disk_signed_distance():
         assert np.isfinite(want).any(), t
         np.testing.assert_array_equal(np.isinf(got), np.isinf(want))
         np.testing.assert_allclose(got[np.isfinite(want)], want[np.isfinite(want)], atol=0.05)
+
+
+class _Enough(Exception):
+    pass
+
+
+def _windows_seen_by_the_second_vehicle(monkeypatch, hold_slices):
+    """Plans ``tiny``'s first vehicle and returns the flight windows its successor's obstacles are built from, with
+    the first vehicle's latest departure and arrival."""
+    import stp_env.planning.stp as stp
+    from stp_env.scenarios import make
+
+    seen, first = [], []
+    original = stp.planning_obstacles
+
+    def capture(grid, trajectories, *args, **kwargs):
+        if trajectories:
+            seen.extend((float(t[2]), float(t[3])) for t in trajectories)
+            raise _Enough
+        return original(grid, trajectories, *args, **kwargs)
+
+    monkeypatch.setattr(stp, "planning_obstacles", capture)
+    with pytest.raises(_Enough):
+        stp.plan_scenario(make("tiny"), tracking_bound=5.337635040283203, progress=False, hold_slices=hold_slices,
+                          on_vehicle=lambda rank, i, single: first.append((single.t_ldt, single.arrival_time)))
+    return seen[0], first[0]
+
+
+def test_held_disks_stay_whole_slices_longer_on_both_sides(monkeypatch):
+    (start0, end0), (t_ldt, arrival) = _windows_seen_by_the_second_vehicle(monkeypatch, 0)
+    assert (start0, end0) == pytest.approx((t_ldt, arrival))  # lag-0 disks only: the flight itself
+    (start2, end2), again = _windows_seen_by_the_second_vehicle(monkeypatch, 2)
+    assert again == (t_ldt, arrival)  # the first vehicle has no obstacle: the same plan
+    assert start0 - start2 > 0 and start0 - start2 == pytest.approx(end2 - end0)
+
+
+@pytest.mark.parametrize("bad", [-1, 1.5, True, "1"])
+def test_hold_slices_must_be_a_whole_number(bad):
+    from stp_env.planning.stp import plan_scenario
+    from stp_env.scenarios import make
+
+    with pytest.raises(ValueError, match="hold_slices"):
+        plan_scenario(make("tiny"), tracking_bound=5.337635040283203, progress=False, hold_slices=bad)

@@ -71,7 +71,7 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
              obstacle_profiles: dict | None = None, static_obstacle=None,
              settings: hj.SolverSettings | None = None, time_step: float = 0.05, arrival_margin: float | None = None,
              progress: bool = True, solver: str | None = None, checkpoint=None, on_vehicle=None,
-             max_slice_dt: float | None = None) -> Plan:
+             max_slice_dt: float | None = None, hold_slices: int = 0) -> Plan:
     """Plans every vehicle with robust trajectory tracking (optionally intruder-aware).
 
     Args:
@@ -102,9 +102,16 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
             extracted from those slices interpolated in time; this caps the spacing [s] (more slices, 2.2 MB each on
             the city's grid). With 6 s slices (a 1200 s horizon) a city trajectory came 42 m inside another
             vehicle's disk at the instant that vehicle arrived: the slice after a disk vanishes has none.
+        hold_slices: keep every higher-priority vehicle's disks this many slices (``hold_slices x`` the slice
+            spacing) longer before its departure and after its arrival, so that the slices on both sides of an
+            appearance or a disappearance hold the disk. One slice made city Case 1 hold the separation (its worst
+            pair went from 42 m to 9 m inside), but it costs a shared origin a slice per departure: city Case 0 then
+            has no departure for its 48th vehicle within the default horizon. Default 0.
     """
     if max_slice_dt is not None and not (math.isfinite(max_slice_dt) and max_slice_dt > 0):
         raise ValueError(f"max_slice_dt must be a positive number of seconds; got {max_slice_dt}.")
+    if isinstance(hold_slices, bool) or not isinstance(hold_slices, (int, np.integer)) or hold_slices < 0:
+        raise ValueError(f"hold_slices must be a whole number of slices >= 0; got {hold_slices!r}.")
     n = len(starts)
     solver = solver or PLANNING_SOLVER
     radii = np.broadcast_to(np.asarray(target_radius, float), (n,))
@@ -137,11 +144,7 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
             rads.extend((prof.radii + tracking_bound).tolist())
     lags_arr, rads_arr, pad_before, pad_after = fold_contained_disks(np.asarray(lags), np.asarray(rads),
                                                                      planning_v[1])
-    # A higher-priority vehicle's disks are kept one BRS slice longer on either side of its flight: the nominal
-    # trajectory is extracted from slices stored every ``slice_dt`` and interpolated linearly in time, so a disk that
-    # appears (departure) or vanishes (arrival) between two slices is only partly there in between. Without this,
-    # city Case 1 had a pair 41.8 m inside the separation at the instant the higher-priority vehicle arrived.
-    pad_before, pad_after = pad_before + slice_dt, pad_after + slice_dt
+    pad_before, pad_after = pad_before + hold_slices * slice_dt, pad_after + hold_slices * slice_dt
 
     order = sorted(range(n), key=lambda i: priorities[i])
     # The solves ask for the obstacles between the earliest STA's horizon and the latest STA (one span for all
@@ -253,7 +256,7 @@ def fold_contained_disks(lags: np.ndarray, radii: np.ndarray, speed: float):
 
 def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, horizon: float | None = None,
                   settings: hj.SolverSettings | None = None, progress: bool = True, solver: str | None = None,
-                  checkpoint=None, on_vehicle=None, max_slice_dt: float | None = None) -> Plan:
+                  checkpoint=None, on_vehicle=None, max_slice_dt: float | None = None, hold_slices: int = 0) -> Plan:
     """Plans a registered :class:`stp_env.scenarios.Scenario` with its ``method``: robust trajectory tracking
     (``"rtt"``, below), straight flights checked against its constraints (``"straight"``,
     :func:`stp_env.planning.verify.straight_plan`), or the centralized / least-restrictive methods
@@ -265,7 +268,7 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
     vehicle and ``U^p`` (cached in ``store``); intruder-aware scenarios (``kbar`` set) take their buffer radius
     from the avoid and relative-buffer artifacts of the same vehicle (also cached). ``horizon`` defaults to twice
     the longest straight-line flight at the planning speed. ``solver``, ``checkpoint``, ``on_vehicle`` and
-    ``max_slice_dt`` are those of :func:`plan_rtt` (robust trajectory tracking only).
+    ``max_slice_dt``, ``hold_slices`` are those of :func:`plan_rtt` (robust trajectory tracking only).
     """
     from stp_env.artifacts import ArtifactStore
     from stp_env.reach.tracking import default_tracking_bound
@@ -273,9 +276,10 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
     if scenario.method == "straight":
         from stp_env.planning.verify import planner_disks, straight_plan
 
-        if checkpoint is not None or on_vehicle is not None or solver is not None or max_slice_dt is not None:
-            raise ValueError(f"scenario {scenario.name!r}: solver, checkpoint, on_vehicle and max_slice_dt are "
-                             "options of method 'rtt', not 'straight'.")
+        if (checkpoint is not None or on_vehicle is not None or solver is not None or max_slice_dt is not None
+                or hold_slices):
+            raise ValueError(f"scenario {scenario.name!r}: solver, checkpoint, on_vehicle, max_slice_dt, hold_slices "
+                             "are options of method 'rtt', not 'straight'.")
         store = ArtifactStore() if store is None else store
         if tracking_bound is None:
             tracking_bound = default_tracking_bound(scenario.vehicle, tuple(scenario.planning_v),
@@ -286,9 +290,10 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
     if scenario.method != "rtt":
         from stp_env.planning.methods import plan_methods
 
-        if checkpoint is not None or on_vehicle is not None or solver is not None or max_slice_dt is not None:
-            raise ValueError(f"scenario {scenario.name!r}: solver, checkpoint, on_vehicle and max_slice_dt are "
-                             f"options of method 'rtt', not {scenario.method!r}.")
+        if (checkpoint is not None or on_vehicle is not None or solver is not None or max_slice_dt is not None
+                or hold_slices):
+            raise ValueError(f"scenario {scenario.name!r}: solver, checkpoint, on_vehicle, max_slice_dt, hold_slices "
+                             f"are options of method 'rtt', not {scenario.method!r}.")
 
         if scenario.kbar is not None:
             raise NotImplementedError(
@@ -318,7 +323,7 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
                     scenario.collision_radius, starts, targets, scenario.target_radii(), scenario.stas(),
                     scenario.priorities(), horizon=horizon, static_obstacle=static, settings=settings,
                     time_step=scenario.time_step, progress=progress, solver=solver, checkpoint=checkpoint,
-                    on_vehicle=on_vehicle, max_slice_dt=max_slice_dt, **aware)
+                    on_vehicle=on_vehicle, max_slice_dt=max_slice_dt, hold_slices=hold_slices, **aware)
 
 
 def aware_obstacles(scenario, tracking_bound: float, *, store=None, progress: bool = True) -> dict:
