@@ -31,7 +31,7 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "stp"))
 # files go first (longest-processing-time-first). Measured with `--durations=0` from an empty cache (BENCHMARKS.md,
 # "The test suite from an empty cache"); the order only affects the wall time, never what runs.
 SLOWEST_FILES = ("test_reach_tracking.py", "test_sim.py", "test_falsify.py", "test_fig6.py", "test_fleet.py",
-                 "test_planning.py", "test_rl.py", "test_dense.py", "test_planning_methods.py",
+                 "test_planning.py", "test_pinwheel.py", "test_rl.py", "test_dense.py", "test_planning_methods.py",
                  "test_coobservation_env.py", "test_hardening.py", "test_evaluation.py", "test_four_vehicle.py",
                  "test_replan_env.py", "test_pymunk_backend.py")
 
