@@ -19,6 +19,7 @@ tree's, summed over the plans after the first.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
 import json
 import os
@@ -34,7 +35,7 @@ from core_revisions import export  # noqa: E402  (the other revision's package, 
 
 
 class _Enough(Exception):
-    pass
+    """Stops the planner once the vehicles to time are planned."""
 
 
 def run_child(args) -> dict:
@@ -61,11 +62,9 @@ def run_child(args) -> dict:
         return single
 
     stp.plan_single = timed
-    try:
+    with contextlib.suppress(_Enough):
         stp.plan_scenario(scenario, tracking_bound=args.tracking_bound, horizon=args.horizon,
                           max_slice_dt=args.max_slice_dt, progress=False)
-    except _Enough:
-        pass
     return {"seconds": [round(t, 2) for t in wall], "cpu_seconds": [round(t, 2) for t in cpu],
             "digest": digest.hexdigest()[:16], "package": stp_env.__file__}
 

@@ -106,7 +106,7 @@ def test_moving_disks_are_the_per_disk_signed_distance():
 
 
 class _Enough(Exception):
-    pass
+    """Stops the planner at the second vehicle's obstacles."""
 
 
 def _windows_seen_by_the_second_vehicle(monkeypatch, hold_slices):
