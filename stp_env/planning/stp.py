@@ -273,13 +273,15 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
     from stp_env.artifacts import ArtifactStore
     from stp_env.reach.tracking import default_tracking_bound
 
+    rtt_options = {"solver": solver, "checkpoint": checkpoint, "on_vehicle": on_vehicle, "max_slice_dt": max_slice_dt,
+                   "hold_slices": hold_slices or None}
+    given = [name for name, value in rtt_options.items() if value is not None]
+    if given and scenario.method != "rtt":
+        raise ValueError(f"scenario {scenario.name!r} plans with method {scenario.method!r}; {', '.join(given)} "
+                         "apply to method 'rtt' only.")
     if scenario.method == "straight":
         from stp_env.planning.verify import planner_disks, straight_plan
 
-        if (checkpoint is not None or on_vehicle is not None or solver is not None or max_slice_dt is not None
-                or hold_slices):
-            raise ValueError(f"scenario {scenario.name!r}: solver, checkpoint, on_vehicle, max_slice_dt, hold_slices "
-                             "are options of method 'rtt', not 'straight'.")
         store = ArtifactStore() if store is None else store
         if tracking_bound is None:
             tracking_bound = default_tracking_bound(scenario.vehicle, tuple(scenario.planning_v),
@@ -289,11 +291,6 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
                              disks=planner_disks(scenario, tracking_bound, store=store, progress=progress))
     if scenario.method != "rtt":
         from stp_env.planning.methods import plan_methods
-
-        if (checkpoint is not None or on_vehicle is not None or solver is not None or max_slice_dt is not None
-                or hold_slices):
-            raise ValueError(f"scenario {scenario.name!r}: solver, checkpoint, on_vehicle, max_slice_dt, hold_slices "
-                             f"are options of method 'rtt', not {scenario.method!r}.")
 
         if scenario.kbar is not None:
             raise NotImplementedError(
