@@ -2,6 +2,8 @@
 
     python scripts/ship_artifacts.py            # compute (or take from the cache) and copy; drop stale copies
     python scripts/ship_artifacts.py --check    # exit 1 if a shipped copy is stale or one is missing
+    python scripts/ship_artifacts.py --recompute  # compute every shipped artifact from scratch (an empty cache)
+                                                  # and exit 1 unless the shipped copies hold the same arrays
 
 What ships: every artifact the default scenario's parameters read (:func:`stp_env.sim.params_for` of ``town``, the
 default ``stp-env evaluate`` run) whose array file is at most ``--max-mb`` (the tracking-error bound: a 3-minute solve
@@ -10,6 +12,10 @@ on 2 cores; the 55 MB avoid region, a 1-minute solve, does not ship). A shipped 
 dynamics, the reachability sets: :func:`stp_env.artifacts.code_version`; not the planner or the scenarios) makes it
 stale: ``tests/test_artifacts.py`` then fails until this script is run again. The cache (``STP_ENV_CACHE_DIR``) is used
 for the computation, so a second run is a copy.
+
+``--check`` compares keys only (cheap). ``--recompute`` is the full check that a shipped copy is what this code computes
+on this machine (about 5 minutes on 2 cores, most of it the tracking bound): the test suite solves the bound on a
+coarser grid only (``tests/test_reach_tracking.py``).
 """
 
 from __future__ import annotations
@@ -22,6 +28,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 from stp_env import sim
 from stp_env.artifacts import SHIPPED_DIR, ArtifactStore
 
@@ -29,8 +37,8 @@ from stp_env.artifacts import SHIPPED_DIR, ArtifactStore
 class _Recording(ArtifactStore):
     """The cache without the shipped layer, remembering which artifacts were asked for."""
 
-    def __init__(self):
-        super().__init__(shipped=None)
+    def __init__(self, root=None):
+        super().__init__(root, shipped=None)
         self.used = []
 
     def load_or_compute(self, kind, params, compute, extra_metadata=None):
@@ -39,9 +47,10 @@ class _Recording(ArtifactStore):
         return art
 
 
-def wanted(max_mb: float) -> list:
-    """The cache files (npz paths) of the artifacts to ship, computed if not cached."""
-    store = _Recording()
+def wanted(max_mb: float, root=None) -> list:
+    """The cache files (npz paths) of the artifacts to ship, computed if not cached (in ``root``, or the default
+    cache)."""
+    store = _Recording(root)
     sim.params_for("town", sim.EnvConfig(), store=store, progress=True)
     return sorted({a.path for a in store.used if a.path.stat().st_size <= max_mb * 2**20})
 
@@ -65,11 +74,46 @@ def _copy_atomic(src: Path, dst: Path) -> None:
             os.remove(tmp)
 
 
+def compare(computed: Path, shipped: Path, atol: float) -> dict:
+    """Largest absolute difference per array between a freshly computed artifact and its shipped copy (``None`` for
+    an array missing from one of them or of another shape)."""
+    with np.load(computed, allow_pickle=False) as a, np.load(shipped, allow_pickle=False) as b:
+        diffs = {}
+        for name in sorted(set(a.files) | set(b.files)):
+            if name not in a.files or name not in b.files or a[name].shape != b[name].shape:
+                diffs[name] = None
+                continue
+            x, y = a[name].astype(np.float64), b[name].astype(np.float64)
+            same_nan = bool(np.array_equal(np.isnan(x), np.isnan(y)))
+            diff = np.abs(np.where(np.isnan(x), 0.0, x) - np.where(np.isnan(y), 0.0, y))
+            diffs[name] = float(np.max(diff, initial=0.0)) if same_nan else float("inf")
+    ok = all(d is not None and d <= atol for d in diffs.values())
+    return {"file": shipped.name, "same": ok, "max_abs_diff": diffs}
+
+
+def recompute(max_mb: float, atol: float) -> int:
+    with tempfile.TemporaryDirectory(prefix="stp-env-recompute-") as root:
+        paths = wanted(max_mb, root)
+        reports = []
+        for p in paths:
+            shipped = SHIPPED_DIR / p.name
+            reports.append(compare(p, shipped, atol) if shipped.is_file() else
+                           {"file": p.name, "same": False, "max_abs_diff": "not shipped"})
+    ok = bool(reports) and all(r["same"] for r in reports)
+    print(json.dumps({"recomputed_like_shipped": ok, "atol": atol, "artifacts": reports}))
+    return 0 if ok else 1
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--max-mb", type=float, default=2.0, help="largest array file that ships [MiB]")
     ap.add_argument("--check", action="store_true", help="only report whether the shipped copies are current")
+    ap.add_argument("--recompute", action="store_true",
+                    help="compute the shipped artifacts from scratch and compare them with the shipped copies")
+    ap.add_argument("--atol", type=float, default=1e-3, help="--recompute: largest accepted difference per value")
     args = ap.parse_args(argv)
+    if args.recompute:
+        return recompute(args.max_mb, args.atol)
     paths = wanted(args.max_mb)
     names = {p.name for p in paths} | {p.with_suffix(".json").name for p in paths}
     present = {p.name for p in SHIPPED_DIR.glob("*")} if SHIPPED_DIR.is_dir() else set()

@@ -261,3 +261,33 @@ def test_the_shipped_artifacts_are_current_and_serve_the_default_scenario(tmp_pa
                                             store=store, progress=False)
     assert bound.converged and 3.5 <= bound.bound <= 6.5
     assert not (tmp_path / "empty-cache").exists() or not any((tmp_path / "empty-cache").iterdir())
+
+
+def test_the_recompute_check_of_the_shipped_copies_can_fail(tmp_path):
+    """``scripts/ship_artifacts.py --recompute`` compares freshly computed arrays with the shipped copies: a changed
+    value, a missing array, another shape or another NaN pattern each make it report a difference."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("ship_artifacts",
+                                                  Path(__file__).parents[1] / "scripts" / "ship_artifacts.py")
+    ship = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ship)
+    base = {"value": np.linspace(0.0, 1.0, 12).reshape(3, 4), "n_steps": np.array(7)}
+
+    def write(name, **arrays):
+        path = tmp_path / f"{name}.npz"
+        np.savez(path, **arrays)
+        return path
+
+    ref = write("ref", **base)
+    assert ship.compare(write("same", **base), ref, atol=1e-3)["same"]
+    nudged = dict(base, value=base["value"] + 5e-4)
+    assert ship.compare(write("nudged", **nudged), ref, atol=1e-3)["same"]        # within atol
+    moved = dict(base, value=base["value"] + 2e-3)
+    assert not ship.compare(write("moved", **moved), ref, atol=1e-3)["same"]
+    assert not ship.compare(write("missing", value=base["value"]), ref, atol=1e-3)["same"]
+    assert not ship.compare(write("shape", **dict(base, value=base["value"].ravel())), ref, atol=1e-3)["same"]
+    holed = base["value"].copy()
+    holed[0, 0] = np.nan
+    report = ship.compare(write("nan", **dict(base, value=holed)), ref, atol=1e-3)
+    assert not report["same"] and report["max_abs_diff"]["value"] == float("inf")

@@ -123,19 +123,29 @@ def test_tracker_keeps_error_within_bound(bound, mode):
 
 
 @pytest.mark.slow
-def test_default_bound_matches_the_beacls_figure(tmp_path):
+def test_default_bound_matches_the_beacls_figure_and_a_coarser_solve(tmp_path):
     # BEACLS paper Section III: U = [0, 25] m/s x |omega| <= 2, U^p = [11, 13] m/s x |omega| <= 1.2, wind 6 m/s
-    # gives "about 5 m". The default grid has 1/3 m spacing; the bound is read after the game's transient (see
-    # the module docstring), which adds a few tenths of a metre of grid-dependent creep. Accept 5 m +/- 1.5 m
-    # (about four cells either way); we measure 5.34 m.
-    # Computed here from scratch (a store without the shipped layer), and the copy that ships with the package
-    # (which every other test and a first `stp-env evaluate` read) must be what this machine computes.
+    # gives "about 5 m". The bound is read after the game's transient (see the module docstring), which adds a few
+    # tenths of a metre of grid-dependent creep. Accept 5 m +/- 1.5 m on both grids.
+    # The default grid (1/3 m cells) is a 5-minute solve on 2 cores: it ships (stp_env/data/artifacts, read by every
+    # other test and a first `stp-env evaluate`), and `python scripts/ship_artifacts.py --recompute` checks that the
+    # shipped copy is what this code computes. Here the same game is solved from scratch on 2/3 m cells (measured:
+    # 6.08 m against 5.34 m shipped; 6.30 m on 1/2 m cells, whose solve creeps on to 88 s) and the shipped bound
+    # must agree with it to within two of its cells: a shipped bound from another game (the tracking bound was once
+    # 2.5x too small at 11 m/s) or a stale copy fails here.
+    import dataclasses
+
     from stp_env.artifacts import SHIPPED_DIR, ArtifactStore
 
-    result = compute_tracking_bound(TrackingConfig(), store=ArtifactStore(tmp_path, shipped=None), progress=False)
-    assert result.converged
-    assert 3.5 <= result.bound <= 6.5, result.bound
-    shipped = compute_tracking_bound(TrackingConfig(), store=ArtifactStore(tmp_path / "none", shipped=SHIPPED_DIR),
-                                     progress=False)
-    assert shipped.bound == pytest.approx(result.bound, abs=1e-4)
-    np.testing.assert_allclose(shipped.value, result.value, atol=1e-3)
+    default = TrackingConfig()
+    shipped = ArtifactStore(tmp_path / "empty", shipped=SHIPPED_DIR).load("tracking_bound", default)
+    assert shipped is not None, "the default tracking bound does not ship: run python scripts/ship_artifacts.py"
+    shipped_bound = compute_tracking_bound(default, store=ArtifactStore(tmp_path / "empty", shipped=SHIPPED_DIR),
+                                           progress=False)
+    assert shipped_bound.converged and 3.5 <= shipped_bound.bound <= 6.5, shipped_bound.bound
+    coarse_cfg = dataclasses.replace(default, grid_points=(31, 31, 30))
+    coarse = compute_tracking_bound(coarse_cfg, store=ArtifactStore(tmp_path / "coarse", shipped=None), progress=False)
+    assert coarse.converged
+    assert 3.5 <= coarse.bound <= 6.5, coarse.bound
+    dx = coarse_cfg.grid.spacing[0]
+    assert abs(coarse.bound - shipped_bound.bound) <= 2 * dx, (coarse.bound, shipped_bound.bound)
