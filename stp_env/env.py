@@ -116,6 +116,7 @@ Version history
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import numbers
 import reprlib
@@ -362,8 +363,11 @@ class STPParallelEnv(ParallelEnv):
         self.replan = bool(replan)
         self._plan0 = None
         if self.replan:
-            self._plan0 = sim.load_plan(scenario, tracking_bound=float(params.tracking_bound), store=store,
-                                        progress=False)
+            from stp_env.planning.replan import obstacle_pads
+
+            plan0 = sim.load_plan(scenario, tracking_bound=float(params.tracking_bound), store=store, progress=False)
+            # the windows of the plan's disks (derived once here for plan files that do not record them)
+            self._plan0 = dataclasses.replace(plan0, obstacle_pads=obstacle_pads(plan0, self.scenario, store=store))
         self._plan = self._plan0
         self._replan_tried = np.zeros(params.n_vehicles, bool)
         self._replanned = np.zeros(params.n_vehicles, bool)

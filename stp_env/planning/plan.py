@@ -75,12 +75,17 @@ class Plan:
         tracking_bound: ``r_e`` [m].
         collision_radius: ``R_c`` [m].
         kbar: ``k̄`` for intruder-aware plans, else ``None``.
+        obstacle_pads: ``(before, after)`` [s]: every vehicle's disks were present from ``before`` s before its
+            departure to ``after`` s after its arrival for the lower-priority vehicles
+            (:func:`stp_env.planning.stp.fold_contained_disks`, plus any ``hold_slices``); replanning keeps them.
+            ``None`` when not recorded (plan files written before the field existed).
     """
 
     vehicles: tuple[VehiclePlan, ...]
     tracking_bound: float
     collision_radius: float
     kbar: int | None
+    obstacle_pads: tuple[float, float] | None = None
 
     def t_ldt(self) -> np.ndarray:
         return np.asarray([v.plan.t_ldt for v in self.vehicles])
@@ -107,6 +112,7 @@ def plan_to_arrays(plan: Plan) -> dict[str, np.ndarray]:
         "obstacle_lags": plan.vehicles[0].obstacle_lags, "obstacle_radii": plan.vehicles[0].obstacle_radii,
         "tracking_bound": np.asarray(plan.tracking_bound), "collision_radius": np.asarray(plan.collision_radius),
         "kbar": np.asarray(-1 if plan.kbar is None else plan.kbar),
+        **({} if plan.obstacle_pads is None else {"obstacle_pads": np.asarray(plan.obstacle_pads, np.float64)}),
     }
 
 
@@ -197,5 +203,12 @@ def plan_from_arrays(arrays) -> Plan:
                                     obstacle_lags=np.asarray(arrays["obstacle_lags"]),
                                     obstacle_radii=np.asarray(arrays["obstacle_radii"])))
     kbar = int(arrays["kbar"])
+    pads = None
+    if "obstacle_pads" in arrays:
+        pads = np.asarray(arrays["obstacle_pads"], np.float64)
+        if pads.shape != (2,) or not (np.all(np.isfinite(pads)) and np.all(pads >= 0)):
+            raise ValueError(f"obstacle_pads must be 2 finite seconds >= 0; got {pads!r}.")
+        pads = (float(pads[0]), float(pads[1]))
     return Plan(vehicles=tuple(vehicles), tracking_bound=float(arrays["tracking_bound"]),
-                collision_radius=float(arrays["collision_radius"]), kbar=None if kbar < 0 else kbar)
+                collision_radius=float(arrays["collision_radius"]), kbar=None if kbar < 0 else kbar,
+                obstacle_pads=pads)

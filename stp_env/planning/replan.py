@@ -9,8 +9,10 @@ The vehicles forced to avoid (``N^RP``, eq. 39) end up at states ``x~_i^0`` at `
 
 The obstacles are the nominal trajectories of every vehicle outside ``N^RP`` (as in Algorithm 4) and, so that the
 replanned vehicles cannot collide with each other either, those already replanned, with the disks of the original
-plan; and the buildings, grown as for the original plan (:func:`stp_env.planning.stp.planning_static_obstacle`).
-Plans of the other vehicles are returned unchanged (the same objects).
+plan, present over the same windows (each flight widened by the plan's ``obstacle_pads``: the lag disks folded into
+the lag-0 disk are only covered that way, :func:`stp_env.planning.stp.fold_contained_disks`); and the buildings,
+grown as for the original plan (:func:`stp_env.planning.stp.planning_static_obstacle`). Plans of the other vehicles
+are returned unchanged (the same objects).
 
 ``replan`` is host-side (level-set solves) and can be called while a simulation runs: ``parallel_env(...,
 replan=True)`` calls it when the intruder leaves and swaps the new plans into the running simulation
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 
 import jax.numpy as jnp
 import numpy as np
@@ -29,7 +32,14 @@ from stp_env import hj
 from stp_env.dynamics import DubinsWind
 from stp_env.planning.obstacles import planning_obstacles
 from stp_env.planning.single import InfeasiblePlanError, full_grid_obstacle, initial_ball, plan_single
-from stp_env.planning.stp import PLANNING_SETTINGS, Plan, VehiclePlan, planning_static_obstacle
+from stp_env.planning.stp import (
+    PLANNING_SETTINGS,
+    Plan,
+    VehiclePlan,
+    aware_obstacles,
+    obstacle_disks,
+    planning_static_obstacle,
+)
 
 
 def earliest_arrival(grid: hj.Grid, planner: DubinsWind, state, t_bar: float, target_center, target_radius: float,
@@ -61,11 +71,49 @@ def earliest_arrival(grid: hj.Grid, planner: DubinsWind, state, t_bar: float, ta
     return math.inf
 
 
+def obstacle_pads(plan: Plan, scenario, *, store=None) -> tuple[float, float]:
+    """``(before, after)`` [s]: how much longer than its flight each vehicle's disks were present in ``plan``.
+
+    A plan that records them (:attr:`Plan.obstacle_pads`) gives its own. A plan file written before they were
+    recorded: a plan without k̄ has only the lag-0 disk, so nothing was folded (``(0, 0)``); an intruder-aware one
+    has them derived again from ``scenario`` (its buffer artifacts, cached in ``store``), used when the plan's folded
+    disks are the ones derived with them. Otherwise (a warning) both pads are ``rho_0 / v``, the lag-0 radius over
+    the top planning speed: every folded disk had ``rho + v |lambda| <= rho_0``, so no folded lag is longer. A
+    ``hold_slices`` widening of an unrecorded plan cannot be recovered and is not included."""
+    if plan.obstacle_pads is not None:
+        return plan.obstacle_pads
+    stored = plan.vehicles[0]
+    if plan.kbar is None and len(stored.obstacle_lags) <= 1:
+        return 0.0, 0.0
+    speed = float(scenario.planning_v[1])
+    if plan.kbar is not None:
+        aware = aware_obstacles(scenario, plan.tracking_bound, store=store, progress=False)
+        lags, radii, before, after = obstacle_disks(plan.collision_radius, plan.tracking_bound, speed,
+                                                    aware["buffer_radius"], aware["obstacle_profiles"])
+        if np.array_equal(lags, stored.obstacle_lags) and np.allclose(radii, stored.obstacle_radii, rtol=0,
+                                                                        atol=1e-9):
+            return before, after
+    pad = float(stored.obstacle_radii[0]) / speed
+    warnings.warn(f"the plan does not record how long its disks were held around each flight, and scenario "
+                  f"{scenario.name!r} does not give its disks again; replanning holds them {pad:.1f} s on both "
+                  "sides (a bound on every folded lag).", stacklevel=2)
+    return pad, pad
+
+
+def obstacle_window(single, pads: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """``(times, states, start, end)`` of one vehicle's disks, as :func:`stp_env.planning.stp.plan_rtt` passes them to
+    :func:`stp_env.planning.obstacles.planning_obstacles`: the flight, present from ``pads[0]`` s before departure
+    to ``pads[1]`` s after arrival (the last sample when it never arrives)."""
+    end = single.arrival_time if math.isfinite(single.arrival_time) else float(single.times[-1])
+    return (*single.flight(), single.t_ldt - pads[0], end + pads[1])
+
+
 def replan(plan: Plan, scenario, affected: dict[int, tuple[float, float, float]], t_bar: float, *,
-           horizon: float | None = None, settings: hj.SolverSettings | None = None) -> Plan:
+           horizon: float | None = None, settings: hj.SolverSettings | None = None, store=None) -> Plan:
     """New plans for the vehicles in ``affected`` (index -> state ``x~^0`` at ``t_bar``), Algorithm 4.
 
     Returns a :class:`Plan` in which only the affected vehicles' entries differ; their ``sta`` is the new STA.
+    ``store`` caches the buffer artifacts that :func:`obstacle_pads` reads for plans that do not record their pads.
     """
     if not affected:
         return plan
@@ -89,7 +137,8 @@ def replan(plan: Plan, scenario, affected: dict[int, tuple[float, float, float]]
     static = planning_static_obstacle(scenario, r_e)
     vehicles = list(plan.vehicles)
     others = [v for v in plan.vehicles if v.index not in affected]
-    trajectories = [(*v.plan.flight(), v.plan.t_ldt, v.plan.arrival_time) for v in others]
+    pads = obstacle_pads(plan, scenario, store=store)
+    trajectories = [obstacle_window(v.plan, pads) for v in others]
     for i in sorted(affected, key=lambda k: plan.vehicles[k].priority):
         spec = scenario.vehicles[i]
         kwargs = planning_obstacles(grid, trajectories, lags, radii, static, n_slots=n - 1,
@@ -122,5 +171,5 @@ def replan(plan: Plan, scenario, affected: dict[int, tuple[float, float, float]]
         single = dataclasses.replace(single, sta=sta_new)
         vehicles[i] = VehiclePlan(index=i, priority=plan.vehicles[i].priority, plan=single, obstacle_lags=lags,
                                   obstacle_radii=radii)
-        trajectories.append((*single.flight(), single.t_ldt, single.arrival_time))
-    return dataclasses.replace(plan, vehicles=tuple(vehicles))
+        trajectories.append(obstacle_window(single, pads))
+    return dataclasses.replace(plan, vehicles=tuple(vehicles), obstacle_pads=pads)

@@ -134,16 +134,9 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
     if arrival_margin is None:
         arrival_margin = max(grid.spacing[:2]) / max(planning_v[0], 1e-3 * planning_v[1])
     slice_dt = max(time_step, horizon / 200 if max_slice_dt is None else min(horizon / 200, float(max_slice_dt)))
-    # Obstacle radii around each higher-priority nominal trajectory (lag 0 disk first).
-    lags = [0.0]
-    rads = [collision_radius + 2 * tracking_bound]
-    if aware:
-        rads[0] = max(rads[0], buffer_radius)
-        for prof in obstacle_profiles.values():
-            lags.extend(prof.lags.tolist())
-            rads.extend((prof.radii + tracking_bound).tolist())
-    lags_arr, rads_arr, pad_before, pad_after = fold_contained_disks(np.asarray(lags), np.asarray(rads),
-                                                                     planning_v[1])
+    lags_arr, rads_arr, pad_before, pad_after = obstacle_disks(collision_radius, tracking_bound, planning_v[1],
+                                                               buffer_radius if aware else None,
+                                                               obstacle_profiles if aware else None)
     pad_before, pad_after = pad_before + hold_slices * slice_dt, pad_after + hold_slices * slice_dt
 
     order = sorted(range(n), key=lambda i: priorities[i])
@@ -227,7 +220,25 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
             on_vehicle(rank, i, single)
     bar.close()
     return Plan(vehicles=tuple(done[i] for i in range(n)), tracking_bound=float(tracking_bound),
-                collision_radius=float(collision_radius), kbar=kbar)
+                collision_radius=float(collision_radius), kbar=kbar, obstacle_pads=(pad_before, pad_after))
+
+
+def obstacle_disks(collision_radius: float, tracking_bound: float, planning_speed: float,
+                   buffer_radius: float | None = None, obstacle_profiles: dict | None = None):
+    """The disks every lower-priority vehicle avoids around a higher-priority nominal trajectory: the lag-0 disk of
+    radius ``R_c + 2 r_e`` (at least the buffer radius of eqs. (21), (48) in intruder-aware planning) and the lag
+    disks of the obstacle profiles (eqs. (26)-(31), (49)-(57)) grown by ``r_e``, folded by
+    :func:`fold_contained_disks` at the top planning speed. Returns ``(lags, radii, pad_before, pad_after)``."""
+    lags = [0.0]
+    rads = [collision_radius + 2 * tracking_bound]
+    if (buffer_radius is None) != (obstacle_profiles is None):
+        raise ValueError("buffer_radius and obstacle_profiles go together (intruder-aware planning) or not at all.")
+    if buffer_radius is not None:
+        rads[0] = max(rads[0], buffer_radius)
+        for prof in obstacle_profiles.values():
+            lags.extend(prof.lags.tolist())
+            rads.extend((prof.radii + tracking_bound).tolist())
+    return fold_contained_disks(np.asarray(lags), np.asarray(rads), planning_speed)
 
 
 def fold_contained_disks(lags: np.ndarray, radii: np.ndarray, speed: float):
