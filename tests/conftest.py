@@ -28,12 +28,14 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "stp"))
 # The README's command runs `-n 2 --dist loadfile`: every test file runs whole on one of two workers, handed out in
 # collection order (`--no-loadscope-reorder` in pyproject.toml keeps that order; xdist would otherwise sort the files
 # by their number of tests). A long file handed out last leaves the other worker idle at the end, so the longest
-# files go first (longest-processing-time-first). Measured with `--durations=0` from an empty cache (BENCHMARKS.md,
-# "The test suite from an empty cache"); the order only affects the wall time, never what runs.
-SLOWEST_FILES = ("test_reach_tracking.py", "test_sim.py", "test_falsify.py", "test_fig6.py", "test_fleet.py",
-                 "test_planning.py", "test_pinwheel.py", "test_rl.py", "test_dense.py", "test_planning_methods.py",
-                 "test_coobservation_env.py", "test_hardening.py", "test_evaluation.py", "test_four_vehicle.py",
-                 "test_replan_env.py", "test_pymunk_backend.py")
+# files go first (longest-processing-time-first). Measured per file from an empty cache with
+# `benchmarks/suite_compile_share.py` (BENCHMARKS.md, "The test suite from an empty cache"); the order only affects
+# the wall time, never what runs.
+SLOWEST_FILES = ("test_sim.py", "test_falsify.py", "test_planning.py", "test_planning_methods.py", "test_fleet.py",
+                 "test_four_vehicle.py", "test_fig6.py", "test_pinwheel.py", "test_coobservation_env.py",
+                 "test_reach_tracking.py", "test_pymunk_backend.py", "test_planning_resume.py", "test_rl.py",
+                 "test_replan_env.py", "test_extension_points.py", "test_survivability.py", "test_env.py",
+                 "test_oracle_hj_reachability.py", "test_reach_avoid.py", "test_coobservation_planning.py")
 
 
 def pytest_collection_modifyitems(config, items):
