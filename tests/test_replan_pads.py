@@ -108,3 +108,12 @@ def test_replanning_passes_the_padded_windows_to_the_obstacles(monkeypatch):
         replan_mod.replan(plan, scenario, {1: (0.0, 0.0, 0.0)}, -60.0)
     end = kept.arrival_time if np.isfinite(kept.arrival_time) else kept.times[-1]
     assert seen["windows"] == [(kept.t_ldt - 7.0, end + 3.0)]
+
+
+def test_straight_plans_record_the_pads_of_their_disks():
+    from stp_env.planning.verify import ObstacleDisks, straight_plan
+
+    scenario = make("pinwheel", kbar=3, radius=389.0, sta_spacing=400.0, n_waves=2)
+    assert straight_plan(scenario, 5.0, check=False).obstacle_pads is None      # no disks given: not known
+    disks = ObstacleDisks(np.zeros(1), np.array([10.0]), pad_before=4.0, pad_after=1.5)
+    assert straight_plan(scenario, 5.0, disks=disks, check=False).obstacle_pads == (4.0, 1.5)

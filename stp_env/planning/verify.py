@@ -32,17 +32,12 @@ class ObstacleDisks:
 
 def planner_disks(scenario, tracking_bound: float, *, store=None, progress: bool = False) -> ObstacleDisks:
     """The disks :func:`stp_env.planning.stp.plan_rtt` plans ``scenario`` with (the same artifacts and folding)."""
-    from stp_env.planning.stp import aware_obstacles, fold_contained_disks
+    from stp_env.planning.stp import aware_obstacles, obstacle_disks
 
     aware = aware_obstacles(scenario, tracking_bound, store=store, progress=progress)
-    lags, rads = [0.0], [scenario.collision_radius + 2 * tracking_bound]
-    if aware:
-        rads[0] = max(rads[0], aware["buffer_radius"])
-        for prof in aware["obstacle_profiles"].values():
-            lags.extend(prof.lags.tolist())
-            rads.extend((prof.radii + tracking_bound).tolist())
-    lags_arr, rads_arr, before, after = fold_contained_disks(np.asarray(lags), np.asarray(rads),
-                                                             scenario.planning_v[1])
+    lags_arr, rads_arr, before, after = obstacle_disks(scenario.collision_radius, tracking_bound,
+                                                       scenario.planning_v[1], aware.get("buffer_radius"),
+                                                       aware.get("obstacle_profiles"))
     return ObstacleDisks(np.asarray(lags_arr, float), np.asarray(rads_arr, float), float(before), float(after))
 
 
@@ -139,7 +134,8 @@ def straight_plan(scenario, tracking_bound: float, *, speed: float | None = None
                                     obstacle_lags=np.zeros(0) if disks is None else disks.lags,
                                     obstacle_radii=np.zeros(0) if disks is None else disks.radii))
     plan = Plan(vehicles=tuple(vehicles), tracking_bound=float(tracking_bound),
-                collision_radius=float(scenario.collision_radius), kbar=scenario.kbar)
+                collision_radius=float(scenario.collision_radius), kbar=scenario.kbar,
+                obstacle_pads=None if disks is None else (disks.pad_before, disks.pad_after))
     if check:
         margin, (low, high, t) = obstacle_margin(plan, disks)
         if margin < 0:
