@@ -131,8 +131,8 @@ def test_default_bound_matches_the_beacls_figure_and_a_coarser_solve(tmp_path):
     # other test and a first `stp-env evaluate`), and `python scripts/ship_artifacts.py --recompute` checks that the
     # shipped copy is what this code computes. Here the same game is solved from scratch on 2/3 m cells (measured:
     # 6.08 m against 5.34 m shipped; 6.30 m on 1/2 m cells, whose solve creeps on to 88 s) and the shipped bound
-    # must agree with it to within two of its cells: a shipped bound from another game (the tracking bound was once
-    # 2.5x too small at 11 m/s) or a stale copy fails here.
+    # must agree with it to within two of its cells: a shipped bound of another game (the tracking bound was once
+    # 2.5x too small at 11 m/s) fails here; a copy computed by other code fails tests/test_artifacts.py.
     import dataclasses
 
     from stp_env.artifacts import SHIPPED_DIR, ArtifactStore
