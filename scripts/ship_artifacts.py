@@ -14,8 +14,8 @@ stale: ``tests/test_artifacts.py`` then fails until this script is run again. Th
 for the computation, so a second run is a copy.
 
 ``--check`` compares keys only (cheap). ``--recompute`` is the full check that a shipped copy is what this code computes
-on this machine (about 5 minutes on 2 cores, most of it the tracking bound): the test suite solves the bound on a
-coarser grid only (``tests/test_reach_tracking.py``).
+on this machine (the tracking bound's solve is most of its time): the test suite solves the bound on a coarser
+grid only (``tests/test_reach_tracking.py``).
 """
 
 from __future__ import annotations
