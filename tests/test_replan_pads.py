@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from stp_env.planning import replan as replan_mod
-from stp_env.planning.plan import Plan, SinglePlan, VehiclePlan, plan_from_arrays, plan_to_arrays
+from stp_env.planning.plan import Plan, SinglePlan, VehiclePlan, obstacle_window, plan_from_arrays, plan_to_arrays
 from stp_env.planning.stp import fold_contained_disks, obstacle_disks, shipped_plan, shipped_plan_for
 from stp_env.scenarios import make
 
@@ -61,10 +61,10 @@ def test_the_shipped_planner_records_its_pads():
 
 def test_a_window_holds_the_disks_for_the_pads_around_the_flight():
     single = _single(0.0, 3.0)
-    times, states, start, end = replan_mod.obstacle_window(single, (10.0, 2.5))
+    times, states, start, end = obstacle_window(single, (10.0, 2.5))
     assert (start, end) == (-10.0, 5.5) and times[-1] == 3.0 and len(states) == 4
     never = dataclasses.replace(single, arrival_time=np.inf)
-    assert replan_mod.obstacle_window(never, (0.0, 1.0))[3] == 6.0       # the last sample, widened
+    assert obstacle_window(never, (0.0, 1.0))[3] == 6.0       # the last sample, widened
 
 
 def test_unrecorded_pads_are_derived_from_the_scenario_or_bounded():

@@ -55,6 +55,14 @@ class SinglePlan:
         return self.times[:k], self.states[:k]
 
 
+def obstacle_window(single: SinglePlan, pads: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """``(times, states, start, end)`` of one vehicle's disks for the lower-priority vehicles (the form
+    :func:`stp_env.planning.obstacles.planning_obstacles` takes): the flight, with the disks present from ``pads[0]``
+    s before its departure to ``pads[1]`` s after its arrival (its last sample when it never arrives)."""
+    end = single.arrival_time if math.isfinite(single.arrival_time) else single.times[-1]
+    return (*single.flight(), single.t_ldt - pads[0], end + pads[1])
+
+
 @dataclasses.dataclass(frozen=True)
 class VehiclePlan:
     """One vehicle's entry of a :class:`Plan` (see :class:`stp_env.planning.single.SinglePlan`)."""

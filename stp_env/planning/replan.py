@@ -31,6 +31,7 @@ import numpy as np
 from stp_env import hj
 from stp_env.dynamics import DubinsWind
 from stp_env.planning.obstacles import planning_obstacles
+from stp_env.planning.plan import obstacle_window
 from stp_env.planning.single import InfeasiblePlanError, full_grid_obstacle, initial_ball, plan_single
 from stp_env.planning.stp import (
     PLANNING_SETTINGS,
@@ -98,14 +99,6 @@ def obstacle_pads(plan: Plan, scenario, *, store=None) -> tuple[float, float]:
                   f"{scenario.name!r} does not give its disks again; replanning holds them {pad:.1f} s on both "
                   "sides (a bound on every folded lag).", stacklevel=2)
     return pad, pad
-
-
-def obstacle_window(single, pads: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """``(times, states, start, end)`` of one vehicle's disks, as :func:`stp_env.planning.stp.plan_rtt` passes them to
-    :func:`stp_env.planning.obstacles.planning_obstacles`: the flight, present from ``pads[0]`` s before departure
-    to ``pads[1]`` s after arrival (the last sample when it never arrives)."""
-    end = single.arrival_time if math.isfinite(single.arrival_time) else float(single.times[-1])
-    return (*single.flight(), single.t_ldt - pads[0], end + pads[1])
 
 
 def replan(plan: Plan, scenario, affected: dict[int, tuple[float, float, float]], t_bar: float, *,

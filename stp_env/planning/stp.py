@@ -43,6 +43,7 @@ from stp_env.planning.plan import (
     Plan,
     SinglePlan,
     VehiclePlan,
+    obstacle_window,
     plan_from_arrays,
     plan_to_arrays,
 )
@@ -163,8 +164,7 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
     for rank, i in enumerate(order):
         if rank < len(planned):  # resumed from the checkpoint
             single = planned[rank][1]
-            end = single.arrival_time if math.isfinite(single.arrival_time) else single.times[-1]
-            trajectories.append((*single.flight(), single.t_ldt - pad_before, end + pad_after))
+            trajectories.append(obstacle_window(single, (pad_before, pad_after)))
             done[i] = VehiclePlan(index=i, priority=rank, plan=single, obstacle_lags=lags_arr,
                                   obstacle_radii=rads_arr)
             continue
@@ -209,8 +209,7 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
                 break
             depart_at, retries = earlier, retries + 1
         single = dataclasses.replace(single, sta=float(stas[i]))
-        end = single.arrival_time if math.isfinite(single.arrival_time) else single.times[-1]
-        trajectories.append((*single.flight(), single.t_ldt - pad_before, end + pad_after))
+        trajectories.append(obstacle_window(single, (pad_before, pad_after)))
         done[i] = VehiclePlan(index=i, priority=rank, plan=single, obstacle_lags=lags_arr, obstacle_radii=rads_arr)
         planned.append((i, single))
         if checkpoint is not None:
