@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from stp_env.planning.plan import InfeasiblePlanError, Plan, SinglePlan, VehiclePlan
+from stp_env.planning.plan import InfeasiblePlanError, Plan, SinglePlan, VehiclePlan, obstacle_window
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,11 +41,6 @@ def planner_disks(scenario, tracking_bound: float, *, store=None, progress: bool
     return ObstacleDisks(np.asarray(lags_arr, float), np.asarray(rads_arr, float), float(before), float(after))
 
 
-def _window(single: SinglePlan) -> tuple[float, float]:
-    end = single.arrival_time if math.isfinite(single.arrival_time) else float(single.times[-1])
-    return float(single.t_ldt), end
-
-
 def obstacle_margin(plan: Plan, disks: ObstacleDisks) -> tuple[float, tuple[int, int, float]]:
     """The smallest signed clearance [m] of any vehicle's sampled nominal flight from the disks of every
     higher-priority vehicle, and where it occurs ``(lower-priority index, higher-priority index, time)``; ``inf``
@@ -58,11 +53,10 @@ def obstacle_margin(plan: Plan, disks: ObstacleDisks) -> tuple[float, tuple[int,
     for rank, low in enumerate(by_priority):
         times, states = low.plan.flight()
         for high in by_priority[:rank]:
-            h_times, h_states = high.plan.flight()
-            start, end = _window(high.plan)
+            h_times, h_states, start, end = obstacle_window(high.plan, (disks.pad_before, disks.pad_after))
             for lag, rad in zip(disks.lags, disks.radii):
                 tq = times + lag
-                present = (tq >= start - disks.pad_before) & (tq <= end + disks.pad_after)
+                present = (tq >= start) & (tq <= end)
                 if not present.any():
                     continue
                 cx = np.interp(tq[present], h_times, h_states[:, 0])
