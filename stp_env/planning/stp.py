@@ -48,6 +48,7 @@ from stp_env.planning.plan import (
     plan_to_arrays,
 )
 from stp_env.planning.single import TubeExcursionWarning, plan_single
+from stp_env.planning.verify import flight_clearance
 
 PLANNING_SOLVER = "split"
 """Default BRS solver of :func:`plan_rtt`: the heading-split scheme of :mod:`stp_env.planning.brs` (one compiled
@@ -56,6 +57,15 @@ planning", compares the two)."""
 
 LATE_RETRIES = 2
 """How many times :func:`plan_rtt` re-extracts a nominal trajectory that arrives after its STA, departing earlier."""
+
+DISK_RETRIES = 2
+"""How many times :func:`plan_rtt` plans a vehicle again, with the disks grown, when its nominal trajectory enters a
+higher-priority vehicle's disk deeper than the tolerance (:func:`_plan_clear_of_disks`)."""
+
+DISK_TOLERANCE_CELLS = 0.5
+"""The depth, in cells of the coarser position axis, that a nominal trajectory may reach into a higher-priority
+vehicle's disk before :func:`plan_rtt` plans it again with the disks grown (the grid resolves the disk's edge to
+about half a cell; ``tests/test_plan_domain.py`` asserts the same of the shipped plans)."""
 
 PLANNING_SETTINGS = hj.SolverSettings.with_accuracy("medium")
 """Default solver settings of :func:`plan_rtt`: ENO2 + TVD-RK2 (the ``medium`` preset). The planning BRS has no
@@ -72,7 +82,7 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
              obstacle_profiles: dict | None = None, static_obstacle=None,
              settings: hj.SolverSettings | None = None, time_step: float = 0.05, arrival_margin: float | None = None,
              progress: bool = True, solver: str | None = None, checkpoint=None, on_vehicle=None,
-             max_slice_dt: float | None = None, hold_slices: int = 0) -> Plan:
+             max_slice_dt: float | None = None, hold_slices: int = 0, disk_tolerance: float | None = None) -> Plan:
     """Plans every vehicle with robust trajectory tracking (optionally intruder-aware).
 
     Args:
@@ -108,11 +118,17 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
             appearance or a disappearance hold the disk. One slice made city Case 1 hold the separation (its worst
             pair went from 42 m to 9 m inside), but it costs a shared origin a slice per departure: city Case 0 then
             has no departure for its 48th vehicle within the default horizon. Default 0.
+        disk_tolerance: how deep [m] a nominal trajectory may come into a higher-priority vehicle's disk (checked
+            exactly, at its samples) before the vehicle is planned again with the disks grown
+            (:func:`_plan_clear_of_disks`); default :data:`DISK_TOLERANCE_CELLS` of the coarser position cell.
     """
     if max_slice_dt is not None and not (math.isfinite(max_slice_dt) and max_slice_dt > 0):
         raise ValueError(f"max_slice_dt must be a positive number of seconds; got {max_slice_dt}.")
     if isinstance(hold_slices, bool) or not isinstance(hold_slices, (int, np.integer)) or hold_slices < 0:
         raise ValueError(f"hold_slices must be a whole number of slices >= 0; got {hold_slices!r}.")
+    tolerance = DISK_TOLERANCE_CELLS * float(max(grid.spacing[:2])) if disk_tolerance is None else disk_tolerance
+    if not (isinstance(tolerance, (int, float, np.floating)) and math.isfinite(tolerance) and tolerance >= 0):
+        raise ValueError(f"disk_tolerance must be a finite number of metres >= 0; got {disk_tolerance!r}.")
     n = len(starts)
     solver = solver or PLANNING_SOLVER
     radii = np.broadcast_to(np.asarray(target_radius, float), (n,))
@@ -155,7 +171,7 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
             np.asarray(targets, np.float64), radii, np.asarray(stas, np.float64), priorities, float(horizon), kbar,
             buffer_radius, lags_arr, rads_arr, pad_before, pad_after,
             None if static_obstacle is None else np.asarray(static_obstacle), settings, float(time_step),
-            float(arrival_margin), solver, slice_dt)
+            float(arrival_margin), solver, slice_dt, float(tolerance))
         planned = checkpoint_io.load(checkpoint, key)
         if [i for i, _ in planned] != order[:len(planned)]:
             raise checkpoint_io.CheckpointMismatchError(f"planning checkpoint {checkpoint}: its vehicles are not a "
@@ -168,46 +184,17 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
             done[i] = VehiclePlan(index=i, priority=rank, plan=single, obstacle_lags=lags_arr,
                                   obstacle_radii=rads_arr)
             continue
-        kwargs = planning_obstacles(grid, trajectories, lags_arr, rads_arr, static_obstacle, n_slots=n - 1,
-                                    n_samples=math.ceil(1.1 * horizon / time_step) + 1, span=span)
-        aim = float(stas[i]) - arrival_margin
-        depart_at, vehicle_solver, retries = None, solver, 0
-        while True:
-            try:
-                with warnings.catch_warnings(record=True) as caught:
-                    warnings.simplefilter("always")
-                    single = plan_single(grid, planner, starts[i], targets[i], float(shrunk[i]), aim, horizon,
-                                         settings=settings, time_step=time_step, slice_dt=slice_dt, progress=False,
-                                         depart_at=depart_at, solver=vehicle_solver, **kwargs)
-            except InfeasiblePlanError as err:
-                raise InfeasiblePlanError(f"vehicle {i} (priority {rank}): no feasible departure for its STA "
-                                          f"{float(stas[i])} s: {err}", err.latest_departure) from err
-            for w in caught:  # name the vehicle (plan_single does not know it)
-                warnings.warn(f"vehicle {i} (priority {rank}, {vehicle_solver!r} BRS): {w.message}", w.category,
-                              stacklevel=2)
-            late = single.arrival_time - float(stas[i])
-            left = any(issubclass(w.category, TubeExcursionWarning) for w in caught)
-            if (math.isinf(late) or left) and vehicle_solver != "hj":
-                # The split tube's trajectory never arrived or left the tube (measured on the city: one vehicle of
-                # 50 each; the unsplit solver's tube, a little larger, brought the first in, late, so that it could
-                # be re-extracted below, and the intruder-aware city's vehicle 4 inside its tube).
-                failure = "never reaches the target" if math.isinf(late) else "leaves the reach-avoid tube"
-                warnings.warn(f"vehicle {i} (priority {rank}): its nominal trajectory from the {vehicle_solver!r} "
-                              f"BRS {failure}; planning it with the unsplit solver 'hj'.", stacklevel=2)
-                depart_at, vehicle_solver = None, "hj"
-                continue
-            if not late > 0:
-                break
-            # The tube promised an arrival by ``aim``; the extracted trajectory (a sampled controller following the
-            # BRS gradient) came later, e.g. threading a narrow channel. Depart earlier by the delay (the trajectory
-            # starts inside the tube, with more time to spare) and extract again.
-            earlier = single.t_ldt - late - arrival_margin
-            if retries == LATE_RETRIES or earlier < aim - horizon:
-                warnings.warn(f"vehicle {i} (priority {rank}): its nominal trajectory arrives {late:.1f} s after its "
-                              f"STA {float(stas[i])} s (departing at {single.t_ldt:.1f} s); a finer grid or a longer "
-                              "horizon may fix it.", stacklevel=2)
-                break
-            depart_at, retries = earlier, retries + 1
+        def plan_with(grow, i=i, rank=rank):  # this vehicle, with every disk grown by ``grow`` metres
+            obstacles = planning_obstacles(grid, trajectories, lags_arr, rads_arr + grow, static_obstacle,
+                                           n_slots=n - 1, n_samples=math.ceil(1.1 * horizon / time_step) + 1,
+                                           span=span)
+            return _plan_one(grid, planner, starts[i], targets[i], float(shrunk[i]), float(stas[i]),
+                             float(stas[i]) - arrival_margin, horizon, settings=settings, time_step=time_step,
+                             slice_dt=slice_dt, solver=solver, arrival_margin=arrival_margin, who=(i, rank),
+                             **obstacles)
+
+        single = _plan_clear_of_disks(plan_with, trajectories, lags_arr, rads_arr, tolerance,
+                                      f"vehicle {i} (priority {rank})")
         single = dataclasses.replace(single, sta=float(stas[i]))
         trajectories.append(obstacle_window(single, (pad_before, pad_after)))
         done[i] = VehiclePlan(index=i, priority=rank, plan=single, obstacle_lags=lags_arr, obstacle_radii=rads_arr)
@@ -220,6 +207,85 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
     bar.close()
     return Plan(vehicles=tuple(done[i] for i in range(n)), tracking_bound=float(tracking_bound),
                 collision_radius=float(collision_radius), kbar=kbar, obstacle_pads=(pad_before, pad_after))
+
+
+def _plan_one(grid, planner, start, target, radius, sta, aim, horizon, *, settings, time_step, slice_dt, solver,
+              arrival_margin, who, **obstacles) -> SinglePlan:
+    """One vehicle of :func:`plan_rtt` against the given obstacles: the BRS and the nominal trajectory, with the
+    unsplit solver when the split one's trajectory fails, and up to :data:`LATE_RETRIES` earlier departures when it
+    arrives after the STA. ``who``: the vehicle's ``(index, priority)``, for the messages."""
+    name = "vehicle {} (priority {})".format(*who)
+    depart_at, vehicle_solver, retries = None, solver, 0
+    while True:
+        try:
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                single = plan_single(grid, planner, start, target, radius, aim, horizon, settings=settings,
+                                     time_step=time_step, slice_dt=slice_dt, progress=False, depart_at=depart_at,
+                                     solver=vehicle_solver, **obstacles)
+        except InfeasiblePlanError as err:
+            raise InfeasiblePlanError(f"{name}: no feasible departure for its STA {sta} s: {err}",
+                                      err.latest_departure) from err
+        for w in caught:  # name the vehicle (plan_single does not know it)
+            warnings.warn(f"{name[:-1]}, {vehicle_solver!r} BRS): {w.message}", w.category, stacklevel=3)
+        late = single.arrival_time - sta
+        left = any(issubclass(w.category, TubeExcursionWarning) for w in caught)
+        if (math.isinf(late) or left) and vehicle_solver != "hj":
+            # The split tube's trajectory never arrived or left the tube (measured on the city: one vehicle of
+            # 50 each; the unsplit solver's tube, a little larger, brought the first in, late, so that it could
+            # be re-extracted below, and the intruder-aware city's vehicle 4 inside its tube).
+            failure = "never reaches the target" if math.isinf(late) else "leaves the reach-avoid tube"
+            warnings.warn(f"{name}: its nominal trajectory from the {vehicle_solver!r} BRS {failure}; planning it "
+                          "with the unsplit solver 'hj'.", stacklevel=3)
+            depart_at, vehicle_solver = None, "hj"
+            continue
+        if not late > 0:
+            return single
+        # The tube promised an arrival by ``aim``; the extracted trajectory (a sampled controller following the
+        # BRS gradient) came later, e.g. threading a narrow channel. Depart earlier by the delay (the trajectory
+        # starts inside the tube, with more time to spare) and extract again.
+        earlier = single.t_ldt - late - arrival_margin
+        if retries == LATE_RETRIES or earlier < aim - horizon:
+            warnings.warn(f"{name}: its nominal trajectory arrives {late:.1f} s after its STA {sta} s (departing at "
+                          f"{single.t_ldt:.1f} s); a finer grid or a longer horizon may fix it.", stacklevel=3)
+            return single
+        depart_at, retries = earlier, retries + 1
+
+
+def _plan_clear_of_disks(plan_with, windows, lags, radii, tolerance: float, name: str) -> SinglePlan:
+    """``plan_with(grow)`` (a vehicle planned with the disks' radii grown by ``grow`` metres), checked against the
+    exact disks: its sampled flight must keep out of every higher-priority disk (``windows``, ``lags``, ``radii``;
+    :func:`stp_env.planning.verify.flight_clearance`) to within ``tolerance`` metres.
+
+    The solver imposes the disks exactly at every step, but the nominal trajectory follows a numerical tube that is
+    optimistic by up to about a cell, and where a disk binds (a vehicle departing at its latest time, close behind a
+    higher-priority one) it falls behind the tube's zero level into the disk (measured on city Case 0: 22.8 m into a
+    110.7 m disk with 33.3 m cells, the tube value along the trajectory rising to +21 m while it flew the tube's own
+    control). A vehicle that enters a disk deeper than ``tolerance`` is planned again, up to :data:`DISK_RETRIES`
+    times, with every disk grown by the depths measured so far; the vehicles that keep within it are planned exactly
+    as before. The shallowest of the attempts is kept (with a warning if it is still too deep)."""
+    grow, best, attempts, tried = 0.0, None, 0, 0.0
+    for _ in range(DISK_RETRIES + 1):
+        try:
+            single = plan_with(grow)
+            tried = grow
+        except InfeasiblePlanError:
+            if best is None:
+                raise
+            break  # the grown disks leave no departure: keep the best attempt so far
+        attempts += 1
+        depth = -flight_clearance(*single.flight(), windows, lags, radii)[0]
+        if best is None or depth < best[0]:
+            best = (depth, single)
+        if depth <= tolerance:
+            break
+        grow += depth
+    depth, single = best
+    if depth > tolerance:
+        warnings.warn(f"{name}: its nominal trajectory comes {depth:.1f} m inside a higher-priority vehicle's disk "
+                      f"(tolerance {tolerance:.1f} m; the shallowest of {attempts} plans, the disks grown by up to "
+                      f"{tried:.1f} m); a finer grid may fix it.", stacklevel=3)
+    return single
 
 
 def obstacle_disks(collision_radius: float, tracking_bound: float, planning_speed: float,
@@ -266,7 +332,8 @@ def fold_contained_disks(lags: np.ndarray, radii: np.ndarray, speed: float):
 
 def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, horizon: float | None = None,
                   settings: hj.SolverSettings | None = None, progress: bool = True, solver: str | None = None,
-                  checkpoint=None, on_vehicle=None, max_slice_dt: float | None = None, hold_slices: int = 0) -> Plan:
+                  checkpoint=None, on_vehicle=None, max_slice_dt: float | None = None, hold_slices: int = 0,
+                  disk_tolerance: float | None = None) -> Plan:
     """Plans a registered :class:`stp_env.scenarios.Scenario` with its ``method``: robust trajectory tracking
     (``"rtt"``, below), straight flights checked against its constraints (``"straight"``,
     :func:`stp_env.planning.verify.straight_plan`), or the centralized / least-restrictive methods
@@ -277,14 +344,15 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
     ``tracking_bound`` defaults to :func:`stp_env.reach.tracking.compute_tracking_bound` for the scenario's
     vehicle and ``U^p`` (cached in ``store``); intruder-aware scenarios (``kbar`` set) take their buffer radius
     from the avoid and relative-buffer artifacts of the same vehicle (also cached). ``horizon`` defaults to twice
-    the longest straight-line flight at the planning speed. ``solver``, ``checkpoint``, ``on_vehicle`` and
-    ``max_slice_dt``, ``hold_slices`` are those of :func:`plan_rtt` (robust trajectory tracking only).
+    the longest straight-line flight at the planning speed. ``solver``, ``checkpoint``, ``on_vehicle``,
+    ``max_slice_dt``, ``hold_slices`` and ``disk_tolerance`` are those of :func:`plan_rtt` (robust trajectory
+    tracking only).
     """
     from stp_env.artifacts import ArtifactStore
     from stp_env.reach.tracking import default_tracking_bound
 
     rtt_options = {"solver": solver, "checkpoint": checkpoint, "on_vehicle": on_vehicle, "max_slice_dt": max_slice_dt,
-                   "hold_slices": hold_slices or None}
+                   "hold_slices": hold_slices or None, "disk_tolerance": disk_tolerance}
     given = [name for name, value in rtt_options.items() if value is not None]
     if given and scenario.method != "rtt":
         raise ValueError(f"scenario {scenario.name!r} plans with method {scenario.method!r}; {', '.join(given)} "
@@ -330,7 +398,8 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
                     scenario.collision_radius, starts, targets, scenario.target_radii(), scenario.stas(),
                     scenario.priorities(), horizon=horizon, static_obstacle=static, settings=settings,
                     time_step=scenario.time_step, progress=progress, solver=solver, checkpoint=checkpoint,
-                    on_vehicle=on_vehicle, max_slice_dt=max_slice_dt, hold_slices=hold_slices, **aware)
+                    on_vehicle=on_vehicle, max_slice_dt=max_slice_dt, hold_slices=hold_slices,
+                    disk_tolerance=disk_tolerance, **aware)
 
 
 def aware_obstacles(scenario, tracking_bound: float, *, store=None, progress: bool = True) -> dict:

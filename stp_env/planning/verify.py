@@ -41,30 +41,46 @@ def planner_disks(scenario, tracking_bound: float, *, store=None, progress: bool
     return ObstacleDisks(np.asarray(lags_arr, float), np.asarray(rads_arr, float), float(before), float(after))
 
 
+def flight_clearance(times, states, windows, lags, radii) -> tuple[float, int, float]:
+    """The smallest signed clearance [m] of one vehicle's sampled flight ``(times, states)`` from the disks of radii
+    ``radii`` around the positions ``p_j(t + lags_l)`` of the vehicles of ``windows`` (each ``(times, states, start,
+    end)``, :func:`~stp_env.planning.plan.obstacle_window`: a disk of lag ``lambda`` is present while ``t + lambda``
+    lies in ``[start, end]``), and where ``(index into windows, time)``; ``(inf, -1, nan)`` when none is ever
+    present. Positions between a window's samples are interpolated linearly, as the planner's obstacle function
+    (:func:`stp_env.planning.obstacles.moving_disks`) does; the check runs at ``times``."""
+    times, states = np.asarray(times, float), np.asarray(states, float)
+    best, where = math.inf, (-1, math.nan)
+    for j, (h_times, h_states, start, end) in enumerate(windows):
+        for lag, rad in zip(lags, radii):
+            tq = times + lag
+            present = (tq >= start) & (tq <= end)
+            if not present.any():
+                continue
+            cx = np.interp(tq[present], h_times, h_states[:, 0])
+            cy = np.interp(tq[present], h_times, h_states[:, 1])
+            gap = np.hypot(states[present, 0] - cx, states[present, 1] - cy) - rad
+            k = int(np.argmin(gap))
+            if gap[k] < best:
+                best, where = float(gap[k]), (j, float(times[present][k]))
+    return best, *where
+
+
 def obstacle_margin(plan: Plan, disks: ObstacleDisks) -> tuple[float, tuple[int, int, float]]:
     """The smallest signed clearance [m] of any vehicle's sampled nominal flight from the disks of every
     higher-priority vehicle, and where it occurs ``(lower-priority index, higher-priority index, time)``; ``inf``
     when no pair is ever present together. A negative margin means the plan breaks the planner's constraint.
 
     Positions between samples of the higher-priority vehicle are interpolated linearly, as the planner's obstacle
-    function does; the check runs at the lower-priority vehicle's samples."""
+    function does; the check runs at the lower-priority vehicle's samples (:func:`flight_clearance`)."""
     by_priority = sorted(plan.vehicles, key=lambda v: v.priority)
+    pads = (disks.pad_before, disks.pad_after)
     best, where = math.inf, (-1, -1, math.nan)
     for rank, low in enumerate(by_priority):
-        times, states = low.plan.flight()
-        for high in by_priority[:rank]:
-            h_times, h_states, start, end = obstacle_window(high.plan, (disks.pad_before, disks.pad_after))
-            for lag, rad in zip(disks.lags, disks.radii):
-                tq = times + lag
-                present = (tq >= start) & (tq <= end)
-                if not present.any():
-                    continue
-                cx = np.interp(tq[present], h_times, h_states[:, 0])
-                cy = np.interp(tq[present], h_times, h_states[:, 1])
-                gap = np.hypot(states[present, 0] - cx, states[present, 1] - cy) - rad
-                j = int(np.argmin(gap))
-                if gap[j] < best:
-                    best, where = float(gap[j]), (low.index, high.index, float(times[present][j]))
+        higher = by_priority[:rank]
+        gap, j, t = flight_clearance(*low.plan.flight(), [obstacle_window(h.plan, pads) for h in higher],
+                                     disks.lags, disks.radii)
+        if gap < best:
+            best, where = gap, (low.index, higher[j].index, t)
     return best, where
 
 
