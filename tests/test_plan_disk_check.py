@@ -78,7 +78,7 @@ def test_a_trajectory_within_the_tolerance_is_planned_once():
     grown = []
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        single = stp._plan_clear_of_disks(_passing(grown), WINDOWS, LAGS, RADII, 8.5, "v")
+        single = stp.plan_clear_of_disks(_passing(grown), WINDOWS, LAGS, RADII, 8.5, "v")
     assert grown == [0.0] and _clearance(single) == pytest.approx(-8.0)
 
 
@@ -86,13 +86,13 @@ def test_a_trajectory_too_deep_is_planned_again_with_the_disks_grown_by_its_dept
     grown = []
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        single = stp._plan_clear_of_disks(_passing(grown), WINDOWS, LAGS, RADII, 1.0, "v")
+        single = stp.plan_clear_of_disks(_passing(grown), WINDOWS, LAGS, RADII, 1.0, "v")
     assert grown == pytest.approx([0.0, 8.0]) and _clearance(single) == pytest.approx(0.0, abs=1e-9)
     # Growth that only halves the depth each time: grown by the sum of the depths, then the shallowest is kept and
     # the remaining depth reported.
     grown = []
     with pytest.warns(UserWarning, match=r"vehicle 3: .* 2\.0 m inside .*tolerance 0\.5 m; the shallowest of 3"):
-        single = stp._plan_clear_of_disks(_passing(grown, lambda g: 2.0 + g / 2), WINDOWS, LAGS, RADII, 0.5,
+        single = stp.plan_clear_of_disks(_passing(grown, lambda g: 2.0 + g / 2), WINDOWS, LAGS, RADII, 0.5,
                                           "vehicle 3")
     assert grown == pytest.approx([0.0, 8.0, 12.0]) and _clearance(single) == pytest.approx(-2.0)
 
@@ -100,10 +100,10 @@ def test_a_trajectory_too_deep_is_planned_again_with_the_disks_grown_by_its_dept
 def test_when_the_grown_disks_leave_no_departure_the_first_plan_is_kept_and_reported():
     grown = []
     with pytest.warns(UserWarning, match="8.0 m inside"):
-        single = stp._plan_clear_of_disks(_passing(grown, infeasible_after=1), WINDOWS, LAGS, RADII, 1.0, "v")
+        single = stp.plan_clear_of_disks(_passing(grown, infeasible_after=1), WINDOWS, LAGS, RADII, 1.0, "v")
     assert grown == pytest.approx([0.0, 8.0]) and _clearance(single) == pytest.approx(-8.0)
     with pytest.raises(InfeasiblePlanError):  # infeasible with the true disks: the planner's error, unchanged
-        stp._plan_clear_of_disks(_passing([], infeasible_after=0), WINDOWS, LAGS, RADII, 1.0, "v")
+        stp.plan_clear_of_disks(_passing([], infeasible_after=0), WINDOWS, LAGS, RADII, 1.0, "v")
 
 
 @pytest.mark.parametrize("bad", [-1.0, math.nan, math.inf])
@@ -146,3 +146,38 @@ def test_tiny_planned_with_no_tolerance_replans_its_second_vehicle_clear_of_the_
     after, _ = obstacle_margin(plan, disks)
     assert after > before + 10.0, (before, after)
     assert all(v.plan.arrival_time <= v.plan.sta for v in plan.vehicles)
+
+
+def test_replanning_checks_the_new_trajectory_against_the_exact_disks(monkeypatch):
+    """Algorithm 4's replan runs the same check: the replanned vehicle against every other vehicle's padded window,
+    with the plan's disks, half a cell of tolerance, and the disks grown by what the check asks for."""
+    import dataclasses
+
+    import stp_env.planning.replan as replan_mod
+    from stp_env.scenarios import make
+
+    scenario = make("tiny")
+    plan = dataclasses.replace(stp.shipped_plan("tiny"), obstacle_pads=(7.0, 3.0))
+    seen = {}
+
+    class Stop(Exception):
+        """Ends the replan at the obstacles (the solve is not what this test checks)."""
+
+    def check(plan_with, windows, lags, radii, tolerance, name):
+        seen.update(windows=[(w[2], w[3]) for w in windows], lags=lags, radii=radii, tolerance=tolerance, name=name)
+        plan_with(12.5)
+
+    def obstacles(grid, trajectories, lags, radii, *args, **kwargs):
+        seen["grown"] = np.asarray(radii)
+        raise Stop
+
+    monkeypatch.setattr(replan_mod, "plan_clear_of_disks", check)
+    monkeypatch.setattr(replan_mod, "planning_obstacles", obstacles)
+    with pytest.raises(Stop):
+        replan_mod.replan(plan, scenario, {1: (0.0, 0.0, 0.0)}, -60.0)
+    kept = plan.vehicles[0].plan
+    assert seen["windows"] == [(kept.t_ldt - 7.0, kept.arrival_time + 3.0)]
+    np.testing.assert_array_equal(seen["lags"], plan.vehicles[0].obstacle_lags)
+    np.testing.assert_array_equal(seen["radii"], plan.vehicles[0].obstacle_radii)
+    np.testing.assert_array_equal(seen["grown"], plan.vehicles[0].obstacle_radii + 12.5)
+    assert seen["tolerance"] == 0.5 * max(scenario.grid().spacing[:2]) and seen["name"] == "vehicle 1"

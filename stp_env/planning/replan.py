@@ -34,11 +34,13 @@ from stp_env.planning.obstacles import planning_obstacles
 from stp_env.planning.plan import obstacle_window
 from stp_env.planning.single import InfeasiblePlanError, full_grid_obstacle, initial_ball, plan_single
 from stp_env.planning.stp import (
+    DISK_TOLERANCE_CELLS,
     PLANNING_SETTINGS,
     Plan,
     VehiclePlan,
     aware_obstacles,
     obstacle_disks,
+    plan_clear_of_disks,
     planning_static_obstacle,
 )
 
@@ -105,7 +107,9 @@ def replan(plan: Plan, scenario, affected: dict[int, tuple[float, float, float]]
            horizon: float | None = None, settings: hj.SolverSettings | None = None, store=None) -> Plan:
     """New plans for the vehicles in ``affected`` (index -> state ``x~^0`` at ``t_bar``), Algorithm 4.
 
-    Returns a :class:`Plan` in which only the affected vehicles' entries differ; their ``sta`` is the new STA.
+    Returns a :class:`Plan` in which only the affected vehicles' entries differ; their ``sta`` is the new STA. Each
+    new trajectory is checked against the exact disks of every other vehicle and planned again with the disks grown
+    when it comes deeper into one than half a cell (:func:`stp_env.planning.stp.plan_clear_of_disks`).
     ``store`` caches the buffer artifacts that :func:`obstacle_pads` reads for plans that do not record their pads.
     """
     if not affected:
@@ -132,36 +136,41 @@ def replan(plan: Plan, scenario, affected: dict[int, tuple[float, float, float]]
     others = [v for v in plan.vehicles if v.index not in affected]
     pads = obstacle_pads(plan, scenario, store=store)
     trajectories = [obstacle_window(v.plan, pads) for v in others]
+    tolerance = DISK_TOLERANCE_CELLS * float(max(grid.spacing[:2]))
     for i in sorted(affected, key=lambda k: plan.vehicles[k].priority):
         spec = scenario.vehicles[i]
-        kwargs = planning_obstacles(grid, trajectories, lags, radii, static, n_slots=n - 1,
-                                    n_samples=math.ceil(1.1 * horizon / time_step) + 1)
         shrunk = spec.target_radius - r_e
-        sta = earliest_arrival(grid, planner, affected[i], t_bar, spec.target, shrunk, horizon,
-                               slice_dt=max(time_step, horizon / 100), settings=settings, **kwargs)
-        if not math.isfinite(sta):
-            raise ValueError(f"vehicle {i}: its target cannot be reached from {tuple(affected[i])} within "
-                             f"{horizon} s of t = {t_bar} s; increase the horizon.")
-        # The FRS starts from a ball of ~1.5 cells around the state, so its earliest arrival is optimistic by up to
-        # that ball's crossing time: move the STA later by the deficit until the plan departs no earlier than
-        # t_bar (one correction is usually enough).
-        sta_new = sta + margin
-        for _ in range(5):
-            try:
-                single = plan_single(grid, planner, affected[i], spec.target, shrunk, sta_new - margin,
-                                     horizon=sta_new - t_bar + margin, settings=settings, time_step=time_step,
-                                     slice_dt=max(time_step, horizon / 200), depart_at=t_bar, **kwargs)
-                break
-            except InfeasiblePlanError as err:
-                deficit = err.latest_departure - t_bar if err.latest_departure is not None else None
-                if deficit is None or not math.isfinite(deficit):
-                    sta_new += 0.1 * horizon
-                else:
-                    sta_new += -deficit + time_step
-        else:
-            raise ValueError(f"vehicle {i}: no plan from {tuple(affected[i])} at t = {t_bar} s found after moving "
-                             f"its STA to {sta_new:.1f} s.")
-        single = dataclasses.replace(single, sta=sta_new)
+
+        def plan_with(grow, i=i, spec=spec, shrunk=shrunk):  # vehicle i, with every disk grown by ``grow`` metres
+            kwargs = planning_obstacles(grid, trajectories, lags, radii + grow, static, n_slots=n - 1,
+                                        n_samples=math.ceil(1.1 * horizon / time_step) + 1)
+            sta = earliest_arrival(grid, planner, affected[i], t_bar, spec.target, shrunk, horizon,
+                                   slice_dt=max(time_step, horizon / 100), settings=settings, **kwargs)
+            if not math.isfinite(sta):
+                raise InfeasiblePlanError(f"vehicle {i}: its target cannot be reached from {tuple(affected[i])} "
+                                          f"within {horizon} s of t = {t_bar} s; increase the horizon.", math.nan)
+            # The FRS starts from a ball of ~1.5 cells around the state, so its earliest arrival is optimistic by up
+            # to that ball's crossing time: move the STA later by the deficit until the plan departs no earlier
+            # than t_bar (one correction is usually enough).
+            sta_new = sta + margin
+            for _ in range(5):
+                try:
+                    single = plan_single(grid, planner, affected[i], spec.target, shrunk, sta_new - margin,
+                                         horizon=sta_new - t_bar + margin, settings=settings, time_step=time_step,
+                                         slice_dt=max(time_step, horizon / 200), depart_at=t_bar, **kwargs)
+                    return dataclasses.replace(single, sta=sta_new)
+                except InfeasiblePlanError as err:
+                    deficit = err.latest_departure - t_bar if err.latest_departure is not None else None
+                    if deficit is None or not math.isfinite(deficit):
+                        sta_new += 0.1 * horizon
+                    else:
+                        sta_new += -deficit + time_step
+            raise InfeasiblePlanError(f"vehicle {i}: no plan from {tuple(affected[i])} at t = {t_bar} s found after "
+                                      f"moving its STA to {sta_new:.1f} s.", math.nan)
+
+        # Checked against the exact disks, as plan_rtt does: planned again with the disks grown if deeper than half
+        # a cell (an InfeasiblePlanError, a ValueError, when even the true disks leave no plan).
+        single = plan_clear_of_disks(plan_with, trajectories, lags, radii, tolerance, f"vehicle {i}")
         vehicles[i] = VehiclePlan(index=i, priority=plan.vehicles[i].priority, plan=single, obstacle_lags=lags,
                                   obstacle_radii=radii)
         trajectories.append(obstacle_window(single, pads))

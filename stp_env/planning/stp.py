@@ -60,7 +60,7 @@ LATE_RETRIES = 2
 
 DISK_RETRIES = 2
 """How many times :func:`plan_rtt` plans a vehicle again, with the disks grown, when its nominal trajectory enters a
-higher-priority vehicle's disk deeper than the tolerance (:func:`_plan_clear_of_disks`)."""
+higher-priority vehicle's disk deeper than the tolerance (:func:`plan_clear_of_disks`)."""
 
 DISK_TOLERANCE_CELLS = 0.5
 """The depth, in cells of the coarser position axis, that a nominal trajectory may reach into a higher-priority
@@ -120,7 +120,7 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
             has no departure for its 48th vehicle within the default horizon. Default 0.
         disk_tolerance: how deep [m] a nominal trajectory may come into a higher-priority vehicle's disk (checked
             exactly, at its samples) before the vehicle is planned again with the disks grown
-            (:func:`_plan_clear_of_disks`); default :data:`DISK_TOLERANCE_CELLS` of the coarser position cell.
+            (:func:`plan_clear_of_disks`); default :data:`DISK_TOLERANCE_CELLS` of the coarser position cell.
     """
     if max_slice_dt is not None and not (math.isfinite(max_slice_dt) and max_slice_dt > 0):
         raise ValueError(f"max_slice_dt must be a positive number of seconds; got {max_slice_dt}.")
@@ -193,7 +193,7 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
                              slice_dt=slice_dt, solver=solver, arrival_margin=arrival_margin, who=(i, rank),
                              **obstacles)
 
-        single = _plan_clear_of_disks(plan_with, trajectories, lags_arr, rads_arr, tolerance,
+        single = plan_clear_of_disks(plan_with, trajectories, lags_arr, rads_arr, tolerance,
                                       f"vehicle {i} (priority {rank})")
         single = dataclasses.replace(single, sta=float(stas[i]))
         trajectories.append(obstacle_window(single, (pad_before, pad_after)))
@@ -252,7 +252,7 @@ def _plan_one(grid, planner, start, target, radius, sta, aim, horizon, *, settin
         depart_at, retries = earlier, retries + 1
 
 
-def _plan_clear_of_disks(plan_with, windows, lags, radii, tolerance: float, name: str) -> SinglePlan:
+def plan_clear_of_disks(plan_with, windows, lags, radii, tolerance: float, name: str) -> SinglePlan:
     """``plan_with(grow)`` (a vehicle planned with the disks' radii grown by ``grow`` metres), checked against the
     exact disks: its sampled flight must keep out of every higher-priority disk (``windows``, ``lags``, ``radii``;
     :func:`stp_env.planning.verify.flight_clearance`) to within ``tolerance`` metres.
