@@ -214,7 +214,8 @@ def _plan_one(grid, planner, start, target, radius, sta, aim, horizon, *, settin
     """One vehicle of :func:`plan_rtt` against the given obstacles: the BRS and the nominal trajectory, with the
     unsplit solver when the split one's trajectory fails, and up to :data:`LATE_RETRIES` earlier departures when it
     arrives after the STA. ``who``: the vehicle's ``(index, priority)``, for the messages."""
-    name = "vehicle {} (priority {})".format(*who)
+    index, priority = who
+    name = f"vehicle {index} (priority {priority})"
     depart_at, vehicle_solver, retries = None, solver, 0
     while True:
         try:
@@ -227,7 +228,8 @@ def _plan_one(grid, planner, start, target, radius, sta, aim, horizon, *, settin
             raise InfeasiblePlanError(f"{name}: no feasible departure for its STA {sta} s: {err}",
                                       err.latest_departure) from err
         for w in caught:  # name the vehicle (plan_single does not know it)
-            warnings.warn(f"{name[:-1]}, {vehicle_solver!r} BRS): {w.message}", w.category, stacklevel=3)
+            warnings.warn(f"vehicle {index} (priority {priority}, {vehicle_solver!r} BRS): {w.message}", w.category,
+                          stacklevel=3)
         late = single.arrival_time - sta
         left = any(issubclass(w.category, TubeExcursionWarning) for w in caught)
         if (math.isinf(late) or left) and vehicle_solver != "hj":
@@ -282,7 +284,7 @@ def plan_clear_of_disks(plan_with, windows, lags, radii, tolerance: float, name:
         grow += depth
     depth, single = best
     if depth > tolerance:
-        warnings.warn(f"{name}: its nominal trajectory comes {depth:.1f} m inside a higher-priority vehicle's disk "
+        warnings.warn(f"{name}: its nominal trajectory comes {depth:.1f} m inside another vehicle's disk "
                       f"(tolerance {tolerance:.1f} m; the shallowest of {attempts} plans, the disks grown by up to "
                       f"{tried:.1f} m); a finer grid may fix it.", stacklevel=3)
     return single
