@@ -1,6 +1,7 @@
 """The BEACLS paper's city Cases 0-4 (Section V-C): plans and PNGs that show the lanes.
 
     python scripts/city_cases.py [--cases 0 1 2 3 4] [--vehicles 50] [--out city_cases]
+    python scripts/city_cases.py --shipped [--cases 0 1 2 3 4] [--out city_cases]
 
 Case ``c`` is ``make("city", **CITY_CASES[c])`` (wind 6 or 11 m/s, STA spacing 0, 5 or 10 s), planned with robust
 trajectory tracking (no intruder). ``--vehicles n`` plans only the ``n`` highest-priority vehicles of the
@@ -11,9 +12,12 @@ short run is a prefix of the full one. Writes, in ``--out``:
   (:func:`stp_env.planning.stp.plan_to_arrays`);
 * ``lanes.png``: all cases side by side, each trajectory coloured by its destination, with the lane measures below;
 
-and prints one JSON line per case: seconds, t_LDT range and two lane measures per destination: ``spread_m``, the
-mean over pairs of vehicles with the same destination of the mean distance from one path to the other (how far
-apart their *paths* are: large when vehicles are separated in space, "state-separated" lanes), and
+With ``--shipped`` nothing is planned: the shipped 50-vehicle plans (``stp_env/data/plans/city.npz`` and
+``city-case{c}.npz``, made by ``scripts/generate_plans.py``) are measured and drawn instead.
+
+It prints one JSON line per case: seconds (when planned), t_LDT range and two lane measures per destination:
+``spread_m``, the mean over pairs of vehicles with the same destination of the mean distance from one path to the
+other (how far apart their *paths* are: large when vehicles are separated in space, "state-separated" lanes), and
 ``gap_s``, the mean gap between consecutive departures of that destination's vehicles (how far apart they are in
 *time*: time-separated, one lane flown in trail). BEACLS Figs. 5-8: with no STA spacing, the vehicles fan out into
 separate lanes; with 5-10 s spacing they share one lane; stronger wind makes the lanes straighter and fewer.
@@ -30,9 +34,10 @@ from pathlib import Path
 import numpy as np
 
 from stp_env.planning.plots import plot_plan
-from stp_env.planning.stp import plan_scenario, plan_to_arrays
+from stp_env.planning.stp import plan_scenario, plan_to_arrays, shipped_plan
 from stp_env.scenarios import CITY_CASES, make
 from stp_env.scenarios.catalog.city import CITY_DESTINATIONS
+from stp_env.sim.build import plan_mismatch
 
 
 def city_case(case: int, n_vehicles: int):
@@ -110,21 +115,31 @@ def main() -> None:
     parser.add_argument("--cases", type=int, nargs="+", default=sorted(CITY_CASES), choices=sorted(CITY_CASES))
     parser.add_argument("--vehicles", type=int, default=50)
     parser.add_argument("--out", type=Path, default=Path("city_cases"))
+    parser.add_argument("--shipped", action="store_true",
+                        help="measure and draw the shipped 50-vehicle plans instead of planning (--vehicles unused)")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     results = []
     for case in args.cases:
-        scenario, horizon = city_case(case, args.vehicles)
-        t0 = time.perf_counter()
-        plan = plan_scenario(scenario, horizon=horizon, progress=True)
-        seconds = time.perf_counter() - t0
+        if args.shipped:
+            scenario, timing = make("city", **CITY_CASES[case]), {"source": "shipped"}
+            plan = shipped_plan("city" if case == 0 else f"city-case{case}")
+            problem = plan_mismatch(plan, scenario, plan.tracking_bound)
+            if problem is not None:
+                raise SystemExit(f"the shipped plan of Case {case} is not for make('city', **CITY_CASES[{case}]): "
+                                 f"{problem}")
+        else:
+            scenario, horizon = city_case(case, args.vehicles)
+            t0 = time.perf_counter()
+            plan = plan_scenario(scenario, horizon=horizon, progress=True)
+            seconds = time.perf_counter() - t0
+            timing = {"seconds": round(seconds, 1), "seconds_per_vehicle": round(seconds / len(plan.vehicles), 1)}
+            np.savez_compressed(args.out / f"case{case}_plan.npz", **plan_to_arrays(plan))
         plot_plan(plan, scenario, str(args.out / f"case{case}.png"))
-        np.savez_compressed(args.out / f"case{case}_plan.npz", **plan_to_arrays(plan))
         lanes = lane_measures(plan, scenario)
         results.append((case, scenario, plan, lanes))
         late = max(v.plan.arrival_time - s.sta for v, s in zip(plan.vehicles, scenario.vehicles))
-        print(json.dumps({"case": case, **CITY_CASES[case], "vehicles": len(plan.vehicles),
-                          "seconds": round(seconds, 1), "seconds_per_vehicle": round(seconds / len(plan.vehicles), 1),
+        print(json.dumps({"case": case, **CITY_CASES[case], "vehicles": len(plan.vehicles), **timing,
                           "t_ldt_range": [round(float(plan.t_ldt().min()), 1), round(float(plan.t_ldt().max()), 1)],
                           "max_arrival_minus_sta_s": round(float(late), 2), "tracking_bound_m": plan.tracking_bound,
                           "lanes": lanes}), flush=True)
