@@ -115,7 +115,7 @@ def test_disk_tolerance_must_be_a_finite_depth(bad):
 
 
 @pytest.mark.slow
-def test_tiny_planned_with_no_tolerance_replans_its_second_vehicle_clear_of_the_first():
+def test_tiny_planned_with_no_tolerance_replans_its_second_vehicle_clear_of_the_first(monkeypatch):
     """The shipped ``tiny`` plan's second vehicle flies 13.6 m into the first's disk (within the default tolerance,
     half of a 50 m cell). Planned with no tolerance it is planned again with the disk grown, and comes out clear of
     the true disk; the first vehicle is planned exactly as before."""
@@ -133,9 +133,8 @@ def test_tiny_planned_with_no_tolerance_replans_its_second_vehicle_clear_of_the_
         calls.append(kwargs["who"])
         return real(*args, **kwargs)
 
-    import unittest.mock
-
-    with unittest.mock.patch.object(stp, "_plan_one", counted), warnings.catch_warnings():
+    monkeypatch.setattr(stp, "_plan_one", counted)
+    with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         plan = stp.plan_scenario(scenario, tracking_bound=shipped.tracking_bound, progress=False,
                                  disk_tolerance=0.0)
