@@ -137,6 +137,7 @@ from stp_env.angles import wrap_angle
 from stp_env.seeds import prng_key
 from stp_env.sim import core
 from stp_env.sim.backends import with_backend
+from stp_env.sim.jit import sim_jit
 from stp_env.sim.types import (
     AFTER_AVOIDANCE,
     COLLIDED,
@@ -207,11 +208,11 @@ def _start(key, params):
                                   _step_info(state, state), no, no)
 
 
-_start_jit = jax.jit(_start)
+_start_jit = sim_jit(_start)
 
 
-_observe_jit = jax.jit(core.observe)
-_global_state_jit = jax.jit(core.global_state)
+_observe_jit = sim_jit(core.observe)
+_global_state_jit = sim_jit(core.global_state)
 
 TRACE_COUNTS = {"step": 0}  # incremented when the step function is traced (tests check it stays at 1)
 
@@ -300,8 +301,8 @@ def _packed(fn):
     return wrapped
 
 
-_advance_jit = jax.jit(_count_traces(_packed(_advance)))
-_advance_scripted_jit = jax.jit(_packed(_advance_scripted), static_argnames=("vehicle_policy",))
+_advance_jit = sim_jit(_count_traces(_packed(_advance)))
+_advance_scripted_jit = sim_jit(_packed(_advance_scripted), static_argnames=("vehicle_policy",))
 
 
 def _check_appear_window(params) -> None:

@@ -30,6 +30,7 @@ from stp_env.baselines import nominal_tracking
 from stp_env.coobservation.admm import polygon_halfplanes
 from stp_env.coobservation.schedule import Observation
 from stp_env.sim import core
+from stp_env.sim.jit import sim_jit
 from stp_env.sim.types import COLLIDED, FLYING, OUT_OF_BOUNDS, EnvParams, EnvState, replace
 
 INF = jnp.inf
@@ -214,7 +215,7 @@ def draw_attack(key, params: EnvParams, t_lo: float, t_hi: float):
     return c, t
 
 
-@functools.partial(jax.jit, static_argnames=("attacker", "n_envs", "n_steps", "vehicle_policy", "record"))
+@functools.partial(sim_jit, static_argnames=("attacker", "n_envs", "n_steps", "vehicle_policy", "record"))
 def rollout(key, params: EnvParams, threat: ThreatParams, attacker, n_envs: int, n_steps: int, t_window,
             vehicle_policy=nominal_tracking, record: bool = False):
     """``n_envs`` episodes of ``n_steps`` steps; episode ``i`` uses ``fold_in(key, i)``: a random compromised

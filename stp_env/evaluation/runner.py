@@ -29,6 +29,7 @@ from stp_env.evaluation.summary import forced_summary
 from stp_env.seeds import check_seed, prng_key
 from stp_env.sim import fleet
 from stp_env.sim.bounds import WIND
+from stp_env.sim.jit import sim_jit
 from stp_env.sim.rollout import rollout_keys
 from stp_env.sim.types import ARRIVED, COLLIDED, OUT_OF_BOUNDS, WAITING
 
@@ -36,7 +37,7 @@ MAX_EPISODES = 2**30  # episode indices are int32 (the last batch runs past the 
 EVENT_KINDS = ("bound_exceeded", "collision", "guarantee_violation", "assumption_failed")
 
 
-@functools.partial(jax.jit, static_argnames=("vehicle_policy", "intruder_policy", "n_steps", "record", "active"))
+@functools.partial(sim_jit, static_argnames=("vehicle_policy", "intruder_policy", "n_steps", "record", "active"))
 def run_batch(key, indices, params, vehicle_policy, intruder_policy, n_steps: int, record: bool = False,
               active: tuple[int, ...] | None = None):
     """Episodes ``indices`` (B,) of the run keyed by ``key``: ``(final states, trajectories)`` batched over ``B``

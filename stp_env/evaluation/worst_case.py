@@ -19,6 +19,7 @@ import numpy as np
 from stp_env import sim
 from stp_env.sim import core
 from stp_env.sim.build import load_buffer, with_buffer
+from stp_env.sim.jit import sim_jit
 from stp_env.sim.rollout import episode_step
 from stp_env.sim.tables import FAR
 from stp_env.sim.types import replace
@@ -56,7 +57,7 @@ def fig6_spawn() -> np.ndarray:
     return np.asarray([0.0, 1.0, 0.0], np.float32)
 
 
-@functools.partial(jax.jit, static_argnames=("vehicle_policy", "intruder_policy", "n_steps"))
+@functools.partial(sim_jit, static_argnames=("vehicle_policy", "intruder_policy", "n_steps"))
 def run_fixed_spawn(key, params, spawn, vehicle_policy, intruder_policy, n_steps: int):
     """One episode with the intruder appearing at ``spawn`` (3,): ``(final state, trajectory)``, the trajectory a
     dict of per-step arrays ``t``, ``x``, ``mode``, ``status``, ``intruder_x``, ``intruder_status``,

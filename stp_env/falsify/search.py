@@ -28,6 +28,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from stp_env.sim.jit import sim_jit
+
 Objective = Callable[[jax.Array], jax.Array]
 
 
@@ -100,13 +102,13 @@ megabytes), which makes XLA's compilation very slow."""
 
 
 def compiled(objective: Objective, transform=jax.vmap):
-    """``jax.jit(transform(objective))``, compiled once per call of this function. When ``objective`` is a method
+    """``sim_jit(transform(objective))``, compiled once per call of this function. When ``objective`` is a method
     of an attack whose ``base`` holds the environment, the :data:`TABLE_FIELDS` of ``base`` are arguments of the
     compiled program rather than constants in it (same values, same results)."""
     attack = getattr(objective, "__self__", None)
     base = getattr(attack, "base", None)
     if base is None or not dataclasses.is_dataclass(base) or not all(hasattr(base, k) for k in TABLE_FIELDS):
-        return jax.jit(transform(objective))
+        return sim_jit(transform(objective))
     name = objective.__name__
     tables = {k: getattr(base, k) for k in TABLE_FIELDS}
 
@@ -115,7 +117,7 @@ def compiled(objective: Objective, transform=jax.vmap):
         object.__setattr__(traced, "base", dataclasses.replace(base, **tables))
         return transform(getattr(traced, name))(x)
 
-    return functools.partial(jax.jit(run), tables)
+    return functools.partial(sim_jit(run), tables)
 
 
 def evaluate(objective: Objective, zs, batch: int, *, program=None) -> np.ndarray:

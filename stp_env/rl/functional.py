@@ -31,6 +31,7 @@ from stp_env import sim
 from stp_env.baselines import vehicle_policy
 from stp_env.seeds import check_seed
 from stp_env.sim import core
+from stp_env.sim.jit import sim_jit
 from stp_env.sim.types import COLLIDED, GONE, EnvParams, EnvState, replace
 
 HORIZONS = ("intruder", "episode")
@@ -102,7 +103,7 @@ def intruder_obs(state: EnvState, params: EnvParams):
 
 
 # ------------------------------------------------------------------------------------------------ one env
-@functools.partial(jax.jit, static_argnames=("horizon",))
+@functools.partial(sim_jit, static_argnames=("horizon",))
 def env_reset(key, params: EnvParams, horizon: str):
     """``(key, state, obs)``: the env key after the reset split, the new state, the intruder's observation."""
     key, k_reset = jax.random.split(key)
@@ -110,7 +111,7 @@ def env_reset(key, params: EnvParams, horizon: str):
     return key, state, intruder_obs(state, params)
 
 
-@functools.partial(jax.jit, static_argnames=("horizon", "vehicle_policy"))
+@functools.partial(sim_jit, static_argnames=("horizon", "vehicle_policy"))
 def env_step(key, state: EnvState, action, params: EnvParams, horizon: str, vehicle_policy):
     """``(key, state, obs, reward, terminated, truncated, stats)`` without auto-reset (Gymnasium API)."""
     key, k_step = jax.random.split(key)
@@ -120,13 +121,13 @@ def env_step(key, state: EnvState, action, params: EnvParams, horizon: str, vehi
 
 
 # ------------------------------------------------------------------------------------------------ batch
-@functools.partial(jax.jit, static_argnames=("horizon",))
+@functools.partial(sim_jit, static_argnames=("horizon",))
 def batch_reset(keys, params: EnvParams, horizon: str):
     """:func:`env_reset` for a batch of keys ``(n,)``."""
     return jax.vmap(env_reset.__wrapped__, in_axes=(0, None, None))(keys, params, horizon)
 
 
-@functools.partial(jax.jit, static_argnames=("horizon", "vehicle_policy"))
+@functools.partial(sim_jit, static_argnames=("horizon", "vehicle_policy"))
 def batch_step(keys, states: EnvState, actions, params: EnvParams, horizon: str, vehicle_policy):
     """One step of ``n`` envs with auto-reset, in one compiled program.
 

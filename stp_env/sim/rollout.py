@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 
 from stp_env.sim import core
+from stp_env.sim.jit import sim_jit
 from stp_env.sim.types import EnvParams
 
 
@@ -20,7 +21,7 @@ def episode_step(key, state, params: EnvParams, vehicle_policy, intruder_policy)
     return core.step(k_s, state, actions, params, vehicle_policy=vehicle_policy)
 
 
-@functools.partial(jax.jit, static_argnames=("vehicle_policy", "intruder_policy", "n_envs", "n_steps", "record"))
+@functools.partial(sim_jit, static_argnames=("vehicle_policy", "intruder_policy", "n_envs", "n_steps", "record"))
 def rollout(key, params: EnvParams, vehicle_policy, intruder_policy, n_envs: int, n_steps: int,
             record: bool = False):
     """Run ``n_envs`` episodes of ``n_steps`` steps.
