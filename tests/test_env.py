@@ -26,6 +26,7 @@ from pettingzoo.test import (
 import stp_env.env as stp_module
 from stp_env import sim
 from stp_env.env import TRACE_COUNTS, env, parallel_env, raw_env
+from stp_env.sim.jit import sim_jit
 
 
 def _enable_x64(on: bool):
@@ -126,7 +127,7 @@ def test_adapter_matches_the_pure_core(par):
         acts = rng.uniform(-1, 1, (n + 1, 2)).astype(np.float32)
         par.step({a: acts[i] for i, a in enumerate(par.possible_agents) if a in par.agents})
         key, sub = jax.random.split(key)
-        state, _ = jax.jit(sim.step)(sub, state, jnp.asarray(acts), par.params)
+        state, _ = sim_jit(sim.step)(sub, state, jnp.asarray(acts), par.params)
         np.testing.assert_allclose(np.asarray(state.x), np.asarray(par.env_state.x), rtol=1e-6, atol=1e-3)
         np.testing.assert_array_equal(np.asarray(state.status), np.asarray(par.env_state.status))
     np.testing.assert_allclose(np.asarray(state.intruder_x), np.asarray(par.env_state.intruder_x), rtol=1e-6,
@@ -287,7 +288,7 @@ def test_packed_step_output_is_the_unpacked_one_bit_for_bit(par):
     n = par.params.n_vehicles
     acts = jnp.asarray(np.random.default_rng(1).uniform(-1, 1, (n + 1, 2)), jnp.float32)
     key, state = par._key, par._state
-    _, _, direct = jax.jit(stp_module._advance)(key, state, acts, par.params)
+    _, _, direct = sim_jit(stp_module._advance)(key, state, acts, par.params)
     _, _, words = stp_module._advance_jit(key, state, acts, par.params)
     layout = stp_module.Layout.of(jax.eval_shape(stp_module._advance, key, state, acts, par.params)[2])
     unpacked = layout.unpack(np.asarray(words))

@@ -18,6 +18,7 @@ from stp_env.env import parallel_env
 from stp_env.evaluation.config import resolve_intruder
 from stp_env.sim import winds
 from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN
+from stp_env.sim.jit import sim_jit
 from stp_env.sim.physics import dubins_step
 from stp_env.sim.vehicle_models import Dubins, VehicleModel
 from stp_env.sim.winds.base import WindModel
@@ -93,7 +94,7 @@ def test_an_intruder_module_is_found_by_its_import_spec():
     params = sim.params_for(SCENARIO, sim.EnvConfig(appear_window=(5.0, 5.0)), progress=False)
     key = jax.random.key(0)
 
-    @jax.jit
+    @sim_jit
     def run(state):
         def body(s, k):
             a = jnp.concatenate([s.track_action, policy(key, s, params)[None]])
@@ -214,7 +215,7 @@ def test_a_second_vehicle_model_runs_in_the_environment():
     params = env.params
     key = jax.random.key(0)
 
-    @jax.jit
+    @sim_jit
     def run(state):
         def body(s, k):
             a = jnp.concatenate([s.track_action, jnp.zeros((1, 2))])

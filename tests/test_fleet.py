@@ -16,6 +16,7 @@ from stp_env.baselines.intruders import _simulated_rows
 from stp_env.evaluation import Configuration, build_params
 from stp_env.evaluation.runner import host_state, run_batch, same_outcome, simulated_vehicles
 from stp_env.sim import fleet
+from stp_env.sim.jit import sim_jit
 from stp_env.sim.types import VEHICLE_FIELDS, WAITING
 from stp_env.sim.winds.base import uniform_in_disks
 
@@ -221,7 +222,7 @@ def test_the_kbar_attack_on_the_airborne_vehicles_scores_as_on_the_whole_fleet(c
     values = {}
     for which in ("whole", "airborne"):
         attack = KbarAttack(base=params, intruder="max-k", fleet=which)
-        values[which] = np.asarray(jax.jit(jax.vmap(attack.objective))(z))
+        values[which] = np.asarray(sim_jit(jax.vmap(attack.objective))(z))
     assert attack.params.n_vehicles < params.n_vehicles
     np.testing.assert_array_equal(np.floor(values["whole"]), np.floor(values["airborne"]))
     assert np.mean(values["whole"] >= 1) >= 0.5                            # the attacks force vehicles

@@ -17,6 +17,7 @@ from stp_env.baselines import INTRUDERS, mixture, mixture_index, nominal_trackin
 from stp_env.planning.stp import shipped_plan_for
 from stp_env.scenarios import make
 from stp_env.sim import fleet
+from stp_env.sim.jit import sim_jit
 from stp_env.sim.physics import dubins_step
 
 N_EPISODES = 500  # per intruder type (3,500 in all)
@@ -47,7 +48,7 @@ def test_dubins_step_is_exact():
                                                            2 + (v * np.sin(0.3) - 0.2) * dt], rtol=1e-6)
 
 
-@jax.jit
+@sim_jit
 def _late_plan_run(key, params, step_keys):
     """Reset, then idle vehicles and the scripted intruder for ``len(step_keys)`` steps (one compiled program for
     every plan time: the times are arguments, not constants)."""
