@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import warnings
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from stp_env import hj
 from stp_env.dynamics import DubinsWind
-from stp_env.planning.single import InfeasiblePlanError, TubeExcursionWarning, plan_single
+from stp_env.planning.single import InfeasiblePlanError, TubeExcursionWarning, departure_in_tube, plan_single
 from stp_env.planning.stp import plan_rtt
 
 VEHICLE = DubinsWind(v_min=0.0, v_max=1.0, omega_max=1.0, wind=0.1)
@@ -227,6 +229,64 @@ def test_a_trajectory_that_leaves_the_tube_is_reported():
     with pytest.warns(TubeExcursionWarning, match="leaves the reach-avoid tube"):
         plan_single(GRID, AGILE, (-1.0, 0.0, 0.0), (1.0, 0.0), 0.2, sta=0.0, horizon=20.0, depart_at=-15.0,
                     obstacle_fn=cover, obstacle_params={"xs": axis, "ys": axis})
+
+
+def test_departure_in_tube_keeps_a_consistent_time_and_falls_back_to_a_slice_inside():
+    ts, tol = np.array([-3.0, -2.0, -1.0, 0.0]), 0.1
+    # The start's value at t_ldt (linear between slices) is within the tolerance: t_ldt stands.
+    assert departure_in_tube(ts, np.array([-1.0, -0.5, 0.0, 1.0]), -1.05, tol) == -1.05
+    assert departure_in_tube(ts, np.array([-1.0, -0.5, 0.05, 1.0]), -1.0, tol) == -1.0
+    # Outside by more than the tolerance: the latest slice at or before t_ldt with the start inside.
+    assert departure_in_tube(ts, np.array([-1.0, 0.5, 0.5, -1.0]), -1.5, tol) == -3.0
+    assert departure_in_tube(ts, np.array([-1.0, -0.2, 0.5, -1.0]), -1.0, tol) == -2.0
+    # None inside before it: -inf (plan_single then reports the vehicle infeasible).
+    assert departure_in_tube(ts, np.array([0.5, 0.5, 0.5, -1.0]), -1.5, tol) == -np.inf
+    assert departure_in_tube(ts, np.zeros(4), -np.inf, tol) == -np.inf
+    with pytest.raises(ValueError, match="ascending"):
+        departure_in_tube(ts[::-1], np.zeros(4), -1.0, tol)
+    with pytest.raises(ValueError, match="one value per slice"):
+        departure_in_tube(ts, np.zeros(3), -1.0, tol)
+    with pytest.raises(ValueError, match="tolerance"):
+        departure_in_tube(ts, np.zeros(4), -1.0, np.nan)
+
+
+def _shared_origin_departure(solver, monkeypatch=None):
+    """A vehicle whose start a higher-priority vehicle leaves at t0 = -3.75 s (its disk, radius 0.4, moving off the
+    start at 0.6 m/s), planned for an STA at 0: its clearance from that disk over its flight, and its plan."""
+    from stp_env.planning import single
+    from stp_env.planning.obstacles import planning_obstacles
+
+    start, t0, rho = np.array([-1.025, 0.025, 0.08]), -3.75, 0.4
+    ts = t0 + 0.05 * np.arange(200)
+    xs = np.stack([np.full_like(ts, start[0]), start[1] + 0.6 * (ts - t0)], -1)
+    obstacles = planning_obstacles(GRID, [(ts, xs, t0, ts[-1])], [0.0], [rho], None, n_slots=1, n_samples=len(ts))
+    if monkeypatch is not None:  # the departure taken from the interpolated time-to-reach alone
+        monkeypatch.setattr(single, "departure_in_tube", lambda times, values, t_ldt, tolerance: t_ldt)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", TubeExcursionWarning)
+        plan = plan_single(GRID, PLANNER, start, (1.0, 0.0), 0.2, sta=0.0, horizon=8.0, slice_dt=0.25,
+                           solver=solver, **obstacles)
+    t, x = plan.flight()
+    present = t >= t0
+    gap = np.hypot(x[present, 0] - np.interp(t[present], ts, xs[:, 0]),
+                   x[present, 1] - np.interp(t[present], ts, xs[:, 1])) - rho
+    return float(gap.min()), plan
+
+
+@pytest.mark.parametrize("solver", ["split", "hj"])
+def test_a_start_that_another_vehicle_has_just_left_departs_outside_its_disk(solver, monkeypatch):
+    # The nodes around the start enter the tube (first entry, going backward) on either side of the disk's stay
+    # on the start: their interpolated time-to-reach is a time at which the start is inside the disk (measured on
+    # the bay area: a vehicle departing 0.03 s after another from the same city, 170 m inside its disk). The
+    # departure is checked against the tube's slices and moved to the latest slice with the start inside.
+    gap, plan = _shared_origin_departure(solver)
+    assert gap >= -0.5 * GRID.spacing[0]
+    assert plan.arrival_time <= 0.0
+    assert plan.t_ldt == pytest.approx(-4.5, abs=1e-6)  # a slice (0.25 s apart) before the disk appears at -3.75 s
+    # The mutant, departing at the interpolated time-to-reach, starts inside the disk by more than three cells.
+    bad, plan = _shared_origin_departure(solver, monkeypatch)
+    assert bad < -3 * GRID.spacing[0]
+    assert plan.t_ldt > -4.5
 
 
 def test_folded_lag_disks_are_a_superset_of_the_lag_profiles():

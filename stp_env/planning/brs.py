@@ -155,13 +155,18 @@ def _solve(target, x0, times, stop_time, obstacle_params, flag, *, settings, dyn
     ttr = jnp.where(values <= 0, 0.0, jnp.inf).astype(target.dtype)
     stack = jnp.broadcast_to(values, (n, *values.shape))
 
-    def reached(ttr, k):
+    def reached(values, ttr, k):
+        # Every node around x0 has entered the tube, and x0 is inside it at this slice: where obstacles sweep over
+        # the start (a shared origin), a node's first entry can lie later than another's, and the time-to-reach
+        # interpolated between them is then a time at which x0 is in none of the slices' tubes (see
+        # :func:`stp_env.planning.single.departure_in_tube`); the solve goes on until a slice has x0 inside.
         at = hj.interpolation.time_to_reach_at(grid, ttr, x0)
-        return jnp.isfinite(at) & (times[k] <= stop_time)
+        inside = hj.interpolation.interpolate(grid, values, x0) <= 0
+        return jnp.isfinite(at) & inside & (times[k] <= stop_time)
 
     def cond(carry):
-        k, _, ttr, _, _ = carry
-        return (k < n - 1) & ~reached(ttr, k)
+        k, values, ttr, _, _ = carry
+        return (k < n - 1) & ~reached(values, ttr, k)
 
     def body(carry):
         k, values, ttr, stack, steps = carry
@@ -192,7 +197,8 @@ def solve_until_departure(settings: hj.SolverSettings, dynamics: DubinsWind, gri
                           obstacle_fn=None, obstacle_params=None, depart_at: float | None = None):
     """The planning tube (reach ``{target <= 0}``, avoid ``{obstacle_fn(t) <= 0}``, tube mode
     ``"min_with_target"``) over the decreasing, evenly spaced slice ``times``, heading-split, stopped at the first
-    slice by which ``x0`` has entered the tube (and which is no later than ``depart_at``).
+    slice by which every node around ``x0`` has entered the tube and at which ``x0`` lies inside it (and which is
+    no later than ``depart_at``).
 
     ``obstacle_fn`` is a position-plane ``(t, params) -> g`` of shape ``grid.shape[:2]``, broadcast over the heading.
     Returns ``(time_to_reach, n_solved, n_steps, stack)``: the time-to-reach measured from ``times[0]``, how many

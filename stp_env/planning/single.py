@@ -235,6 +235,17 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
             f"start {tuple(np.round(start, 3))} cannot reach the target {tuple(target_center)} (radius "
             f"{target_radius}) by t_STA = {sta} s within a {horizon} s horizon; increase the horizon or move the "
             "STA later.")
+    tolerance = TUBE_TOLERANCE_CELLS * float(min(grid.spacing[:2]))
+    if depart_at is None:  # the start must lie in the tube at its departure (see departure_in_tube)
+        solved_stack = res.values if stack_all is not None else res.values[::-1]  # ascending time
+        at_start = np.asarray(_values_along(solved_stack, x0, grid=grid), np.float64)
+        checked = departure_in_tube(np.asarray(times[::-1], np.float64), at_start, t_ldt, tolerance)
+        if not math.isfinite(checked):
+            raise InfeasiblePlanError(
+                f"start {tuple(np.round(start, 3))}: the time-to-reach gives a departure at {t_ldt:.3f} s, but the "
+                f"start lies outside the tube there (value {float(np.interp(t_ldt, times[::-1], at_start)):.3g}) and "
+                "in no slice before it; increase the horizon or move the STA later.")
+        t_ldt = checked
     t_start = t_ldt
     if depart_at is not None:
         if depart_at > t_ldt + 1e-6:
@@ -255,7 +266,6 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
     n_steps = max(1, math.ceil(1.1 * (sta - t_start) / time_step) + 1)
     n_scan = max(n_steps, math.ceil(1.1 * horizon / time_step) + 1)
     sample_times = t_start + time_step * np.arange(n_steps)
-    tolerance = TUBE_TOLERANCE_CELLS * float(min(grid.spacing[:2]))
     best = None
     for extraction in EXTRACTIONS:
         xs, us, vs = _rollout(jax.random.key(seed), jnp.asarray(start, jnp.float32), jnp.float32(t_start),
@@ -284,6 +294,53 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
     plan = SinglePlan(t_ldt=t_start, sta=float(sta), times=sample_times, states=xs, controls=us,
                       arrival_time=arrival, n_steps=res.n_steps)
     return plan, times[::-1].copy(), stack
+
+
+@functools.partial(jax.jit, static_argnames=("grid",))
+def _value_at(values, x, *, grid):
+    """:func:`hj.interpolation.interpolate`, compiled."""
+    return hj.interpolation.interpolate(grid, values, x)
+
+
+@functools.partial(jax.jit, static_argnames=("grid",))
+def _values_along(stack, x, *, grid):
+    """The values of every slice of ``stack`` at ``x``."""
+    return jax.vmap(lambda v: hj.interpolation.interpolate(grid, v, x))(stack)
+
+
+def departure_in_tube(slice_times, values_at_start, t_ldt: float, tolerance: float) -> float:
+    """The latest departure ``t_LDT`` (SPP Section IV, intruder paper Section III-B: the latest time at which the
+    start lies in the tube), checked against the tube's slices: ``t_ldt`` itself when the start's value there
+    (linear between the slices ``slice_times``, ascending, with the start's values ``values_at_start``) is at most
+    ``tolerance``; otherwise the latest slice time before ``t_ldt`` at which the start is inside (value ``<= 0``).
+
+    ``t_ldt`` comes from the time-to-reach interpolated between the grid nodes around the start, each the node's
+    *first* entry into the tube going backward. Where no obstacle sweeps over the start, a node stays inside once
+    it has entered, and the interpolated time is one at which the start is inside too. Where one does (the
+    origin that higher-priority vehicles have just left, whose disks move off it), the nodes around the start can
+    enter at times tens of seconds apart, with the disk over the start in between: measured on the bay area,
+    vehicle 68 (priority 111, departing a city 111 others share) got -582.2 s from the time-to-reach, where the
+    start's value is +92 to +115 m for 85 s on either side; the slice at -639.0 s, value -63.8 m, is the latest
+    at which it is inside. Departing at the interpolated time, the vehicle started 170 m inside the disk of a
+    vehicle that had left 0.03 s before it.
+
+    Returns ``t_ldt`` or the earlier slice time; ``-inf`` when no slice before ``t_ldt`` has the start inside."""
+    ts = np.asarray(slice_times, np.float64)
+    vs = np.asarray(values_at_start, np.float64)
+    if ts.shape != vs.shape or ts.ndim != 1 or ts.size < 1 or np.any(np.diff(ts) <= 0):
+        raise ValueError("departure_in_tube needs ascending slice times and one value per slice.")
+    if not (math.isfinite(tolerance) and tolerance >= 0):
+        raise ValueError(f"tolerance must be a finite number >= 0; got {tolerance}.")
+    if not math.isfinite(t_ldt):
+        return t_ldt
+    if ts.size == 1:
+        at = float(vs[0])
+    else:
+        at = float(np.interp(t_ldt, ts, vs))
+    if at <= tolerance:
+        return float(t_ldt)
+    inside = np.flatnonzero((ts <= t_ldt) & (vs <= 0))
+    return float(ts[inside[-1]]) if inside.size else -math.inf
 
 
 @functools.partial(jax.jit, static_argnames=("grid",))
@@ -318,6 +375,8 @@ def _solve_until_departure(settings, dynamics, grid, times, target, x0, obstacle
         stacks.append(seg.values if lo == 0 else seg.values[1:])
         n_steps, dt, lo = n_steps + seg.n_steps, seg.dt, hi
         reached = bool(jnp.isfinite(_time_to_reach_at(ttr, x0, grid=grid)))
+        # ... and x0 inside the tube at the segment's end (see :func:`departure_in_tube`).
+        reached = reached and float(_value_at(stacks[-1][-1], x0, grid=grid)) <= 0
         if reached and (depart_at is None or times[hi] <= depart_at):
             break
     solved = times[:lo + 1]
