@@ -289,6 +289,27 @@ def test_a_start_that_another_vehicle_has_just_left_departs_outside_its_disk(sol
     assert plan.t_ldt > -4.5
 
 
+@pytest.mark.parametrize("solver", ["split", "hj"])
+def test_the_backward_solve_stops_only_at_a_slice_with_the_start_inside(solver):
+    # A disk sits on the start over [-3.6, -3.1] s; unobstructed, the start enters the tube at -3.0 s, between
+    # the slices at -2.67 and -3.33 s, and the slice at -3.33 s has the disk on it. A solve stopped at the first
+    # slice where the time-to-reach is finite has no slice with the start inside at or before -3.0 s (measured:
+    # the plan was then infeasible). Solving on, the slice at -4.0 s has it. The departure check is conservative
+    # here: -3.0 s was free (the disk had gone), but the slices, 0.67 s apart, cannot show it.
+    def cover(t, p):
+        d = jnp.hypot(p["xs"][:, None] + 1.0, p["ys"][None, :]) - 0.2
+        return jnp.where((t >= -3.6) & (t <= -3.1), d, jnp.inf)
+
+    axis = jnp.linspace(-1.5, 1.5, 61)
+    plan = plan_single(GRID, PLANNER, (-1.0, 0.0, 0.0), (1.0, 0.0), 0.2, sta=0.0, horizon=8.0, slice_dt=0.7,
+                       solver=solver, obstacle_fn=cover, obstacle_params={"xs": axis, "ys": axis})
+    assert plan.t_ldt == pytest.approx(-4.0)
+    assert plan.arrival_time <= 0.0
+    t, x = plan.flight()
+    on = (t >= -3.6) & (t <= -3.1)
+    assert np.hypot(x[on, 0] + 1.0, x[on, 1]).min() >= 0.2
+
+
 def test_folded_lag_disks_are_a_superset_of_the_lag_profiles():
     # fold_contained_disks drops the lag disks inside the lag-0 disk and widens the flight window instead: the
     # obstacle g (sub-zero set) must contain the original union at every time, before, during and after the flight.

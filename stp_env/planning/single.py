@@ -182,8 +182,9 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
         depart_at: start the trajectory at this time instead of ``t_LDT`` (a vehicle already in the air, as after
             replanning); it must not be later than ``t_LDT``.
         early_stop: stop the backward solve at the first stored slice by which the start state has entered the
-            tube (and, with ``depart_at``, that is no later than it): ``t_LDT`` is then known (the time-to-reach of
-            a node never changes once finite) and the slices from there to the STA are all the trajectory needs.
+            tube and at which it lies inside (and, with ``depart_at``, that is no later than it): ``t_LDT`` is then
+            known (the time-to-reach of a node never changes once finite; :func:`departure_in_tube` checks it
+            against the slices) and the slices from there to the STA are all the trajectory needs.
             ``False`` solves the whole horizon (same values, same ``t_LDT``; only for comparisons).
         solver: ``"hj"`` (:func:`stp_env.hj.solve`, all axes together, early stop checked in segments) or
             ``"split"`` (:mod:`stp_env.planning.brs`: the heading split, one compiled loop that stops on the
@@ -356,8 +357,8 @@ EARLY_STOP_SEGMENTS = 20
 def _solve_until_departure(settings, dynamics, grid, times, target, x0, obstacle_fn, obstacle_params, depart_at,
                            progress):
     """The tube of :func:`hj.solve` over the decreasing slice ``times``, in segments of consecutive slices, stopped
-    after the first segment at whose end the start ``x0`` has a finite time-to-reach (and the solve has passed
-    ``depart_at``, if given). Each segment continues from the previous one's last values (the solver re-applies
+    after the first segment at whose end the start ``x0`` has a finite time-to-reach and lies inside the tube (and
+    the solve has passed ``depart_at``, if given). Each segment continues from the previous one's last values (the solver re-applies
     the obstacle at a segment's first time: idempotent, ``max(V, -g)`` already holds), so the values are those of a
     single solve; the time-to-reach of a segment is shifted by its start's elapsed time and kept where earlier
     segments had set it (a node's time-to-reach is its *first* entry). Returns ``(result, times_solved)``."""
