@@ -113,18 +113,18 @@ def test_plan_mismatch_names_kbar_stas_and_vehicle_count():
     assert "tracking-error bound" in plan_mismatch(tiny, make("tiny-intruder"), tiny.tracking_bound + 1.0)
 
 
-CITY = [s for s in SHIPPED if s[1] in ("city", "city-intruder")]
+STUDIES = [s for s in SHIPPED if s[1] in ("city", "city-intruder", "bay-area")]
 
 
-@pytest.mark.parametrize("file,name,overrides", CITY, ids=[s[0] for s in CITY])
-def test_the_shipped_city_plans_hold_the_planners_constraints(file, name, overrides):
+@pytest.mark.parametrize("file,name,overrides", STUDIES, ids=[s[0] for s in STUDIES])
+def test_the_shipped_city_and_bay_area_plans_hold_the_planners_constraints(file, name, overrides):
     from stp_env.sim.build import _shipped_plan, plan_mismatch
 
     scenario = make(name, **overrides)
     plan = _shipped_plan(scenario)  # what params_for(scenario) and parallel_env(scenario=...) load
-    assert plan is not None and len(plan.vehicles) == 50
+    assert plan is not None and len(plan.vehicles) == scenario.n_vehicles  # 50 in the city, 200 in the bay area
     assert plan_mismatch(plan, scenario, plan.tracking_bound) is None
-    if not overrides:
+    if name == "city" and not overrides:
         assert plan.tracking_bound == pytest.approx(R_E)  # Case 0: the default bound
     lateness = np.asarray([v.plan.arrival_time - v.plan.sta for v in plan.vehicles])
     assert np.all(np.isfinite(lateness)) and lateness.max() <= 0.0  # every vehicle arrives, by its STA
