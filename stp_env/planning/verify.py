@@ -65,22 +65,32 @@ def flight_clearance(times, states, windows, lags, radii) -> tuple[float, int, f
     return best, *where
 
 
-def obstacle_margin(plan: Plan, disks: ObstacleDisks) -> tuple[float, tuple[int, int, float]]:
-    """The smallest signed clearance [m] of any vehicle's sampled nominal flight from the disks of every
-    higher-priority vehicle, and where it occurs ``(lower-priority index, higher-priority index, time)``; ``inf``
-    when no pair is ever present together. A negative margin means the plan breaks the planner's constraint.
+def vehicle_clearances(plan: Plan, disks: ObstacleDisks) -> list[tuple[int, float, int, float]]:
+    """Each vehicle's smallest signed clearance [m] from the disks of every higher-priority vehicle, in priority
+    order: ``(vehicle index, clearance, index of the vehicle whose disk it is, time)``; ``(index, inf, -1, nan)``
+    for a vehicle that never flies while a higher-priority disk is present (the first always).
 
     Positions between samples of the higher-priority vehicle are interpolated linearly, as the planner's obstacle
     function does; the check runs at the lower-priority vehicle's samples (:func:`flight_clearance`)."""
     by_priority = sorted(plan.vehicles, key=lambda v: v.priority)
     pads = (disks.pad_before, disks.pad_after)
-    best, where = math.inf, (-1, -1, math.nan)
+    windows = [obstacle_window(v.plan, pads) for v in by_priority]
+    out = []
     for rank, low in enumerate(by_priority):
-        higher = by_priority[:rank]
-        gap, j, t = flight_clearance(*low.plan.flight(), [obstacle_window(h.plan, pads) for h in higher],
-                                     disks.lags, disks.radii)
+        gap, j, t = flight_clearance(*low.plan.flight(), windows[:rank], disks.lags, disks.radii)
+        out.append((low.index, gap, by_priority[j].index if j >= 0 else -1, t))
+    return out
+
+
+def obstacle_margin(plan: Plan, disks: ObstacleDisks) -> tuple[float, tuple[int, int, float]]:
+    """The smallest signed clearance [m] of any vehicle's sampled nominal flight from the disks of every
+    higher-priority vehicle, and where it occurs ``(lower-priority index, higher-priority index, time)``; ``inf``
+    when no pair is ever present together. A negative margin means the plan breaks the planner's constraint
+    (:func:`vehicle_clearances` gives every vehicle's)."""
+    best, where = math.inf, (-1, -1, math.nan)
+    for low, gap, high, t in vehicle_clearances(plan, disks):
         if gap < best:
-            best, where = gap, (low.index, higher[j].index, t)
+            best, where = gap, (low, high, t)
     return best, where
 
 
