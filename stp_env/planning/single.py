@@ -358,10 +358,11 @@ def _solve_until_departure(settings, dynamics, grid, times, target, x0, obstacle
                            progress):
     """The tube of :func:`hj.solve` over the decreasing slice ``times``, in segments of consecutive slices, stopped
     after the first segment at whose end the start ``x0`` has a finite time-to-reach and lies inside the tube (and
-    the solve has passed ``depart_at``, if given). Each segment continues from the previous one's last values (the solver re-applies
-    the obstacle at a segment's first time: idempotent, ``max(V, -g)`` already holds), so the values are those of a
-    single solve; the time-to-reach of a segment is shifted by its start's elapsed time and kept where earlier
-    segments had set it (a node's time-to-reach is its *first* entry). Returns ``(result, times_solved)``."""
+    the solve has passed ``depart_at``, if given). Each segment continues from the previous one's last values (the
+    solver re-applies the obstacle at a segment's first time: idempotent, ``max(V, -g)`` already holds), so the
+    values are those of a single solve; the time-to-reach of a segment is shifted by its start's elapsed time and
+    kept where earlier segments had set it (a node's time-to-reach is its *first* entry). Returns ``(result,
+    times_solved)``."""
     n = len(times)
     per = max(1, math.ceil((n - 1) / EARLY_STOP_SEGMENTS))
     stacks, ttr, n_steps, dt, lo = [], None, 0, 0.0, 0
