@@ -238,8 +238,10 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
             "STA later.")
     tolerance = TUBE_TOLERANCE_CELLS * float(min(grid.spacing[:2]))
     if depart_at is None:  # the start must lie in the tube at its departure (see departure_in_tube)
-        solved_stack = res.values if stack_all is not None else res.values[::-1]  # ascending time
-        at_start = np.asarray(_values_along(solved_stack, x0, grid=grid), np.float64)
+        if stack_all is not None:  # the whole horizon's buffer (one shape: one compiled read), its solved end
+            at_start = np.asarray(_values_along(stack_all, x0, grid=grid), np.float64)[-len(times):]
+        else:
+            at_start = np.asarray(_values_along(res.values[::-1], x0, grid=grid), np.float64)  # ascending time
         checked = departure_in_tube(np.asarray(times[::-1], np.float64), at_start, t_ldt, tolerance)
         if not math.isfinite(checked):
             raise InfeasiblePlanError(
