@@ -336,11 +336,7 @@ def departure_in_tube(slice_times, values_at_start, t_ldt: float, tolerance: flo
         raise ValueError(f"tolerance must be a finite number >= 0; got {tolerance}.")
     if not math.isfinite(t_ldt):
         return t_ldt
-    if ts.size == 1:
-        at = float(vs[0])
-    else:
-        at = float(np.interp(t_ldt, ts, vs))
-    if at <= tolerance:
+    if float(np.interp(t_ldt, ts, vs)) <= tolerance:
         return float(t_ldt)
     inside = np.flatnonzero((ts <= t_ldt) & (vs <= 0))
     return float(ts[inside[-1]]) if inside.size else -math.inf
