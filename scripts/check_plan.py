@@ -1,11 +1,13 @@
 """Checks a plan against the constraints the sequential planner imposes, from its nominal trajectories alone: a
 shipped plan, a plan file, or the planned prefix of a planning checkpoint (a long run in progress).
 
-For every vehicle, its clearance from the disks of every higher-priority vehicle (exact, at its samples:
+For every vehicle, that its samples are a flight of the planning dynamics from its start with its recorded arrival
+(``stp_env.planning.verify.trajectory_faults``: without it the checks below would read non-finite or truncated
+flights and pass vacuously); its clearance from the disks of every higher-priority vehicle (exact, at its samples:
 ``stp_env.planning.verify.vehicle_clearances``); the plan's fit to its scenario (vehicles, STAs, bound); each
 vehicle's arrival against its STA; the tracking bubble's distance from the domain's edge. Prints one JSON line and
-exits with status 1 if a vehicle comes deeper than half a planning cell into a disk (the tolerance the shipped plans
-are tested to), arrives late or never, or its bubble leaves the domain.
+exits with status 1 if a vehicle's trajectory is faulty, comes deeper than half a planning cell into a disk (the
+tolerance the shipped plans are tested to), arrives late or never, or its bubble leaves the domain.
 
     python scripts/check_plan.py city                                 # a shipped plan (a name of SHIPPED_PLANS)
     python scripts/check_plan.py my-plan.npz --scenario bay-area      # a plan file of a registered scenario
@@ -24,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from stp_env.planning.plan import Plan, VehiclePlan, plan_from_arrays
-from stp_env.planning.verify import domain_margin, planner_disks, vehicle_clearances
+from stp_env.planning.verify import domain_margin, planner_disks, trajectory_faults, vehicle_clearances
 from stp_env.scenarios import make
 from stp_env.sim.build import SHIPPED_PLANS, plan_mismatch
 
@@ -78,6 +80,7 @@ def read(source: str, scenario_name: str | None, tracking_bound: float | None):
 def check(plan: Plan, scenario, kind: str) -> dict:
     """The checks of the module docstring, as a dict (``ok``: all of them pass)."""
     half_cell = 0.5 * float(max(scenario.grid().spacing[:2]))
+    faults = trajectory_faults(plan, scenario)
     disks = planner_disks(scenario, plan.tracking_bound, progress=False)
     clearances = vehicle_clearances(plan, disks)
     priority = {v.index: v.priority for v in plan.vehicles}
@@ -90,7 +93,9 @@ def check(plan: Plan, scenario, kind: str) -> dict:
     late = int(np.sum(~(lateness <= 0.0)))  # a vehicle that never arrives is late (inf)
     return {
         "vehicles": len(plan.vehicles), "of": scenario.n_vehicles, "tracking_bound": plan.tracking_bound,
-        "mismatch": mismatch, "half_cell": round(half_cell, 3),
+        "mismatch": mismatch, "trajectory_faults": len(faults),
+        "faulty": [{"vehicle": i, "why": why} for i, why in sorted(faults.items())[:SHOW]],
+        "half_cell": round(half_cell, 3),
         "worst_clearance": None if worst is None else round(worst[1], 2),
         "worst_at": None if worst is None else {"vehicle": worst[0], "priority": priority[worst[0]],
                                                 "disk_of": worst[2], "time": round(worst[3], 2)},
@@ -99,7 +104,7 @@ def check(plan: Plan, scenario, kind: str) -> dict:
                      "time": round(c[3], 2)} for c in deep[:SHOW]],
         "late": late, "earliest_by": round(float(-lateness.max()), 2) if lateness.size else None,
         "domain_margin": round(margin, 2), "domain_vehicle": where[0],
-        "ok": not deep and late == 0 and margin >= plan.tracking_bound and mismatch is None,
+        "ok": not faults and not deep and late == 0 and margin >= plan.tracking_bound and mismatch is None,
     }
 
 

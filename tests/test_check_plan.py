@@ -1,5 +1,8 @@
 """``scripts/check_plan.py``: the plan checker passes a shipped plan, fails one whose vehicle flies into another's
-disk (naming it), reads a planning checkpoint's prefix, and refuses what it cannot check with a clear message."""
+disk (naming it), fails plans that the disk check alone would pass vacuously (non-finite samples, an arrival
+recorded early, a jump between samples, a control outside ``U^p``, a moved start), reads a planning checkpoint's
+prefix, and refuses what it cannot check with a clear message. Also ``reconcile_controls`` and
+``scripts/reconcile_controls.py``, which repair a stored control that does not carry its sample to the next."""
 
 from __future__ import annotations
 
@@ -13,20 +16,30 @@ import numpy as np
 import pytest
 
 from stp_env.planning import checkpoint
-from stp_env.planning.plan import plan_to_arrays
+from stp_env.planning.plan import plan_from_arrays, plan_to_arrays
 from stp_env.planning.stp import shipped_plan
-from stp_env.planning.verify import obstacle_margin, planner_disks, vehicle_clearances
+from stp_env.planning.verify import (
+    obstacle_margin,
+    planner_disks,
+    reconcile_controls,
+    trajectory_faults,
+    vehicle_clearances,
+)
 from stp_env.scenarios import make
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "check_plan.py"
+SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+
+
+def _script(name):
+    spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 @pytest.fixture(scope="module")
 def check_plan():
-    spec = importlib.util.spec_from_file_location("check_plan", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return _script("check_plan")
 
 
 def _run(module, argv, capsys):
@@ -94,3 +107,112 @@ def test_what_cannot_be_checked_is_refused(check_plan, tmp_path):
         check_plan.main([str(path), "--scenario", "tiny"])
     with pytest.raises(SystemExit, match="shipped for scenario 'tiny'"):
         check_plan.main(["tiny", "--scenario", "town"])
+
+
+def _with_vehicle(plan, index, **changes):
+    """``plan`` with vehicle ``index``'s :class:`SinglePlan` fields replaced."""
+    vehicles = tuple(dataclasses.replace(v, plan=dataclasses.replace(v.plan, **changes)) if v.index == index else v
+                     for v in plan.vehicles)
+    return dataclasses.replace(plan, vehicles=vehicles)
+
+
+def _mutants(plan):
+    """Plans of ``tiny`` broken in ways the disk, arrival and domain checks do not see, by name."""
+    low = max(plan.vehicles, key=lambda v: v.priority).plan
+    k = len(low.flight()[0]) // 2
+    nan_states = low.states.copy()
+    nan_states[k:] = np.nan
+    jump = low.states.copy()
+    jump[k:, 1] += 30.0  # a sideways jump of 30 m half way, then the same flight
+    fast = low.controls.copy()
+    fast[k, 0] = 20.0
+    moved = low.states.copy()
+    moved[0, 0] -= 5.0
+    index = max(plan.vehicles, key=lambda v: v.priority).index
+    return {
+        "non-finite samples": _with_vehicle(plan, index, states=nan_states),
+        "arrival recorded at the departure": _with_vehicle(plan, index, arrival_time=low.t_ldt),
+        "a jump between samples": _with_vehicle(plan, index, states=jump),
+        "a control outside U^p": _with_vehicle(plan, index, controls=fast),
+        "a moved start": _with_vehicle(plan, index, states=moved),
+    }
+
+
+MUTANTS = ["non-finite samples", "arrival recorded at the departure", "a jump between samples",
+           "a control outside U^p", "a moved start"]
+
+
+@pytest.mark.parametrize("mutant", MUTANTS)
+def test_a_plan_the_disk_check_would_pass_vacuously_fails(check_plan, mutant):
+    scenario = make("tiny")
+    plan = _mutants(shipped_plan("tiny"))[mutant]
+    faults = trajectory_faults(plan, scenario)
+    index = max(plan.vehicles, key=lambda v: v.priority).index
+    assert list(faults) == [index] and faults[index]
+    out = check_plan.check(plan, scenario, "file")
+    assert not out["ok"] and out["trajectory_faults"] == 1 and out["faulty"][0]["vehicle"] == index
+    # Without the trajectory check every other criterion passes: the mutant would have been accepted.
+    assert out["deeper_than_half_cell"] == 0 and out["late"] == 0 and out["mismatch"] is None
+    assert out["domain_margin"] >= plan.tracking_bound
+
+
+def test_every_shipped_plan_is_a_flight_of_the_planning_dynamics():
+    from stp_env.sim.build import SHIPPED_PLANS
+
+    checked = 0
+    for file, (name, overrides) in SHIPPED_PLANS.items():
+        try:
+            plan = shipped_plan(file)
+        except ValueError:
+            continue  # listed, not shipped
+        assert trajectory_faults(plan, make(name, **overrides)) == {}, file
+        checked += 1
+    assert checked >= 14
+
+
+def test_reconcile_controls_recovers_the_applied_control_and_refuses_a_jump():
+    scenario, plan = make("tiny"), shipped_plan("tiny")
+    single = next(v.plan for v in plan.vehicles if len(np.unique(v.plan.controls[:, 0])) == 2)
+    runs = np.nonzero((single.controls[1:-1, 0] == single.controls[:-2, 0])
+                      & (single.controls[1:-1, 0] == single.controls[2:, 0]))[0] + 1
+    k = int(runs[len(runs) // 2])  # inside a run of one speed: the speed stored there is not the one applied
+    wrong = single.controls.copy()
+    wrong[k, 0] = sum(scenario.planning_v) - wrong[k, 0]
+    broken = dataclasses.replace(single, controls=wrong)
+    args = (scenario.time_step, scenario.planning_v, scenario.planning_omega_max)
+    fixed, samples = reconcile_controls(broken, *args)
+    assert samples == [k]
+    assert np.array_equal(fixed.controls, single.controls)  # the neighbour's control, bit for bit
+    assert np.array_equal(fixed.states, single.states) and fixed.arrival_time == single.arrival_time
+    assert reconcile_controls(single, *args) == (single, [])  # nothing to do: the same object
+    jump = single.states.copy()
+    jump[k + 1:, 0] += 30.0
+    with pytest.raises(ValueError, match=f"sample {k} .*not one of the planning dynamics"):
+        reconcile_controls(dataclasses.replace(single, states=jump), *args)
+
+
+def test_reconcile_script_rewrites_only_the_broken_control(tmp_path, capsys):
+    reconcile = _script("reconcile_controls")
+    scenario, plan = make("tiny"), shipped_plan("tiny")
+    index, single = next((v.index, v.plan) for v in plan.vehicles if len(np.unique(v.plan.controls[:, 0])) == 2)
+    k = int(np.nonzero(single.controls[1:-1, 0] == single.controls[:-2, 0])[0][0]) + 1
+    wrong = single.controls.copy()
+    wrong[k, 0] = sum(scenario.planning_v) - wrong[k, 0]
+    path = tmp_path / "tiny.npz"
+    arrays = plan_to_arrays(_with_vehicle(plan, index, controls=wrong))
+    arrays["extra"] = np.arange(3)  # arrays the script does not know are kept
+    np.savez(path, **arrays)
+    before = path.read_bytes()
+    assert reconcile.main([str(path), "--check"]) == 1 and path.read_bytes() == before  # --check writes nothing
+    assert reconcile.main([str(path)]) == 0
+    capsys.readouterr()
+    with np.load(path, allow_pickle=False) as data:
+        after = {key: data[key] for key in data.files}
+    assert np.array_equal(after["extra"], np.arange(3))
+    expected = plan_to_arrays(plan)
+    for key in expected:
+        assert np.array_equal(after[key], expected[key], equal_nan=True), key
+    assert trajectory_faults(plan_from_arrays(after), scenario) == {}
+    assert reconcile.main([str(path), "--check"]) == 0
+    with pytest.raises(SystemExit, match="neither a shipped plan nor a file"):
+        reconcile.main(["no-such-plan"])

@@ -296,6 +296,10 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
     # vehicle that trails its reference by up to the error bound still has a moving reference to follow.
     plan = SinglePlan(t_ldt=t_start, sta=float(sta), times=sample_times, states=xs, controls=us,
                       arrival_time=arrival, n_steps=res.n_steps)
+    if wind_mode == "zero" or dynamics.wind == 0:  # each stored control must carry its sample to the next one
+        from stp_env.planning.verify import reconcile_controls
+
+        plan, _ = reconcile_controls(plan, time_step, (dynamics.v_min, dynamics.v_max), dynamics.omega_max)
     return plan, times[::-1].copy(), stack
 
 

@@ -163,3 +163,152 @@ def straight_plan(scenario, tracking_bound: float, *, speed: float | None = None
                                       f"{-margin:.1f} m inside the obstacle of higher-priority vehicle {high} at "
                                       f"t = {t:.2f} s; space the STAs further apart.", math.nan)
     return plan
+
+
+POSITION_TOLERANCE = 0.05
+"""[m] How far a stored sample may lie from the exact planning-dynamics step of the sample before it, and from the
+vehicle's start. The planner integrates in float32 (:func:`stp_env.sim.physics.dubins_step`); at 20 km from the
+origin a float32 position is resolved to 2 mm, and one step's rounding stays a few ulps."""
+
+ANGLE_TOLERANCE = 1e-4
+"""[rad] The same for the heading."""
+
+CONTROL_TOLERANCE = 1e-5
+"""Relative slack on the planning set ``U^p`` for stored controls (float32 values of float64 bounds)."""
+
+
+def _dubins_step64(states, v, omega, dt):
+    """:func:`stp_env.sim.physics.dubins_step` without wind, in float64 NumPy (an independent evaluation)."""
+    half = 0.5 * omega * dt
+    chord = v * dt * np.sinc(half / np.pi)
+    mid = states[:, 2] + half
+    return np.stack([states[:, 0] + chord * np.cos(mid), states[:, 1] + chord * np.sin(mid),
+                     states[:, 2] + omega * dt], axis=1)
+
+
+def _angle_gap(a, b):
+    return np.abs((np.asarray(a) - np.asarray(b) + np.pi) % (2 * np.pi) - np.pi)
+
+
+def trajectory_faults(plan: Plan, scenario) -> dict[int, list[str]]:
+    """What makes each vehicle's stored trajectory something other than a flight of the planning dynamics from its
+    start, checked from the samples alone; ``{vehicle index: [reasons]}`` for the vehicles with any (empty when the
+    plan is sound). :func:`vehicle_clearances` and :func:`domain_margin` read a plan's samples up to its recorded
+    arrival, so without this check a plan with non-finite samples, an arrival recorded too early, or a trajectory
+    that jumps between samples would pass them vacuously. Per vehicle, within its flight (departure to the first
+    sample inside its target shrunk by ``r_e``, which is where the planner aims, :func:`stp_env.planning.stp.plan_rtt`):
+
+    - every stored time, state and control is finite;
+    - the samples start at ``t_ldt`` and are ``scenario.time_step`` apart;
+    - the first sample is the scenario's start (:data:`POSITION_TOLERANCE`, :data:`ANGLE_TOLERANCE`);
+    - each control lies in the planning set ``U^p`` (speeds ``planning_v``, turn rates up to
+      ``planning_omega_max``; :data:`CONTROL_TOLERANCE`);
+    - each sample is the exact step (Dubins motion, no wind: the nominal dynamics of robust trajectory tracking)
+      of the one before under its control;
+    - the recorded arrival time is the first sample inside the shrunk target (``inf`` if none);
+    - the plan's priority order is the scenario's.
+    """
+    faults: dict[int, list[str]] = {}
+    dt = float(scenario.time_step)
+    v_lo, v_hi = (float(b) for b in scenario.planning_v)
+    w_hi = float(scenario.planning_omega_max)
+    for veh in plan.vehicles:
+        why = []
+        if not 0 <= veh.index < len(scenario.vehicles):
+            faults[veh.index] = [f"index {veh.index} is not a vehicle of the scenario"]
+            continue
+        spec, p = scenario.vehicles[veh.index], veh.plan
+        times, states, controls = (np.asarray(a, np.float64) for a in (p.times, p.states, p.controls))
+        if veh.priority != spec.priority:
+            why.append(f"priority {veh.priority}, the scenario's {spec.priority}")
+        if (times.ndim != 1 or len(times) == 0 or states.shape != (len(times), 3)
+                or controls.shape != (len(times), 2)):
+            faults[veh.index] = [*why, f"trajectory arrays of shapes {times.shape}, {states.shape}, "
+                                       f"{controls.shape}"]
+            continue
+        if not (np.all(np.isfinite(times)) and np.all(np.isfinite(states)) and np.all(np.isfinite(controls))
+                and math.isfinite(p.t_ldt)):
+            faults[veh.index] = [*why, "non-finite samples or departure"]
+            continue
+        if abs(times[0] - p.t_ldt) > 1e-6 * max(1.0, abs(p.t_ldt)):
+            why.append(f"first sample at {times[0]:.6g} s, departure {p.t_ldt:.6g} s")
+        steps = np.diff(times)
+        if steps.size and np.max(np.abs(steps - dt)) > 1e-6 * max(1.0, float(np.max(np.abs(times)))):
+            why.append(f"samples {float(steps.min()):.6g}-{float(steps.max()):.6g} s apart, not {dt} s")
+        off = math.hypot(states[0, 0] - spec.start[0], states[0, 1] - spec.start[1])
+        if off > POSITION_TOLERANCE or _angle_gap(states[0, 2], spec.start[2]) > ANGLE_TOLERANCE:
+            why.append(f"first sample {off:.3g} m / {float(_angle_gap(states[0, 2], spec.start[2])):.3g} rad "
+                       "from the start")
+        dist = np.hypot(states[:, 0] - spec.target[0], states[:, 1] - spec.target[1])
+        inside = np.nonzero(dist <= spec.target_radius - plan.tracking_bound)[0]
+        arrival = float(times[inside[0]]) if inside.size else math.inf
+        if not (arrival == p.arrival_time or abs(arrival - p.arrival_time) <= 1e-6 * max(1.0, abs(arrival))):
+            why.append(f"arrival recorded at {p.arrival_time:.6g} s, the first sample in the target at "
+                       f"{arrival:.6g} s")
+        end = int(inside[0]) if inside.size else len(times) - 1  # the flight's last sample
+        v, w = controls[:end, 0], controls[:end, 1]
+        slack = CONTROL_TOLERANCE * max(v_hi, 1.0)
+        if end and (v.min() < v_lo - slack or v.max() > v_hi + slack
+                    or np.abs(w).max() > w_hi * (1 + CONTROL_TOLERANCE)):
+            why.append(f"controls outside U^p: speeds {v.min():.4g}-{v.max():.4g} m/s, turn rates up to "
+                       f"{np.abs(w).max():.4g} rad/s")
+        if end:
+            pred = _dubins_step64(states[:end], v, w, dt)
+            jump = np.hypot(*(pred[:, :2] - states[1:end + 1, :2]).T)
+            turn = _angle_gap(pred[:, 2], states[1:end + 1, 2])
+            if jump.max() > POSITION_TOLERANCE or turn.max() > ANGLE_TOLERANCE:
+                k = int(np.argmax(jump))
+                why.append(f"samples off the planning dynamics by up to {jump.max():.3g} m / {turn.max():.3g} rad "
+                           f"(first worst at {times[k + 1]:.6g} s)")
+        if why:
+            faults[veh.index] = why
+    return faults
+
+
+def reconcile_controls(single: SinglePlan, dt: float, planning_v, planning_omega_max: float):
+    """``single`` with each stored control that does not carry its sample to the next one (exact Dubins step, no
+    wind, :data:`POSITION_TOLERANCE` / :data:`ANGLE_TOLERANCE`) replaced by one of ``U^p`` that does, and the indices
+    of the samples whose control was replaced.
+
+    The planner's rollout chooses, at every sample, between two candidate controls and the states they lead to;
+    compiled, the choice of the state and the choice of the stored control are separate selections, and where the
+    test between them sits at its threshold they have been seen to disagree (city Cases 1 and 3: one sample each,
+    a stored 13 m/s where the state moved at 11 m/s, 0.2 m at 0.1 s samples). The simulator rebuilds the reference
+    between samples from the sample and its control (:func:`stp_env.sim.reference.nominal_reference`), so such a
+    sample makes the reference jump by that much at the next one, outside the dynamics the tracking bound assumes.
+    The states are what the planner checked against its tube, so they are kept and the control is recovered from
+    them: the previous or the next sample's control if it carries the sample within tolerance, else the control
+    solved from the two states (clipped to ``U^p``). Raises :class:`ValueError` when none carries the sample within
+    tolerance: the states themselves are then not a trajectory of the planning dynamics."""
+    states = np.asarray(single.states, np.float64)
+    controls = np.array(single.controls, np.float64)
+    if len(states) < 2:
+        return single, []
+    v_lo, v_hi = (float(b) for b in planning_v)
+    w_hi = float(planning_omega_max)
+
+    def residual(k, u):
+        pred = _dubins_step64(states[k:k + 1], np.asarray([u[0]]), np.asarray([u[1]]), dt)[0]
+        return (math.hypot(pred[0] - states[k + 1, 0], pred[1] - states[k + 1, 1]),
+                float(_angle_gap(pred[2], states[k + 1, 2])))
+
+    pred = _dubins_step64(states[:-1], controls[:-1, 0], controls[:-1, 1], dt)
+    jump = np.hypot(*(pred[:, :2] - states[1:, :2]).T)
+    turn = _angle_gap(pred[:, 2], states[1:, 2])
+    fixed = [int(k) for k in np.nonzero(~((jump <= POSITION_TOLERANCE) & (turn <= ANGLE_TOLERANCE)))[0]]
+    for k in fixed:
+        omega = float((states[k + 1, 2] - states[k, 2] + np.pi) % (2 * np.pi) - np.pi) / dt
+        chord = math.hypot(states[k + 1, 0] - states[k, 0], states[k + 1, 1] - states[k, 1])
+        v = chord / (dt * float(np.sinc(0.5 * omega * dt / np.pi)))
+        candidates = [controls[j] for j in (k - 1, k + 1) if 0 <= j < len(controls)]
+        candidates.append(np.asarray([min(max(v, v_lo), v_hi), min(max(omega, -w_hi), w_hi)]))
+        candidates = [u for u in candidates if v_lo <= u[0] <= v_hi and abs(u[1]) <= w_hi * (1 + CONTROL_TOLERANCE)]
+        fits = [u for u in candidates if all(r <= tol for r, tol in zip(residual(k, u), (POSITION_TOLERANCE,
+                                                                                        ANGLE_TOLERANCE)))]
+        if not fits:
+            raise ValueError(f"sample {k} (t = {float(single.times[k]):.6g} s) does not reach the next one by any "
+                             f"control of U^p: the trajectory is not one of the planning dynamics.")
+        controls[k] = fits[0]  # a neighbour's control (one the rollout applied) before the solved one
+    if not fixed:
+        return single, []
+    return dataclasses.replace(single, controls=controls), fixed
