@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import importlib.util
 import math
+from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
@@ -110,7 +112,8 @@ def test_interrupted_planning_resumes_to_the_same_plan_bit_for_bit(tmp_path):
     assert (tmp_path / "ck.npz").read_bytes() == before
 
 
-def test_checkpoint_round_trip_and_bad_files(tmp_path):
+@pytest.mark.parametrize("file_format", checkpoint.FORMATS)
+def test_checkpoint_round_trip_and_bad_files(tmp_path, file_format):
     from stp_env.planning.plan import SinglePlan
 
     p = SinglePlan(t_ldt=-3.5, sta=0.0, times=np.array([-3.5, -3.4]), states=np.arange(6.0).reshape(2, 3),
@@ -118,7 +121,7 @@ def test_checkpoint_round_trip_and_bad_files(tmp_path):
     q = SinglePlan(t_ldt=-1.0, sta=2.0, times=np.array([-1.0]), states=np.zeros((1, 3)), controls=np.zeros((1, 2)),
                    arrival_time=0.5, n_steps=3)
     path = tmp_path / "sub" / "ck.npz"
-    checkpoint.save(path, "k1", [(4, p), (0, q)])
+    checkpoint.save(path, "k1", [(4, p), (0, q)], file_format=file_format)
     (i0, a), (i1, b) = checkpoint.load(path, "k1")
     assert (i0, i1) == (4, 0)
     for x, y in ((a, p), (b, q)):
@@ -134,6 +137,47 @@ def test_checkpoint_round_trip_and_bad_files(tmp_path):
     with pytest.raises(ValueError, match="not a readable"):
         checkpoint.load(bad, "k1")
     assert checkpoint.problem_key(np.zeros(2), "a") != checkpoint.problem_key(np.zeros(3), "a")
+    np.savez(bad, **{**dict(np.load(path)), "format": np.asarray(3)})
+    with pytest.raises(ValueError, match="not a checkpoint of formats"):
+        checkpoint.load(bad, "k1")
+    with pytest.raises(ValueError, match="file_format"):
+        checkpoint.save(bad, "k1", [(4, p)], file_format=3)
+
+
+def test_a_converted_checkpoint_keeps_its_key_and_bits_and_the_compact_one_is_smaller(tmp_path):
+    from stp_env.planning.plan import SinglePlan
+
+    rng = np.random.default_rng(0)
+    plans = []
+    for i in range(3):  # smooth trajectories, as a planner's are, of different lengths
+        m = 400 + 50 * i
+        times = -40.0 + 0.1 * np.arange(m)
+        heading = np.cumsum(rng.uniform(-0.05, 0.05, m))
+        states = np.stack([np.cumsum(1.2 * np.cos(heading)), np.cumsum(1.2 * np.sin(heading)), heading], axis=1)
+        plans.append((2 - i, SinglePlan(t_ldt=float(times[0]), sta=0.0, times=times, states=states,
+                                        controls=np.tile([12.0, 0.3], (m, 1)), arrival_time=float(times[-5]),
+                                        n_steps=11)))
+    one, two, back = tmp_path / "one.npz", tmp_path / "two.npz", tmp_path / "back.npz"
+    checkpoint.save(one, "the-key", plans, file_format=1)
+    assert checkpoint.convert(one, two, 2) == 3 and checkpoint.convert(two, back, 1) == 3
+    with np.load(one) as a, np.load(back) as b:
+        assert sorted(a.files) == sorted(b.files)
+        assert all(a[k].dtype == b[k].dtype and a[k].tobytes() == b[k].tobytes() for k in a.files)
+    with np.load(two) as c:
+        assert int(c["format"]) == 2 and "times" not in c.files
+    assert two.stat().st_size < one.stat().st_size / 2
+    for (i, x), (j, y) in zip(checkpoint.load(two, "the-key"), plans):
+        assert i == j and x.states.tobytes() == y.states.tobytes() and x.times.tobytes() == y.times.tobytes()
+    with pytest.raises(checkpoint.CheckpointMismatchError):
+        checkpoint.load(two, "another-key")
+    script = importlib.util.spec_from_file_location(
+        "convert_checkpoint", Path(__file__).resolve().parents[1] / "scripts" / "convert_checkpoint.py")
+    module = importlib.util.module_from_spec(script)
+    script.loader.exec_module(module)
+    assert module.main([str(two), str(tmp_path / "again.npz"), "--format", "1"]) == 0
+    assert (tmp_path / "again.npz").read_bytes() != b"" and checkpoint.load(tmp_path / "again.npz", "the-key")
+    with pytest.raises(SystemExit, match="no such file"):
+        module.main([str(tmp_path / "absent.npz"), str(tmp_path / "x.npz")])
 
 
 @pytest.mark.slow
