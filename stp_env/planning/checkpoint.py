@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stp_env.planning.plan import SinglePlan, _unpack_trajectories, pack_trajectories
+from stp_env.planning.plan import SinglePlan, pack_trajectories, unpack_trajectories
 
 FORMAT = 2
 FORMATS = (1, 2)  # the file formats read and written (1: padded float64 trajectories, uncompressed)
@@ -120,12 +120,14 @@ def _read(path) -> tuple[str, list[tuple[int, SinglePlan]]]:
         raise ValueError(f"planning checkpoint {path}: not a readable .npz file ({err}).") from err
     common = {"key", "format", "index", "lengths", "t_ldt", "sta", "arrival_time", "n_steps"}
     trajectories = {1: {"times", "states", "controls"}, 2: {"packed_trajectories"}}
-    file_format = int(arrays["format"]) if "format" in arrays and arrays["format"].shape == () else None
+    stored = arrays.get("format")
+    file_format = (int(stored) if stored is not None and stored.shape == () and np.issubdtype(stored.dtype, np.integer)
+                   else None)
     if file_format not in FORMATS or not common | trajectories[file_format] <= set(arrays):
         raise ValueError(f"planning checkpoint {path}: not a checkpoint of formats {FORMATS} (arrays "
                          f"{sorted(arrays)}).")
     if file_format == 2:
-        arrays.update(_unpack_trajectories(arrays))
+        arrays.update(unpack_trajectories(arrays))
     plans = []
     for r, m in enumerate(arrays["lengths"]):
         plans.append((int(arrays["index"][r]), SinglePlan(

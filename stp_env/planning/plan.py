@@ -151,7 +151,7 @@ def pack_trajectories(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return out
 
 
-def _unpack_trajectories(arrays) -> dict[str, np.ndarray]:
+def unpack_trajectories(arrays) -> dict[str, np.ndarray]:
     """The padded ``times``, ``states``, ``controls`` of a plan stored by :func:`pack_trajectories`."""
     lengths = np.asarray(arrays["lengths"], np.int64)
     planes = np.asarray(arrays["packed_trajectories"])
@@ -200,7 +200,7 @@ def trim_after_arrival(arrays: dict[str, np.ndarray], keep: float) -> dict[str, 
 def plan_from_arrays(arrays) -> Plan:
     """Inverse of :func:`plan_to_arrays` (and of :func:`pack_trajectories`)."""
     if "packed_trajectories" in arrays:
-        arrays = {**{k: arrays[k] for k in arrays if k != "packed_trajectories"}, **_unpack_trajectories(arrays)}
+        arrays = {**{k: arrays[k] for k in arrays if k != "packed_trajectories"}, **unpack_trajectories(arrays)}
     vehicles = []
     for i, m in enumerate(np.asarray(arrays["lengths"])):
         single = SinglePlan(t_ldt=float(arrays["t_ldt"][i]), sta=float(arrays["sta"][i]),

@@ -190,6 +190,13 @@ def _angle_gap(a, b):
     return np.abs((np.asarray(a) - np.asarray(b) + np.pi) % (2 * np.pi) - np.pi)
 
 
+def _step_misses(states, controls, dt):
+    """How far [m, rad] the exact step of each sample under its control lands from the next sample: ``(n - 1,)``
+    each."""
+    pred = _dubins_step64(states[:-1], controls[:-1, 0], controls[:-1, 1], dt)
+    return np.hypot(*(pred[:, :2] - states[1:, :2]).T), _angle_gap(pred[:, 2], states[1:, 2])
+
+
 def trajectory_faults(plan: Plan, scenario) -> dict[int, list[str]]:
     """What makes each vehicle's stored trajectory something other than a flight of the planning dynamics from its
     start, checked from the samples alone; ``{vehicle index: [reasons]}`` for the vehicles with any (empty when the
@@ -253,9 +260,7 @@ def trajectory_faults(plan: Plan, scenario) -> dict[int, list[str]]:
             why.append(f"controls outside U^p: speeds {v.min():.4g}-{v.max():.4g} m/s, turn rates up to "
                        f"{np.abs(w).max():.4g} rad/s")
         if end:
-            pred = _dubins_step64(states[:end], v, w, dt)
-            jump = np.hypot(*(pred[:, :2] - states[1:end + 1, :2]).T)
-            turn = _angle_gap(pred[:, 2], states[1:end + 1, 2])
+            jump, turn = _step_misses(states[:end + 1], controls[:end + 1], dt)
             if jump.max() > POSITION_TOLERANCE or turn.max() > ANGLE_TOLERANCE:
                 k = int(np.argmax(jump))
                 why.append(f"samples off the planning dynamics by up to {jump.max():.3g} m / {turn.max():.3g} rad "
@@ -287,14 +292,11 @@ def reconcile_controls(single: SinglePlan, dt: float, planning_v, planning_omega
     v_lo, v_hi = (float(b) for b in planning_v)
     w_hi = float(planning_omega_max)
 
-    def residual(k, u):
-        pred = _dubins_step64(states[k:k + 1], np.asarray([u[0]]), np.asarray([u[1]]), dt)[0]
-        return (math.hypot(pred[0] - states[k + 1, 0], pred[1] - states[k + 1, 1]),
-                float(_angle_gap(pred[2], states[k + 1, 2])))
+    def fits(k, u):
+        jump, turn = _step_misses(states[k:k + 2], np.stack([u, u]), dt)
+        return jump[0] <= POSITION_TOLERANCE and turn[0] <= ANGLE_TOLERANCE
 
-    pred = _dubins_step64(states[:-1], controls[:-1, 0], controls[:-1, 1], dt)
-    jump = np.hypot(*(pred[:, :2] - states[1:, :2]).T)
-    turn = _angle_gap(pred[:, 2], states[1:, 2])
+    jump, turn = _step_misses(states, controls, dt)
     fixed = [int(k) for k in np.nonzero(~((jump <= POSITION_TOLERANCE) & (turn <= ANGLE_TOLERANCE)))[0]]
     for k in fixed:
         omega = float((states[k + 1, 2] - states[k, 2] + np.pi) % (2 * np.pi) - np.pi) / dt
@@ -303,12 +305,11 @@ def reconcile_controls(single: SinglePlan, dt: float, planning_v, planning_omega
         candidates = [controls[j] for j in (k - 1, k + 1) if 0 <= j < len(controls)]
         candidates.append(np.asarray([min(max(v, v_lo), v_hi), min(max(omega, -w_hi), w_hi)]))
         candidates = [u for u in candidates if v_lo <= u[0] <= v_hi and abs(u[1]) <= w_hi * (1 + CONTROL_TOLERANCE)]
-        fits = [u for u in candidates if all(r <= tol for r, tol in zip(residual(k, u), (POSITION_TOLERANCE,
-                                                                                        ANGLE_TOLERANCE)))]
-        if not fits:
+        good = [u for u in candidates if fits(k, u)]
+        if not good:
             raise ValueError(f"sample {k} (t = {float(single.times[k]):.6g} s) does not reach the next one by any "
                              f"control of U^p: the trajectory is not one of the planning dynamics.")
-        controls[k] = fits[0]  # a neighbour's control (one the rollout applied) before the solved one
+        controls[k] = good[0]  # a neighbour's control (one the rollout applied) before the solved one
     if not fixed:
         return single, []
     return dataclasses.replace(single, controls=controls), fixed
