@@ -16,6 +16,7 @@ import math
 
 import numpy as np
 
+from stp_env.angles import wrap_angle
 from stp_env.planning.plan import InfeasiblePlanError, Plan, SinglePlan, VehiclePlan, obstacle_window
 
 
@@ -187,7 +188,7 @@ def _dubins_step64(states, v, omega, dt):
 
 
 def _angle_gap(a, b):
-    return np.abs((np.asarray(a) - np.asarray(b) + np.pi) % (2 * np.pi) - np.pi)
+    return np.abs(wrap_angle(np.asarray(a, np.float64) - np.asarray(b, np.float64)))
 
 
 def _step_misses(states, controls, dt):
@@ -299,7 +300,7 @@ def reconcile_controls(single: SinglePlan, dt: float, planning_v, planning_omega
     jump, turn = _step_misses(states, controls, dt)
     fixed = [int(k) for k in np.nonzero(~((jump <= POSITION_TOLERANCE) & (turn <= ANGLE_TOLERANCE)))[0]]
     for k in fixed:
-        omega = float((states[k + 1, 2] - states[k, 2] + np.pi) % (2 * np.pi) - np.pi) / dt
+        omega = wrap_angle(float(states[k + 1, 2] - states[k, 2])) / dt
         chord = math.hypot(states[k + 1, 0] - states[k, 0], states[k + 1, 1] - states[k, 1])
         v = chord / (dt * float(np.sinc(0.5 * omega * dt / np.pi)))
         candidates = [controls[j] for j in (k - 1, k + 1) if 0 <= j < len(controls)]
