@@ -6,8 +6,10 @@
                                                   # and exit 1 unless the shipped copies hold the same arrays
 
 What ships: every artifact the default scenario's parameters read (:func:`stp_env.sim.params_for` of ``town``, the
-default ``stp-env evaluate`` run) whose array file is at most ``--max-mb`` (the tracking-error bound: a 3-minute solve
-on 2 cores; the 55 MB avoid region, a 1-minute solve, does not ship). A shipped copy is keyed like a cache entry
+default ``stp-env evaluate`` run), and the tracking-error bound and avoid region of every scenario a shipped plan is
+for (the 11 m/s ones of the city Cases 1, 3, 4 and the bay area: solves of several minutes, certified in closed loop),
+whose array file is at most ``--max-mb``: the tracking bounds and the avoid regions' closed-loop certificates; the
+55 MB avoid tables (a 1-minute solve each) do not ship. A shipped copy is keyed like a cache entry
 (parameters, format and code version, content hash), so any edit to the code that computes it (the solver, the
 dynamics, the reachability sets: :func:`stp_env.artifacts.code_version`; not the planner or the scenarios) makes it
 stale: ``tests/test_artifacts.py`` then fails until this script is run again. The cache (``STP_ENV_CACHE_DIR``) is used
@@ -33,6 +35,8 @@ import numpy as np
 from stp_env import sim
 from stp_env.artifacts import SHIPPED_DIR, ArtifactStore
 
+PLAN_DIR = SHIPPED_DIR.parent / "plans"
+
 
 class _Recording(ArtifactStore):
     """The cache without the shipped layer, remembering which artifacts were asked for."""
@@ -50,8 +54,14 @@ class _Recording(ArtifactStore):
 def wanted(max_mb: float, root=None) -> list:
     """The cache files (npz paths) of the artifacts to ship, computed if not cached (in ``root``, or the default
     cache)."""
+    from stp_env.scenarios import make
+    from stp_env.sim.build import SHIPPED_PLANS, load_artifacts
+
     store = _Recording(root)
     sim.params_for("town", sim.EnvConfig(), store=store, progress=True)
+    for file, (name, overrides) in sorted(SHIPPED_PLANS.items()):
+        if (PLAN_DIR / f"{file}.npz").is_file():
+            load_artifacts(make(name, **overrides), store=store, progress=True)
     return sorted({a.path for a in store.used if a.path.stat().st_size <= max_mb * 2**20})
 
 

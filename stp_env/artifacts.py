@@ -46,10 +46,10 @@ except ImportError:  # pragma: no cover
 FORMAT_VERSION = 1
 CACHE_ENV_VAR = "STP_ENV_CACHE_DIR"
 SHIPPED_DIR = Path(__file__).resolve().parent / "data" / "artifacts"  # artifacts that ship with the package
-_REACHABILITY = ("hj", "dynamics.py", "angles.py", "reach")
+_REACHABILITY = ("hj", "dynamics.py", "angles.py", "kinematics.py", "reach")
 _NUMERICS = (*_REACHABILITY, "planning", "scenarios")
 _COOBSERVATION = (*_REACHABILITY, "coobservation")
-REACHABILITY_KINDS = frozenset({"tracking_bound", "avoid_region", "relative_buffer"})
+REACHABILITY_KINDS = frozenset({"tracking_bound", "avoid_region", "avoid_certificate", "relative_buffer"})
 """Kinds computed by the solver, the dynamics and the reachability sets alone: their key holds
 :data:`REACHABILITY_CODE_VERSION`, so that an edit to the planner or the scenarios keeps them (and the shipped tracking
 bound) valid. Kinds named ``coobs_*`` hold :data:`COOBSERVATION_CODE_VERSION`; every other kind (plans)
