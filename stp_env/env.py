@@ -86,9 +86,13 @@ Intruder: ``status`` (pending / present / gone), ``n_forced``, ``kbar``, ``kbar_
 Arguments
 ---------
 ``parallel_env(scenario="town", config=None, *, max_cycles=None, render_mode=None, params=None, store=None,
-backend=None)``:
+backend=None, **config_fields)``:
 ``scenario`` is a registry name or a :class:`stp_env.scenarios.Scenario`; ``config`` an
-:class:`stp_env.sim.EnvConfig` (``dt`` [s], wind model, spawn mode, safety filter, episode window, rewards);
+:class:`stp_env.sim.EnvConfig` (``dt`` [s], the inner control period ``control_dt`` [s], wind model, spawn mode,
+safety filter, episode window, rewards); any field of it can also be given by name and replaces the config's
+(``parallel_env("town", control_dt=0.01, wind_model="gusts")``). Settings outside what the guarantees certify (an
+inner period outside 0.005-0.02 s, a smaller avoid margin, a plan that is not a flight of ``U^p``) are refused
+unless ``allow_uncertified=True``;
 ``max_cycles`` caps the steps (default: the episode window ``t_end - t_start`` over ``dt``); ``params``
 bypasses the scenario (prebuilt :class:`stp_env.sim.EnvParams`). ``replan=True`` runs Algorithm 4 when the
 intruder leaves: every vehicle that was forced to avoid gets a new STA and plan
@@ -325,7 +329,7 @@ class STPParallelEnv(ParallelEnv):
     def __init__(self, scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, *,
                  max_cycles: int | None = None, render_mode: str | None = None, params: sim.EnvParams | None = None,
                  render_avoid_regions: bool = False, store=None, replan: bool = False,
-                 vehicle_policy: str | None = None, backend: str | None = None):
+                 vehicle_policy: str | None = None, backend: str | None = None, **config_overrides):
         from stp_env.baselines import BUFFER_GAME_VEHICLE_POLICIES, VEHICLE_POLICIES
         from stp_env.scenarios import Scenario, make
 
@@ -339,6 +343,13 @@ class STPParallelEnv(ParallelEnv):
         if config is not None and not isinstance(config, sim.EnvConfig):
             raise ValueError(f"config must be a stp_env.sim.EnvConfig; got {type(config).__name__}.")
         config = sim.EnvConfig() if config is None else config
+        if config_overrides:
+            fields = {f.name for f in dataclasses.fields(sim.EnvConfig)}
+            unknown = sorted(set(config_overrides) - fields)
+            if unknown:
+                raise TypeError(f"parallel_env() got unexpected keyword argument(s) {unknown}; besides its own "
+                                f"arguments it takes the fields of stp_env.sim.EnvConfig: {sorted(fields)}.")
+            config = config.with_overrides(**config_overrides)
         config = with_backend(config, backend)
         if isinstance(scenario, str):
             scenario = make(scenario)

@@ -198,6 +198,52 @@ def _step_misses(states, controls, dt):
     return np.hypot(*(pred[:, :2] - states[1:, :2]).T), _angle_gap(pred[:, 2], states[1:, 2])
 
 
+def flight_faults(times, states, controls, t_ldt: float, *, dt: float, planning_v, planning_omega_max: float,
+                  end: int | None = None) -> list[str]:
+    """What makes one stored trajectory something other than a flight of the planning dynamics, from its samples
+    alone (the dynamics-only checks of :func:`trajectory_faults`, for a trajectory whose start is not the
+    scenario's, e.g. a vehicle replanned in the air): finite samples and departure, samples starting at ``t_ldt``
+    and ``dt`` apart, controls in ``U^p = planning_v x [-planning_omega_max, planning_omega_max]`` and each sample
+    the exact step (Dubins motion, no wind) of the one before under its control, up to the sample ``end`` (the
+    flight's last; ``None``: the last stored). ``[]`` when it is a flight."""
+    times, states, controls = (np.asarray(a, np.float64) for a in (times, states, controls))
+    if times.ndim != 1 or len(times) == 0 or states.shape != (len(times), 3) or controls.shape != (len(times), 2):
+        return [f"trajectory arrays of shapes {times.shape}, {states.shape}, {controls.shape}"]
+    if not (np.all(np.isfinite(times)) and np.all(np.isfinite(states)) and np.all(np.isfinite(controls))
+            and math.isfinite(t_ldt)):
+        return ["non-finite samples or departure"]
+    why = []
+    if abs(times[0] - t_ldt) > 1e-6 * max(1.0, abs(t_ldt)):
+        why.append(f"first sample at {times[0]:.6g} s, departure {t_ldt:.6g} s")
+    steps = np.diff(times)
+    if steps.size and np.max(np.abs(steps - dt)) > 1e-6 * max(1.0, float(np.max(np.abs(times)))):
+        why.append(f"samples {float(steps.min()):.6g}-{float(steps.max()):.6g} s apart, not {dt} s")
+    end = len(times) - 1 if end is None else int(end)
+    v_lo, v_hi = (float(b) for b in planning_v)
+    w_hi = float(planning_omega_max)
+    v, w = controls[:end, 0], controls[:end, 1]
+    slack = CONTROL_TOLERANCE * max(v_hi, 1.0)
+    if end and (v.min() < v_lo - slack or v.max() > v_hi + slack or np.abs(w).max() > w_hi * (1 + CONTROL_TOLERANCE)):
+        why.append(f"controls outside U^p: speeds {v.min():.4g}-{v.max():.4g} m/s, turn rates up to "
+                   f"{np.abs(w).max():.4g} rad/s")
+    if end:
+        jump, turn = _step_misses(states[:end + 1], controls[:end + 1], dt)
+        if jump.max() > POSITION_TOLERANCE or turn.max() > ANGLE_TOLERANCE:
+            k = int(np.argmax(jump))
+            why.append(f"samples off the planning dynamics by up to {jump.max():.3g} m / {turn.max():.3g} rad "
+                       f"(first worst at {times[k + 1]:.6g} s)")
+    return why
+
+
+def flight_end(states, target, target_radius: float, tracking_bound: float) -> int | None:
+    """Index of a trajectory's first sample inside its target shrunk by ``r_e`` (where the planner aims,
+    :func:`stp_env.planning.stp.plan_rtt`), ``None`` if no sample is."""
+    states = np.asarray(states, np.float64)
+    dist = np.hypot(states[:, 0] - target[0], states[:, 1] - target[1])
+    inside = np.nonzero(dist <= target_radius - tracking_bound)[0]
+    return int(inside[0]) if inside.size else None
+
+
 def trajectory_faults(plan: Plan, scenario) -> dict[int, list[str]]:
     """What makes each vehicle's stored trajectory something other than a flight of the planning dynamics from its
     start, checked from the samples alone; ``{vehicle index: [reasons]}`` for the vehicles with any (empty when the
@@ -215,57 +261,36 @@ def trajectory_faults(plan: Plan, scenario) -> dict[int, list[str]]:
       of the one before under its control;
     - the recorded arrival time is the first sample inside the shrunk target (``inf`` if none);
     - the plan's priority order is the scenario's.
+
+    The dynamics-only checks (the first, second, fourth and fifth) are :func:`flight_faults`.
     """
     faults: dict[int, list[str]] = {}
     dt = float(scenario.time_step)
-    v_lo, v_hi = (float(b) for b in scenario.planning_v)
-    w_hi = float(scenario.planning_omega_max)
     for veh in plan.vehicles:
         why = []
         if not 0 <= veh.index < len(scenario.vehicles):
             faults[veh.index] = [f"index {veh.index} is not a vehicle of the scenario"]
             continue
         spec, p = scenario.vehicles[veh.index], veh.plan
-        times, states, controls = (np.asarray(a, np.float64) for a in (p.times, p.states, p.controls))
         if veh.priority != spec.priority:
             why.append(f"priority {veh.priority}, the scenario's {spec.priority}")
-        if (times.ndim != 1 or len(times) == 0 or states.shape != (len(times), 3)
-                or controls.shape != (len(times), 2)):
-            faults[veh.index] = [*why, f"trajectory arrays of shapes {times.shape}, {states.shape}, "
-                                       f"{controls.shape}"]
+        states = np.asarray(p.states, np.float64)
+        shaped = states.ndim == 2 and states.shape[1:] == (3,) and len(states) > 0 and np.all(np.isfinite(states))
+        end = flight_end(states, spec.target, spec.target_radius, plan.tracking_bound) if shaped else None
+        dynamics = flight_faults(p.times, p.states, p.controls, p.t_ldt, dt=dt, planning_v=scenario.planning_v,
+                                 planning_omega_max=scenario.planning_omega_max, end=end)
+        if not shaped or (dynamics and dynamics[0].startswith(("trajectory arrays", "non-finite"))):
+            faults[veh.index] = [*why, *dynamics]
             continue
-        if not (np.all(np.isfinite(times)) and np.all(np.isfinite(states)) and np.all(np.isfinite(controls))
-                and math.isfinite(p.t_ldt)):
-            faults[veh.index] = [*why, "non-finite samples or departure"]
-            continue
-        if abs(times[0] - p.t_ldt) > 1e-6 * max(1.0, abs(p.t_ldt)):
-            why.append(f"first sample at {times[0]:.6g} s, departure {p.t_ldt:.6g} s")
-        steps = np.diff(times)
-        if steps.size and np.max(np.abs(steps - dt)) > 1e-6 * max(1.0, float(np.max(np.abs(times)))):
-            why.append(f"samples {float(steps.min()):.6g}-{float(steps.max()):.6g} s apart, not {dt} s")
         off = math.hypot(states[0, 0] - spec.start[0], states[0, 1] - spec.start[1])
         if off > POSITION_TOLERANCE or _angle_gap(states[0, 2], spec.start[2]) > ANGLE_TOLERANCE:
             why.append(f"first sample {off:.3g} m / {float(_angle_gap(states[0, 2], spec.start[2])):.3g} rad "
                        "from the start")
-        dist = np.hypot(states[:, 0] - spec.target[0], states[:, 1] - spec.target[1])
-        inside = np.nonzero(dist <= spec.target_radius - plan.tracking_bound)[0]
-        arrival = float(times[inside[0]]) if inside.size else math.inf
+        arrival = math.inf if end is None else float(np.asarray(p.times, np.float64)[end])
         if not (arrival == p.arrival_time or abs(arrival - p.arrival_time) <= 1e-6 * max(1.0, abs(arrival))):
             why.append(f"arrival recorded at {p.arrival_time:.6g} s, the first sample in the target at "
                        f"{arrival:.6g} s")
-        end = int(inside[0]) if inside.size else len(times) - 1  # the flight's last sample
-        v, w = controls[:end, 0], controls[:end, 1]
-        slack = CONTROL_TOLERANCE * max(v_hi, 1.0)
-        if end and (v.min() < v_lo - slack or v.max() > v_hi + slack
-                    or np.abs(w).max() > w_hi * (1 + CONTROL_TOLERANCE)):
-            why.append(f"controls outside U^p: speeds {v.min():.4g}-{v.max():.4g} m/s, turn rates up to "
-                       f"{np.abs(w).max():.4g} rad/s")
-        if end:
-            jump, turn = _step_misses(states[:end + 1], controls[:end + 1], dt)
-            if jump.max() > POSITION_TOLERANCE or turn.max() > ANGLE_TOLERANCE:
-                k = int(np.argmax(jump))
-                why.append(f"samples off the planning dynamics by up to {jump.max():.3g} m / {turn.max():.3g} rad "
-                           f"(first worst at {times[k + 1]:.6g} s)")
+        why.extend(dynamics)
         if why:
             faults[veh.index] = why
     return faults

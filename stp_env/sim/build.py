@@ -83,14 +83,53 @@ def _plan_arrays(plan):
     }
 
 
-def with_plan(params: EnvParams, plan, *, pad_to: int = 256) -> EnvParams:
+def plan_faults(plan, *, dt: float, planning_v, planning_omega_max: float, targets=None, target_radii=None,
+                scenario=None) -> dict[int, list[str]]:
+    """What keeps each vehicle's trajectory in ``plan`` from being a flight of the planning dynamics (``{index:
+    [reasons]}``, empty when none): with ``scenario``, every check of
+    :func:`stp_env.planning.verify.trajectory_faults` (its start, its arrival, its priority); without it the
+    dynamics-only checks of :func:`stp_env.planning.verify.flight_faults` (finite samples ``dt`` apart, controls in
+    ``U^p``, exact steps), each flight up to its first sample in its target (``targets``, ``target_radii``)
+    shrunk by the plan's tracking bound: for a plan made in the air (replanning), whose starts are not the
+    scenario's."""
+    from stp_env.planning import verify
+
+    if scenario is not None:
+        return verify.trajectory_faults(plan, scenario)
+    faults = {}
+    for i, veh in enumerate(plan.vehicles):
+        p = veh.plan
+        end = None
+        if targets is not None:
+            states = np.asarray(p.states, np.float64)
+            if states.ndim == 2 and states.shape[1:] == (3,) and len(states) and np.all(np.isfinite(states)):
+                end = verify.flight_end(states, np.asarray(targets[i], np.float64), float(target_radii[i]),
+                                        float(plan.tracking_bound))
+        why = verify.flight_faults(p.times, p.states, p.controls, p.t_ldt, dt=dt, planning_v=planning_v,
+                                   planning_omega_max=planning_omega_max, end=end)
+        if why:
+            faults[veh.index] = why
+    return faults
+
+
+def _faults_message(faults: dict[int, list[str]], what: str) -> str:
+    first = min(faults)
+    more = f" (and {len(faults) - 1} more vehicles)" if len(faults) > 1 else ""
+    return (f"{what} is not a flight of the planning dynamics U^p, which the tracking-error bound assumes of every "
+            f"reference: vehicle {first}: {'; '.join(faults[first])}{more}. Pass allow_uncertified=True to simulate "
+            "it anyway, those vehicles' violations counting as assumption failures.")
+
+
+def with_plan(params: EnvParams, plan, *, pad_to: int = 256, allow_uncertified: bool = False) -> EnvParams:
     """``params`` with the nominal trajectories, STAs and planned arrival times of ``plan`` (the departure times
     and start states stay: they belong to the episode's start), e.g. after replanning (Algorithm 4,
     :func:`stp_env.planning.replan.replan`), which changes only the affected vehicles' entries.
 
     The sample tables keep their length ``K`` when every trajectory fits, so the jitted step is not retraced;
     otherwise they grow to the next multiple of ``pad_to`` samples (one retrace). Raises ``ValueError`` if the
-    plan has another number of vehicles or another sample period."""
+    plan has another number of vehicles or another sample period, or if a trajectory is not a flight of the
+    planning dynamics (:func:`plan_faults`, dynamics only: replanned vehicles start in the air) unless
+    ``allow_uncertified``, in which case those vehicles are no longer ``certified``."""
     n = params.n_vehicles
     if len(plan.vehicles) != n:
         raise ValueError(f"the plan has {len(plan.vehicles)} vehicles; these params have {n}.")
@@ -98,6 +137,13 @@ def with_plan(params: EnvParams, plan, *, pad_to: int = 256) -> EnvParams:
     if not math.isclose(float(arrays["nominal_dt"]), float(params.nominal_dt), rel_tol=1e-5):
         raise ValueError(f"the plan's sample period is {float(arrays['nominal_dt'])} s; the simulator's nominal "
                          f"tables use {float(params.nominal_dt)} s.")
+    dyn = params.tracking_dynamics
+    faults = plan_faults(plan, dt=float(arrays["nominal_dt"]), planning_v=(dyn.other_v_min, dyn.other_v_max),
+                         planning_omega_max=dyn.other_omega_max, targets=np.asarray(params.targets),
+                         target_radii=np.asarray(params.target_radii))
+    if faults and not allow_uncertified:
+        raise ValueError(_faults_message(faults, "the new plan"))
+    faulty = np.asarray([v.index in faults for v in plan.vehicles])
     k_old, k_new = params.nominal_states.shape[1], arrays["nominal_states"].shape[1]
     k = k_old if k_new <= k_old else pad_to * math.ceil(k_new / pad_to)
     states, controls = arrays["nominal_states"], arrays["nominal_controls"]
@@ -106,7 +152,8 @@ def with_plan(params: EnvParams, plan, *, pad_to: int = 256) -> EnvParams:
         controls = np.concatenate([controls, np.repeat(controls[:, -1:], k - k_new, axis=1)], axis=1)
     return replace(params, nominal_t0=jnp.asarray(arrays["nominal_t0"]), nominal_states=jnp.asarray(states),
                    nominal_controls=jnp.asarray(controls), nominal_len=jnp.asarray(arrays["nominal_len"]),
-                   sta=jnp.asarray(arrays["sta"]), nominal_arrival=jnp.asarray(arrays["arrival"]))
+                   sta=jnp.asarray(arrays["sta"]), nominal_arrival=jnp.asarray(arrays["arrival"]),
+                   certified=jnp.asarray(np.asarray(params.certified) & ~faulty))
 
 
 def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None) -> EnvParams:
@@ -118,19 +165,46 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
         avoid: the :class:`stp_env.reach.avoid.AvoidRegion` for the scenario's vehicle, ``R_c`` and ``t_IAT``.
         tracking: the :class:`stp_env.reach.tracking.TrackingBound` of its planning set.
         config: :class:`EnvConfig` (default: ``EnvConfig()``).
+
+    Everything is checked against what the proofs certify before anything is built: the avoid region and the
+    tracking bound must be those of the scenario's vehicle, planning set, ``R_c`` and ``t_IAT``; the tracking bound
+    must be certified in closed loop; the avoid margin must be at least the certified one; every trajectory of the
+    plan must be a flight of the planning dynamics (:func:`plan_faults`). The last three are refused with one line
+    unless ``config.allow_uncertified``; the vehicles concerned then have ``certified`` false.
     """
     config = EnvConfig() if config is None else config
     n = scenario.n_vehicles
     if len(plan.vehicles) != n:
         raise ValueError(f"The plan has {len(plan.vehicles)} vehicles but scenario {scenario.name!r} has {n}.")
-    acfg = avoid.config
-    mismatch = [f"{name}: scenario {a!r}, avoid region {b!r}" for name, a, b in (
-        ("collision_radius", scenario.collision_radius, acfg.collision_radius),
-        ("t_iat", scenario.t_iat, acfg.t_iat),
-        ("vehicle v_max", scenario.vehicle.v_max, acfg.vehicle.v_max),
-        ("vehicle wind", scenario.vehicle.wind, acfg.vehicle.wind)) if not math.isclose(a, b, rel_tol=1e-6)]
+    acfg, tcfg = avoid.config, tracking.config
+    mismatch = [f"{name}: scenario {a!r}, {what} {b!r}" for what, name, a, b in (
+        ("avoid region", "collision_radius", scenario.collision_radius, acfg.collision_radius),
+        ("avoid region", "t_iat", scenario.t_iat, acfg.t_iat),
+        *[(f"{what}", f"{who} {field}", getattr(scenario.vehicle, field), getattr(model, field))
+          for what, who, model in (("avoid region", "vehicle", acfg.vehicle), ("avoid region", "intruder",
+                                                                                 acfg.intruder),
+                                   ("tracking bound", "vehicle", tcfg.vehicle))
+          for field in ("v_min", "v_max", "omega_max", "wind", "heading_disturbance")],
+        ("tracking bound", "planning v_min", scenario.planning_v[0], tcfg.planning_v[0]),
+        ("tracking bound", "planning v_max", scenario.planning_v[1], tcfg.planning_v[1]),
+        ("tracking bound", "planning omega_max", scenario.planning_omega_max, tcfg.planning_omega_max),
+    ) if not math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-9)]
     if mismatch:
-        raise ValueError("The avoid region was computed for another scenario: " + "; ".join(mismatch) + ".")
+        raise ValueError("The reachability tables were computed for another scenario: " + "; ".join(mismatch) + ".")
+    uncertified = []  # settings of the simulator outside the proofs, accepted with allow_uncertified
+    if not config.control_dt_certified:
+        uncertified.append(f"control_dt {config.control_dt} s")
+    if not tracking.certified:
+        uncertified.append(f"the tracking-error bound {tracking.bound:.3f} m is not certified in closed loop")
+    faults = plan_faults(plan, dt=float(scenario.time_step), planning_v=scenario.planning_v,
+                         planning_omega_max=scenario.planning_omega_max, scenario=scenario)
+    if faults and not config.allow_uncertified:
+        raise ValueError(_faults_message(faults, f"the plan of scenario {scenario.name!r}"))
+    if faults:
+        first = min(faults)
+        warnings.warn(f"{len(faults)} vehicle(s) of scenario {scenario.name!r} fly trajectories that are not "
+                      f"flights of U^p (vehicle {first}: {'; '.join(faults[first])}): their violations count as "
+                      "assumption failures.", stacklevel=2)
     arrays = _plan_arrays(plan)
     d_a = float(avoid.detection_range())
     d_sense = 1.5 * d_a if config.d_sense is None else config.d_sense
@@ -138,17 +212,29 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
         raise ValueError(f"d_sense ({d_sense} m) must be at least the detection range d^A = {d_a:.1f} m (eq. 16): "
                          "a vehicle must see the intruder before it has to avoid it.")
     veh, intr = acfg.vehicle, acfg.intruder
-    margin = default_avoid_margin(config.control_dt, avoid.fall_rate) if config.avoid_margin is None \
-        else config.avoid_margin
+    if math.isfinite(avoid.table_error):
+        certified_margin = default_avoid_margin(config.control_dt, avoid.fall_rate, avoid.table_error)
+    else:  # a table without a closed-loop certificate: the sampling part of the margin, and no certified one
+        uncertified.append("the avoid region is not certified in closed loop")
+        certified_margin = default_avoid_margin(config.control_dt, avoid.fall_rate)
+    margin = certified_margin if config.avoid_margin is None else config.avoid_margin
     step_fall = config.control_dt * avoid.fall_rate
     if step_fall > FALL_RATE_BAND:
         raise ValueError(f"One inner step ({config.control_dt} s) of the avoid value's fastest fall is "
                          f"{step_fall:.1f} m, beyond the {FALL_RATE_BAND} m band in which that rate was bounded; use a "
                          "smaller control_dt.")
-    if margin < step_fall:
-        warnings.warn(f"avoid_margin {margin:.3f} m is less than one inner step of the avoid value's fastest fall "
-                      f"({step_fall:.3f} m): a vehicle can step over the avoid region's boundary between two checks "
-                      "and the avoidance guarantee does not hold.", stacklevel=2)
+    if margin < certified_margin - 1e-6 and math.isfinite(avoid.table_error):
+        uncertified.append(f"avoid_margin {margin:.3f} m, below the certified {certified_margin:.3f} m (one inner step "
+                           f"of the value's fastest fall, {step_fall:.3f} m, plus the table's closed-loop error "
+                           f"{avoid.table_error:.3f} m and rounding)")
+    if uncertified and not config.allow_uncertified:
+        raise ValueError("Outside what the guarantees certify: " + "; ".join(uncertified) + ". Pass "
+                         "allow_uncertified=True to simulate it anyway (violations then count as assumption "
+                         "failures).")
+    if uncertified:
+        warnings.warn("Simulating outside what the guarantees certify (" + "; ".join(uncertified) + "): every "
+                      "vehicle's violations count as assumption failures.", stacklevel=2)
+    certified = np.asarray([not uncertified and v.index not in faults for v in plan.vehicles], bool)
     t_iat = float(scenario.t_iat)
     if config.appear_window is None:
         lo, hi = busiest_window(plan)
@@ -171,7 +257,6 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
         sdf_grid = hj.Grid.from_bounds(scenario.domain_lo, scenario.domain_hi, (5, 5))
         sdf = np.full((5, 5), 1.0e6, np.float32)
 
-    tcfg = tracking.config
     grads = hj.interpolation.gradient_field(tcfg.grid, jnp.asarray(-np.asarray(tracking.value), jnp.float32))
     kbar = plan.kbar if plan.kbar is not None else (scenario.kbar if scenario.kbar is not None else -1)
     f32 = np.float32
@@ -195,6 +280,7 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
         nominal_states=jnp.asarray(arrays["nominal_states"]),
         nominal_controls=jnp.asarray(arrays["nominal_controls"]),
         nominal_len=jnp.asarray(arrays["nominal_len"]),
+        certified=jnp.asarray(certified),
         planning_v_max=jnp.asarray(scenario.planning_v[1], f32),
         sdf=jnp.asarray(sdf),
         avoid_taus=jnp.asarray(avoid.taus, f32),
@@ -208,6 +294,7 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
         spawn_boundary_probability=jnp.asarray({"outside": 0.0, "boundary": 1.0, "mixed": 0.5}[config.spawn_mode],
                                                f32),
         avoid_margin=jnp.asarray(margin, f32),
+        avoid_fall_rate=jnp.asarray(avoid.fall_rate, f32),
         kbar=jnp.asarray(kbar, jnp.int32),
         d_sense=jnp.asarray(d_sense, f32),
         reward_weights=config.rewards.weights(),

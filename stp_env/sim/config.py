@@ -9,6 +9,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
+from stp_env.reach.closed_loop import CERTIFIED_CONTROL_DT
 from stp_env.sim import winds
 from stp_env.sim.types import SPAWN_MODES, RewardWeights
 from stp_env.sim.vehicle_models import Dubins, VehicleModel
@@ -65,9 +66,11 @@ class EnvConfig:
             (zero-order hold).
         control_dt: period of the vehicles' low-level control loop inside a step [s] (``dt`` must be a whole
             multiple of it): the tracker ``kappa`` (SPP eq. 26), ``u^A`` (eq. 15), the avoid-start check (eqs.
-            17-18), a vehicle feedback policy passed to the core, and the ``"worst"`` wind run at this rate. The
-            default 0.02 s keeps the continuous-time guarantees: held for 0.1 s, the bang-bang tracker leaves its
-            error bound and ``u^A`` lets the optimal intruder inside ``R_c`` (``docs/numerics.md``).
+            17-18), a vehicle feedback policy passed to the core, and the ``"worst"`` wind run at this rate. It must
+            lie in :data:`CERTIFIED_CONTROL_DT` (0.005-0.02 s), where the tracking-error bound and the avoid margin
+            are certified in closed loop: held for 0.1 s, the bang-bang tracker leaves its error bound and ``u^A``
+            lets the optimal intruder inside ``R_c`` (``docs/numerics.md``). Other periods need
+            ``allow_uncertified=True``.
         wind_model: a registered wind model (:mod:`stp_env.sim.winds`), by name with its default parameters
             (``"uniform"``: a new wind uniformly in the disk of radius ``d_r`` every step, as in the papers;
             ``"constant"``: one wind per episode; ``"gusts"``: Ornstein-Uhlenbeck, clipped to the disk; ``"worst"``:
@@ -82,11 +85,12 @@ class EnvConfig:
         spawn_radius: [m] (``None``: 1.5 d^A).
         safety_filter: replace each vehicle's action by ``u^A`` from its avoid-start time until the intruder
             leaves (eq. 38). Off: vehicles do what their policy says (the avoid start is still recorded).
-        avoid_margin: [m] a vehicle starts avoiding when ``V^A <= avoid_margin``; ``None``: one inner step of the
-            fastest fall of the interpolated value near its zero level plus a rounding allowance
-            (:func:`stp_env.sim.margins.default_avoid_margin`), so that the boundary is not stepped over between
-            two checks. The fall rate is not a closing speed: the vehicle's own turn rotates the relative state
-            and the relative heading moves the value too.
+        avoid_margin: [m] a vehicle starts avoiding when ``V^A <= avoid_margin``; ``None``: the certified margin,
+            one inner step of the fastest fall of the interpolated value near its zero level, plus the table's
+            closed-loop error and a rounding allowance (:func:`stp_env.sim.margins.default_avoid_margin`), so that
+            the boundary is not stepped over between two checks and ``u^A`` wins from wherever the check fires. The
+            fall rate is not a closing speed: the vehicle's own turn rotates the relative state and the relative
+            heading moves the value too. A margin below the certified one needs ``allow_uncertified=True``.
         d_sense: sensing range for observations [m] (``None``: 1.5 d^A); must be >= d^A.
         episode: ``"window"`` (start ``lead`` seconds before the intruder can appear and end ``tail`` seconds
             after it leaves: the part of a flight that matters for k̄) or ``"full"`` (first departure to the last
@@ -97,6 +101,11 @@ class EnvConfig:
         vehicle_model: the vehicles' plant (:mod:`stp_env.sim.vehicle_models`; the papers' :class:`Dubins` by
             default). The plans, the reachability sets and the papers' controllers stay those of the scenario's
             HJ model; the plant follows their commands through ``VehicleModel.command_to_action``.
+        allow_uncertified: simulate settings outside what the proofs certify (an inner period outside
+            :data:`CERTIFIED_CONTROL_DT`, an avoid margin below the certified one, a plan whose trajectories are not
+            flights of the planning dynamics ``U^p``) instead of refusing them. The vehicles concerned (all of them
+            for a setting of the simulator) then have ``EnvParams.certified`` false: their collisions and tracking
+            violations are booked as assumption failures, not guarantee violations.
     """
 
     dt: float = 0.1
@@ -114,13 +123,22 @@ class EnvConfig:
     n_nearest: int = 4
     rewards: RewardConfig = dataclasses.field(default_factory=RewardConfig)
     vehicle_model: VehicleModel = dataclasses.field(default_factory=Dubins)
+    allow_uncertified: bool = False
 
     def __post_init__(self) -> None:
+        if not isinstance(self.allow_uncertified, bool):
+            raise ValueError(f"allow_uncertified must be True or False; got {self.allow_uncertified!r}.")
         _finite("dt", self.dt, positive=True)
         _finite("control_dt", self.control_dt, positive=True)
         ratio = self.dt / self.control_dt
         if round(ratio) < 1 or abs(ratio - round(ratio)) > 1e-6 * ratio:
             raise ValueError(f"dt ({self.dt} s) must be a whole multiple of control_dt ({self.control_dt} s).")
+        if not self.control_dt_certified and not self.allow_uncertified:
+            lo, hi = CERTIFIED_CONTROL_DT
+            raise ValueError(f"control_dt {self.control_dt} s lies outside {lo}-{hi} s, the inner control periods "
+                             "at which the tracking-error bound and the avoid margin are certified; pass "
+                             "allow_uncertified=True to simulate it anyway (violations then count as assumption "
+                             "failures).")
         object.__setattr__(self, "wind_model", winds.make(self.wind_model))
         if self.spawn_mode not in SPAWN_MODES:
             raise ValueError(f"spawn_mode {self.spawn_mode!r} is not known; allowed: {', '.join(SPAWN_MODES)}.")
@@ -150,6 +168,12 @@ class EnvConfig:
         if not isinstance(self.vehicle_model, VehicleModel):
             raise ValueError(f"vehicle_model must be a stp_env.sim.vehicle_models.VehicleModel; got "
                              f"{type(self.vehicle_model).__name__}.")
+
+    @property
+    def control_dt_certified(self) -> bool:
+        """Whether ``control_dt`` lies in :data:`CERTIFIED_CONTROL_DT` (up to float rounding)."""
+        lo, hi = CERTIFIED_CONTROL_DT
+        return lo * (1 - 1e-6) <= self.control_dt <= hi * (1 + 1e-6)
 
     @property
     def control_substeps(self) -> int:

@@ -30,7 +30,9 @@ One step of length ``dt`` (intruder paper Sections II and IV):
    of its own. Such collisions still count as collisions. A vehicle that applied ``kappa`` at every inner step of
    its nominal flight and still got farther than ``r_e`` from its nominal position breaks the robust-tracking
    guarantee (SPP eqs. 24-26): that is a guarantee violation too (``tracking_violation``), whatever the intruder
-   does.
+   does. A vehicle outside what the proofs certify (``EnvParams.certified`` false: a plan that is not a flight of
+   ``U^p``, or an uncertified inner period or avoid margin, accepted only with ``EnvConfig.allow_uncertified``)
+   has its assumptions failed from the start: its collisions and tracking errors are not guarantee violations.
 
 Waiting and finished vehicles are outside the airspace: they neither move nor collide. Actions of agents that
 cannot act (waiting, finished, an absent intruder) are ignored.
@@ -108,7 +110,7 @@ def reset(key, params: EnvParams) -> EnvState:
         mode=jnp.full((n,), NOMINAL, jnp.int32),
         avoid_start=inf,
         complied=jnp.ones((n,), bool),
-        assumption_ok=jnp.ones((n,), bool),
+        assumption_ok=jnp.asarray(params.certified, bool),
         used_filter=jnp.zeros((n,), bool),
         min_separation=inf,
         arrival_time=jnp.where(arrived, jnp.minimum(params.nominal_arrival, t0), jnp.inf),  # before the episode
@@ -246,7 +248,8 @@ def lifecycle(state: EnvState, params: EnvParams) -> EnvState:
     state = observe_controllers(state, params)
     # Assumption 3 per vehicle: checked when the intruder appears, or when a vehicle takes off while it is here.
     check = (appear & flying(state)) | (depart & intruder_present(state))
-    assumption_ok = jnp.where(check, state.avoid_value > params.avoid_margin, state.assumption_ok)
+    assumption_ok = jnp.where(check, state.assumption_ok & (state.avoid_value > params.avoid_margin),
+                              state.assumption_ok)
     d_int = jnp.where(flying(state) & intruder_present(state),
                       jnp.hypot(*(state.x[:, :2] - state.intruder_x[None, :2]).T), jnp.inf)
     state = replace(state, assumption_ok=assumption_ok, intruder_distance=d_int)
@@ -367,7 +370,9 @@ def _events(state: EnvState, sub: EnvState, closest: Closest, params: EnvParams)
         intruder_x=xi, intruder_distance=d_int,
     )
     new_state = lifecycle(new_state, params)
-    tracking_violation = new_state.tracked & (new_state.max_tracking_error > params.tracking_bound)
+    # a vehicle outside the proofs (EnvParams.certified false) has assumption failures, not tracking violations
+    tracking_violation = (new_state.tracked & params.certified
+                          & (new_state.max_tracking_error > params.tracking_bound))
     new_state = replace(new_state, tracking_violation=tracking_violation,
                         guarantee_violation=state.guarantee_violation | violation | tracking_violation)
     return new_state, Events(collided=collided, hit_vehicle=hit_vehicle, hit_intruder=hit_intruder,

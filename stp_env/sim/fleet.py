@@ -37,7 +37,7 @@ from stp_env.sim.types import VEHICLE_FIELDS, EnvParams, EnvState, replace
 
 # EnvParams fields with one entry per vehicle (axis 0); select() slices them.
 PARAM_VEHICLE_FIELDS = ("departure", "sta", "nominal_arrival", "starts", "targets", "target_radii", "nominal_t0",
-                        "nominal_states", "nominal_controls", "nominal_len")
+                        "nominal_states", "nominal_controls", "nominal_len", "certified")
 
 
 def fleet_size(params: EnvParams) -> int:

@@ -35,15 +35,16 @@ def _min_value(params: EnvParams, x, fly, xi):
     return jnp.min(jnp.where(fly, vals, tables.FAR))
 
 
-def radius_on_level(params: EnvParams, direction, rel_heading, level):
+def radius_on_level(params: EnvParams, direction, rel_heading, level, tau=0.0):
     """The distance along the unit ``direction`` (vehicle frame) at which an intruder of relative heading
-    ``rel_heading`` is on (just outside) the level ``V^A(0, t_IAT) = level`` of the avoid region: bisection
-    (``N_BISECT`` halvings) between the vehicle and the table's edge on that bearing."""
+    ``rel_heading`` is on (just outside) the level ``V^A(tau, t_IAT) = level`` of the avoid region (``tau``: the time
+    since the intruder appeared [s]): bisection (``N_BISECT`` halvings) between the vehicle and the table's edge on
+    that bearing."""
     grid = params.avoid_grid
     r_hi0 = 0.999 * min(-grid.lo[0], grid.hi[0], -grid.lo[1], grid.hi[1])  # inside the table on every bearing
 
     def value(r):
-        return tables.avoid_value(params, 0.0, jnp.stack([r * direction[0], r * direction[1], rel_heading]))
+        return tables.avoid_value(params, tau, jnp.stack([r * direction[0], r * direction[1], rel_heading]))
 
     def bisect(_, lohi):
         lo, hi = lohi

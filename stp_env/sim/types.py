@@ -110,6 +110,9 @@ class EnvParams:
     nominal_states: jax.Array     # (N, K, 3) [m, m, rad], padded with the last sample
     nominal_controls: jax.Array   # (N, K, 2) [m/s, rad/s]
     nominal_len: jax.Array        # (N,) samples used
+    certified: jax.Array          # (N,) bool: the guarantees' assumptions hold for this vehicle: its plan is a
+    #                               flight of U^p and the simulator's inner period and margin are certified (false
+    #                               only with EnvConfig.allow_uncertified); its violations are assumption failures
     planning_v_max: jax.Array     # () [m/s] fastest planning speed (fallback controller)
     # --- static obstacles
     sdf: jax.Array                # sdf_grid.shape [m] signed distance to buildings (negative inside)
@@ -124,7 +127,10 @@ class EnvParams:
     appear_window: jax.Array      # (2,) [s] the intruder appears at t_ ~ U[lo, hi] (lo == hi: fixed)
     spawn_radius: jax.Array       # () [m] "outside" spawns lie within this distance of a flying vehicle
     spawn_boundary_probability: jax.Array  # () the episode's spawn is "boundary" with this probability, else "outside"
-    avoid_margin: jax.Array       # () [m] avoid start when V^A <= margin (one inner step of the value's fastest fall)
+    avoid_margin: jax.Array       # () [m] avoid start when V^A <= margin (one inner step of the value's fastest fall,
+    #                               the table's closed-loop error and rounding: stp_env.sim.margins)
+    avoid_fall_rate: jax.Array    # () [m/s] the fastest fall of the interpolated V^A near its zero level: the check
+    #                               can fire as low as avoid_margin - control_dt * avoid_fall_rate
     kbar: jax.Array               # () int, the bound under test
     d_sense: jax.Array            # () [m] sensing range (>= d^A)
     # --- rewards
@@ -167,7 +173,8 @@ class EnvState:
     mode: jax.Array               # (N,) int, NOMINAL / AVOIDING / AFTER_AVOIDANCE
     avoid_start: jax.Array        # (N,) [s] t_i of eqs. 17-18 (inf: never)
     complied: jax.Array           # (N,) bool: applied u^A at every step since t_i
-    assumption_ok: jax.Array      # (N,) bool: the intruder appeared outside this vehicle's avoid region
+    assumption_ok: jax.Array      # (N,) bool: the intruder appeared outside this vehicle's avoid region, and the
+    #                               vehicle is certified (EnvParams.certified)
     used_filter: jax.Array        # (N,) bool: the safety filter replaced this step's action
     min_separation: jax.Array     # (N,) [m] smallest distance to another vehicle or the intruder so far
     arrival_time: jax.Array       # (N,) [s] (inf: not arrived)

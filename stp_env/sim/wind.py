@@ -3,15 +3,37 @@ registered by name; ``EnvParams.wind_model`` is a model or a registered name).
 
 Every agent has its own wind in the disk of its bound (``d_r`` for vehicles, ``d_I`` for the intruder; intruder
 paper eq. 43), and a heading-rate disturbance in ``[-d_theta, d_theta]`` where the vehicle model has one (SPP
-eq. 28).
+eq. 28). The reachability tables and the tracking bound are certified for those bounds only, so the winds and
+disturbances a model returns pass through :func:`within_bounds` on their way to the motion: a plug-in model cannot
+push them past what the guarantees assume.
 """
 
 from __future__ import annotations
 
+import jax.numpy as jnp
+
 from stp_env.sim import winds
 from stp_env.sim.fleet import agent_rows, fleet_size
 from stp_env.sim.types import EnvParams, EnvState
+from stp_env.sim.winds.base import heading_bounds, radii
 from stp_env.sim.winds.worst import worst_winds
+
+BOUND_TOLERANCE = 1e-5
+"""Relative slack of :func:`within_bounds`: a wind on its disk's boundary, computed in float32 (``"worst"``,
+``"tailwind"``), is left as it is, bit for bit."""
+
+
+def within_bounds(params: EnvParams, wind, heading=None):
+    """``wind`` ``(N + 1, 2)`` with every vector longer than its agent's bound (:func:`~stp_env.sim.winds.base.radii`,
+    beyond :data:`BOUND_TOLERANCE`) scaled back onto it, and ``heading`` ``(N + 1,)`` clipped to its bounds."""
+    r = radii(params)
+    norm = jnp.linalg.norm(wind, axis=-1)
+    scale = jnp.where(norm > r * (1 + BOUND_TOLERANCE), r / jnp.maximum(norm, 1e-30), 1.0)
+    wind = wind * scale[:, None].astype(wind.dtype)
+    if heading is None:
+        return wind
+    hb = heading_bounds(params)
+    return wind, jnp.clip(heading, -hb, hb)
 
 
 def model(params: EnvParams) -> winds.WindModel:
@@ -44,13 +66,14 @@ def sample(key, state: EnvState, params: EnvParams):
     """``(winds (N + 1, 2), heading disturbances (N + 1,), new wind state (F + 1, 2))`` for this step (held over
     its inner steps unless the model is state-dependent: see :func:`inner`)."""
     winds_now, heading, new = model(params).sample(key, state, params)
-    return _simulated(params, winds_now), _simulated(params, heading), new
+    winds_now, heading = within_bounds(params, _simulated(params, winds_now), _simulated(params, heading))
+    return winds_now, heading, new
 
 
 def inner(state: EnvState, params: EnvParams, held):
     """The winds at an inner step's state: ``held`` (this step's :func:`sample`) unless the model recomputes them
     from the state (``"worst"``)."""
-    return _simulated(params, model(params).inner(state, params, held))
+    return within_bounds(params, _simulated(params, model(params).inner(state, params, held)))
 
 
 def worst(state: EnvState, params: EnvParams):
