@@ -30,7 +30,7 @@ INTRUDER = DubinsWind(v_min=0.0, v_max=1.2, omega_max=1.0, wind=0.1)
 
 def small_config(t_iat=2.0, **kw):
     base = dict(vehicle=VEHICLE, intruder=INTRUDER, collision_radius=1.0, t_iat=t_iat, half_width=4.5,
-                grid_points=(45, 45, 44), n_slices=9)
+                grid_points=(45, 45, 44), n_slices=9, certify=False)
     base.update(kw)
     return AvoidRegionConfig(**base)
 

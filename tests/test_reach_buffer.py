@@ -20,6 +20,7 @@ from stp_env.reach.buffer import (
 
 VEHICLE = DubinsWind(v_min=0.0, v_max=1.0, omega_max=1.0, wind=0.1)
 AVOID = AvoidRegionConfig(vehicle=VEHICLE, intruder=VEHICLE, collision_radius=1.0, t_iat=2.0, half_width=4.0,
+                          certify=False,
                           grid_points=(41, 41, 40), n_slices=5)
 
 

@@ -23,7 +23,7 @@ VEHICLE = DubinsWind(v_min=0.0, v_max=1.0, omega_max=2.0, wind=0.1)
 
 def config(**kw):
     base = dict(vehicle=VEHICLE, planning_v=(0.4, 0.5), planning_omega_max=1.0, half_width=1.0,
-                grid_points=(41, 41, 40), max_horizon=30.0)
+                grid_points=(41, 41, 40), max_horizon=30.0, certify=False)
     base.update(kw)
     return TrackingConfig(**base)
 
@@ -143,7 +143,7 @@ def test_default_bound_matches_the_beacls_figure_and_a_coarser_solve(tmp_path):
     shipped_bound = compute_tracking_bound(default, store=ArtifactStore(tmp_path / "empty", shipped=SHIPPED_DIR),
                                            progress=False)
     assert shipped_bound.converged and 3.5 <= shipped_bound.bound <= 6.5, shipped_bound.bound
-    coarse_cfg = dataclasses.replace(default, grid_points=(31, 31, 30))
+    coarse_cfg = dataclasses.replace(default, grid_points=(31, 31, 30), certify=False)
     coarse = compute_tracking_bound(coarse_cfg, store=ArtifactStore(tmp_path / "coarse", shipped=None), progress=False)
     assert coarse.converged
     assert 3.5 <= coarse.bound <= 6.5, coarse.bound

@@ -14,6 +14,15 @@ planning speed) until the core's avoid-start check fires (eqs. 17-18, at the inn
 (``vehicle="nominal"``: it only tracks its plan and never avoids, a control case the search must break).
 Objective: ``R_c - min distance`` over the intruder's presence, from the simulator's closest approaches over the
 inner steps. The bound under attack is 0 (positive: the intruder entered the danger zone).
+
+``start="band"`` attacks from *inside* the check's band instead: the check fires wherever the value crossed the
+margin between two inner steps, that is anywhere in ``[margin - control_dt * fall_rate, margin]``, so the guarantee
+must hold from every state of that band, at every time since the intruder appeared. The intruder appeared ``tau_0``
+seconds ago (searched, on the step grid) and is on the level ``V^A(tau_0) = floor + band_level * (margin - floor)``
+(``band_level`` in ``[0, 1]``, searched unless fixed); the vehicle avoids from the start. Its seeds
+(:meth:`AvoidanceAttack.seeds`) are the game's own worst starts on the band's floor, found by flying the game's
+optimal pursuit and worst wind against ``u^A`` with the simulator's tables
+(:func:`stp_env.reach.avoid.certify_zero_level`).
 """
 
 from __future__ import annotations
@@ -23,6 +32,7 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from stp_env.baselines.intruders import hj_pursuit
 from stp_env.baselines.vehicles import VEHICLE_POLICIES
@@ -31,6 +41,7 @@ from stp_env.sim import core
 from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN, WIND
 from stp_env.sim.physics import control_to_action
 from stp_env.sim.spawn import radius_on_level
+from stp_env.sim.tables import PERIODIC_PAD
 from stp_env.sim.types import EnvParams, replace
 
 
@@ -45,6 +56,8 @@ class AvoidanceAttack:
     wind_segment: float = 0.5
     max_level: float = 10.0
     vehicle: str = "switching"
+    start: str = "outside"
+    band_level: float | None = None
     name: str = "avoidance"
 
     def __post_init__(self) -> None:
@@ -60,6 +73,11 @@ class AvoidanceAttack:
                 raise ValueError(f"{label} must be at least the step dt = {dt} s; got {value}.")
         if not (math.isfinite(self.max_level) and self.max_level >= 0):
             raise ValueError(f"max_level must be >= 0 [m]; got {self.max_level}.")
+        if self.start not in ("outside", "band"):
+            raise ValueError(f"start must be 'outside' or 'band'; got {self.start!r}.")
+        if self.band_level is not None and not (isinstance(self.band_level, (int, float))
+                                                and 0.0 <= self.band_level <= 1.0):
+            raise ValueError(f"band_level must be a number in [0, 1] or None; got {self.band_level!r}.")
 
     @property
     def n_steps(self) -> int:
@@ -72,9 +90,20 @@ class AvoidanceAttack:
         return rep, n_seg, w_rep, n_wind
 
     @property
+    def n_start(self) -> int:
+        """Coordinates of the start: bearing, relative heading, level (and ``tau_0`` for band starts)."""
+        return 4 if self.start == "band" else 3
+
+    @property
     def dim(self) -> int:
         _, n_seg, _, n_wind = self._split()
-        return 3 + 2 * n_seg + 4 * n_wind
+        return self.n_start + 2 * n_seg + 4 * n_wind
+
+    @property
+    def band_floor(self) -> float:
+        """[m] the lowest avoid value at which the core's check can fire: ``margin - control_dt * fall_rate``."""
+        control_dt = float(self.base.dt) / int(self.base.control_substeps)
+        return float(self.base.avoid_margin) - control_dt * float(self.base.avoid_fall_rate)
 
     @property
     def bound(self) -> float:
@@ -88,15 +117,56 @@ class AvoidanceAttack:
         return harness.one_vehicle(self.base, self.n_steps + 2,
                                    wind_model="constant" if self.wind == "search" else "worst")
 
-    def start(self, z3):
-        """The intruder's start ``(3,)`` (world frame = the vehicle's frame at ``t = 0``) on
-        ``V^A(0) = avoid_margin + level``."""
-        bearing = 2 * jnp.pi * z3[0] - jnp.pi
-        rel_heading = 2 * jnp.pi * z3[1] - jnp.pi
-        level = self.base.avoid_margin + 1e-3 + self.max_level * z3[2]
+    def tau0(self, zs):
+        """The time since the intruder appeared at the attack's start [s] (0 for ``start="outside"``): a whole
+        number of steps, at most ``t_IAT`` less two steps (the core's leaving rule counts whole steps)."""
+        if self.start != "band":
+            return jnp.zeros((), jnp.float32)
+        dt = float(self.base.dt)
+        n = max(round(float(self.base.t_iat) / dt) - 2, 0)
+        return dt * jnp.round(zs[3] * n)
+
+    def level(self, zs):
+        """The start's avoid value [m]."""
+        if self.start != "band":
+            return self.base.avoid_margin + 1e-3 + self.max_level * zs[2]
+        frac = zs[2] if self.band_level is None else jnp.asarray(self.band_level, jnp.float32)
+        floor = self.band_floor
+        return floor + frac * (self.base.avoid_margin - floor)
+
+    def start_state(self, zs):
+        """The intruder's start ``(3,)`` (world frame = the vehicle's frame at ``t = 0``) on ``V^A(tau_0) =``
+        :meth:`level`."""
+        bearing = 2 * jnp.pi * zs[0] - jnp.pi
+        rel_heading = 2 * jnp.pi * zs[1] - jnp.pi
         direction = jnp.stack([jnp.cos(bearing), jnp.sin(bearing)])
-        r = radius_on_level(self.base, direction, rel_heading, level)
+        r = radius_on_level(self.base, direction, rel_heading, self.level(zs), self.tau0(zs))
         return jnp.stack([r * direction[0], r * direction[1], rel_heading])
+
+    def seeds(self) -> np.ndarray | None:
+        """Band starts: the game's worst starts on the band's floor, ``(1, dim)`` (the other inputs in the middle
+        of their box); ``None`` for ``start="outside"``."""
+        if self.start != "band":
+            return None
+        from stp_env.reach.avoid import AvoidGame, certify_zero_level
+
+        base = self.base
+        grid = base.avoid_grid
+        before, after = PERIODIC_PAD
+        values = np.asarray(base.avoid_values)[(slice(None), slice(None), slice(None), slice(before, -after))]
+        game = AvoidGame(grid=grid, dynamics=base.avoid_dynamics, t_iat=float(base.t_iat),
+                         collision_radius=float(base.collision_radius))
+        control_dt = float(base.dt) / int(base.control_substeps)
+        cert = certify_zero_level(game, base.avoid_taus, values, n_taus=10, n_bearings=24, n_headings=24,
+                                  n_refine=4, level=self.band_floor, control_dts=(control_dt,),
+                                  decision_dt=float(base.dt))
+        z = np.full(self.dim, 0.5)
+        n = max(round(float(base.t_iat) / float(base.dt)) - 2, 1)
+        z[0] = ((cert["bearing"] + np.pi) / (2 * np.pi)) % 1.0
+        z[1] = ((cert["heading"] + np.pi) / (2 * np.pi)) % 1.0
+        z[2] = 0.0 if self.band_level is None else self.band_level
+        z[3] = min(max(cert["tau0"] / (float(base.dt) * n), 0.0), 1.0)
+        return z[None, :]
 
     def simulate(self, z, record: bool = False):
         rep, n_seg, w_rep, n_wind = self._split()
@@ -107,13 +177,15 @@ class AvoidanceAttack:
         controls = jnp.tile(jnp.stack([v_plan, 0.0]).astype(jnp.float32), (n, 1))
         states = harness.reference(jnp.zeros(3), controls, dt)
         params = harness.with_reference(params, states, controls)
-        xi0 = self.start(z[:3])
+        ns = self.n_start
+        xi0 = self.start_state(z[:ns])
         state = core.reset(jax.random.key(0), params)
-        # The intruder appears at t = 0 at the attacker's start (Assumption 3 as the core checks it).
+        # The intruder appeared tau_0 before t = 0 (0 unless a band start) at the attacker's start (Assumption 3 as
+        # the core checks it, or a state inside the check's band).
         state = replace(state, intruder_x=xi0, intruder_memory=jnp.concatenate([xi0, jnp.zeros(1)]),
-                        assumption_ok=jnp.ones((1,), bool))
+                        assumption_ok=jnp.ones((1,), bool), t_appear=-self.tau0(z[:ns]))
         state = core.avoid_start(core.observe_controllers(state, params), params)
-        rest = z[3:]
+        rest = z[ns:]
         actions = policy = None
         if self.intruder == "search":
             b = self.base.intruder_bounds
@@ -147,4 +219,5 @@ class AvoidanceAttack:
 
     def describe(self) -> dict:
         return {"attack": self.name, "segment": self.segment, "intruder": self.intruder, "wind": self.wind,
-                "wind_segment": self.wind_segment, "max_level": self.max_level, "vehicle": self.vehicle}
+                "wind_segment": self.wind_segment, "max_level": self.max_level, "vehicle": self.vehicle,
+                "start": self.start, "band_level": self.band_level}

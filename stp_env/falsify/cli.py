@@ -34,6 +34,9 @@ def add_parser(sub) -> None:
     fa.add_argument("--target", choices=TARGETS, default="tracking", help="the bound to attack")
     fa.add_argument("--scenario", default="town", help="registered scenario (vehicle, tables, plan)")
     fa.add_argument("--kbar", type=int, default=None, help="the scenario's k̄ (default: the scenario's own)")
+    fa.add_argument("--wind", type=float, default=None,
+                    help="the scenario's wind bound [m/s] (default: the scenario's own; e.g. --scenario tiny --wind 11 "
+                         "for the tracking and avoidance attacks at 11 m/s)")
     fa.add_argument("--wind-model", default="worst", help="the environment's wind model (kbar attack)")
     fa.add_argument("--control-dt", type=float, default=0.02, help="inner control period of the vehicles [s]")
     fa.add_argument("--option", type=_option, action="append", default=[], metavar="NAME=VALUE",
@@ -44,6 +47,8 @@ def add_parser(sub) -> None:
     fa.add_argument("--restarts", type=int, default=4, help="independent cross-entropy searches")
     fa.add_argument("--batch", type=int, default=1000, help="attacks simulated at once")
     fa.add_argument("--seed", type=int, default=0, help="search seed")
+    fa.add_argument("--no-game-seed", action="store_true",
+                    help="do not start the search from the game's own worst strategies (the attack's seeds)")
     fa.add_argument("--out", default="falsify", help="output directory")
     fa.add_argument("--replay", default=None, metavar="FILE",
                     help="recompute the value of a saved counterexample.json instead of searching")
@@ -63,12 +68,12 @@ def run_cli(args) -> int:
         same = recorded == recomputed
         print(json.dumps({"file": args.replay, "recorded": recorded, "recomputed": recomputed, "identical": same}))
         return 0 if same else 1
-    spec = AttackSpec(target=args.target, scenario=args.scenario, kbar=args.kbar, wind_model=args.wind_model,
-                      control_dt=args.control_dt, options=tuple(args.option))
+    spec = AttackSpec(target=args.target, scenario=args.scenario, kbar=args.kbar, wind=args.wind,
+                      wind_model=args.wind_model, control_dt=args.control_dt, options=tuple(args.option))
     config = SearchConfig(method=args.method, budget=args.attacks, population=args.population,
                           restarts=args.restarts, batch=args.batch)
     out = check_output_dir(args.out)  # before the search, so that its result is not lost at the end
-    outcome = run(spec, config, args.seed, progress=not args.no_progress)
+    outcome = run(spec, config, args.seed, progress=not args.no_progress, seeded=not args.no_game_seed)
     path = save(outcome, out, plot=not args.no_figures)
     summary = outcome.summary()
     summary["counterexample"] = str(path)

@@ -34,6 +34,8 @@ class AttackSpec:
         target: ``"tracking"``, ``"avoidance"`` or ``"kbar"``.
         scenario: a registered scenario name (its vehicle, tables and, for ``"kbar"``, its plan).
         kbar: the scenario's k̄ (plan and buffers); ``None``: the scenario's default.
+        wind: the scenario's wind bound [m/s] (its tables and bound are those of this wind); ``None``: the
+            scenario's default.
         wind_model: the environment's wind model (``"kbar"``; the other attacks choose their wind themselves).
         dt, control_dt: the environment's decision and inner control periods [s].
         options: the attack's own options as ``(name, value)`` pairs (see each attack's dataclass fields).
@@ -42,6 +44,7 @@ class AttackSpec:
     target: str
     scenario: str = "town"
     kbar: int | None = None
+    wind: float | None = None
     wind_model: str = "worst"
     dt: float = 0.1
     control_dt: float = 0.02
@@ -59,7 +62,8 @@ class AttackSpec:
         object.__setattr__(self, "options", tuple(sorted(opts.items())))
 
     def to_json(self) -> dict:
-        return {"target": self.target, "scenario": self.scenario, "kbar": self.kbar, "wind_model": self.wind_model,
+        return {"target": self.target, "scenario": self.scenario, "kbar": self.kbar, "wind": self.wind,
+                "wind_model": self.wind_model,
                 "dt": self.dt, "control_dt": self.control_dt, "options": dict(self.options)}
 
     @classmethod
@@ -88,6 +92,10 @@ def environment(spec: AttackSpec, *, progress: bool = False):
         if "kbar" not in factory_parameters(spec.scenario):
             raise ValueError(f"scenario {spec.scenario!r} takes no kbar.")
         overrides["kbar"] = spec.kbar
+    if spec.wind is not None:
+        if "wind" not in factory_parameters(spec.scenario):
+            raise ValueError(f"scenario {spec.scenario!r} takes no wind.")
+        overrides["wind"] = float(spec.wind)
     scenario = make(spec.scenario, **overrides)
     config = sim.EnvConfig(dt=spec.dt, control_dt=spec.control_dt, wind_model=spec.wind_model)
     params = sim.params_for(scenario, config, progress=progress)
@@ -135,6 +143,8 @@ class Outcome:
         evaluations: attacks simulated; seconds: wall time of the search (compilation included).
         quantiles: the 50/90/99/100 % quantiles of every attack's objective (the spread of the search).
         details: what the simulator says about the worst attack (attack-specific).
+        seed_values: the objective at each of the attack's game seeds (where the search started; empty when the
+            attack has none).
     """
 
     spec: AttackSpec
@@ -148,6 +158,7 @@ class Outcome:
     seconds: float
     quantiles: tuple[float, ...]
     details: dict
+    seed_values: tuple[float, ...] = ()
 
     @property
     def violated(self) -> bool:
@@ -158,14 +169,17 @@ class Outcome:
                 "options": dict(self.spec.options), "method": self.config.method, "attacks": self.evaluations,
                 "worst": round(self.worst, 4), "bound": round(self.bound, 4), "margin": round(self.margin, 4),
                 "violated": self.violated, "seconds": round(self.seconds, 1),
-                "quantiles_50_90_99_100": [round(q, 4) for q in self.quantiles], "details": self.details}
+                "quantiles_50_90_99_100": [round(q, 4) for q in self.quantiles], "details": self.details,
+                "seed_values": [round(v, 4) for v in self.seed_values]}
 
 
 def run(spec: AttackSpec, config: SearchConfig | None = None, seed: int = 0, *, params=None,
-        progress: bool = True) -> Outcome:
-    """Search ``config.budget`` attacks of ``spec`` and return the worst."""
+        progress: bool = True, seeded: bool = True) -> Outcome:
+    """Search ``config.budget`` attacks of ``spec`` and return the worst. ``seeded``: start the search from the
+    attack's game strategies (its ``seeds()``, when it has them), as well as from the whole box."""
     config = SearchConfig() if config is None else config
     attack = build_attack(spec, params, progress=progress)
+    seeds = np.asarray(attack.seeds(), np.float32) if seeded and callable(getattr(attack, "seeds", None)) else None
     bar = None
     if progress:
         from tqdm.auto import tqdm
@@ -173,7 +187,7 @@ def run(spec: AttackSpec, config: SearchConfig | None = None, seed: int = 0, *, 
         bar = tqdm(total=config.budget, unit="attack", desc=f"falsify {spec.target}")
     start = time.perf_counter()
     try:
-        result = search(attack.objective, attack.dim, jax.random.key(seed), config, progress=bar)
+        result = search(attack.objective, attack.dim, jax.random.key(seed), config, progress=bar, seeds=seeds)
     finally:
         if bar is not None:
             bar.close()
@@ -183,9 +197,10 @@ def run(spec: AttackSpec, config: SearchConfig | None = None, seed: int = 0, *, 
     finite = result.values[np.isfinite(result.values)]
     quantiles = tuple(float(q) for q in np.quantile(finite, [0.5, 0.9, 0.99, 1.0])) if finite.size else ()
     details = _details(attack, z)
+    seed_values = () if seeds is None else tuple(canonical_value(attack, s) for s in seeds)
     return Outcome(spec=spec, config=config, seed=seed, z=z, worst=worst, bound=attack.bound,
                    margin=attack.margin(worst), evaluations=result.evaluations, seconds=seconds,
-                   quantiles=quantiles, details=details)
+                   quantiles=quantiles, details=details, seed_values=seed_values)
 
 
 def _details(attack, z) -> dict:

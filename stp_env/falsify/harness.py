@@ -39,7 +39,7 @@ def one_vehicle(base: EnvParams, n_samples: int, *, wind_model: str | None = Non
         starts=jnp.zeros((1, 3), f32), targets=jnp.full((1, 2), FAR_DOMAIN, f32), target_radii=jnp.ones((1,), f32),
         nominal_t0=jnp.zeros((1,), f32), nominal_dt=base.dt,
         nominal_states=jnp.zeros((1, n_samples, 3), f32), nominal_controls=jnp.zeros((1, n_samples, 2), f32),
-        nominal_len=jnp.full((1,), n_samples, jnp.int32),
+        nominal_len=jnp.full((1,), n_samples, jnp.int32), certified=jnp.ones((1,), bool),
         sdf=jnp.full((5, 5), 1.0e6, f32), sdf_grid=sdf_grid,
         appear_window=jnp.zeros((2,), f32), spawn_boundary_probability=jnp.asarray(0.0, f32),
         kbar=jnp.asarray(1, jnp.int32),

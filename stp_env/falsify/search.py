@@ -136,9 +136,24 @@ def evaluate(objective: Objective, zs, batch: int, *, program=None) -> np.ndarra
     return np.concatenate(out) if out else np.zeros((0,))
 
 
+SEED_STD = 0.1
+"""Initial deviation of a cross-entropy restart started from a seed (a game's worst strategy): the search looks
+around it first."""
+
+
+def _check_seeds(seeds, dim: int) -> np.ndarray:
+    seeds = np.atleast_2d(np.asarray(seeds, np.float64))
+    if seeds.ndim != 2 or seeds.shape[1] != dim or not np.all(np.isfinite(seeds)) \
+            or np.any((seeds < 0) | (seeds > 1)):
+        raise ValueError(f"seeds must be points of [0, 1]^{dim}; got an array of shape {seeds.shape}.")
+    return seeds
+
+
 def cross_entropy(objective: Objective, dim: int, key, config: SearchConfig, *, budget: int | None = None,
-                  progress=None) -> SearchResult:
-    """The cross-entropy method on ``[0, 1]^dim`` (see the module docstring)."""
+                  progress=None, seeds=None) -> SearchResult:
+    """The cross-entropy method on ``[0, 1]^dim`` (see the module docstring). ``seeds`` ``(S, dim)``: the first
+    ``min(S, restarts - 1)`` restarts start from them (mean at the seed, deviation :data:`SEED_STD`; the seed itself
+    is the first sample of its restart), the others from the whole box, so that a seeded search also explores."""
     budget = config.budget if budget is None else budget
     pop, restarts = config.population, config.restarts
     per_iter = pop * restarts
@@ -146,11 +161,19 @@ def cross_entropy(objective: Objective, dim: int, key, config: SearchConfig, *, 
     n_elite = max(2, math.ceil(config.elite_fraction * pop))
     mean = np.full((restarts, dim), 0.5)
     std = np.full((restarts, dim), 0.3)
+    n_seeded = 0
+    if seeds is not None:
+        seeds = _check_seeds(seeds, dim)
+        n_seeded = min(len(seeds), max(restarts - 1, 1))
+        mean[:n_seeded] = seeds[:n_seeded]
+        std[:n_seeded] = SEED_STD
     rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel().astype(np.uint32))
     program = compiled(objective)  # once for the whole search
     best_z, best_v, history, values = None, -math.inf, [], []
-    for _ in range(iters):
+    for it in range(iters):
         zs = np.clip(mean[:, None, :] + std[:, None, :] * rng.standard_normal((restarts, pop, dim)), 0.0, 1.0)
+        if it == 0 and n_seeded:
+            zs[:n_seeded, 0] = seeds[:n_seeded]
         vals = evaluate(objective, zs.reshape(-1, dim), config.batch, program=program).reshape(restarts, pop)
         values.append(vals.ravel())
         finite = np.where(np.isfinite(vals), vals, -np.inf)
@@ -213,15 +236,17 @@ def gradient_ascent(objective: Objective, dim: int, key, config: SearchConfig, *
                         values=np.concatenate(values))
 
 
-def search(objective: Objective, dim: int, key, config: SearchConfig, *, progress=None) -> SearchResult:
+def search(objective: Objective, dim: int, key, config: SearchConfig, *, progress=None, seeds=None) -> SearchResult:
     """Run ``config.method`` within ``config.budget`` evaluations; ``"both"`` runs the cross-entropy method on
-    half the budget and starts the gradient ascent from its result (among random starts)."""
+    half the budget and starts the gradient ascent from its result (among random starts). ``seeds`` (points of
+    ``[0, 1]^dim``, e.g. an attack's game strategies): where the searches start (see :func:`cross_entropy`)."""
     if config.method == "cem":
-        return cross_entropy(objective, dim, key, config, progress=progress)
+        return cross_entropy(objective, dim, key, config, progress=progress, seeds=seeds)
     if config.method == "gradient":
-        return gradient_ascent(objective, dim, key, config, progress=progress)
+        return gradient_ascent(objective, dim, key, config, progress=progress,
+                               starts=None if seeds is None else _check_seeds(seeds, dim))
     k1, k2 = jax.random.split(key)
-    first = cross_entropy(objective, dim, k1, config, budget=config.budget // 2, progress=progress)
+    first = cross_entropy(objective, dim, k1, config, budget=config.budget // 2, progress=progress, seeds=seeds)
     second = gradient_ascent(objective, dim, k2, config, budget=config.budget - first.evaluations,
                              starts=first.best_z[None, :], progress=progress)
     best = first if first.best_value >= second.best_value else second

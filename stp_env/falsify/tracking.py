@@ -6,6 +6,13 @@ tracking game's own worst-case wind, re-evaluated at every inner control step (`
 on its reference (zero error) and flies ``u^PP`` (the tracker ``kappa``, run by the core at the inner control rate).
 Objective: the largest distance to the reference over ``horizon`` seconds, as measured by the simulator
 (``EnvState.max_tracking_error``). The bound under attack is the ``r_e`` the planner and the simulator use.
+
+The search starts from the game's own worst strategy (:meth:`TrackingAttack.seeds`): the reference control that
+the tracking value's gradient says grows the error most (and, with ``wind="search"``, the worst wind), flown in
+closed loop against the tracker with the simulator's tables (:func:`stp_env.reach.closed_loop.rollout`) and
+written as the open-loop plan the attack searches over; the cross-entropy search then looks around it. With a
+``segment`` of one plan sample (``dt``) the seed replays the game exactly; with longer segments it is the game's
+reference read at each segment's start.
 """
 
 from __future__ import annotations
@@ -15,10 +22,12 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from stp_env.baselines.vehicles import nominal_tracking
 from stp_env.falsify import harness
-from stp_env.sim import core
+from stp_env.reach import closed_loop
+from stp_env.sim import core, tables
 from stp_env.sim.bounds import WIND
 from stp_env.sim.types import EnvParams, replace
 
@@ -95,6 +104,42 @@ class TrackingAttack:
         final, traj = harness.run(params, state, self.n_steps, vehicle_policy=nominal_tracking, winds=winds,
                                   record=record)
         return final, traj, states
+
+    def seeds(self) -> np.ndarray:
+        """The game's worst reference (and worst wind, when searched) from zero error as a point of the search box,
+        ``(1, dim)`` (module docstring)."""
+        rep, n_seg, w_rep, n_wind = self._split()
+        base = self.base
+        substeps = int(base.control_substeps)
+        h = float(base.dt) / substeps
+        grid, dyn = base.tracking_grid, base.tracking_dynamics
+        lo_b, hi_b = jnp.asarray(grid.lo, jnp.float32), jnp.asarray(grid.hi, jnp.float32)
+
+        def gradient(t, e):
+            del t
+            return tables.interpolate_components(grid, base.tracking_grads, jnp.clip(e, lo_b, hi_b))
+
+        n_inner = self.n_steps * substeps
+
+        @jax.jit
+        def game():
+            return closed_loop.rollout(dyn, gradient, gradient, jnp.zeros(3), h=h, n_steps=n_inner,
+                                       hold=rep * substeps)
+
+        _, controls, winds = (np.asarray(a, np.float64) for a in game())
+        lo = np.asarray([dyn.other_v_min, -dyn.other_omega_max])
+        hi = np.asarray([dyn.other_v_max, dyn.other_omega_max])
+        u = controls[::rep * substeps][:n_seg]
+        z_ref = np.clip((u - lo) / np.where(hi > lo, hi - lo, 1.0), 0.0, 1.0).reshape(-1)
+        parts = [z_ref]
+        if self.wind == "search":
+            # the vehicle's own wind is minus the combined wind the game applies to the reference (harness.disk)
+            w = -winds[::w_rep * substeps][:n_wind]
+            radius = float(np.asarray(base.vehicle_bounds)[WIND])
+            ang = (np.arctan2(w[:, 1], w[:, 0]) / (2 * np.pi)) % 1.0
+            mag = np.clip(np.hypot(w[:, 0], w[:, 1]) / max(radius, 1e-12), 0.0, 1.0)
+            parts.append(np.stack([ang, mag], axis=1).reshape(-1))
+        return np.concatenate(parts)[None, :]
 
     def objective(self, z):
         final, _, _ = self.simulate(z)
