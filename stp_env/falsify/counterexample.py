@@ -277,12 +277,9 @@ def load(path) -> tuple[AttackSpec, np.ndarray, float]:
             raise ValueError(f"missing field(s) {missing}")
         spec = AttackSpec.from_json(record["spec"])
         z = record["z"]
-        if not isinstance(z, list) or not 0 < len(z) <= MAX_ATTACK_DIM or not all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) for v in z):
+        if not isinstance(z, list) or not 0 < len(z) <= MAX_ATTACK_DIM:
             raise ValueError(f"z must be a list of 1 to {MAX_ATTACK_DIM} numbers in [0, 1]")
-        z = np.asarray(z, np.float32)
-        if not np.all(np.isfinite(z)) or np.any((z < 0) | (z > 1)):
-            raise ValueError("z must be a list of numbers in [0, 1]")
+        z = np.asarray([check_real(v, "every entry of z", 0.0, 1.0) for v in z], np.float32)
         value = check_real(record["value"], "value")
     except (TypeError, ValueError) as err:
         raise ValueError(f"{path}: cannot read the counterexample ({' '.join(str(err).split())}).") from None

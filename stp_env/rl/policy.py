@@ -134,8 +134,9 @@ def _mlp_from_arrays(arrays: dict, path, n_outputs: int = 2) -> MLPIntruder:
         for name, a, ndim in ((f"w{i}", w, 2), (f"b{i}", b, 1)):
             if a.dtype.kind != "f" or a.ndim != ndim or 0 in a.shape:
                 raise bad(f"{name} must be a non-empty {ndim}-D float array; got dtype {a.dtype}, shape {a.shape}")
-            if not np.all(np.isfinite(a)):
-                raise bad(f"{name} has {int(np.sum(~np.isfinite(a)))} non-finite value(s) (NaN or inf)")
+            if not np.all(np.isfinite(a.astype(np.float32))):  # as evaluated: 1e300 is finite, not in float32
+                raise bad(f"{name} has {int(np.sum(~np.isfinite(a.astype(np.float32))))} non-finite value(s) (NaN or "
+                          "inf, or beyond float32)")
         if b.shape[0] != w.shape[0] or (width is not None and w.shape[1] != width):
             raise bad(f"layer {i}: w{i} {w.shape} and b{i} {b.shape} do not follow the previous layer's "
                       f"{width} outputs")
