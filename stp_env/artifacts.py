@@ -370,8 +370,8 @@ class ArtifactStore:
             return artifact
         artifact, problem = _read_artifact(npz_path, json_path, kind, params, key)
         if artifact is None:
-            warnings.warn(f"Recomputing {kind} artifact {npz_path.name}: {problem}.", StaleArtifactWarning,
-                          stacklevel=3)
+            warnings.warn(f"Recomputing {kind} artifact {npz_path.name} (and {json_path.name}, in {self.root}): "
+                          f"{problem}.", StaleArtifactWarning, stacklevel=3)
         return artifact
 
     def save(self, kind: str, params: Any, arrays: Mapping[str, np.ndarray],

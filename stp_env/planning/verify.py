@@ -250,7 +250,8 @@ def trajectory_faults(plan: Plan, scenario) -> dict[int, list[str]]:
         dist = np.hypot(states[:, 0] - spec.target[0], states[:, 1] - spec.target[1])
         inside = np.nonzero(dist <= spec.target_radius - plan.tracking_bound)[0]
         arrival = float(times[inside[0]]) if inside.size else math.inf
-        if not (arrival == p.arrival_time or abs(arrival - p.arrival_time) <= 1e-6 * max(1.0, abs(arrival))):
+        if not (arrival == p.arrival_time or (math.isfinite(arrival) and math.isfinite(p.arrival_time)  # inf: exact
+                                              and abs(arrival - p.arrival_time) <= 1e-6 * max(1.0, abs(arrival)))):
             why.append(f"arrival recorded at {p.arrival_time:.6g} s, the first sample in the target at "
                        f"{arrival:.6g} s")
         end = int(inside[0]) if inside.size else len(times) - 1  # the flight's last sample
