@@ -25,7 +25,6 @@ import math
 import os
 import re
 import shutil
-import signal
 import tempfile
 import threading
 import time
@@ -52,23 +51,31 @@ PROPERTY = settings(max_examples=25, deadline=None, derandomize=True,
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 
 
-@contextlib.contextmanager
-def deadline(seconds: float):
-    """Fails (``TimeoutError``) a block that takes longer than ``seconds``: a loader waiting on a FIFO."""
-    if not hasattr(signal, "setitimer"):
-        yield
-        return
+def within(seconds: float, fn, *fifos):
+    """``fn()`` in a thread, which must answer within ``seconds`` (a loader waiting on a FIFO fails the test; the
+    FIFOs are then opened from the other end, so that the waiting thread returns). A signal would not do: with JAX
+    loaded, a process-wide alarm may be delivered to another thread and never interrupt the blocked one."""
+    result = {}
 
-    def expire(signum, frame):
-        raise TimeoutError(f"no answer within {seconds} s")
+    def target():
+        try:
+            result["value"] = fn()
+        except BaseException as err:  # re-raised in the test's thread
+            result["error"] = err
 
-    old = signal.signal(signal.SIGALRM, expire)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old)
+    thread = threading.Thread(target=target, daemon=True)
+    thread.start()
+    thread.join(seconds)
+    if thread.is_alive():
+        for path in fifos:
+            for flags in (os.O_RDONLY | os.O_NONBLOCK, os.O_WRONLY | os.O_NONBLOCK):
+                with contextlib.suppress(OSError):
+                    os.close(os.open(path, flags))
+        thread.join(10)
+        pytest.fail(f"no answer within {seconds} s (a wait on {[str(p) for p in fifos]})")
+    if "error" in result:
+        raise result["error"]
+    return result.get("value")
 
 
 def one_line_naming(err: BaseException, path) -> None:
@@ -186,8 +193,7 @@ def _load(kind: str, path: Path):
 def _check_contract(kind: str, path: Path) -> None:
     """The contract: a result, or one line naming the file; nothing else, and no wait."""
     try:
-        with deadline(30):
-            _load(kind, path)
+        within(30, lambda: _load(kind, path), path)
     except ValueError as err:
         assert kind not in ("artifact-metadata", "artifact-arrays"), f"the cache raised: {err}"
         one_line_naming(err, path)
@@ -784,8 +790,8 @@ def test_a_fifo_in_the_cache_is_recomputed_not_waited_on(tmp_path, which):
     for path in targets:
         path.unlink(missing_ok=True)
         os.mkfifo(path)
-    with deadline(30), pytest.warns(StaleArtifactWarning):
-        art = store.load_or_compute("thing", {"n": 1}, lambda: {"x": np.arange(3.0)})
+    with pytest.warns(StaleArtifactWarning):
+        art = within(30, lambda: store.load_or_compute("thing", {"n": 1}, lambda: {"x": np.arange(3.0)}), *targets)
     assert not art.from_cache
     assert store.load("thing", {"n": 1}).from_cache
 
@@ -807,8 +813,7 @@ def test_a_process_waiting_on_a_cache_lock_says_so(tmp_path, capfd):
 
     thread = threading.Thread(target=release)
     thread.start()
-    with deadline(30):
-        art = store.load_or_compute("thing", {"n": 1}, lambda: {"x": np.arange(3.0)})
+    art = within(30, lambda: store.load_or_compute("thing", {"n": 1}, lambda: {"x": np.arange(3.0)}))
     thread.join()
     assert not art.from_cache
     err = capfd.readouterr().err
