@@ -22,6 +22,7 @@ from pathlib import Path
 
 from stp_env.arguments import INT32_MAX
 from stp_env.loaders import read_csv_rows, read_json
+from stp_env.seeds import check_seed
 from stp_env.survivability.config import (
     POLICIES,
     MissionConfig,
@@ -67,7 +68,7 @@ class StudyConfig(_Overrides):
                 raise ValueError(f"{name} must be a non-empty list of distinct integers; got {values!r}.")
             object.__setattr__(self, name, values)
         _integer("n_instances", self.n_instances, minimum=1)
-        _integer("seed", self.seed)
+        object.__setattr__(self, "seed", check_seed(self.seed))  # the one seed function: [0, 2**63 - 1]
         pols = tuple(self.policies)
         if not pols or any(p not in POLICIES for p in pols) or len(set(pols)) != len(pols):
             raise ValueError(f"policies must be distinct names among {', '.join(POLICIES)}; got {pols!r}.")
