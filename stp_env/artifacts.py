@@ -8,12 +8,14 @@ compiled differently can move a boundary node, so results of older code are reco
 Loading checks all of it, and the content hash of the array file; anything that does not match (a changed
 parameter, another format version, a truncated or tampered file, unreadable JSON) is reported with a warning and
 recomputed, never silently reused. The metadata must be a JSON object of the expected structure (array names,
-shapes, which arrays may hold non-finite values); the arrays must match it. Arrays are read with
-``allow_pickle=False``: loading a cache file never runs code. Writes are atomic (temporary file, then rename), so
-an interrupted computation leaves no half-written artifact behind; temporary files are named after their writer's
-process (``.stp-tmp-<pid>-<host>-*``) and those of writers that are no longer running are removed on the next use
-of the cache. Before computing an artifact that is not cached, the store checks that it can write the cache
-directory (:class:`CacheNotWritableError`), so that a long computation is not lost at the end.
+shapes, which arrays may hold non-finite values); the arrays must match it. Both files are read under the loader
+contract (:mod:`stp_env.loaders`: regular files only, size caps, bounded JSON nesting, no pickles): loading a cache
+file never runs code, and a FIFO or a device in place of one is reported and recomputed, never waited on. A process
+waiting for another one computing the same artifact says so on stderr. Writes are atomic (temporary file, then
+rename), so an interrupted computation leaves no half-written artifact behind; temporary files are named after
+their writer's process (``.stp-tmp-<pid>-<host>-*``) and those of writers that are no longer running are removed
+on the next use of the cache. Before computing an artifact that is not cached, the store checks that it can write
+the cache directory (:class:`CacheNotWritableError`), so that a long computation is not lost at the end.
 
 The cache directory is ``$STP_ENV_CACHE_DIR`` if set, else the user cache directory of ``platformdirs``.
 """
@@ -28,6 +30,8 @@ import json
 import os
 import shutil
 import socket
+import stat
+import sys
 import tempfile
 import time
 import warnings
@@ -37,6 +41,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from stp_env import loaders
 
 try:  # POSIX advisory locks; elsewhere concurrent processes may compute the same artifact twice (still atomic)
     import fcntl
@@ -251,8 +257,10 @@ def parameter_key(kind: str, params: Any) -> str:
 
 
 def _file_sha256(path: Path) -> str:
+    """The SHA-256 of a regular file (:func:`stp_env.loaders.open_regular`: a FIFO or a device is a
+    :class:`~stp_env.loaders.LoadError`, never a wait)."""
     h = hashlib.sha256()
-    with open(path, "rb") as fh:
+    with loaders.open_regular(path, "artifact-arrays") as fh:
         for chunk in iter(lambda: fh.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()
@@ -292,24 +300,23 @@ def _identity_problem(meta: dict, npz_path: Path, kind: str, params: Any, key: s
 
 def _read_artifact(npz_path: Path, json_path: Path, kind: str, params: Any, key: str
                    ) -> tuple[Artifact | None, str | None]:
-    """The artifact at ``npz_path`` / ``json_path`` if everything about it checks out, else ``None`` and why."""
+    """The artifact at ``npz_path`` / ``json_path`` if everything about it checks out, else ``None`` and why.
+
+    Both files go through the loader contract (:mod:`stp_env.loaders`: regular files only, so a FIFO never blocks;
+    size caps; bounded JSON nesting; the arrays' headers checked before anything is allocated; no pickles)."""
     if not npz_path.exists() and not json_path.exists():
         return None, "missing"
     try:
-        meta = json.loads(json_path.read_text())
+        meta = loaders.read_json(json_path, "artifact-metadata")
         problem = _metadata_problem(meta) or _identity_problem(meta, npz_path, kind, params, key)
         if problem is None:
-            data = np.load(npz_path, allow_pickle=False)
-            if not isinstance(data, np.lib.npyio.NpzFile):
-                problem = "the array file is not an .npz archive"
-            else:
-                with data:
-                    arrays = {name: data[name] for name in data.files}
-                problem = _arrays_problem(arrays, meta)
-                if problem is None:
-                    return Artifact(arrays=arrays, metadata=meta, path=npz_path, from_cache=True), None
-    except (OSError, ValueError, KeyError, TypeError, AttributeError, EOFError, zipfile.BadZipFile,
-            json.JSONDecodeError) as err:
+            arrays = loaders.read_npz(npz_path, "artifact-arrays")
+            problem = _arrays_problem(arrays, meta)
+            if problem is None:
+                return Artifact(arrays=arrays, metadata=meta, path=npz_path, from_cache=True), None
+    except loaders.LoadError as err:
+        problem = f"unreadable ({err.path.name}: {err.problem.rstrip('.')})"
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, EOFError, zipfile.BadZipFile) as err:
         problem = f"unreadable ({type(err).__name__}: {err})"
     return None, problem
 
@@ -363,8 +370,8 @@ class ArtifactStore:
             return artifact
         artifact, problem = _read_artifact(npz_path, json_path, kind, params, key)
         if artifact is None:
-            warnings.warn(f"Recomputing {kind} artifact {npz_path.name}: {problem}.", StaleArtifactWarning,
-                          stacklevel=3)
+            warnings.warn(f"Recomputing {kind} artifact {npz_path.name} (and {json_path.name}, in {self.root}): "
+                          f"{problem}.", StaleArtifactWarning, stacklevel=3)
         return artifact
 
     def save(self, kind: str, params: Any, arrays: Mapping[str, np.ndarray],
@@ -429,13 +436,38 @@ class ArtifactStore:
     @contextlib.contextmanager
     def _computing(self, kind: str, params: Any):
         """Holds an exclusive advisory lock on ``<kind>-<key>.lock`` while one artifact is computed, so that
-        processes sharing the cache compute each artifact once (the others wait, then load it)."""
+        processes sharing the cache compute each artifact once (the others wait, then load it). A process that has
+        to wait says so on stderr (which artifact, which lock file). A lock path that is not a regular file (a FIFO,
+        a directory) is not waited on: the artifact is computed without the lock, with a warning (writes stay
+        atomic)."""
         if fcntl is None:
             yield
             return
         npz_path, _, _ = self.paths(kind, params)
-        with open(npz_path.with_suffix(".lock"), "a") as fh:
-            fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
+        lock_path = npz_path.with_suffix(".lock")
+        flags = os.O_WRONLY | os.O_CREAT | os.O_APPEND | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
+        try:
+            fd = os.open(lock_path, flags, 0o644)
+        except OSError as err:
+            fd, problem = None, f"cannot be opened ({err.strerror or err})"
+        else:
+            problem = None
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                os.close(fd)
+                fd, problem = None, "is not a regular file"
+        if fd is None:
+            warnings.warn(f"Computing the {kind} artifact {npz_path.name} without its lock: {lock_path} {problem}.",
+                          StaleArtifactWarning, stacklevel=4)
+            yield
+            return
+        with os.fdopen(fd, "a") as fh:
+            try:
+                fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                print(f"stp-env: waiting for another process computing the {kind} artifact {npz_path.name} (lock "
+                      f"{lock_path}); it is loaded from the cache when that process is done.", file=sys.stderr,
+                      flush=True)
+                fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
             try:
                 yield
             finally:

@@ -24,7 +24,9 @@ Subcommands:
   extra); prints the last evaluation as JSON and writes the model, logs and ``intruder.npz`` to ``--out``.
 
 Exit codes: 0 on success, 2 on bad options, unreadable input files or unwritable outputs (with a one-line message
-naming the option or file and saying what is wrong). Output locations are checked before any computation.
+naming the option or file and saying what is wrong). Output locations are checked before any computation. The
+options every subcommand shares (seed, batch sizes, output and cache directories, progress, wind model, scenario)
+are defined once, in :mod:`stp_env.cli_kit`; building the parser, and ``--help``, import no JAX.
 """
 
 from __future__ import annotations
@@ -34,31 +36,8 @@ import json
 import sys
 import time
 
+from stp_env import cli_kit as kit
 from stp_env.falsify.cli import add_parser as add_falsify_parser
-
-
-def _number(kind, noun: str, ok, requirement: str):
-    """An argparse type: ``kind(text)`` that must satisfy ``ok``; clear messages otherwise."""
-    def parse(text: str):
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {noun}, got {text!r}") from None
-        if not ok(value):
-            raise argparse.ArgumentTypeError(f"must be {requirement}, got {text}")
-        return value
-
-    return parse
-
-
-def _positive(kind):
-    return _number(kind, f"a {kind.__name__}", lambda v: v > 0, "> 0")
-
-
-_nonnegative = _number(float, "a number", lambda v: v >= 0, ">= 0")
-_nonnegative_int = _number(int, "an integer", lambda v: v >= 0, ">= 0")
-_probability = _number(float, "a number", lambda v: 0.0 < v < 1.0, "between 0 and 1 (exclusive)")
-_seed = _number(int, "an integer", lambda v: 0 <= v <= 2**63 - 1, "an integer in [0, 2**63 - 1]")
 
 
 def _check_output_file(path: str, option: str = "--out") -> None:
@@ -87,44 +66,50 @@ def _build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     av = sub.add_parser("avoid-region", help="compute and plot the intruder avoid region V^A (eqs. 13-16)",
-                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    av.add_argument("--out", default="avoid_region.png", help="PNG file to write")
-    av.add_argument("--wind", type=_nonnegative, default=6.0,
+                        formatter_class=kit.HelpFormatter)
+    kit.add_out(av, "avoid_region.png", "PNG file to write")
+    av.add_argument("--wind", type=kit.real(0.0, 1000.0), default=6.0,
                     help="wind bound of each vehicle and of the intruder [m/s]")
-    av.add_argument("--v-max", type=_positive(float), default=25.0, help="maximum speed of both [m/s]")
-    av.add_argument("--omega-max", type=_positive(float), default=2.0, help="maximum turn rate of both [rad/s]")
-    av.add_argument("--collision-radius", type=_positive(float), default=100.0, help="R_c [m]")
-    av.add_argument("--t-iat", type=_positive(float), default=10.0,
+    av.add_argument("--v-max", type=kit.real(0.0, 1000.0, lo_open=True), default=25.0,
+                    help="maximum speed of both [m/s]")
+    av.add_argument("--omega-max", type=kit.real(0.0, 100.0, lo_open=True), default=2.0,
+                    help="maximum turn rate of both [rad/s]")
+    av.add_argument("--collision-radius", type=kit.real(0.0, 1e5, lo_open=True), default=100.0,
+                    help="R_c, the collision radius [m]")
+    av.add_argument("--t-iat", type=kit.real(0.0, 1e4, lo_open=True), default=10.0,
                     help="t_IAT, the longest time the intruder stays [s]")
-    av.add_argument("--half-width", type=_positive(float), default=320.0,
+    av.add_argument("--half-width", type=kit.real(0.0, 1e6, lo_open=True), default=320.0,
                     help="half-width of the relative-position grid box [m]")
-    av.add_argument("--grid", type=_positive(int), default=51,
-                    help="grid points per position dimension (heading gets the next even count, so that "
+    av.add_argument("--grid", type=kit.integer(3, 1001), default=51,
+                    help="grid points per position dimension, 3-1001 (heading gets the next even count, so that "
                          "relative heading 0 is a node)")
     av.add_argument("--accuracy", choices=["low", "medium", "high", "very_high"], default="very_high",
                     help="solver preset (scheme + time integrator)")
-    av.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    kit.add_progress(av)
 
     pl = sub.add_parser("plan", help="plan a registered scenario (robust trajectory tracking) and plot it",
-                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    pl.add_argument("--scenario", default="tiny", help="registered scenario name (see stp_env.scenarios.names())")
-    pl.add_argument("--kbar", type=_positive(int), default=None,
-                    help="plan intruder-aware for this k̄ (max vehicles the intruder may force to avoid)")
-    pl.add_argument("--sta-spacing", type=_nonnegative, default=None,
-                    help="seconds between consecutive scheduled arrivals (scenarios that support it)")
-    pl.add_argument("--out", default="plan.png", help="PNG file to write")
-    pl.add_argument("--cache-dir", default=None, help="artifact cache directory")
-    pl.add_argument("--no-progress", action="store_true", help="hide the progress bars")
+                        formatter_class=kit.HelpFormatter)
+    kit.add_scenario(pl, "tiny")
+    pl.add_argument("--kbar", type=kit.kbar, default=None,
+                    help=f"plan intruder-aware for this k̄, the most vehicles the intruder may force to avoid "
+                         f"(1-{kit.MAX_KBAR}; default: the scenario's own)")
+    pl.add_argument("--sta-spacing", type=kit.real(0.0, 1e6), default=None,
+                    help="time between consecutive scheduled arrivals [s] (scenarios that take it; default: the "
+                         "scenario's own)")
+    kit.add_out(pl, "plan.png", "PNG file to write")
+    kit.add_cache_dir(pl)
+    kit.add_progress(pl)
 
     pre = sub.add_parser("precompute", help="build the reachability artifacts of the default scenario (cached)",
-                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    pre.add_argument("--wind", type=_nonnegative, default=6.0, help="wind bound of vehicles and intruder [m/s]")
-    pre.add_argument("--kbar", type=_positive(int), nargs="+", default=[1, 2, 3, 4],
-                     help="values of k̄ (max vehicles the intruder may force to avoid), each >= 1")
-    pre.add_argument("--cache-dir", default=None,
-                     help="artifact cache directory (default: $STP_ENV_CACHE_DIR or the user cache directory)")
-    pre.add_argument("--figures", default="figures", help="directory for the PNG figures")
-    pre.add_argument("--no-progress", action="store_true", help="hide the progress bars")
+                         formatter_class=kit.HelpFormatter)
+    pre.add_argument("--wind", type=kit.real(0.0, 1000.0), default=6.0,
+                     help="wind bound of vehicles and intruder [m/s]")
+    pre.add_argument("--kbar", type=kit.kbar, nargs="+", default=[1, 2, 3, 4],
+                     help=f"values of k̄, the most vehicles the intruder may force to avoid (each 1-{kit.MAX_KBAR})")
+    kit.add_cache_dir(pre)
+    pre.add_argument("--figures", default="figures",
+                     help="directory for the PNG figures (checked to be writable before anything is computed)")
+    kit.add_progress(pre)
 
     _add_evaluate_parsers(sub)
     add_falsify_parser(sub)
@@ -140,41 +125,38 @@ def _build_parser() -> argparse.ArgumentParser:
 
 def _add_episode_options(p, *, many: bool) -> None:
     """Options shared by ``evaluate`` (lists) and ``render`` (one configuration)."""
-    from stp_env.baselines import INTRUDERS, VEHICLE_POLICIES
-    from stp_env.evaluation.config import EPISODE_CHOICES, SPAWN_CHOICES
-    from stp_env.sim import winds
-
     nargs = "+" if many else None
     suite = (" (none: the default suite, see the description; town when another configuration option is "
              "given)"
              if many else "")
-    p.add_argument("--scenario", default=None if many else "town",
-                   help="registered scenario name (see stp_env.scenarios.names())" + suite)
-    p.add_argument("--kbar", type=_positive(int), nargs=nargs, default=None if many else 2,
-                   help="k̄, the number of vehicles the intruder may force to avoid (>= 1); each value uses the "
-                        "scenario's plan for that k̄" + (" (several: one configuration each; default 1 2 3 "
-                                                        "outside the default suite)" if many else ""))
+    p.add_argument("--scenario", type=kit.scenario, default=None if many else "town", metavar="NAME",
+                   help=f"registered scenario: one of {', '.join(kit.scenario_names())}" + suite)
+    p.add_argument("--kbar", type=kit.kbar, nargs=nargs, default=None if many else 2,
+                   help=f"k̄, the number of vehicles the intruder may force to avoid (1-{kit.MAX_KBAR}); each value "
+                        "uses the scenario's plan for that k̄" + (" (several: one configuration each; default 1 2 3 "
+                                                                "outside the default suite)" if many else ""))
     p.add_argument("--intruder", nargs=nargs, default=None,
-                   help=f"intruder policy: one of {', '.join(INTRUDERS)}; 'learned:NAME_OR_PATH' for a learned "
-                        "intruder (a shipped name or an .npz from stp_env.rl.policy.export_mlp); or "
+                   help=f"intruder policy: one of {', '.join(kit.intruder_names())}; 'learned:NAME_OR_PATH' for a "
+                        "learned intruder (a shipped name or an .npz from stp_env.rl.policy.export_mlp); or "
                         "'package.module:policy' / 'package.module:factory=ARG' for any jittable policy "
                         "(key, state, params) -> (2,)" + ("" if many else
                         " (default: max-k; with --events: the record's intruder, and a plug-in spec in the record "
                         "is only used when typed here)"))
-    p.add_argument("--wind", type=_nonnegative, default=None,
-                   help="wind bound d_r of vehicles and intruder [m/s] (None: the scenario's, 6 m/s for town; "
+    p.add_argument("--wind", type=kit.real(0.0, 1000.0), default=None,
+                   help="wind bound d_r of vehicles and intruder [m/s] (default: the scenario's, 6 m/s for town; "
                         "another value computes its own reachability artifacts and plan on first use)")
-    p.add_argument("--wind-model", choices=winds.names(), default="uniform", help=winds.describe())
-    p.add_argument("--spawn-mode", choices=SPAWN_CHOICES, default="auto",
+    kit.add_wind_model(p, "uniform", "how each agent's wind in its disk is drawn")
+    p.add_argument("--spawn-mode", choices=("auto", *kit.spawn_modes()), default="auto",
                    help="where the intruder appears: outside every avoid region (Assumption 3), on a vehicle's "
                         "avoid boundary (Observation 1), or auto (boundary for max-k and optimal-max-k, else "
                         "outside)")
-    p.add_argument("--vehicle-policy", choices=list(VEHICLE_POLICIES), default=None if many else "switching",
+    p.add_argument("--vehicle-policy", choices=kit.vehicle_policy_names(), default=None if many else "switching",
                    help="switching: u* (eq. 38) with the safety filter; nominal: u^PP, the filter off; worst: "
                         "every unforced vehicle flies the buffer game's control toward the intruder (the assumption "
                         "behind V^B), forced ones u^A" + (" (default: switching outside the default suite)"
                                                           if many else ""))
-    p.add_argument("--episode", choices=EPISODE_CHOICES, default="window",
+    p.add_argument("--episode", choices=kit.source_constant("evaluation/config.py", "EPISODE_CHOICES"),
+                   default="window",
                    help="window: from 5 s before the intruder's appearance window to 10 s after it can leave; "
                         "full: first departure to the last STA (slower)")
     p.add_argument("--backend", type=_backend, default="jax",
@@ -182,16 +164,14 @@ def _add_episode_options(p, *, many: bool) -> None:
                         "motion in the pymunk physics engine, host side: slower) or pymunk-dynamic[:param=value,...] "
                         "(rigid bodies with mass, drag, actuator lag; parameters of "
                         "stp_env.sim.vehicle_models.rigid_body.RigidBodyConfig); needs the pymunk extra")
-    p.add_argument("--seed", type=_seed, default=0, help="run seed in [0, 2**63 - 1]; episode i replays from "
-                   "(seed, i)")
-    p.add_argument("--cache-dir", default=None,
-                   help="artifact cache directory (None: $STP_ENV_CACHE_DIR or the user cache directory)")
-    p.add_argument("--no-progress", action="store_true", help="hide the progress bars")
+    kit.add_seed(p, "the run; episode i replays from (seed, i)")
+    kit.add_cache_dir(p)
+    kit.add_progress(p)
 
 
 def _add_evaluate_parsers(sub) -> None:
     ev = sub.add_parser("evaluate", help="Monte Carlo evaluation of the k̄ bound with exact confidence bounds",
-                        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                        formatter_class=kit.HelpFormatter,
                         description="Run episodes of a scenario for every (intruder, k̄) configuration and report "
                                     "|N^RP| (vehicles forced to avoid, eq. 39), P(|N^RP| > k̄) with an exact "
                                     "Clopper-Pearson upper bound, collisions, guarantee violations, on-time "
@@ -202,35 +182,36 @@ def _add_evaluate_parsers(sub) -> None:
                                     "the vehicles on u*, and the crossing at k̄ = 2 with the optimal-max-k "
                                     "intruder and the worst vehicles, where the bound binds.")
     _add_episode_options(ev, many=True)
-    ev.add_argument("--episodes", type=_positive(int), default=500,
+    ev.add_argument("--episodes", type=kit.positive_int, default=500,
                     help="episodes per configuration (the default suite: 4 configurations x 500 episodes)")
-    ev.add_argument("--batch-size", type=_positive(int), default=250,
-                    help="episodes per compiled batch (memory grows with it; every batch has this size)")
-    ev.add_argument("--confidence", type=_probability, default=0.95,
+    kit.add_batch_size(ev, "episodes simulated in one compiled batch (memory grows with it; every batch has this "
+                           "size)", default=250)
+    ev.add_argument("--confidence", type=kit.probability, default=0.95,
                     help="confidence level of the one-sided upper bounds (0 < c < 1)")
-    ev.add_argument("--out", default="evaluation", help="output directory")
+    kit.add_out(ev, "evaluation")
     ev.add_argument("--no-figures", action="store_true", help="write the results only")
     ev.add_argument("--whole-fleet", action="store_true",
                     help="simulate every vehicle of the plan, not only those that can fly in the episode window "
                          "(the same episodes up to float rounding, 2-4x slower; for comparison)")
 
     rd = sub.add_parser("render", help="render one episode as an animated GIF",
-                        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                        formatter_class=kit.HelpFormatter,
                         description="Replay episode --index of the run with --seed (the same episode as in "
                                     "`stp-env evaluate` with the same options), or a saved bad episode "
                                     "(--events FILE --event N), and write it as a GIF (PNG frames if pillow "
                                     "is missing).")
     _add_episode_options(rd, many=False)
-    rd.add_argument("--index", type=_nonnegative_int, default=0, help="episode index within the run")
-    rd.add_argument("--batch-size", type=_positive(int), default=250,
-                    help="replay the episode within the batch of this size that held it in `stp-env evaluate` "
-                         "(a saved event from --events replays bit for bit in its own batch; a --seed/--index episode "
-                         "is the same episode, computed by a program with this config's own step count)")
+    rd.add_argument("--index", type=kit.count, default=0, help="episode index within the run")
+    kit.add_batch_size(rd, "episodes of the compiled batch that held the episode in `stp-env evaluate` (a saved "
+                           "event from --events replays bit for bit in its own batch; a --seed/--index episode is "
+                           "the same episode, computed by a program with this config's own step count)",
+                       default=250)
     rd.add_argument("--events", default=None, help="an events.json written by `stp-env evaluate`")
-    rd.add_argument("--event", type=_nonnegative_int, default=0, help="which record of --events")
-    rd.add_argument("--frame-dt", type=_positive(float), default=0.5, help="simulated time between frames [s]")
-    rd.add_argument("--fps", type=_positive(int), default=8, help="frames per second of the GIF")
-    rd.add_argument("--out", default="episode.gif", help="GIF file to write")
+    rd.add_argument("--event", type=kit.count, default=0, help="which record of --events (from 0)")
+    rd.add_argument("--frame-dt", type=kit.real(0.0, 1e4, lo_open=True), default=0.5,
+                    help="simulated time between frames [s]")
+    rd.add_argument("--fps", type=kit.integer(1, 1000), default=8, help="frames per second of the GIF")
+    kit.add_out(rd, "episode.gif", "GIF file to write")
 
 
 def _avoid_region(args) -> int:
@@ -439,51 +420,51 @@ def _backend(text: str) -> str:
     return text
 
 
-def _env_steps(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return value
-
-
 def _add_train_intruder_parser(sub) -> None:
-    from stp_env.baselines import VEHICLE_POLICIES
-    from stp_env.sim.types import SPAWN_MODES
+    from stp_env.seeds import MAX_SEED_32
 
     tr = sub.add_parser("train-intruder", help="train a learned intruder with Stable-Baselines3 (needs the rl extra)",
-                        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                        formatter_class=kit.HelpFormatter,
                         description="PPO (or A2C) on stp_env.rl.IntruderVecEnv: the vehicles run --vehicle-policy "
                                     "(u* with the HJ safety filter by default); the intruder is rewarded per vehicle "
                                     "forced to avoid (eq. 39), per collision, and by the avoid-region value "
                                     "(shaping).")
-    tr.add_argument("--scenario", default="town", help="registered scenario name")
-    tr.add_argument("--kbar", type=_positive(int), default=None, help="override the scenario's k̄")
-    tr.add_argument("--algo", choices=["ppo", "a2c"], default="ppo")
-    tr.add_argument("--timesteps", type=_positive(int), default=2_000_000, help="total env steps")
-    tr.add_argument("--n-envs", type=_positive(int), default=64, help="envs in the batched VecEnv")
-    tr.add_argument("--n-steps", type=_positive(int), default=128, help="steps per env per rollout")
-    tr.add_argument("--batch-size", type=_positive(int), default=2048, help="PPO minibatch size")
-    tr.add_argument("--seed", type=int, default=0, help="seed of torch, SB3 and the JAX env keys")
+    kit.add_scenario(tr, "town")
+    tr.add_argument("--kbar", type=kit.kbar, default=None,
+                    help=f"k̄ of the scenario's plan (1-{kit.MAX_KBAR}; default: the scenario's own)")
+    tr.add_argument("--algo", choices=["ppo", "a2c"], default="ppo",
+                    help="the Stable-Baselines3 algorithm: ppo (proximal policy optimisation) or a2c (advantage "
+                         "actor-critic)")
+    tr.add_argument("--timesteps", type=kit.positive_int, default=2_000_000,
+                    help="total environment steps of training [steps]")
+    tr.add_argument("--n-envs", type=kit.integer(1, 1 << 20), default=64, help="environments in the batched VecEnv")
+    tr.add_argument("--n-steps", type=kit.positive_int, default=128,
+                    help="steps per environment per rollout [steps]")
+    tr.add_argument("--minibatch-size", "--batch-size", dest="batch_size", type=kit.positive_int, default=2048,
+                    metavar="N",
+                    help="PPO minibatch: transitions per gradient step (--batch-size is the older spelling; not "
+                         "the episodes of a batch as in `evaluate`)")
+    kit.add_seed(tr, "torch, SB3 and the JAX environment keys", maximum=MAX_SEED_32)
     tr.add_argument("--horizon", choices=["intruder", "episode"], default="intruder",
                     help="intruder: appearance to departure; episode: the core's whole episode")
-    tr.add_argument("--vehicle-policy", choices=list(VEHICLE_POLICIES), default="switching",
+    tr.add_argument("--vehicle-policy", choices=kit.vehicle_policy_names(), default="switching",
                     help="the vehicles' policy (worst: the buffer game's worst vehicles, as in `evaluate`)")
-    tr.add_argument("--spawn-mode", choices=SPAWN_MODES, default="outside",
+    tr.add_argument("--spawn-mode", choices=kit.spawn_modes(), default="outside",
                     help="where the intruder appears: outside every avoid region, on a vehicle's avoid boundary "
                          "(where the max-k intruders start), or either")
-    tr.add_argument("--forced-reward", type=float, default=5.0, help="per vehicle newly forced to avoid")
-    tr.add_argument("--collision-reward", type=float, default=10.0, help="per collision the intruder causes")
-    tr.add_argument("--shaping-reward", type=float, default=0.01,
-                    help="times the decrease of min V^A over unforced vehicles [per m]")
-    tr.add_argument("--eval-every", type=_env_steps, default=200_000, help="env steps between evaluations")
-    tr.add_argument("--eval-episodes", type=_positive(int), default=256, help="held-out episodes per evaluation")
-    tr.add_argument("--checkpoint-every", type=_env_steps, default=500_000,
-                    help="env steps between checkpoints (0: none)")
+    tr.add_argument("--forced-reward", type=kit.real(-1e6, 1e6), default=5.0,
+                    help="reward per vehicle newly forced to avoid")
+    tr.add_argument("--collision-reward", type=kit.real(-1e6, 1e6), default=10.0,
+                    help="reward per collision the intruder causes")
+    tr.add_argument("--shaping-reward", type=kit.real(-1e6, 1e6), default=0.01,
+                    help="reward times the decrease of min V^A over unforced vehicles [per m]")
+    tr.add_argument("--eval-every", type=kit.count, default=200_000,
+                    help="environment steps between evaluations [steps]")
+    tr.add_argument("--eval-episodes", type=kit.positive_int, default=256, help="held-out episodes per evaluation")
+    tr.add_argument("--checkpoint-every", type=kit.count, default=500_000,
+                    help="environment steps between checkpoints [steps] (0: none)")
     tr.add_argument("--tensorboard", action="store_true", help="also write TensorBoard logs")
-    tr.add_argument("--out", default="runs/intruder", help="output directory")
+    kit.add_out(tr, "runs/intruder")
 
 
 def _train_intruder(args) -> int:

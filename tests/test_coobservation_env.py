@@ -183,3 +183,31 @@ def test_teacher_residuals_reproduce_the_teachers_commands_and_cloning_fits_them
     before = learned.imitate(policy, x, y, epochs=1, lr=0.0)
     after = learned.imitate(policy, x, y, epochs=60, lr=3e-3, batch=256)
     assert after < 0.05 * before
+
+
+@pytest.mark.slow
+def test_a_failed_reset_changes_nothing_and_seeds_do_not_wrap():
+    """The reset contract of every environment (``docs/threat-model.md``): seeds through ``stp_env.seeds`` (no
+    wrap-around at ``2**32``; ``1.5``, ``"1"``, ``True`` and negative seeds refused) and options checked before
+    anything changes, so that the key, the state and the agents after a failed reset are what they were."""
+    env = parallel_env(schedule="unsecured", max_cycles=30, params=_params())
+
+    def snapshot():
+        ts = [np.asarray(jax.random.key_data(a) if jnp.issubdtype(a.dtype, jax.dtypes.prng_key) else a).tolist()
+              for a in jax.tree.leaves(env.threat_state)]
+        return np.asarray(jax.random.key_data(env._key)).tolist(), ts, list(env.agents), env._steps
+
+    keys = {}
+    for seed in (0, 2**32):
+        env.reset(seed=seed)
+        keys[seed] = np.asarray(jax.random.key_data(env._key)).tolist()
+    assert keys[0] != keys[2**32]
+    env.reset(seed=3, options={"compromised": 1, "compromise_time": 50.0})
+    env.step({"attacker": np.array([0.5, 0.0], np.float32)})
+    before = snapshot()
+    for seed, options in [(1.5, None), ("1", None), (True, None), (-1, None), (2**63, None),
+                          (4, {"compromised": 99}), (4, {"compromised": True}), (4, {"compromise_time": "soon"}),
+                          (4, {"compromise_time": float("nan")}), (4, {"compromise_time": 1e9}), (4, "options")]:
+        with pytest.raises(ValueError):
+            env.reset(seed=seed, options=options)
+        assert snapshot() == before, (seed, options)

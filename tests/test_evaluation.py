@@ -247,15 +247,15 @@ def test_render_writes_a_small_gif(tiny_run, tmp_path):
 # ------------------------------------------------------------------------------------------------ bad options
 @pytest.mark.parametrize("argv, message", [
     (["evaluate", "--scenario", "nope"], "unknown scenario 'nope'"),
-    (["evaluate", "--kbar", "0"], "--kbar: must be > 0"),
-    (["evaluate", "--episodes", "-5"], "--episodes: must be > 0"),
+    (["evaluate", "--kbar", "0"], "--kbar: must be an integer in [1, 1000]"),
+    (["evaluate", "--episodes", "-5"], "--episodes: must be an integer >= 1"),
     (["evaluate", "--episodes", "many"], "--episodes: expected"),
     (["evaluate", "--intruder", "nope"], "unknown intruder 'nope'"),
     (["evaluate", "--scenario", "town", "--kbar", "7"], "kbar must be one of"),
-    (["evaluate", "--confidence", "1.5"], "--confidence: must be between 0 and 1"),
+    (["evaluate", "--confidence", "1.5"], "--confidence: must be a finite number in (0, 1)"),
     (["evaluate", "--spawn-mode", "sky"], "invalid choice: 'sky'"),
-    (["render", "--kbar", "0"], "--kbar: must be > 0"),
-    (["render", "--index", "-1"], "--index: must be >= 0"),
+    (["render", "--kbar", "0"], "--kbar: must be an integer in [1, 1000]"),
+    (["render", "--index", "-1"], "--index: must be an integer >= 0"),
 ])
 def test_bad_options_exit_2(argv, message):
     code, _, stderr = _cli(argv)

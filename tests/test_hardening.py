@@ -407,7 +407,7 @@ def test_event_states_are_read_without_pickle(tmp_path):
     np.savez(tmp_path / "obj.npz", **{"0/x": np.asarray([{"a": 1}], dtype=object)})
     for path, record, needle in ((tmp_path / "obj.npz", {"npz_prefix": "0/"}, "obj.npz"),
                                  (tmp_path / "ok.npz", {"npz_prefix": 5}, "npz_prefix"),
-                                 (tmp_path / "none.npz", {"npz_prefix": "0/"}, "no such file")):
+                                 (tmp_path / "none.npz", {"npz_prefix": "0/"}, "no such")):
         with pytest.raises(ValueError, match=needle):
             load_event_state(path, record)
 

@@ -666,3 +666,22 @@ def test_study_shares_robustness_across_n_u_and_workers_split_whole_groups(tmp_p
     assert any(r["reveals"] for r in rows) and {r["outcome"] for r in rows} >= {"G", "L"}      # traffic mattered
     run_study(config, tmp_path, progress=False, worker=(0, 2))
     assert len(read_study(tmp_path)) == len(rows)
+
+
+def test_a_failed_reset_changes_nothing():
+    """The reset contract of every environment (``docs/threat-model.md``): the seed and the options are checked, and
+    the episode drawn, before anything changes."""
+    from stp_env.survivability.gym_env import SurvivabilityEnv
+
+    traffic, planner = TrafficConfig(reach_km=4), PlannerConfig(n_mc=64, n_survival=64)
+    env = SurvivabilityEnv(((4, 4),), mission=small(), traffic=traffic, planner=planner)
+    env.reset(seed=3)
+    state = env.np_random.bit_generator.state
+    before = (env.instance, env.scenario, env.g, env.steps, env.outcome)
+    for seed, options in [(1.5, None), ("1", None), (True, None), (-1, None), (2**63, None), (None, "options"),
+                          (None, {"scenario": (4,)}), (None, {"scenario": (-1, 4)}), (None, {"instance": 5}),
+                          (None, {"instance_seed": -3})]:
+        with pytest.raises(ValueError):
+            env.reset(seed=seed, options=options)
+        assert env.np_random.bit_generator.state == state and (env.instance, env.scenario, env.g, env.steps,
+                                                               env.outcome) == before, (seed, options)

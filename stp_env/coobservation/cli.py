@@ -11,7 +11,6 @@ and writes results.json and results.md to --out.
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
@@ -21,14 +20,13 @@ SCHEDULES = ("secured", "unsecured", "exact", "windless")
 
 def add_parser(sub) -> None:
     """Register the ``coobservation`` subcommand on an argparse sub-parser collection."""
-    from stp_env.cli import _positive  # the command line's number checks (same messages)
-    from stp_env.sim import winds
+    from stp_env import cli_kit as kit
 
     p = sub.add_parser("coobservation", help="attack co-observation schedules in the UAV simulator (success rate "
                                              "with exact bounds, detection rate and delay)",
-                       formatter_class=argparse.ArgumentDefaultsHelpFormatter, description=__doc__.split("\n\n")[1])
-    p.add_argument("--episodes", type=_positive(int), default=10_000, help="episodes per (schedule, attacker)")
-    p.add_argument("--batch", type=_positive(int), default=1000, help="episodes per batched rollout")
+                       formatter_class=kit.HelpFormatter, description=__doc__.split("\n\n")[1])
+    p.add_argument("--episodes", type=kit.positive_int, default=10_000, help="episodes per (schedule, attacker)")
+    kit.add_batch_size(p, "episodes simulated in one batched rollout", default=1000, aliases=("--batch",))
     p.add_argument("--attackers", nargs="+", default=["honest", "reckless", "opportunistic", "optimistic"],
                    help="honest, reckless, opportunistic, optimistic, or learned:<attacker.npz>")
     p.add_argument("--schedules", nargs="+", choices=SCHEDULES, default=["secured", "unsecured"],
@@ -36,12 +34,12 @@ def add_parser(sub) -> None:
                         "first use, about 10 minutes on 2 cores; windless: secured with ellipses that leave the "
                         "wind out of the attacker's speed, deliberately unsound: the control showing that the "
                         "wind term is needed)")
-    p.add_argument("--period", type=_positive(float), default=90.0, help="the unsecured schedule's period [s]")
-    p.add_argument("--wind-model", choices=winds.names(), default="uniform",
-                   help="how each vehicle's wind (6 m/s disk) is drawn: " + winds.describe().replace("\n", "; "))
-    p.add_argument("--seed", type=int, default=0, help="seed of the episodes (the same for every pair)")
-    p.add_argument("--out", default="coobservation-eval", help="output folder")
-    p.add_argument("--no-progress", action="store_true", help="hide progress bars")
+    p.add_argument("--period", type=kit.real(0.0, 1e6, lo_open=True), default=90.0,
+                   help="the unsecured schedule's period [s]")
+    kit.add_wind_model(p, "uniform", "how each vehicle's wind (6 m/s disk) is drawn")
+    kit.add_seed(p, "the episodes (the same for every pair)")
+    kit.add_out(p, "coobservation-eval")
+    kit.add_progress(p)
     p.set_defaults(run=run)
 
 
@@ -52,9 +50,7 @@ def resolve_attackers(names):
     out = {}
     for name in names:
         if name.startswith("learned:"):
-            path = Path(name.split(":", 1)[1])
-            if not path.is_file():
-                raise ValueError(f"--attackers {name}: no such file {path}.")
+            path = Path(name.split(":", 1)[1])  # read under the loader contract (stp_env.rl.policy.load_mlp)
             from stp_env.coobservation.learned import mlp_attacker
 
             out[name] = mlp_attacker(path, name="learned")
@@ -111,7 +107,7 @@ def run(args) -> int:
     threats = {k: threat.threat_params(s, scenario.forbidden, scenario.observation_radius, pad_to=m)
                for k, s in schedules.items()}
     window = (0.0, scenario.duration - 10.0)
-    rows = evaluation.run(params, threats, attackers, args.episodes, t_window=window, batch=args.batch,
+    rows = evaluation.run(params, threats, attackers, args.episodes, t_window=window, batch=args.batch_size,
                           seed=args.seed, progress=not args.no_progress)
     table = evaluation.markdown(rows)
     print(table)

@@ -52,16 +52,23 @@ Arguments
 max_cycles=None)``: ``scenario`` a :class:`~stp_env.coobservation.uav.FormationScenario` (default one);
 ``schedule`` ``"secured"`` (the fewest observation times whose reachability ellipses miss the zones),
 ``"unsecured"`` (every 90 s) or a sequence of times [s] starting at 0 and ending at the flight's end;
-``compromised`` a vehicle index (``None``: drawn per episode) and ``compromise_time`` [s] (``None``: uniform over
-the flight); ``reset(options={"compromised": i, "compromise_time": t})`` overrides both for one episode
-(``"compromised": -1``: nobody). ``params`` prebuilt :class:`stp_env.sim.EnvParams` of the scenario.
+``compromised`` a vehicle index (``None``: drawn per episode) and ``compromise_time`` [s] in ``[0, duration]``
+(``None``: uniform over the flight); ``reset(options={"compromised": i, "compromise_time": t})`` overrides both for
+one episode (``"compromised": -1``: nobody). ``params`` prebuilt :class:`stp_env.sim.EnvParams` of the scenario.
 
-Version history: v0 (``coobservation_v0``), first release.
+``reset(seed=s)``: ``s`` an integer in ``[0, 2**63 - 1]`` (:func:`stp_env.seeds.prng_key`, the seed function of
+every environment: each seed its own episode stream, no truncation to 32 bits); booleans, floats, strings, negative
+or larger seeds raise ``ValueError``, as do options that are not a dict and bad values of ``compromised`` or
+``compromise_time``. A reset that raises changes nothing: the key, the state and the agents are what they were.
+
+Version history: v0 (``coobservation_v0``), first release. Seeds of ``2**32`` and more now give their own episodes
+(they were reduced to their low 32 bits), and seeds that are not integers in ``[0, 2**63 - 1]`` raise.
 """
 
 from __future__ import annotations
 
 import functools
+from collections.abc import Mapping
 from typing import ClassVar
 
 import gymnasium
@@ -70,9 +77,11 @@ import jax.numpy as jnp
 import numpy as np
 from pettingzoo import ParallelEnv
 
+from stp_env.arguments import check_int, check_real
 from stp_env.baselines import nominal_tracking
 from stp_env.coobservation import attackers, threat
 from stp_env.coobservation.uav import FormationScenario
+from stp_env.seeds import prng_key
 from stp_env.sim.core import observe, vehicle_observation_size
 from stp_env.sim.types import STATUS_NAMES
 
@@ -146,9 +155,7 @@ class CoObservationParallelEnv(ParallelEnv):
         self.params = _params(scenario) if params is None else params
         self.threat = threat.threat_params(self.schedule, scenario.forbidden, scenario.observation_radius)
         n = scenario.n_vehicles
-        self._check_compromise(compromised, compromise_time)
-        self.compromised = compromised
-        self.compromise_time = compromise_time
+        self.compromised, self.compromise_time = self._check_compromise(compromised, compromise_time)
         self.possible_agents = [f"vehicle_{i}" for i in range(n)] + ["attacker"]
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
         steps = threat.steps_for(self.params)
@@ -166,13 +173,15 @@ class CoObservationParallelEnv(ParallelEnv):
         self.render_mode = None
 
     def _check_compromise(self, compromised, compromise_time):
+        """``(compromised, compromise_time)`` checked (``None`` stays ``None``: drawn per episode)."""
         n = self.scenario.n_vehicles
-        if compromised is not None and (isinstance(compromised, bool) or not isinstance(compromised, (int, np.integer))
-                                        or not -1 <= compromised < n):
-            raise ValueError(f"compromised must be a vehicle index in [0, {n}), -1 (nobody) or None (random); "
-                             f"got {compromised!r}.")
-        if compromise_time is not None and not (np.isfinite(compromise_time) and compromise_time >= 0):
-            raise ValueError(f"compromise_time must be a time >= 0 [s] or None (random); got {compromise_time!r}.")
+        if compromised is not None:
+            compromised = check_int(compromised, "compromised (a vehicle index, -1 for nobody, or None for random)",
+                                    -1, n - 1)
+        if compromise_time is not None:
+            compromise_time = check_real(compromise_time, "compromise_time [s] (or None for random)", 0.0,
+                                         float(self.scenario.duration))
+        return compromised, compromise_time
 
     def observation_space(self, agent):
         """One space object per agent, made on first use and kept by the env."""
@@ -195,30 +204,40 @@ class CoObservationParallelEnv(ParallelEnv):
 
     # ------------------------------------------------------------------------------------------ reset / step
     def reset(self, seed: int | None = None, options: dict | None = None):
-        if seed is not None:
-            self._key = jax.random.key(int(seed))
-        elif self._key is None:
-            self._key = jax.random.key(int(np.random.SeedSequence().entropy % (2**31)))
-        options = {} if options is None else dict(options)
-        unknown = sorted(set(options) - {"compromised", "compromise_time"})
-        if unknown:  # PettingZoo's API test passes arbitrary options and expects them to be ignored
-            gymnasium.logger.warn(f"ignoring unknown reset option(s) {unknown}; known: compromised, compromise_time.")
-        c = options.get("compromised", self.compromised)
-        t_c = options.get("compromise_time", self.compromise_time)
-        self._check_compromise(c, t_c)
-        self._key, k_draw = jax.random.split(self._key)
+        # Everything is checked before anything changes (the contract of stp_env.env's reset): a failed reset leaves
+        # the key, the state and the agents as they were. Seeds: stp_env.seeds.prng_key, [0, 2**63 - 1].
+        key = prng_key(seed) if seed is not None else self._key
+        c, t_c = self._check_options(options)
+        if key is None:
+            key = prng_key(int(np.random.SeedSequence().entropy % (2**63)))
+        key, k_draw = jax.random.split(key)
         c_draw, t_draw = threat.draw_attack(k_draw, self.params, 0.0, self.scenario.duration)
-        c = int(c_draw) if c is None else int(c)
-        t_c = float(t_draw) if t_c is None else float(t_c)
-        self._key, self._ts, out = _reset_jit(self._key, self.params, self.threat, c, t_c)
+        c = int(c_draw) if c is None else c
+        t_c = float(t_draw) if t_c is None else t_c
+        key, ts, out = _reset_jit(key, self.params, self.threat, c, t_c)
+        out = jax.device_get(out)
+        self._key, self._ts = key, ts
         self._steps = 0
         self.agents = list(self.possible_agents)
-        out = jax.device_get(out)
         obs = self._observations(out)
         # the observations checked at the start (the base stations at t = 0) are the reset's events
         checked = np.asarray(jax.device_get(self._ts.checked))[:len(self.schedule)]
         infos = self._infos(checked & (np.asarray(self.threat.obs_time)[:len(self.schedule)] < threat.NEVER))
         return obs, infos
+
+    def _check_options(self, options):
+        """``(compromised, compromise_time)`` of this episode: the options' values, else the env's; checked."""
+        if options is None:
+            options = {}
+        if not isinstance(options, Mapping):
+            raise ValueError(f"options must be a dict (e.g. {{'compromised': 0, 'compromise_time': 100.0}}) or None; "
+                             f"got {type(options).__name__}.")
+        unknown = sorted(map(repr, set(options) - {"compromised", "compromise_time"}))
+        if unknown:  # PettingZoo's API test passes arbitrary options and expects them to be ignored
+            gymnasium.logger.warn(f"ignoring unknown reset option(s) {', '.join(unknown)}; known: compromised, "
+                                  "compromise_time.")
+        return self._check_compromise(options.get("compromised", self.compromised),
+                                      options.get("compromise_time", self.compromise_time))
 
     def step(self, actions):
         if self._ts is None:

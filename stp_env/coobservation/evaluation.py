@@ -22,8 +22,10 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
+from stp_env.arguments import check_int
 from stp_env.coobservation import threat
 from stp_env.evaluation.stats import clopper_pearson_upper
+from stp_env.seeds import prng_key
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,8 +63,9 @@ def run(params, threats: dict, attackers: dict, n_episodes: int, *, t_window, ba
     """Every (schedule, attacker) pair: ``threats`` maps schedule names to :class:`ThreatParams` (padded to one
     length, so that each attacker compiles once), ``attackers`` names to jittable attackers. Episode ``i`` of a
     pair uses the same key for every pair (common random numbers: the same compromises and winds)."""
-    if n_episodes < 1 or batch < 1:
-        raise ValueError(f"n_episodes and batch must be >= 1; got {n_episodes}, {batch}.")
+    check_int(n_episodes, "n_episodes", 1)
+    check_int(batch, "batch", 1)
+    base = prng_key(seed)  # [0, 2**63 - 1], every seed its own episodes
     n_steps = threat.steps_for(params)
     rows = []
     jobs = [(s, a) for a in attackers for s in threats]
@@ -74,7 +77,7 @@ def run(params, threats: dict, attackers: dict, n_episodes: int, *, t_window, ba
             b = 0
             while done < n_episodes:
                 size = min(batch, n_episodes - done)
-                key = jax.random.fold_in(jax.random.key(seed), b)
+                key = jax.random.fold_in(base, b)
                 final, _ = threat.rollout(key, params, threats[s_name], attackers[a_name], batch, n_steps,
                                           tuple(float(t) for t in t_window))
                 o = threat.outcomes(jax.device_get(final))

@@ -119,7 +119,11 @@ def batch_reset(keys, params, tp, t_window):
 
 def make_vec_env(n_envs: int, params, tp, t_window, *, action_repeat: int = 5, gamma: float = 0.99,
                  shaping: float = 1.0, seed: int = 0, residual: bool = True):
-    """A Stable-Baselines3 ``VecEnv`` (imported lazily: needs the ``rl`` extra)."""
+    """A Stable-Baselines3 ``VecEnv`` (imported lazily: needs the ``rl`` extra). ``seed``: an integer in
+    ``[0, 2**63 - 1]`` (:func:`stp_env.seeds.prng_key`: every seed its own keys)."""
+    from stp_env.seeds import prng_key
+
+    base = jax.random.key_data(prng_key(seed))  # raw key data: the keys are selected with jnp.where
     import gymnasium as gym
     from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
@@ -131,7 +135,7 @@ def make_vec_env(n_envs: int, params, tp, t_window, *, action_repeat: int = 5, g
         def __init__(self):
             super().__init__(n_envs, gym.spaces.Box(-2.0, 2.0, (attackers.OBS_SIZE,), np.float32),
                              gym.spaces.Box(-1.0, 1.0, (2,), np.float32))
-            self._keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.PRNGKey(seed), i))(jnp.arange(n_envs))
+            self._keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.arange(n_envs))
             self._states = None
             self._actions = None
             self.window = jnp.asarray(t_window, jnp.float32)

@@ -13,6 +13,7 @@ import importlib
 import math
 from collections.abc import Callable
 
+from stp_env.arguments import check_kbar
 from stp_env.baselines import INTRUDERS, vehicle_policy
 from stp_env.sim import EnvConfig, winds
 from stp_env.sim.backends import vehicle_model as backend_model
@@ -117,9 +118,7 @@ class Configuration:
             value = getattr(self, name)
             if not isinstance(value, str) or not value:
                 raise ValueError(f"{name} must be a non-empty string; got {value!r}.")
-        if isinstance(self.kbar, bool) or not isinstance(self.kbar, int) or self.kbar < 1:
-            raise ValueError(f"kbar must be an integer >= 1 (the number of vehicles the intruder may force to "
-                             f"avoid); got {self.kbar!r}.")
+        check_kbar(self.kbar, "kbar (the number of vehicles the intruder may force to avoid)")
         if self.wind is not None and (isinstance(self.wind, bool) or not isinstance(self.wind, (int, float))
                                       or not math.isfinite(self.wind)
                                       or self.wind < 0):

@@ -16,15 +16,12 @@ a one-line ``ValueError`` naming the file (and the record) and what is wrong.
 from __future__ import annotations
 
 import dataclasses
-import json
-import numbers
-import zipfile
 from pathlib import Path
 
-import numpy as np
-
+from stp_env.arguments import INT32_MAX, check_int
 from stp_env.baselines import INTRUDERS
 from stp_env.evaluation.config import LEARNED_PREFIX, Configuration
+from stp_env.loaders import read_json, read_npz
 from stp_env.seeds import check_seed
 
 MAX_REPLAY_BATCH = 16384
@@ -40,12 +37,11 @@ def is_plugin_spec(spec: str) -> bool:
     return isinstance(spec, str) and ":" in spec and not spec.startswith(LEARNED_PREFIX)
 
 
-def _int(value, name: str, where: str, lo: int, hi: int | None = None) -> int:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < lo or (
-            hi is not None and value > hi):
-        upper = "" if hi is None else f" and <= {hi}"
-        raise ValueError(f"{where}: {name} must be an integer >= {lo}{upper}; got {value!r}.")
-    return int(value)
+def _int(value, name: str, where: str, lo: int, hi: int = INT32_MAX) -> int:
+    try:
+        return check_int(value, name, lo, hi)
+    except ValueError as err:
+        raise ValueError(f"{where}: {err}") from None
 
 
 def check_event(record, where: str = "event") -> dict:
@@ -93,18 +89,10 @@ def check_event(record, where: str = "event") -> dict:
 
 def load_events(path) -> list[dict]:
     """The records of an ``events.json``, each checked by :func:`check_event`; a one-line ``ValueError`` naming
-    the file for a missing, unreadable or malformed file."""
+    the file for a missing, unreadable or malformed file (the loader contract, :mod:`stp_env.loaders`: a regular
+    file of at most 256 MiB, JSON nested at most 64 levels)."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise ValueError(f"{path}: no such events file.") from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise ValueError(f"{path}: cannot read the events file ({type(err).__name__}: {err}).") from None
-    try:
-        records = json.loads(text)
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{path}: not an events file (invalid JSON: {err}).") from None
+    records = read_json(path, "events")
     if not isinstance(records, list):
         raise ValueError(f"{path}: not an events file (a JSON {type(records).__name__}, expected a list of "
                          "records).")
@@ -143,17 +131,13 @@ def check_replay_sizes(record, params, where: str = "event") -> None:
 
 
 def load_event_state(npz_path, record: dict) -> dict:
-    """The saved final state of one ``events.json`` record (numeric arrays only, ``allow_pickle=False``)."""
+    """The saved final state of one ``events.json`` record (numeric arrays only, read under the loader contract:
+    :func:`stp_env.loaders.read_npz`)."""
     prefix = record.get("npz_prefix") if isinstance(record, dict) else None
     if not isinstance(prefix, str):
         raise ValueError(f"{npz_path}: the record has no npz_prefix string.")
-    try:
-        with np.load(npz_path, allow_pickle=False) as data:
-            state = {k[len(prefix):]: data[k] for k in data.files if k.startswith(prefix)}
-    except FileNotFoundError:
-        raise ValueError(f"{npz_path}: no such file.") from None
-    except (OSError, ValueError, EOFError, AttributeError, TypeError, zipfile.BadZipFile) as err:
-        raise ValueError(f"{npz_path}: not an events archive ({type(err).__name__}: {err}).") from None
+    arrays = read_npz(npz_path, "event-states")
+    state = {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)}
     if not state:
         raise ValueError(f"{npz_path}: no arrays with prefix {prefix!r}.")
     bad = sorted(k for k, v in state.items() if v.dtype.kind not in "biuf")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
+import math
 
 TARGETS = ("tracking", "avoidance", "kbar")  # the attacks of stp_env.falsify.counterexample (kept in step by a test)
 
@@ -13,18 +13,25 @@ def _option(text: str):
     name, sep, value = text.partition("=")
     if not sep or not name.isidentifier():
         raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
-    for kind in (int, float):
-        try:
-            return name, kind(value)
-        except ValueError:
-            continue
-    return name, value
+    try:
+        return name, int(value)
+    except ValueError:
+        pass
+    try:
+        number = float(value)
+    except ValueError:
+        return name, value
+    if not math.isfinite(number):
+        raise argparse.ArgumentTypeError(f"{name}: expected a finite number, got {value!r}")
+    return name, number
 
 
 def add_parser(sub) -> None:
+    from stp_env import cli_kit as kit
+
     fa = sub.add_parser(
         "falsify", help="adversarial search against a claimed bound (tracking r_e, avoidance R_c, k̄)",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=kit.HelpFormatter,
         description="Search --attacks attacks through the simulator for the input that breaks a bound: "
                     "'tracking' (reference in U^p and wind against the tracker; bound r_e), 'avoidance' (intruder "
                     "start outside V^A, its controls and the winds against u^A; bound R_c), 'kbar' (intruder "
@@ -32,28 +39,31 @@ def add_parser(sub) -> None:
                     "the worst value found, the bound and the margin (negative: broken), and writes a replayable "
                     "counterexample.json with a figure to --out. --replay FILE recomputes a saved one.")
     fa.add_argument("--target", choices=TARGETS, default="tracking", help="the bound to attack")
-    fa.add_argument("--scenario", default="town", help="registered scenario (vehicle, tables, plan)")
-    fa.add_argument("--kbar", type=int, default=None, help="the scenario's k̄ (default: the scenario's own)")
-    fa.add_argument("--wind", type=float, default=None,
+    kit.add_scenario(fa, "town", "registered scenario (vehicle, tables, plan)")
+    fa.add_argument("--kbar", type=kit.kbar, default=None,
+                    help=f"the scenario's k̄ (1-{kit.MAX_KBAR}; default: the scenario's own)")
+    fa.add_argument("--wind", type=kit.real(0.0, 1000.0), default=None,
                     help="the scenario's wind bound [m/s] (default: the scenario's own; e.g. --scenario tiny --wind 11 "
                          "for the tracking and avoidance attacks at 11 m/s)")
-    fa.add_argument("--wind-model", default="worst", help="the environment's wind model (kbar attack)")
-    fa.add_argument("--control-dt", type=float, default=0.02, help="inner control period of the vehicles [s]")
+    kit.add_wind_model(fa, "worst", "the environment's wind model (kbar attack)")
+    fa.add_argument("--control-dt", type=kit.real(0.0, 0.1, lo_open=True), default=0.02,
+                    help="inner control period of the vehicles [s]; the guarantees are certified for 0.005-0.02 s")
     fa.add_argument("--option", type=_option, action="append", default=[], metavar="NAME=VALUE",
                     help="an attack option, e.g. wind=worst, intruder=hj, horizon=40, segment=0.5 (repeatable)")
-    fa.add_argument("--attacks", type=int, default=10_000, help="attacks to simulate (the search budget)")
+    fa.add_argument("--attacks", type=kit.positive_int, default=10_000, help="attacks to simulate (the search budget)")
     fa.add_argument("--method", choices=("cem", "gradient", "both"), default="cem", help="search method")
-    fa.add_argument("--population", type=int, default=250, help="cross-entropy samples per iteration and restart")
-    fa.add_argument("--restarts", type=int, default=4, help="independent cross-entropy searches")
-    fa.add_argument("--batch", type=int, default=1000, help="attacks simulated at once")
-    fa.add_argument("--seed", type=int, default=0, help="search seed")
+    fa.add_argument("--population", type=kit.positive_int, default=250,
+                    help="cross-entropy samples per iteration and restart")
+    fa.add_argument("--restarts", type=kit.positive_int, default=4, help="independent cross-entropy searches")
+    kit.add_batch_size(fa, "attacks simulated at once", default=1000, aliases=("--batch",))
+    kit.add_seed(fa, "the search")
     fa.add_argument("--no-game-seed", action="store_true",
                     help="do not start the search from the game's own worst strategies (the attack's seeds)")
-    fa.add_argument("--out", default="falsify", help="output directory")
+    kit.add_out(fa, "falsify")
     fa.add_argument("--replay", default=None, metavar="FILE",
                     help="recompute the value of a saved counterexample.json instead of searching")
     fa.add_argument("--no-figures", action="store_true", help="write no figure")
-    fa.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    kit.add_progress(fa)
 
 
 def run_cli(args) -> int:
@@ -62,8 +72,6 @@ def run_cli(args) -> int:
     from stp_env.falsify.search import SearchConfig
 
     if args.replay is not None:
-        if not Path(args.replay).is_file():
-            raise ValueError(f"--replay {args.replay}: no such file.")
         recorded, recomputed = replay(args.replay)
         same = recorded == recomputed
         print(json.dumps({"file": args.replay, "recorded": recorded, "recomputed": recomputed, "identical": same}))
@@ -71,7 +79,7 @@ def run_cli(args) -> int:
     spec = AttackSpec(target=args.target, scenario=args.scenario, kbar=args.kbar, wind=args.wind,
                       wind_model=args.wind_model, control_dt=args.control_dt, options=tuple(args.option))
     config = SearchConfig(method=args.method, budget=args.attacks, population=args.population,
-                          restarts=args.restarts, batch=args.batch)
+                          restarts=args.restarts, batch=args.batch_size)
     out = check_output_dir(args.out)  # before the search, so that its result is not lost at the end
     outcome = run(spec, config, args.seed, progress=not args.no_progress, seeded=not args.no_game_seed)
     path = save(outcome, out, plot=not args.no_figures)

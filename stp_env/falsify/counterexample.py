@@ -15,15 +15,23 @@ import math
 import time
 from pathlib import Path
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
+from stp_env.arguments import INT32_MAX, check_int, check_kbar, check_real, show
 from stp_env.evaluation.report import atomic_open
 from stp_env.falsify.search import SearchConfig, search
+from stp_env.loaders import read_json
+from stp_env.seeds import prng_key
 
 TARGETS = ("tracking", "avoidance", "kbar")
 FORMAT = 1
+MAX_ATTACK_DIM = 1_000_000
+"""The most inputs an attack may have (its ``z``): what a search samples, and what a counterexample file may hold."""
+MAX_TEXT = 256
+"""The longest name or string option of a specification [characters]."""
+MAX_OPTION = 1e6
+"""The largest magnitude of a numeric attack option."""
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -51,14 +59,38 @@ class AttackSpec:
     options: tuple = ()
 
     def __post_init__(self) -> None:
-        if self.target not in TARGETS:
-            raise ValueError(f"target must be one of {', '.join(TARGETS)}; got {self.target!r}.")
+        if not isinstance(self.target, str) or self.target not in TARGETS:
+            raise ValueError(f"target must be one of {', '.join(TARGETS)}; got {show(self.target)}.")
+        for name in ("scenario", "wind_model"):
+            value = getattr(self, name)
+            if not isinstance(value, str) or not 0 < len(value) <= MAX_TEXT:
+                raise ValueError(f"{name} must be a non-empty string of at most {MAX_TEXT} characters; got "
+                                 f"{show(value)}.")
+        if self.kbar is not None:
+            object.__setattr__(self, "kbar", check_kbar(self.kbar))
+        if self.wind is not None:
+            object.__setattr__(self, "wind", check_real(self.wind, "wind [m/s]", 0.0, 1000.0))
+        object.__setattr__(self, "dt", check_real(self.dt, "dt [s]", 0.0, 10.0, lo_open=True))
+        object.__setattr__(self, "control_dt", check_real(self.control_dt, "control_dt [s]", 0.0, self.dt,
+                                                          lo_open=True))
+        if not isinstance(self.options, (tuple, list)) or not all(
+                isinstance(o, (tuple, list)) and len(o) == 2 for o in self.options):
+            raise ValueError(f"options must be (name, value) pairs; got {show(self.options)}.")
         opts = dict(self.options)
         if len(opts) != len(self.options):
-            raise ValueError(f"options repeat a name: {self.options!r}.")
+            raise ValueError(f"options repeat a name: {show(self.options)}.")
         for key, value in opts.items():
-            if not isinstance(key, str) or isinstance(value, (dict, list, tuple)):
-                raise ValueError(f"options must be (name, number or string) pairs; got {key!r}: {value!r}.")
+            if not isinstance(key, str) or not key.isidentifier() or len(key) > MAX_TEXT:
+                raise ValueError(f"an option name must be an identifier; got {show(key)}.")
+            if isinstance(value, str):
+                if len(value) > MAX_TEXT:
+                    raise ValueError(f"option {key}: a string of at most {MAX_TEXT} characters; got {show(value)}.")
+            elif isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ValueError(f"option {key} must be a number or a string; got {show(value)}.")
+            elif isinstance(value, int):
+                check_int(value, f"option {key}", -INT32_MAX, INT32_MAX)
+            else:
+                check_real(value, f"option {key}", -MAX_OPTION, MAX_OPTION)
         object.__setattr__(self, "options", tuple(sorted(opts.items())))
 
     def to_json(self) -> dict:
@@ -68,8 +100,11 @@ class AttackSpec:
 
     @classmethod
     def from_json(cls, data: dict) -> AttackSpec:
+        """The spec of a counterexample file's ``spec`` object: known fields only, each checked (``ValueError``)."""
         if not isinstance(data, dict):
             raise ValueError("the attack specification must be a JSON object.")
+        if "target" not in data:
+            raise ValueError("the attack specification has no target.")
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
@@ -121,7 +156,11 @@ def build_attack(spec: AttackSpec, params=None, *, progress: bool = False):
     unknown = sorted(set(opts) - allowed)
     if unknown:
         raise ValueError(f"unknown option(s) {unknown} for the {spec.target} attack; allowed: {sorted(allowed)}.")
-    return cls(base=params, **opts)
+    attack = cls(base=params, **opts)
+    if attack.dim > MAX_ATTACK_DIM:  # e.g. a horizon of 1e6 s in 0.1 s segments: refused before anything is sized
+        raise ValueError(f"the {spec.target} attack with options {dict(spec.options)} has {attack.dim} inputs; at "
+                         f"most {MAX_ATTACK_DIM} are searched.")
+    return attack
 
 
 def canonical_value(attack, z) -> float:
@@ -175,9 +214,11 @@ class Outcome:
 
 def run(spec: AttackSpec, config: SearchConfig | None = None, seed: int = 0, *, params=None,
         progress: bool = True, seeded: bool = True) -> Outcome:
-    """Search ``config.budget`` attacks of ``spec`` and return the worst. ``seeded``: start the search from the
-    attack's game strategies (its ``seeds()``, when it has them), as well as from the whole box."""
+    """Search ``config.budget`` attacks of ``spec`` and return the worst. ``seed``: an integer in ``[0, 2**63 - 1]``,
+    each its own search (:func:`stp_env.seeds.prng_key`; checked before anything is built). ``seeded``: start the
+    search from the attack's game strategies (its ``seeds()``, when it has them), as well as from the whole box."""
     config = SearchConfig() if config is None else config
+    key = prng_key(seed)
     attack = build_attack(spec, params, progress=progress)
     seeds = np.asarray(attack.seeds(), np.float32) if seeded and callable(getattr(attack, "seeds", None)) else None
     bar = None
@@ -187,7 +228,7 @@ def run(spec: AttackSpec, config: SearchConfig | None = None, seed: int = 0, *, 
         bar = tqdm(total=config.budget, unit="attack", desc=f"falsify {spec.target}")
     start = time.perf_counter()
     try:
-        result = search(attack.objective, attack.dim, jax.random.key(seed), config, progress=bar, seeds=seeds)
+        result = search(attack.objective, attack.dim, key, config, progress=bar, seeds=seeds)
     finally:
         if bar is not None:
             bar.close()
@@ -238,19 +279,27 @@ def save(outcome: Outcome, directory, *, plot: bool = True) -> Path:
 
 
 def load(path) -> tuple[AttackSpec, np.ndarray, float]:
-    """``(spec, z, value)`` of a counterexample file; a malformed file is a ``ValueError`` naming it."""
+    """``(spec, z, value)`` of a counterexample file, checked before anything is built: the loader contract
+    (:func:`stp_env.loaders.read_json`: a regular file of at most 64 MiB, JSON nested at most 64 levels), then a
+    JSON object of format :data:`FORMAT`, a valid :class:`AttackSpec`, ``z`` a list of at most
+    :data:`MAX_ATTACK_DIM` numbers in ``[0, 1]`` and ``value`` a finite number. Any problem is a one-line
+    ``ValueError`` naming the file."""
     path = Path(path)
+    record = read_json(path, "counterexample")
     try:
-        record = json.loads(path.read_text())
         if not isinstance(record, dict) or record.get("format") != FORMAT:
             raise ValueError(f"not a counterexample file of format {FORMAT}")
+        missing = sorted({"spec", "z", "value"} - set(record))
+        if missing:
+            raise ValueError(f"missing field(s) {missing}")
         spec = AttackSpec.from_json(record["spec"])
-        z = np.asarray(record["z"], np.float32)
-        value = float(record["value"])
-        if z.ndim != 1 or not np.all(np.isfinite(z)) or np.any((z < 0) | (z > 1)):
-            raise ValueError("z must be a list of numbers in [0, 1]")
-    except (OSError, KeyError, TypeError, ValueError) as err:
-        raise ValueError(f"{path}: cannot read the counterexample ({err}).") from err
+        z = record["z"]
+        if not isinstance(z, list) or not 0 < len(z) <= MAX_ATTACK_DIM:
+            raise ValueError(f"z must be a list of 1 to {MAX_ATTACK_DIM} numbers in [0, 1]")
+        z = np.asarray([check_real(v, "every entry of z", 0.0, 1.0) for v in z], np.float32)
+        value = check_real(record["value"], "value")
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{path}: cannot read the counterexample ({' '.join(str(err).split())}).") from None
     return spec, z, value
 
 

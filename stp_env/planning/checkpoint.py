@@ -5,9 +5,11 @@ nominal trajectories of those before it, so the first ``k`` vehicles' plans are 
 ``k + 1``. A checkpoint is one ``.npz`` file holding those plans (trajectories padded with NaN, lengths kept) and a
 key: a hash of every input of the planning problem and of the planner's code version
 (:data:`stp_env.artifacts.CODE_VERSION`). It is rewritten atomically after every vehicle (a temporary file in the
-same directory, then a rename), so an interrupted run leaves the last complete prefix; it is read with
-``allow_pickle=False``. Resuming with a checkpoint of another problem is refused: silently mixing plans would break
-the sequential guarantee.
+same directory, then a rename), so an interrupted run leaves the last complete prefix. It is read as untrusted data
+(``docs/threat-model.md``): under the loader contract (:mod:`stp_env.loaders`: a regular file, size caps, nothing
+unpickled), its structure checked (:func:`_read`), and, before a run resumes from it, its trajectories checked
+as a finished plan's are (:func:`check_plans`). Resuming with a checkpoint of another problem is refused: silently
+mixing plans would break the sequential guarantee.
 
 Files of :data:`FORMAT` 2 hold the trajectories losslessly packed (:func:`stp_env.planning.plan.pack_trajectories`)
 and compressed: a planner integrates every trajectory to its horizon, so the padded float64 form of format 1 grew
@@ -25,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from stp_env.arguments import INT32_MAX
+from stp_env.loaders import LoadError, loader, read_npz
 from stp_env.planning.plan import SinglePlan, pack_trajectories, unpack_trajectories
 
 FORMAT = 2
@@ -110,31 +114,110 @@ def save(path, key: str, plans: list[tuple[int, SinglePlan]], *, file_format: in
         raise
 
 
+_INTEGER_FIELDS = ("index", "lengths", "n_steps")
+_TIME_FIELDS = ("t_ldt", "sta", "arrival_time")
+_TRAJECTORY_WIDTHS = {"times": None, "states": 3, "controls": 2}
+
+
 def _read(path) -> tuple[str, list[tuple[int, SinglePlan]]]:
-    """The key and the plans of the checkpoint file ``path`` (either format)."""
+    """The key and the plans of the checkpoint file ``path`` (either format), read under the loader contract
+    (:func:`stp_env.loaders.read_npz`: a regular file, size caps, no pickles) and checked for structure before
+    anything is built from it: exactly the arrays of its format, a string key, an integer format, one entry per
+    vehicle in every per-vehicle array (integers where integers belong), each length between 1 and the padded width,
+    distinct vehicle indices, ``n_steps >= 0``. Any problem is a one-line ``ValueError`` naming the file. (Whether
+    the trajectories are flights of the problem is checked by :func:`check_plans` when a run resumes.)"""
     path = Path(path)
+
+    def bad(problem: str) -> ValueError:
+        return ValueError(f"{path}: not a readable planning checkpoint ({problem}).")
+
     try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {name: data[name] for name in data.files}
-    except (OSError, ValueError) as err:
-        raise ValueError(f"planning checkpoint {path}: not a readable .npz file ({err}).") from err
-    common = {"key", "format", "index", "lengths", "t_ldt", "sta", "arrival_time", "n_steps"}
-    trajectories = {1: {"times", "states", "controls"}, 2: {"packed_trajectories"}}
+        arrays = read_npz(path, "plan-checkpoint")
+    except LoadError as err:
+        raise bad(err.problem.rstrip(".")) from None
+    common = {"key", "format", "index", "lengths", *_TIME_FIELDS, "n_steps"}
+    trajectories = {1: set(_TRAJECTORY_WIDTHS), 2: {"packed_trajectories"}}
     stored = arrays.get("format")
     file_format = (int(stored) if stored is not None and stored.shape == () and np.issubdtype(stored.dtype, np.integer)
                    else None)
-    if file_format not in FORMATS or not common | trajectories[file_format] <= set(arrays):
+    if file_format not in FORMATS or set(arrays) != common | trajectories[file_format]:
         raise ValueError(f"planning checkpoint {path}: not a checkpoint of formats {FORMATS} (arrays "
-                         f"{sorted(arrays)}).")
+                         f"{sorted(arrays)[:20]}).")
+    key = arrays["key"]
+    if key.shape != () or key.dtype.kind != "U":
+        raise bad(f"its key is a {key.dtype} array of shape {key.shape}, not a string")
+    index = arrays["index"]
+    n = index.shape[0] if index.ndim == 1 else -1
+    for name in (*_INTEGER_FIELDS, *_TIME_FIELDS):
+        a = arrays[name]
+        kinds = "iu" if name in _INTEGER_FIELDS else "fiu"
+        if a.shape != (max(n, 0),) or n < 0 or a.dtype.kind not in kinds:
+            raise bad(f"{name} is a {a.dtype} array of shape {a.shape}; expected {n if n >= 0 else 'one'} "
+                      f"{'integers' if name in _INTEGER_FIELDS else 'numbers'}, one per vehicle")
+    lengths = arrays["lengths"].astype(np.int64)
+    if len(set(index.tolist())) != n or np.any(index < 0) or np.any(index > INT32_MAX):
+        raise bad("the vehicle indices are not distinct integers >= 0")
+    if np.any(arrays["n_steps"] < 0) or np.any(arrays["n_steps"] > INT32_MAX):
+        raise bad("n_steps must be integers >= 0")
+    if np.any(lengths < 1):
+        raise bad(f"trajectory lengths must be >= 1; got {lengths.min()}")
+    width = int(lengths.max(initial=0))
+    if n * width * 6 * 8 > loader("plan-checkpoint").max_array_bytes:
+        raise bad(f"{n} trajectories of up to {width} samples are more than a checkpoint may hold")
     if file_format == 2:
-        arrays.update(unpack_trajectories(arrays))
+        try:
+            arrays.update(unpack_trajectories(arrays))
+        except (ValueError, TypeError, IndexError) as err:
+            raise bad(f"packed trajectories: {err}") from None
+    for name, columns in _TRAJECTORY_WIDTHS.items():
+        a = arrays[name]
+        shape = (n, a.shape[1] if a.ndim >= 2 else -1) + (() if columns is None else (columns,))
+        if a.shape != shape or a.dtype.kind != "f" or a.shape[1] < width:
+            raise bad(f"{name} is a {a.dtype} array of shape {a.shape}; expected float {n} x (>= {width})"
+                      f"{'' if columns is None else f' x {columns}'}")
     plans = []
-    for r, m in enumerate(arrays["lengths"]):
-        plans.append((int(arrays["index"][r]), SinglePlan(
+    for r, m in enumerate(lengths):
+        plans.append((int(index[r]), SinglePlan(
             t_ldt=float(arrays["t_ldt"][r]), sta=float(arrays["sta"][r]), times=arrays["times"][r, :m].copy(),
             states=arrays["states"][r, :m].copy(), controls=arrays["controls"][r, :m].copy(),
             arrival_time=float(arrays["arrival_time"][r]), n_steps=int(arrays["n_steps"][r]))))
-    return str(arrays["key"]), plans
+    return str(key), plans
+
+
+def check_plans(path, plans: list[tuple[int, SinglePlan]], *, starts, targets, target_radii, stas, priorities,
+                tracking_bound: float, time_step: float, planning_v, planning_omega_max: float) -> None:
+    """The checks of a finished plan (:func:`stp_env.planning.verify.trajectory_faults`), run on the plans a
+    checkpoint holds before a run resumes from them: every stored time, state and control finite; samples from the
+    departure ``time_step`` apart; the first at the vehicle's start; controls in ``U^p``; each sample the exact step
+    of the one before; the recorded arrival the first sample in the shrunk target; and each plan's STA the
+    problem's. A checkpoint with the right key and other contents (edited, or written by a faulty planner) is a
+    one-line ``ValueError`` naming the file and the first faulty vehicle, never a resumed plan of NaN."""
+    from types import SimpleNamespace
+
+    from stp_env.planning.plan import Plan, VehiclePlan
+    from stp_env.planning.verify import trajectory_faults
+
+    order = sorted(range(len(starts)), key=lambda i: priorities[i])
+    rank = {i: r for r, i in enumerate(order)}
+    vehicles = [SimpleNamespace(start=tuple(float(v) for v in starts[i]), target=tuple(float(v) for v in targets[i]),
+                                target_radius=float(target_radii[i]), priority=int(priorities[i]))
+                for i in range(len(starts))]
+    problem = SimpleNamespace(vehicles=vehicles, time_step=float(time_step), planning_omega_max=planning_omega_max,
+                              planning_v=tuple(float(v) for v in planning_v))
+    empty = np.zeros(0)
+    for i, single in plans:
+        if not 0 <= i < len(starts):
+            raise ValueError(f"{path}: vehicle {i} of the checkpoint is not a vehicle of this problem; delete the "
+                             "checkpoint or choose another checkpoint path.")
+        plan = Plan(vehicles=(VehiclePlan(index=i, priority=rank[i], plan=single, obstacle_lags=empty,
+                                          obstacle_radii=empty),),
+                    tracking_bound=float(tracking_bound), collision_radius=0.0, kbar=None)
+        why = trajectory_faults(plan, problem).get(i, [])
+        if not (single.sta == float(stas[i])):
+            why.append(f"STA {single.sta:.6g} s, the problem's {float(stas[i]):.6g} s")
+        if why:
+            raise ValueError(f"{path}: vehicle {i} (priority {rank[i]}) of the checkpoint is not a plan of this "
+                             f"problem: {'; '.join(why)}; delete the checkpoint or choose another checkpoint path.")
 
 
 def load(path, key: str) -> list[tuple[int, SinglePlan]]:

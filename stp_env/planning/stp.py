@@ -107,7 +107,8 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
         checkpoint: path of a ``.npz`` checkpoint (:mod:`stp_env.planning.checkpoint`): the vehicles it holds are
             not planned again, and it is rewritten atomically after every vehicle, so an interrupted run resumes
             where it stopped, to the same plan bit for bit. A checkpoint of another problem is refused
-            (:class:`stp_env.planning.checkpoint.CheckpointMismatchError`).
+            (:class:`stp_env.planning.checkpoint.CheckpointMismatchError`), and so is one whose plans fail the
+            checks of a finished plan (:func:`stp_env.planning.checkpoint.check_plans`).
         on_vehicle: called as ``on_vehicle(rank, index, plan)`` after each vehicle is planned (and checkpointed).
         max_slice_dt: the BRS is stored every ``horizon / 200`` s (at least ``time_step``) and trajectories are
             extracted from those slices interpolated in time; this caps the spacing [s] (more slices, 2.2 MB each on
@@ -176,6 +177,11 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
         if [i for i, _ in planned] != order[:len(planned)]:
             raise checkpoint_io.CheckpointMismatchError(f"planning checkpoint {checkpoint}: its vehicles are not a "
                                                         "prefix of the priority order.")
+        # The key says which problem the file claims to be of; its contents are checked as a finished plan's are
+        # before anything is planned against them (an edited or corrupted file: a one-line ValueError).
+        checkpoint_io.check_plans(checkpoint, planned, starts=starts, targets=targets, target_radii=radii, stas=stas,
+                                  priorities=priorities, tracking_bound=tracking_bound, time_step=time_step,
+                                  planning_v=planning_v, planning_omega_max=planning_omega_max)
     bar = tqdm(total=n, desc="STP planning", unit="vehicle", disable=not progress, initial=len(planned))
     for rank, i in enumerate(order):
         if rank < len(planned):  # resumed from the checkpoint

@@ -287,7 +287,8 @@ def trajectory_faults(plan: Plan, scenario) -> dict[int, list[str]]:
             why.append(f"first sample {off:.3g} m / {float(_angle_gap(states[0, 2], spec.start[2])):.3g} rad "
                        "from the start")
         arrival = math.inf if end is None else float(np.asarray(p.times, np.float64)[end])
-        if not (arrival == p.arrival_time or abs(arrival - p.arrival_time) <= 1e-6 * max(1.0, abs(arrival))):
+        if not (arrival == p.arrival_time or (math.isfinite(arrival) and math.isfinite(p.arrival_time)  # inf: exact
+                                              and abs(arrival - p.arrival_time) <= 1e-6 * max(1.0, abs(arrival)))):
             why.append(f"arrival recorded at {p.arrival_time:.6g} s, the first sample in the target at "
                        f"{arrival:.6g} s")
         why.extend(dynamics)

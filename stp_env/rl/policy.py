@@ -20,13 +20,13 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
-import zipfile
 from importlib import resources
 from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
 
+from stp_env.loaders import LoadError, parse_json, read_npz
 from stp_env.sim.core import intruder_observation_size, observe
 
 ACTIVATIONS = {"tanh": jnp.tanh, "relu": lambda x: jnp.maximum(x, 0.0)}
@@ -90,29 +90,16 @@ def export_mlp(model, path, metadata: dict | None = None) -> Path:
 
 
 def load_mlp(path, n_outputs: int = 2) -> MLPIntruder:
-    """Read an :func:`export_mlp` file (numpy only, ``allow_pickle=False``: reading it never runs code).
+    """Read an :func:`export_mlp` file (numpy only, nothing unpickled: reading it never runs code).
 
-    Everything is checked before the policy is built: the metadata (a JSON object with this module's format
-    version, a known activation and ``n_layers``), every layer's weights ``w{i}`` ``(out, in)`` and bias ``b{i}``
-    ``(out,)`` as real arrays whose shapes chain, an action layer of ``n_outputs`` outputs (2 for an intruder's
-    action; other users of the format, e.g. a discrete policy's logits, pass their own), and finite values (a NaN weight
-    would give the intruder a NaN action, and a NaN state, in every episode). Any problem is a ``ValueError``
-    naming the file and what is wrong."""
-    try:
-        data = np.load(path, allow_pickle=False)
-    except FileNotFoundError:
-        raise ValueError(f"{path}: no such file (expected an .npz written by stp_env.rl.policy.export_mlp).") from None
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
-        why = "neither an .npz nor an .npy file; it is never unpickled" if "pickled" in str(err) else \
-            f"{type(err).__name__}: {err}"
-        raise ValueError(f"{path}: not a learned-intruder file written by export_mlp ({why}).") from None
-    if not isinstance(data, np.lib.npyio.NpzFile):
-        raise ValueError(f"{path}: a single .npy array, not a learned-intruder .npz written by export_mlp.")
-    try:
-        with data:
-            arrays = {name: data[name] for name in data.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as err:
-        raise ValueError(f"{path}: unreadable ({type(err).__name__}: {err}).") from None
+    Everything is checked before the policy is built: the loader contract (:func:`stp_env.loaders.read_npz`: a
+    regular file of at most 256 MiB whose arrays decompress to at most 1 GiB), the metadata (a JSON object, nested
+    at most 64 levels, with this module's format version, a known activation and ``n_layers``), every layer's
+    weights ``w{i}`` ``(out, in)`` and bias ``b{i}`` ``(out,)`` as real arrays whose shapes chain, an action layer of
+    ``n_outputs`` outputs (2 for an intruder's action; other users of the format, e.g. a discrete policy's logits,
+    pass their own), and finite values (a NaN weight would give the intruder a NaN action, and a NaN state, in every
+    episode). Any problem is a ``ValueError`` naming the file and what is wrong."""
+    arrays = read_npz(path, "learned-policy")
     return _mlp_from_arrays(arrays, path, n_outputs)
 
 
@@ -124,9 +111,9 @@ def _mlp_from_arrays(arrays: dict, path, n_outputs: int = 2) -> MLPIntruder:
     if raw is None or raw.shape != () or raw.dtype.kind != "U":
         raise bad("no 'metadata' string")
     try:
-        meta = json.loads(str(raw))
-    except json.JSONDecodeError as err:
-        raise bad(f"metadata is not JSON ({err})") from None
+        meta = parse_json(str(raw), path, "learned-intruder file's metadata")
+    except LoadError as err:
+        raise bad(err.problem.rstrip(".")) from None
     if not isinstance(meta, dict):
         raise bad(f"metadata is a JSON {type(meta).__name__}, not an object")
     if meta.get("format_version") != FORMAT_VERSION:
@@ -147,8 +134,9 @@ def _mlp_from_arrays(arrays: dict, path, n_outputs: int = 2) -> MLPIntruder:
         for name, a, ndim in ((f"w{i}", w, 2), (f"b{i}", b, 1)):
             if a.dtype.kind != "f" or a.ndim != ndim or 0 in a.shape:
                 raise bad(f"{name} must be a non-empty {ndim}-D float array; got dtype {a.dtype}, shape {a.shape}")
-            if not np.all(np.isfinite(a)):
-                raise bad(f"{name} has {int(np.sum(~np.isfinite(a)))} non-finite value(s) (NaN or inf)")
+            if not np.all(np.isfinite(a.astype(np.float32))):  # as evaluated: 1e300 is finite, not in float32
+                raise bad(f"{name} has {int(np.sum(~np.isfinite(a.astype(np.float32))))} non-finite value(s) (NaN or "
+                          "inf, or beyond float32)")
         if b.shape[0] != w.shape[0] or (width is not None and w.shape[1] != width):
             raise bad(f"layer {i}: w{i} {w.shape} and b{i} {b.shape} do not follow the previous layer's "
                       f"{width} outputs")

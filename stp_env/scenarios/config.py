@@ -29,6 +29,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from stp_env.angles import wrap_angle
+from stp_env.arguments import MAX_KBAR, show
 from stp_env.dynamics import DubinsWind
 from stp_env.hj import Grid
 from stp_env.scenarios import geometry
@@ -225,8 +226,9 @@ class Scenario:
         object.__setattr__(self, "time_step", _positive("time_step", self.time_step))
         if self.method not in METHODS:
             raise ValueError(f"method {self.method!r} is not known; allowed: {', '.join(METHODS)}.")
-        if self.kbar is not None and (not _is_int(self.kbar) or self.kbar < 1):
-            raise ValueError(f"kbar must be None (intruder-unaware planning) or an integer >= 1; got {self.kbar!r}.")
+        if self.kbar is not None and (not _is_int(self.kbar) or not 1 <= self.kbar <= MAX_KBAR):
+            raise ValueError(f"kbar must be None (intruder-unaware planning) or an integer >= 1 (at most "
+                             f"{MAX_KBAR}); got {show(self.kbar)}.")
         if not _is_int(self.seed):
             raise ValueError(f"seed must be an integer; got {self.seed!r}.")
         grid_points = tuple(self.grid_points)

@@ -8,15 +8,6 @@ import json
 from pathlib import Path
 
 
-def _types():
-    """The option types (built on the main CLI's checked-number factory)."""
-    from stp_env.cli import _number, _positive
-
-    return {"positive_int": _positive(int), "count": _number(int, "an integer", lambda v: v >= 0, ">= 0"),
-            "unit": _number(float, "a number", lambda v: 0.0 <= v <= 1.0, "in [0, 1]"),
-            "hours": _positive(float)}
-
-
 def _worker(text: str) -> tuple[int, int]:
     try:
         i, n = (int(v) for v in text.split("/"))
@@ -28,41 +19,45 @@ def _worker(text: str) -> tuple[int, int]:
 
 
 def add_parser(sub) -> None:
-    """Add the ``survivability`` subcommand to an argparse subparsers object."""
-    from stp_env.survivability.config import POLICIES
-    from stp_env.survivability.study import LEVELS
+    """Add the ``survivability`` subcommand to an argparse subparsers object (the policies and levels are read from
+    their modules' source: building the parser imports no JAX)."""
+    from stp_env import cli_kit as kit
 
-    t = _types()
+    policies = kit.source_constant("survivability/config.py", "POLICIES")
+    levels = list(kit.source_constant("survivability/study.py", "LEVELS"))
 
     sp = sub.add_parser(
         "survivability", help="mission survivability under partially known and unknown intruders (scenario sweep)",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=kit.HelpFormatter,
         description="Fly the Bay-Area mission of the survivability paper (Santa Clara to UCSF, alternative sites SFO "
                     "and Stanford) under receding-horizon control with each policy through the same traffic "
                     "instances of every scenario (N_p partially known, N_u unknown intruders). Appends every "
                     "mission to OUT/missions.csv (an interrupted run resumes), then writes OUT/results.{json,csv,md} "
                     "(rates with 95 % Clopper-Pearson intervals, the switching thresholds phi and eta with "
                     "bootstrap intervals, the paper's findings next to ours) and the figures OUT/fig7..fig12*.png.")
-    sp.add_argument("--out", default="survivability", help="study directory")
-    sp.add_argument("--instances", type=t["positive_int"], default=2401, help="traffic instances per scenario")
-    sp.add_argument("--partial", type=t["count"], nargs="+", default=list(LEVELS), help="values of N_p")
-    sp.add_argument("--unknown", type=t["count"], nargs="+", default=list(LEVELS), help="values of N_u")
-    sp.add_argument("--policies", nargs="+", choices=POLICIES, default=list(POLICIES),
+    kit.add_out(sp, "survivability", "study directory (an earlier study there is resumed)")
+    sp.add_argument("--instances", type=kit.positive_int, default=2401, help="traffic instances per scenario")
+    sp.add_argument("--partial", type=kit.integer(0, 100_000), nargs="+", default=levels,
+                    help="values of N_p, the partially known intruders")
+    sp.add_argument("--unknown", type=kit.integer(0, 100_000), nargs="+", default=levels,
+                    help="values of N_u, the unknown intruders")
+    sp.add_argument("--policies", nargs="+", choices=policies, default=list(policies),
                     help="R: pi_R, Nf: pi_Nf, S: pi_S, AvgR: pi_Avg(R)")
-    sp.add_argument("--seed", type=t["count"], default=0, help="base seed (traffic, Monte Carlo, tie-breaking)")
-    sp.add_argument("--beta", type=t["unit"], default=0.5, help="discount of the objective's future term (eq. 5)")
-    sp.add_argument("--n-mc", type=t["positive_int"], default=2500,
+    kit.add_seed(sp, "the study (traffic, Monte Carlo, tie-breaking)")
+    sp.add_argument("--beta", type=kit.unit_interval, default=0.5,
+                    help="discount of the objective's future term (eq. 5), in [0, 1]")
+    sp.add_argument("--n-mc", type=kit.positive_int, default=2500,
                     help="Monte Carlo realisations per segment robustness")
-    sp.add_argument("--max-hours", type=t["hours"], default=None,
-                    help="stop after this much wall time (rerun the same command to resume)")
+    sp.add_argument("--max-hours", type=kit.real(0.0, 1e6, lo_open=True), default=None,
+                    help="stop after this much wall time [h] (rerun the same command to resume; default: no limit)")
     sp.add_argument("--worker", type=_worker, default=(0, 1), metavar="I/N",
                     help="run every N-th group of instances (one instance of the scenarios with the same N_p) "
                          "starting at the I-th (I = 0 .. N-1), so that N processes with the same options share the "
                          "study")
-    sp.add_argument("--bootstrap", type=t["positive_int"], default=2000, help="bootstrap resamples for thresholds")
+    sp.add_argument("--bootstrap", type=kit.positive_int, default=2000, help="bootstrap resamples for thresholds")
     sp.add_argument("--report-only", action="store_true", help="only (re)write results and figures from OUT")
     sp.add_argument("--no-figures", action="store_true", help="skip the figures")
-    sp.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    kit.add_progress(sp)
 
 
 def config_from_args(args):

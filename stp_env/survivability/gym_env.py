@@ -40,15 +40,19 @@ one of them at random. Otherwise each reset draws the scenario uniformly from ``
 
 from __future__ import annotations
 
+import copy
+from collections.abc import Mapping
 from typing import ClassVar
 
 import gymnasium as gym
 import numpy as np
 
+from stp_env.arguments import check_int
+from stp_env.seeds import check_seed
 from stp_env.survivability import dp
 from stp_env.survivability.config import MissionConfig, PlannerConfig, TrafficConfig
 from stp_env.survivability.graph import Graph, build_graph
-from stp_env.survivability.mission import Knowledge, make_instance
+from stp_env.survivability.mission import Instance, Knowledge, make_instance
 from stp_env.survivability.network import build_network
 
 COUNT_SCALE = 13.0       # log10 of the largest count on the paper's mission is about 8.5
@@ -87,29 +91,60 @@ class SurvivabilityEnv(gym.Env):
 
     # ---- Gymnasium API -------------------------------------------------------------------------------------------
     def reset(self, *, seed=None, options=None):
-        super().reset(seed=seed)
-        options = options or {}
-        scenario = options.get("scenario")
-        if options.get("instance") is not None:
-            self.instance = options["instance"]
-        elif self.pool is not None and options.get("instance_seed") is None:
-            scenario, self.instance = self.pool[int(self.np_random.integers(len(self.pool)))]
+        # Everything is checked, and the episode drawn, before anything changes (the reset contract of every
+        # environment, docs/threat-model.md): a reset that raises leaves the generator, the instance and the
+        # episode as they were. Seeds: stp_env.seeds.check_seed, [0, 2**63 - 1].
+        if seed is not None:
+            check_seed(seed)
+        scenario, instance, instance_seed = self._check_options(options)
+        if seed is not None:
+            rng, rng_seed = gym.utils.seeding.np_random(seed)
         else:
+            rng, rng_seed = copy.deepcopy(self.np_random), self.np_random_seed
+        if instance is None and self.pool is not None and instance_seed is None:
+            scenario, instance = self.pool[int(rng.integers(len(self.pool)))]
+        elif instance is None:
             if scenario is None:
-                scenario = self.scenarios[int(self.np_random.integers(len(self.scenarios)))]
-            instance_seed = options.get("instance_seed")
+                scenario = self.scenarios[int(rng.integers(len(self.scenarios)))]
             if instance_seed is None:
-                instance_seed = (1, int(self.np_random.integers(2**62)))
+                instance_seed = (1, int(rng.integers(2**62)))
             traffic = self.traffic.with_overrides(n_partial=int(scenario[0]), n_unknown=int(scenario[1]))
-            self.instance = make_instance(self.graph, traffic, self.planner, instance_seed)
+            instance = make_instance(self.graph, traffic, self.planner, instance_seed)
         if scenario is None:
-            scenario = (self.instance.traffic.n_partial, self.instance.traffic.n - self.instance.traffic.n_partial)
-        self.scenario = tuple(scenario)
-        self.know = Knowledge(self.graph, self.instance)
+            scenario = (instance.traffic.n_partial, instance.traffic.n - instance.traffic.n_partial)
+        know = Knowledge(self.graph, instance)
+        self._np_random, self._np_random_seed = rng, rng_seed
+        self.instance, self.scenario, self.know = instance, tuple(scenario), know
         self.g, self.omega, self.steps, self.outcome = self.graph.origin, "goal", 0, None
         self.tables = None
         self._refresh()
         return self._observation(), self._info()
+
+    def _check_options(self, options):
+        """``(scenario, instance, instance_seed)`` of the options (``None`` where not given), checked."""
+        if options is None:
+            return None, None, None
+        if not isinstance(options, Mapping):
+            raise ValueError(f"options must be a dict or None; got {type(options).__name__}.")
+        unknown = sorted(map(repr, set(options) - {"scenario", "instance", "instance_seed"}))
+        if unknown:
+            gym.logger.warn(f"ignoring unknown reset option(s) {', '.join(unknown)}; known: scenario, instance, "
+                            "instance_seed.")
+        scenario, instance, instance_seed = (options.get(k) for k in ("scenario", "instance", "instance_seed"))
+        if scenario is not None:
+            if not isinstance(scenario, (tuple, list)) or len(scenario) != 2:
+                raise ValueError(f"options['scenario'] must be a pair (N_p, N_u); got {scenario!r}.")
+            scenario = tuple(check_int(v, "options['scenario'] (N_p, N_u)", 0, 100_000) for v in scenario)
+        if instance is not None and not isinstance(instance, Instance):
+            raise ValueError(f"options['instance'] must be a stp_env.survivability.mission.Instance; got "
+                             f"{type(instance).__name__}.")
+        if instance_seed is not None:
+            parts = instance_seed if isinstance(instance_seed, (tuple, list)) else (instance_seed,)
+            if not parts:
+                raise ValueError("options['instance_seed'] must be a seed or a non-empty tuple of seeds.")
+            for v in parts:
+                check_seed(v, "options['instance_seed']")
+        return scenario, instance, instance_seed
 
     def step(self, action):
         if self.outcome is not None:

@@ -15,10 +15,14 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import math
 import os
 import time
 from pathlib import Path
 
+from stp_env.arguments import INT32_MAX
+from stp_env.loaders import read_csv_rows, read_json
+from stp_env.seeds import check_seed
 from stp_env.survivability.config import (
     POLICIES,
     MissionConfig,
@@ -64,7 +68,7 @@ class StudyConfig(_Overrides):
                 raise ValueError(f"{name} must be a non-empty list of distinct integers; got {values!r}.")
             object.__setattr__(self, name, values)
         _integer("n_instances", self.n_instances, minimum=1)
-        _integer("seed", self.seed)
+        object.__setattr__(self, "seed", check_seed(self.seed))  # the one seed function: [0, 2**63 - 1]
         pols = tuple(self.policies)
         if not pols or any(p not in POLICIES for p in pols) or len(set(pols)) != len(pols):
             raise ValueError(f"policies must be distinct names among {', '.join(POLICIES)}; got {pols!r}.")
@@ -87,22 +91,39 @@ def read_study(out) -> list[dict]:
     return [r for path in sorted(out.glob("missions*.csv")) for r in read_missions(path)]
 
 
+_INT_COLUMNS = ("n_partial", "n_unknown", "instance", "reveals", "omega_switch", "n_dp", "windows")
+
+
 def read_missions(path: Path) -> list[dict]:
-    """Rows of one missions file (a trailing partial line from an interrupted write is ignored)."""
-    if not path.exists():
+    """Rows of one missions file (a trailing partial line from an interrupted write, and any row whose values do not
+    parse, is left out). Read under the loader contract (:func:`stp_env.loaders.read_csv_rows`: a regular file of
+    at most 1 GiB, lines of at most 1 MiB, the header :data:`FIELDS`): a file that is not one is a one-line
+    ``ValueError`` naming it, never a traceback or a wait."""
+    path = Path(path)
+    if not path.exists() and not path.is_symlink():
         return []
     rows = []
-    with open(path, newline="") as f:
-        for row in csv.DictReader(f):
-            if None in row.values() or set(row) != set(FIELDS):
-                continue
-            try:
-                rows.append({**row, **{k: int(row[k]) for k in ("n_partial", "n_unknown", "instance", "reveals",
-                                                                  "omega_switch", "n_dp", "windows")},
-                             "instance_s": float(row["instance_s"]), "mission_s": float(row["mission_s"])})
-            except ValueError:
-                continue
+    for row in read_csv_rows(path, "study-missions", FIELDS):
+        try:
+            ints = {k: int(row[k]) for k in _INT_COLUMNS}
+            floats = {k: float(row[k]) for k in ("instance_s", "mission_s")}
+        except ValueError:
+            continue
+        if all(abs(v) <= INT32_MAX for v in ints.values()) and all(math.isfinite(v) for v in floats.values()):
+            rows.append({**row, **ints, **floats})
     return rows
+
+
+def read_study_metadata(path: Path) -> dict:
+    """``study.json`` of a study directory: a JSON object with a ``fingerprint`` object (the loader contract,
+    :func:`stp_env.loaders.read_json`: a regular file of at most 16 MiB, JSON nested at most 64 levels). Anything
+    else is a one-line ``ValueError`` naming the file."""
+    meta = read_json(path, "study-metadata")
+    if not isinstance(meta, dict) or not isinstance(meta.get("fingerprint"), dict):
+        what = f"a JSON {type(meta).__name__}" if not isinstance(meta, dict) else "an object without a fingerprint"
+        raise ValueError(f"{path}: not a survivability study file ({what}, expected an object with a 'fingerprint' "
+                         "object); remove it or choose another --out.")
+    return meta
 
 
 def completed(rows, policies) -> set[tuple[int, int, int]]:
@@ -155,19 +176,16 @@ def run_study(config: StudyConfig, out: str | os.PathLike, *, progress: bool = T
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     meta_path = out / "study.json"
-    if meta_path.exists():
-        try:
-            old = json.loads(meta_path.read_text())
-        except json.JSONDecodeError:
-            raise ValueError(f"{meta_path} is not valid JSON; remove it or choose another --out.") from None
-        if not _same_config(old.get("fingerprint"), config.fingerprint()):
+    if meta_path.exists() or meta_path.is_symlink():
+        old = read_study_metadata(meta_path)
+        if not _same_config(old["fingerprint"], config.fingerprint()):
             raise ValueError(f"{out} holds a study with a different configuration; choose another --out "
                              f"(or the same options as {meta_path}).")
+    path = out / ("missions.csv" if n_workers == 1 else f"missions-{i_worker}of{n_workers}.csv")
+    rows = read_missions(path)  # every file is read (and refused, if it must be) before anything is written
+    done = completed(read_study(out), config.policies)
     _atomic_write(meta_path, json.dumps({"fingerprint": config.fingerprint(),
                                          "n_instances": config.n_instances}, indent=1))
-    path = out / ("missions.csv" if n_workers == 1 else f"missions-{i_worker}of{n_workers}.csv")
-    rows = read_missions(path)
-    done = completed(read_study(out), config.policies)
     todo = [(p, u, i) for i in range(config.n_instances) for (p, u) in config.scenarios if (p, u, i) not in done]
     # Workers split whole groups (instance i, N_p), whose scenarios share the segment robustness, by a fixed rule
     # (not by what is left), so that a worker restarted alone takes the same groups.

@@ -1,0 +1,238 @@
+"""The command line's shared option types and options: one definition (type, range, help text with units) of the
+seed, batch sizes, output and cache directories, progress, wind model and scenario that every ``stp-env``
+subcommand uses, and the help formatter that prints each default once.
+
+The types are the library's checks (:mod:`stp_env.arguments`, :func:`stp_env.seeds.check_seed`) turned into
+argparse types: a bad value exits with code 2 and one line naming the option. Building the parser, and
+``--help``, import no JAX: the names the help texts list (wind models, scenarios, intruders, vehicle policies,
+spawn modes) are read from the source of the modules that register them (:func:`source_constant`,
+:func:`wind_model_catalog`, :func:`scenario_names`), which ``tests/test_cli_kit.py`` compares with the registries.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import functools
+from pathlib import Path
+
+from stp_env.arguments import INT32_MAX, MAX_KBAR, check_int, check_kbar, check_real
+from stp_env.seeds import MAX_SEED, MAX_SEED_32, check_seed
+
+PACKAGE = Path(__file__).resolve().parent
+
+
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Appends ``(default: X)`` to an option's help once: not when the help already says what the default is
+    (``default:``), and not for a default of ``None`` or ``False`` (an option that is off unless given)."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        if ("default:" in text or default is None or default is False or default is argparse.SUPPRESS
+                or isinstance(action, argparse._HelpAction)):
+            return text
+        return super()._get_help_string(action)
+
+
+# ------------------------------------------------------------------------------------------------ types
+def _typed(check, kind: str):
+    """An argparse type: the text as ``kind`` (int or float), then ``check(value)``; argparse reports a
+    ``ArgumentTypeError`` as ``argument --option: message``."""
+    def parse(text: str):
+        try:
+            value = int(text) if kind == "int" else float(text)
+        except (ValueError, OverflowError):
+            raise argparse.ArgumentTypeError(f"expected {'an integer' if kind == 'int' else 'a number'}, got "
+                                             f"{text[:40]!r}") from None
+        try:
+            return check(value)
+        except ValueError as err:
+            raise argparse.ArgumentTypeError(str(err).split("; got")[0].strip() + f", got {text[:40]}") from None
+
+    parse.__name__ = kind
+    return parse
+
+
+def integer(lo: int | None = None, hi: int | None = INT32_MAX):
+    """An integer in ``[lo, hi]`` (``hi`` defaults to :data:`stp_env.arguments.INT32_MAX`)."""
+    return _typed(lambda v: check_int(v, "", lo, hi), "int")
+
+
+def real(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False, hi_open: bool = False):
+    """A finite number in the range (``nan`` and ``inf`` are refused)."""
+    return _typed(lambda v: check_real(v, "", lo, hi, lo_open=lo_open, hi_open=hi_open), "float")
+
+
+positive_int = integer(1)
+count = integer(0)
+positive = real(0.0, lo_open=True)
+nonnegative = real(0.0)
+probability = real(0.0, 1.0, lo_open=True, hi_open=True)
+unit_interval = real(0.0, 1.0)
+kbar = _typed(lambda v: check_kbar(v, ""), "int")
+
+
+def seed(maximum: int = MAX_SEED):
+    """A seed in ``[0, maximum]`` (:func:`stp_env.seeds.check_seed`)."""
+    return _typed(lambda v: check_seed(v, "", maximum), "int")
+
+
+def wind_model(text: str) -> str:
+    """A wind model spec ``name`` or ``name:param=value,...`` of a registered model (checked against the models'
+    source, :func:`wind_model_catalog`; the model checks its parameters' ranges before anything is computed)."""
+    catalog = wind_model_catalog()
+    name, _, rest = text.partition(":")
+    if name not in catalog:
+        raise argparse.ArgumentTypeError(f"unknown wind model {name!r}; allowed: {', '.join(catalog)}")
+    fields = catalog[name]["params"]
+    for item in filter(None, rest.split(",")):
+        key, eq, value = item.partition("=")
+        if not eq or key.strip() not in fields:
+            raise argparse.ArgumentTypeError(f"{item!r} is not param=value with a parameter of {name!r} "
+                                             f"(parameters: {', '.join(fields) or 'none'})")
+        try:
+            check_real(float(value), key.strip())
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{key.strip()} must be a finite number, got {value!r}") from None
+    return text
+
+
+def scenario(text: str) -> str:
+    """A registered scenario name (:func:`scenario_names`)."""
+    names = scenario_names()
+    if text not in names:
+        raise argparse.ArgumentTypeError(f"unknown scenario {text!r}; registered: {', '.join(names)}")
+    return text
+
+
+# ------------------------------------------------------------------------------------------------ options
+SEED_HELP = ("an integer in [0, {bound}]; every seed its own random stream (no wrap-around, no negative "
+             "seeds)")
+
+
+def add_seed(parser, what: str, *, default: int = 0, maximum: int = MAX_SEED) -> None:
+    """``--seed``: ``what`` it seeds."""
+    bound = "2**63 - 1" if maximum == MAX_SEED else "2**32 - 1" if maximum == MAX_SEED_32 else str(maximum)
+    parser.add_argument("--seed", type=seed(maximum), default=default,
+                        help=f"seed of {what}: " + SEED_HELP.format(bound=bound))
+
+
+def add_batch_size(parser, what: str, *, default: int, maximum: int = INT32_MAX, aliases=()) -> None:
+    """``--batch-size`` (and older spellings ``aliases``): ``what`` one batch holds, with its unit."""
+    parser.add_argument("--batch-size", *aliases, dest="batch_size", type=integer(1, maximum), default=default,
+                        metavar="N", help=what)
+
+
+def add_out(parser, default: str, what: str = "output directory") -> None:
+    """``--out``: checked to be writable before anything is computed."""
+    parser.add_argument("--out", default=default, help=f"{what} (checked to be writable before anything is "
+                                                       "computed)")
+
+
+def add_cache_dir(parser) -> None:
+    """``--cache-dir``: the artifact cache."""
+    parser.add_argument("--cache-dir", default=None,
+                        help="artifact cache directory (default: $STP_ENV_CACHE_DIR, else the user cache directory)")
+
+
+def add_progress(parser) -> None:
+    """``--no-progress``."""
+    parser.add_argument("--no-progress", action="store_true", help="hide the progress bars")
+
+
+def add_wind_model(parser, default: str, what: str = "how the winds are drawn") -> None:
+    """``--wind-model NAME[:param=value,...]`` of the registered models (:mod:`stp_env.sim.winds`)."""
+    parser.add_argument("--wind-model", type=wind_model, default=default, metavar="NAME[:PARAM=VALUE,...]",
+                        help=f"{what}: a registered wind model, with parameters as name:param=value,... "
+                             f"({describe_wind_models()})")
+
+
+def add_scenario(parser, default: str | None, what: str = "registered scenario") -> None:
+    """``--scenario``: a registered scenario (:mod:`stp_env.scenarios`)."""
+    parser.add_argument("--scenario", type=scenario, default=default, metavar="NAME",
+                        help=f"{what}: one of {', '.join(scenario_names())}")
+
+
+# ------------------------------------------------------------------------------------------------ catalogs
+def _tree(relative: str) -> ast.Module:
+    return ast.parse((PACKAGE / relative).read_text(encoding="utf-8"))
+
+
+@functools.cache
+def source_constant(relative: str, name: str):
+    """The value of the module-level assignment ``name = <literal>`` in the package module ``relative`` (a dict
+    gives its keys as a tuple), read from the source without importing it."""
+    for node in _tree(relative).body:
+        targets = node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(
+            node, ast.AnnAssign) else []
+        if any(isinstance(t, ast.Name) and t.id == name for t in targets):
+            if isinstance(node.value, ast.Dict):
+                return tuple(ast.literal_eval(k) for k in node.value.keys)
+            return ast.literal_eval(node.value)
+    raise LookupError(f"{relative} assigns no {name}")
+
+
+@functools.cache
+def wind_model_catalog() -> dict[str, dict]:
+    """The wind models of ``stp_env/sim/winds/`` as the registry lists them (by ``order``, then name):
+    ``{name: {"params": {field: default}, "help": text}}``, read from the source."""
+    found = []
+    for path in sorted((PACKAGE / "sim" / "winds").glob("*.py")):
+        for node in ast.parse(path.read_text(encoding="utf-8")).body:
+            if not (isinstance(node, ast.ClassDef) and any(
+                    isinstance(d, ast.Name) and d.id == "register" for d in node.decorator_list)):
+                continue
+            attrs, params = {"order": 100}, {}
+            for item in node.body:
+                if isinstance(item, ast.Assign) and len(item.targets) == 1 and isinstance(item.targets[0], ast.Name):
+                    attrs[item.targets[0].id] = ast.literal_eval(item.value)
+                elif isinstance(item, ast.AnnAssign) and isinstance(item.target, ast.Name) and item.value is not None:
+                    params[item.target.id] = ast.literal_eval(item.value)
+            found.append((attrs["order"], attrs["name"], {"params": params, "help": attrs.get("help", "")}))
+    return {name: entry for _, name, entry in sorted(found, key=lambda f: (f[0], f[1]))}
+
+
+def describe_wind_models() -> str:
+    """:func:`stp_env.sim.winds.describe`, from the source."""
+    out = []
+    for name, entry in wind_model_catalog().items():
+        params = ", ".join(f"{k}={v}" for k, v in entry["params"].items())
+        out.append(f"{name}{f' ({params})' if params else ''}: {entry['help']}")
+    return "; ".join(out)
+
+
+@functools.cache
+def scenario_names() -> tuple[str, ...]:
+    """The scenarios of ``stp_env/scenarios/catalog/`` (``@register("name")``), sorted, from the source."""
+    names = set()
+    for path in (PACKAGE / "scenarios" / "catalog").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+                for d in node.decorator_list:
+                    if (isinstance(d, ast.Call) and isinstance(d.func, ast.Name) and d.func.id == "register"
+                            and d.args and isinstance(d.args[0], ast.Constant)):
+                        names.add(d.args[0].value)
+    return tuple(sorted(names))
+
+
+def intruder_names() -> tuple[str, ...]:
+    """:data:`stp_env.baselines.INTRUDERS`' names."""
+    return source_constant("baselines/intruders.py", "INTRUDERS")
+
+
+def vehicle_policy_names() -> tuple[str, ...]:
+    """:data:`stp_env.baselines.VEHICLE_POLICIES`' names."""
+    return source_constant("baselines/vehicles.py", "VEHICLE_POLICIES")
+
+
+def spawn_modes() -> tuple[str, ...]:
+    """:data:`stp_env.sim.types.SPAWN_MODES`."""
+    return source_constant("sim/types.py", "SPAWN_MODES")
+
+
+__all__ = ["MAX_KBAR", "HelpFormatter", "add_batch_size", "add_cache_dir", "add_out", "add_progress", "add_scenario",
+           "add_seed", "add_wind_model", "count", "describe_wind_models", "integer", "intruder_names", "kbar",
+           "nonnegative", "positive", "positive_int", "probability", "real", "scenario", "scenario_names", "seed",
+           "source_constant", "spawn_modes", "unit_interval", "vehicle_policy_names", "wind_model",
+           "wind_model_catalog"]
