@@ -728,7 +728,7 @@ def test_falsify_seeds_do_not_wrap_and_bad_ones_are_refused(monkeypatch, tmp_pat
         def objective(self, z):  # pragma: no cover - never called
             return z.sum()
 
-    def fake_search(objective, dim, key, config, progress=None):
+    def fake_search(objective, dim, key, config, progress=None, seeds=None):
         keys.append(np.asarray(jax.random.key_data(key)).tolist())
         raise Stop
 

@@ -220,7 +220,8 @@ def run(spec: AttackSpec, config: SearchConfig | None = None, seed: int = 0, *, 
     config = SearchConfig() if config is None else config
     key = prng_key(seed)
     attack = build_attack(spec, params, progress=progress)
-    seeds = np.asarray(attack.seeds(), np.float32) if seeded and callable(getattr(attack, "seeds", None)) else None
+    seeds = attack.seeds() if seeded and callable(getattr(attack, "seeds", None)) else None
+    seeds = None if seeds is None else np.asarray(seeds, np.float32)
     bar = None
     if progress:
         from tqdm.auto import tqdm
