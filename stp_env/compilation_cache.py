@@ -1,0 +1,174 @@
+"""Compile once per machine: JAX's persistent compilation cache, on by default.
+
+The simulator's programs take tens of seconds each to compile (``docs/numerics.md``, "Compiling the simulator"),
+and JAX keeps compiled programs in memory only: every new process (a second ``parallel_env()``, each ``stp-env``
+command, each test worker) would compile them again. Importing :mod:`stp_env` therefore turns on JAX's persistent
+compilation cache, in the ``xla`` folder of the artifact cache directory (``$STP_ENV_CACHE_DIR`` if set, else the
+user cache directory of ``platformdirs``: the same rule as :func:`stp_env.artifacts.default_cache_dir`), so that a
+program compiled once on a machine is loaded from disk afterwards.
+
+**What keys an entry.** JAX names every entry by a hash of the program itself (its StableHLO, so any change to the
+code that changes the program gives a new entry), the compile options (the simulator's optimisation level of
+:mod:`stp_env.sim.jit` included), the XLA flags, the devices and the JAX and jaxlib versions. An upgrade of JAX or an
+edit to the code can therefore never load a program compiled for something else; it compiles and adds a new entry.
+Programs that call back into Python (the pymunk backend, ``jax.debug.print``) are never written. Every other
+program is written, however fast it compiled (:data:`MIN_COMPILE_TIME_S`).
+
+**Turning it off.** ``STP_ENV_COMPILATION_CACHE=0`` (or ``off``, ``false``, ``no``) in the environment before the
+import, or :func:`configure` ``(enabled=False)`` (:func:`disable`) at run time; ``STP_ENV_COMPILATION_CACHE_DIR``
+moves it. Turned off, JAX's persistent cache is off in the process, whatever folder it had. A cache directory that
+JAX was already given (``JAX_COMPILATION_CACHE_DIR``, or ``jax.config.update("jax_compilation_cache_dir", ...)``
+before importing :mod:`stp_env`) is otherwise used as it is. Deleting the folder clears the cache.
+
+**Trust.** A compiled program is machine code: whoever can write the cache folder can make this process run code
+(as whoever can write its ``site-packages``). The folder is created private (mode ``0o700``), and a folder owned by
+another user or writable by others is not used (a warning says so). See ``docs/threat-model.md``.
+
+**How it is set.** When :mod:`stp_env` is imported before JAX (the usual case: every submodule imports the package
+first), the settings go into this process's environment (``JAX_COMPILATION_CACHE_DIR`` and the threshold
+variables), where JAX reads them at its import; child processes inherit them. When JAX was imported first, they are
+set with ``jax.config.update``.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+import sys
+import warnings
+from pathlib import Path
+
+ENV_VAR = "STP_ENV_COMPILATION_CACHE"
+"""``0``, ``off``, ``false`` or ``no`` turns the persistent compilation cache off (anything else leaves it on)."""
+DIR_ENV_VAR = "STP_ENV_COMPILATION_CACHE_DIR"
+"""Where the compiled programs go instead of ``<artifact cache>/xla``."""
+MIN_COMPILE_TIME_S = 0.0
+"""Programs that compiled faster than this are not written. JAX's default is 1 s; building ``town``'s parameters
+compiles 109 small programs (eager array operations, 20-30 ms each: 2.6 s in all on 2 cores), which load from the
+cache faster than they compile (``params_for("town")`` in a second process: 4.4 s without them, 1.6 s with them;
+456 KB)."""
+
+_JAX_DIR = "JAX_COMPILATION_CACHE_DIR"
+_JAX_MIN_TIME = "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"
+_OFF = {"0", "off", "false", "no"}
+_state: dict[str, object] = {"directory": None, "set_by_us": False}
+
+
+def artifact_cache_dir() -> Path:
+    """The artifact cache directory (:func:`stp_env.artifacts.default_cache_dir`, read here without importing the
+    artifact module, which hashes the package's source when imported)."""
+    root = os.environ.get("STP_ENV_CACHE_DIR")
+    if root:
+        return Path(root).expanduser()
+    import platformdirs
+
+    return Path(platformdirs.user_cache_dir("stp-env", appauthor=False))
+
+
+def default_dir() -> Path:
+    """``$STP_ENV_COMPILATION_CACHE_DIR``, else ``<artifact cache dir>/xla``."""
+    explicit = os.environ.get(DIR_ENV_VAR)
+    return Path(explicit).expanduser() if explicit else artifact_cache_dir() / "xla"
+
+
+def enabled_by_environment() -> bool:
+    """``False`` when ``$STP_ENV_COMPILATION_CACHE`` turns the cache off."""
+    return os.environ.get(ENV_VAR, "").strip().lower() not in _OFF
+
+
+def _private_dir(path: Path) -> str | None:
+    """``path`` created if missing (mode ``0o700``); the reason it must not hold executable code, or ``None``."""
+    try:
+        path.mkdir(parents=True, exist_ok=True, mode=0o700)
+        st = path.stat()
+    except OSError as err:
+        return f"it cannot be created or read ({err})"
+    if not stat.S_ISDIR(st.st_mode):
+        return "it is not a directory"
+    if hasattr(os, "getuid") and st.st_uid != os.getuid():
+        return "it belongs to another user"
+    if st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+        return "others can write it"
+    return None
+
+
+def _jax_imported() -> bool:
+    return "jax" in sys.modules
+
+
+def _reset_jax_cache() -> None:
+    """Make JAX read the settings again at its next compile (it decides once per process whether to use a cache)."""
+    from jax._src import compilation_cache as cc
+
+    cc.reset_cache()
+
+
+def _apply(directory: str | None) -> None:
+    """Point JAX's persistent cache at ``directory`` (``None``: off), in the environment or in JAX's config."""
+    if _jax_imported():
+        import jax
+
+        jax.config.update("jax_compilation_cache_dir", directory)
+        if directory is not None:
+            jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_TIME_S)
+        _reset_jax_cache()
+    else:
+        if directory is None:
+            os.environ.pop(_JAX_DIR, None)
+        else:
+            os.environ[_JAX_DIR] = directory
+            os.environ.setdefault(_JAX_MIN_TIME, str(MIN_COMPILE_TIME_S))
+    _state["directory"] = directory
+    _state["set_by_us"] = True
+
+
+def _user_directory() -> str | None:
+    """A cache directory that JAX was given by someone else than this module, or ``None``."""
+    if _state["set_by_us"]:
+        return None
+    if _jax_imported():
+        import jax
+
+        value = jax.config.jax_compilation_cache_dir
+        if value:
+            return str(value)
+    return os.environ.get(_JAX_DIR) or None
+
+
+def configure(enabled: bool | None = None, directory: str | os.PathLike | None = None) -> Path | None:
+    """Turn the persistent compilation cache on or off; the folder it uses (``None``: off).
+
+    ``enabled=None`` follows ``$STP_ENV_COMPILATION_CACHE`` (on unless it says off); ``directory=None`` is
+    :func:`default_dir`. Turning it on at run time takes effect at the next compile. A directory that JAX was
+    given before :mod:`stp_env` was imported is kept when ``directory`` is ``None``.
+    """
+    if enabled is None:
+        enabled = enabled_by_environment()
+    if not enabled:
+        _apply(None)
+        return None
+    user = _user_directory() if directory is None else None
+    if user is not None:
+        _state["directory"] = user
+        return Path(user)
+    path = Path(directory).expanduser() if directory is not None else default_dir()
+    problem = _private_dir(path)
+    if problem is not None:
+        warnings.warn(f"not using {path} as the compilation cache: {problem}; programs are compiled in every "
+                      f"process. Set {DIR_ENV_VAR} to a private folder, or {ENV_VAR}=0 to silence this.",
+                      stacklevel=2)
+        _apply(None)
+        return None
+    _apply(str(path))
+    return path
+
+
+def disable() -> None:
+    """Turn the persistent compilation cache off for this process (:func:`configure` ``(enabled=False)``)."""
+    configure(enabled=False)
+
+
+def directory() -> Path | None:
+    """The folder in use (``None``: off)."""
+    value = _state["directory"]
+    return None if value is None else Path(str(value))
