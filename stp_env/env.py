@@ -385,6 +385,8 @@ class STPParallelEnv(ParallelEnv):
                              "(pass the scenario and config instead).")
         self._progress = progress_mod.enabled(progress)
         if params is None:
+            progress_mod.note(f"loading the reachability artifacts and plan of {scenario.name!r} (computed and "
+                              "cached on first use)", self._progress)
             token = _BUILD_PROGRESS.set(self._progress)
             try:
                 params = _cached_params(scenario, config) if store is None else sim.params_for(

@@ -69,3 +69,25 @@ def compile_note(what: str, *args, progress: bool | None = None) -> None:
     if key not in _COMPILED:
         _COMPILED.add(key)
         note(f"compiling {what} (once per machine: later processes load it from the compilation cache)...", True)
+
+
+def compiling_until_first_update(bar, label: str = "compiling (once per machine)...") -> None:
+    """Show ``label`` on a ``tqdm`` ``bar`` until its first ``update``: the first batch of a jitted loop compiles
+    its program, so the bar says why it stands at 0."""
+    if bar is None or getattr(bar, "disable", False):
+        return
+    bar.set_postfix_str(label, refresh=True)
+    update = bar.update
+
+    def first_update(n=1):
+        bar.update = update
+        bar.set_postfix_str("", refresh=False)
+        return update(n)
+
+    bar.update = first_update
+
+
+def command_started(command: str, enabled_: bool | None = None) -> None:
+    """The first line of a long-running ``stp-env`` command, before it loads anything: what may take long."""
+    note(f"{command}: started (reachability artifacts are computed on first use and cached; programs compile once "
+         "per machine)", enabled_)
