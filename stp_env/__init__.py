@@ -1,9 +1,10 @@
 """stp-env: provably safe multi-UAV sequential trajectory planning under wind and an adversarial intruder.
 
 ``stp_env.parallel_env(...)`` and ``stp_env.env(...)`` are the PettingZoo environment (:mod:`stp_env.env`, whose
-docstring is the user's manual), imported on first use. Importing the package turns on JAX's persistent
-compilation cache (:mod:`stp_env.compilation_cache`: programs compile once per machine; ``STP_ENV_COMPILATION_CACHE=0``
-turns it off).
+docstring is the user's manual), imported on first use. The single-agent views are registered with Gymnasium
+(``gymnasium.make("stp_env/Intruder-v0")``, :mod:`stp_env.registration`). Importing the package turns on JAX's
+persistent compilation cache (:mod:`stp_env.compilation_cache`: programs compile once per machine;
+``STP_ENV_COMPILATION_CACHE=0`` turns it off).
 """
 
 from __future__ import annotations
@@ -20,6 +21,14 @@ try:
 except Exception as _err:  # the package must import even where the cache cannot be set up
     _warnings.warn(f"stp_env: the persistent compilation cache is off ({type(_err).__name__}: {_err}).",
                    stacklevel=2)
+
+
+try:
+    from stp_env.registration import register_envs as _register_envs
+
+    _register_envs()  # gymnasium.make("stp_env/Intruder-v0") (stp_env/registration.py)
+except ImportError:  # pragma: no cover - gymnasium is a dependency
+    pass
 
 
 def parallel_env(*args, **kwargs):

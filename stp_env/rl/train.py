@@ -74,7 +74,9 @@ class TrainConfig:
         algo: ``"ppo"`` or ``"a2c"``; net_arch: hidden layer widths of actor and critic (tanh).
         total_timesteps, n_envs, n_steps (per env per rollout), batch_size, n_epochs, learning_rate, gamma,
         gae_lambda, ent_coef, clip_range: the usual PPO settings (A2C uses n_steps, learning_rate, gamma,
-        gae_lambda, ent_coef).
+        gae_lambda, ent_coef). Training runs whole rollouts of ``n_envs * n_steps`` env steps, so
+        ``total_timesteps`` is rounded up to a multiple of that (:attr:`trained_timesteps`; :func:`train` says so
+        and records both in ``intruder.npz``).
         seed: one integer for torch, SB3 and the JAX env keys.
         eval_every: evaluate every this many env steps (0: only at the end); eval_episodes: episodes per
             evaluation, from seeds ``eval_seed, eval_seed + 1, ...`` (held out from training's ``seed + i``).
@@ -111,6 +113,12 @@ class TrainConfig:
     out_dir: str = "runs/intruder"
     log_formats: tuple[str, ...] = ("stdout", "csv")
     torch_threads: int = 1
+
+    @property
+    def trained_timesteps(self) -> int:
+        """``total_timesteps`` rounded up to whole rollouts (``n_envs * n_steps`` steps each): what PPO trains."""
+        rollout = self.n_envs * self.n_steps
+        return -(-self.total_timesteps // rollout) * rollout
 
     def __post_init__(self) -> None:
         from stp_env.rl.functional import check_horizon, check_vehicle_policy
@@ -315,15 +323,22 @@ def train(config: TrainConfig, *, params: sim.EnvParams | None = None):
     model = make_model(config, venv)
     model.set_logger(configure(str(out), list(config.log_formats)))
     callbacks = _callbacks(config, eval_env, out, kbar)
+    total = config.trained_timesteps
+    if total != config.total_timesteps:
+        from stp_env.progress import note
+
+        note(f"train-intruder: {config.total_timesteps} timesteps rounded up to {total}, whole rollouts of n_envs x "
+             f"n_steps = {config.n_envs} x {config.n_steps} = {config.n_envs * config.n_steps} steps", True)
     start = time.perf_counter()
-    model.learn(total_timesteps=config.total_timesteps, callback=callbacks)
+    model.learn(total_timesteps=total, callback=callbacks)
     final = callbacks[0].evaluate()
     final["train_seconds"] = round(time.perf_counter() - start, 1)
     model.save(out / "model")
     export_mlp(model, out / "intruder.npz", metadata={
         "scenario": config.scenario, "kbar": kbar, "horizon": config.horizon, "seed": config.seed,
         "vehicle_policy": config.vehicle_policy, "spawn_mode": config.spawn_mode,
-        "total_timesteps": config.total_timesteps, "final_eval": {k: v for k, v in final.items()}})
+        "total_timesteps": int(model.num_timesteps), "requested_timesteps": config.total_timesteps,
+        "final_eval": {k: v for k, v in final.items()}})
     venv.close()
     eval_env.close()
     return model, callbacks[0].history
