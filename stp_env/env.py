@@ -1,5 +1,5 @@
 """STP under an intruder: a PettingZoo environment of Dubins vehicles in wind, planned by sequential trajectory
-planning, and one adversarial intruder (Bansal, Chen, Fisac, Tomlin: the STP papers named in the README).
+planning, and one adversarial intruder (Bansal, Chen, Fisac, Tomlin: the STP papers of docs/references.md).
 
 Quick start::
 
