@@ -10,30 +10,14 @@ with Clopper-Pearson bounds), ``best_model.zip`` (best mean ``|N^RP|``), ``model
 deterministic actor for :func:`stp_env.rl.policy.load_intruder`). Same config, same seed, same machine: same run
 (torch uses ``torch_threads`` CPU threads; JAX keys come from :func:`stp_env.rl.key_for_seed`).
 
-The PettingZoo + SuperSuit route
---------------------------------
-For those who want the multi-agent adapter instead (much slower, see ``BENCHMARKS.md``)::
-
-    import supersuit as ss
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.utils import set_random_seed
-    from stp_env.env import parallel_env
-
-    env = ss.black_death_v3(ss.pad_observations_v0(parallel_env()))  # fixed agent set, one observation size
-    venv = ss.concat_vec_envs_v1(ss.pettingzoo_env_to_vec_env_v1(env), 4, num_cpus=0,
-                                 base_class="stable_baselines3")       # every agent of every copy is one env
-    set_random_seed(0)          # python, numpy, torch
-    venv.venv.reset(seed=0)     # the envs: copy i gets seed 0 + i; later resets continue each copy's key
-    model = PPO("MlpPolicy", venv, seed=None)                          # NOT seed=0, see below
-    model.learn(100_000)
-
-Seeding: with SB3 2.9, ``PPO(seed=s)`` calls ``venv.seed(s)``, and SuperSuit's ``SB3VecEnvWrapper`` forwards it
-to its ``ConcatVecEnv``, which has no ``seed`` method (``AttributeError``); ``venv.reset(seed=s)`` fails the same
-way. Seed the inner ``ConcatVecEnv`` with ``venv.venv.reset(seed=s)`` and the rest with ``set_random_seed(s)``
-before building the model, as above: PPO's own first ``reset()`` passes no seed, and
-:func:`stp_env.env.parallel_env` continues from the seeded key. All agents then share one policy, the vehicles
-included: if only the intruder should learn, mask the vehicles' transitions or fix their actions;
-:class:`~stp_env.rl.IntruderVecEnv` does that by construction (the vehicles run ``switching`` inside the core).
+SuperSuit
+---------
+SuperSuit's vector wrappers (``pettingzoo_env_to_vec_env_v1`` with ``black_death_v3``) do not take the PettingZoo
+env: its agents come and go (vehicles that arrived before the episode are not agents of it, the intruder and every
+vehicle leave when done), and SuperSuit 3.11's ``black_death_v3`` fills in only the agents present at ``reset``
+and never ends an episode. :class:`~stp_env.rl.IntruderVecEnv` is the batched route (the vehicles run a baseline
+policy inside the core, so only the intruder learns); ``docs/training.md`` says more, and
+``tests/test_ecosystem.py`` checks the refusal.
 """
 
 from __future__ import annotations
