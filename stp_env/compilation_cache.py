@@ -18,7 +18,8 @@ program is written, however fast it compiled (:data:`MIN_COMPILE_TIME_S`).
 import, or :func:`configure` ``(enabled=False)`` (:func:`disable`) at run time; ``STP_ENV_COMPILATION_CACHE_DIR``
 moves it. Turned off, JAX's persistent cache is off in the process, whatever folder it had. A cache directory that
 JAX was already given (``JAX_COMPILATION_CACHE_DIR``, or ``jax.config.update("jax_compilation_cache_dir", ...)``
-before importing :mod:`stp_env`) is otherwise used as it is. Deleting the folder clears the cache.
+before importing :mod:`stp_env`) is otherwise used as it is. Deleting the folder clears the cache (JAX writes
+entries in place: one cut short by a killed process is warned about and compiled again until then).
 
 **Trust.** A compiled program is machine code: whoever can write the cache folder can make this process run code
 (as whoever can write its ``site-packages``). The folder is created private (mode ``0o700``), and a folder owned by
