@@ -524,7 +524,7 @@ def main(argv=None) -> int:
     _select_figure_backend()
     from stp_env.progress import command_started
 
-    command_started(args.command, False if getattr(args, "no_progress", False) else True)
+    command_started(args.command, False if getattr(args, "no_progress", False) else None)  # in a terminal
     try:
         if args.command == "avoid-region":
             return _avoid_region(args)

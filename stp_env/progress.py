@@ -88,6 +88,8 @@ def compiling_until_first_update(bar, label: str = "compiling (once per machine)
 
 
 def command_started(command: str, enabled_: bool | None = None) -> None:
-    """The first line of a long-running ``stp-env`` command, before it loads anything: what may take long."""
+    """The first line of a long-running ``stp-env`` command, before it loads anything: what may take long (with
+    ``enabled_=None``: in a terminal, or with ``$STP_ENV_PROGRESS=1``; a log or a pipe gets the bars and the
+    command's own output only)."""
     note(f"{command}: started (reachability artifacts are computed on first use and cached; programs compile once "
          "per machine)", enabled_)

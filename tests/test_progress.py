@@ -85,7 +85,7 @@ def recorder(monkeypatch, tmp_path):
 
     monkeypatch.setattr(artifacts.ArtifactStore, "_computing", computing)
     monkeypatch.setenv("STP_ENV_CACHE_DIR", str(tmp_path / "cache"))
-    monkeypatch.delenv(progress.ENV_VAR, raising=False)
+    monkeypatch.setenv(progress.ENV_VAR, "1")  # as in a terminal (the recorder is not one)
     before = jax.config.jax_compilation_cache_dir
     compilation_cache.configure(directory=tmp_path / "xla")  # nothing compiled yet there: every program is new
     jax.clear_caches()
