@@ -32,7 +32,6 @@ SMALL = {
         ('sim.params_for("town"', 'sim.params_for("tiny-intruder"'), ("n_envs=1000", "n_envs=4")],
     "SearchConfig(budget=10_000)": [("SearchConfig(budget=10_000)", "SearchConfig(budget=64)")],
     '(61, 61, 60)': [("(61, 61, 60)", "(21, 21, 20)"), ('with_accuracy("very_high")', 'with_accuracy("low")')],
-    "parallel_env(config=sim.EnvConfig(episode=\"full\"), replan=True)": [],  # prose, not a block
 }
 
 NOT_PYTHON = {
