@@ -129,7 +129,8 @@ Version history
   after-avoidance fallback takes part in (it still counts as a collision). Seeds of ``2**32`` and more give their
   own episodes (they were reduced to their low 32 bits); negative seeds, and actions that are not real numbers,
   raise ``ValueError``. Vehicles may fly another plant than Dubins (``EnvConfig(vehicle_model=...)``; the action
-  space is the model's).
+  space is the model's). Added since, with the same dynamics: the infos ``tracking_error``, ``max_tracking_error``,
+  ``tracked``, ``tracking_violation``, ``tracking_violations`` and ``episode``, and ``env.episode``.
 * v0 (``stp_v0``): first release.
 """
 
