@@ -14,6 +14,9 @@ edit to the code can therefore never load a program compiled for something else;
 Programs that call back into Python (the pymunk backend, ``jax.debug.print``) are never written. Every other
 program is written, however fast it compiled (:data:`MIN_COMPILE_TIME_S`).
 
+**Its size.** At most :data:`DEFAULT_MAX_GB` GB (``STP_ENV_COMPILATION_CACHE_MAX_GB`` changes it, ``-1``: no
+limit): beyond it JAX deletes the least recently used programs.
+
 **Turning it off.** ``STP_ENV_COMPILATION_CACHE=0`` (or ``off``, ``false``, ``no``) in the environment before the
 import, or :func:`configure` ``(enabled=False)`` (:func:`disable`) at run time; ``STP_ENV_COMPILATION_CACHE_DIR``
 moves it. Turned off, JAX's persistent cache is off in the process, whatever folder it had. A cache directory that
@@ -43,6 +46,12 @@ ENV_VAR = "STP_ENV_COMPILATION_CACHE"
 """``0``, ``off``, ``false`` or ``no`` turns the persistent compilation cache off (anything else leaves it on)."""
 DIR_ENV_VAR = "STP_ENV_COMPILATION_CACHE_DIR"
 """Where the compiled programs go instead of ``<artifact cache>/xla``."""
+MAX_GB_ENV_VAR = "STP_ENV_COMPILATION_CACHE_MAX_GB"
+"""The cache's size limit in GB (default :data:`DEFAULT_MAX_GB`); ``-1``: no limit."""
+DEFAULT_MAX_GB = 2.0
+"""The least recently used programs are deleted beyond this. A simulator rollout is tens of MB compiled: the three
+test files ``test_fleet.py``, ``test_falsify.py`` and ``test_env.py`` left 466 MB (BENCHMARKS.md, "The test suite
+with the compilation cache"), the environment's reset and step of ``town`` 0.8 MB."""
 MIN_COMPILE_TIME_S = 0.0
 """Programs that compiled faster than this are not written. JAX's default is 1 s; building ``town``'s parameters
 compiles 109 small programs (eager array operations, 20-30 ms each: 2.6 s in all on 2 cores), which load from the
@@ -51,6 +60,7 @@ cache faster than they compile (``params_for("town")`` in a second process: 4.4 
 
 _JAX_DIR = "JAX_COMPILATION_CACHE_DIR"
 _JAX_MIN_TIME = "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"
+_JAX_MAX_SIZE = "JAX_COMPILATION_CACHE_MAX_SIZE"
 _OFF = {"0", "off", "false", "no"}
 _state: dict[str, object] = {"directory": None, "set_by_us": False}
 
@@ -93,6 +103,21 @@ def _private_dir(path: Path) -> str | None:
     return None
 
 
+def max_size_bytes() -> int:
+    """The size limit JAX is given (``-1``: none). A limit needs the ``filelock`` package (JAX locks the folder while
+    it evicts); without it there is none."""
+    import importlib.util
+
+    text = os.environ.get(MAX_GB_ENV_VAR, "").strip()
+    try:
+        gb = float(text) if text else DEFAULT_MAX_GB
+    except ValueError:
+        raise ValueError(f"{MAX_GB_ENV_VAR}={text!r}: a size in GB (or -1: no limit) was expected.") from None
+    if gb < 0 or importlib.util.find_spec("filelock") is None:
+        return -1
+    return max(1, int(gb * 1e9))
+
+
 def _jax_imported() -> bool:
     return "jax" in sys.modules
 
@@ -112,6 +137,7 @@ def _apply(directory: str | None) -> None:
         jax.config.update("jax_compilation_cache_dir", directory)
         if directory is not None:
             jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_TIME_S)
+            jax.config.update("jax_compilation_cache_max_size", max_size_bytes())
         _reset_jax_cache()
     else:
         if directory is None:
@@ -119,6 +145,7 @@ def _apply(directory: str | None) -> None:
         else:
             os.environ[_JAX_DIR] = directory
             os.environ.setdefault(_JAX_MIN_TIME, str(MIN_COMPILE_TIME_S))
+            os.environ.setdefault(_JAX_MAX_SIZE, str(max_size_bytes()))
     _state["directory"] = directory
     _state["set_by_us"] = True
 

@@ -126,3 +126,39 @@ def test_the_folder_is_in_the_artifact_cache_directory(tmp_path, monkeypatch):
     assert compilation_cache.default_dir() == artifacts.default_cache_dir() / "xla"
     monkeypatch.delenv("STP_ENV_CACHE_DIR")
     assert compilation_cache.artifact_cache_dir() == artifacts.default_cache_dir()
+
+
+MANY = r"""
+import stp_env
+import jax
+import jax.numpy as jnp
+
+for i in range(40):  # forty different programs
+    jax.jit(lambda x, i=i: jnp.cumsum(jnp.sin(x) * (i + 1.5)) @ x)(jnp.arange(16.0)).block_until_ready()
+"""
+
+
+def test_the_folder_is_kept_under_its_size_limit(tmp_path):
+    limit = 150_000
+    env = _env(tmp_path, STP_ENV_COMPILATION_CACHE_MAX_GB=str(limit / 1e9))
+    subprocess.run([sys.executable, "-c", MANY], env=env, check=True, capture_output=True, timeout=300)
+    sizes = [p.stat().st_size for p in (tmp_path / "xla").glob("*-cache")]
+    assert len(sizes) >= 3 and sum(sizes) <= limit
+    unlimited = tmp_path / "unlimited"
+    subprocess.run([sys.executable, "-c", MANY], env=_env(unlimited, STP_ENV_COMPILATION_CACHE_MAX_GB="-1"),
+                   check=True, capture_output=True, timeout=300)
+    assert sum(p.stat().st_size for p in (unlimited / "xla").glob("*-cache")) > limit  # the limit did something
+
+
+def test_the_size_limit_is_read_from_the_environment(monkeypatch):
+    from stp_env import compilation_cache
+
+    monkeypatch.delenv(compilation_cache.MAX_GB_ENV_VAR, raising=False)
+    assert compilation_cache.max_size_bytes() == int(compilation_cache.DEFAULT_MAX_GB * 1e9)
+    monkeypatch.setenv(compilation_cache.MAX_GB_ENV_VAR, "0.5")
+    assert compilation_cache.max_size_bytes() == 500_000_000
+    monkeypatch.setenv(compilation_cache.MAX_GB_ENV_VAR, "-1")
+    assert compilation_cache.max_size_bytes() == -1
+    monkeypatch.setenv(compilation_cache.MAX_GB_ENV_VAR, "lots")
+    with pytest.raises(ValueError, match="size in GB"):
+        compilation_cache.max_size_bytes()
