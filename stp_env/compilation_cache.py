@@ -14,8 +14,9 @@ edit to the code can therefore never load a program compiled for something else;
 Programs that call back into Python (the pymunk backend, ``jax.debug.print``) are never written. Every other
 program is written, however fast it compiled (:data:`MIN_COMPILE_TIME_S`).
 
-**Its size.** At most :data:`DEFAULT_MAX_GB` GB (``STP_ENV_COMPILATION_CACHE_MAX_GB`` changes it, ``-1``: no
-limit): beyond it JAX deletes the least recently used programs.
+**Its size.** About :data:`DEFAULT_MAX_GB` GB at most (``STP_ENV_COMPILATION_CACHE_MAX_GB`` changes it, ``-1``: no
+limit): a process that turns the cache on first deletes the least recently used programs of a folder above the
+limit (:func:`prune`); the folder can exceed it by what processes compile until the next one starts.
 
 **Turning it off.** ``STP_ENV_COMPILATION_CACHE=0`` (or ``off``, ``false``, ``no``) in the environment before the
 import, or :func:`configure` ``(enabled=False)`` (:func:`disable`) at run time; ``STP_ENV_COMPILATION_CACHE_DIR``
@@ -49,9 +50,12 @@ DIR_ENV_VAR = "STP_ENV_COMPILATION_CACHE_DIR"
 MAX_GB_ENV_VAR = "STP_ENV_COMPILATION_CACHE_MAX_GB"
 """The cache's size limit in GB (default :data:`DEFAULT_MAX_GB`); ``-1``: no limit."""
 DEFAULT_MAX_GB = 2.0
-"""The least recently used programs are deleted beyond this. A simulator rollout is tens of MB compiled: the three
-test files ``test_fleet.py``, ``test_falsify.py`` and ``test_env.py`` left 466 MB (BENCHMARKS.md, "The test suite
-with the compilation cache"), the environment's reset and step of ``town`` 0.8 MB."""
+"""Beyond this, the least recently used programs are deleted when a process turns the cache on (:func:`prune`). A
+simulator rollout is tens of MB compiled: the three test files ``test_fleet.py``, ``test_falsify.py`` and
+``test_env.py`` left 466 MB (BENCHMARKS.md, "The test suite with the compilation cache"), the environment's reset
+and step of ``town`` 0.8 MB."""
+PRUNE_TO = 0.8
+"""A folder over its limit is pruned to this fraction of it (so that it is not pruned again at every start)."""
 MIN_COMPILE_TIME_S = 0.0
 """Programs that compiled faster than this are not written. JAX's default is 1 s; building ``town``'s parameters
 compiles 109 small programs (eager array operations, 20-30 ms each: 2.6 s in all on 2 cores), which load from the
@@ -60,7 +64,6 @@ cache faster than they compile (``params_for("town")`` in a second process: 4.4 
 
 _JAX_DIR = "JAX_COMPILATION_CACHE_DIR"
 _JAX_MIN_TIME = "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"
-_JAX_MAX_SIZE = "JAX_COMPILATION_CACHE_MAX_SIZE"
 _OFF = {"0", "off", "false", "no"}
 _state: dict[str, object] = {"directory": None, "set_by_us": False}
 
@@ -104,18 +107,44 @@ def _private_dir(path: Path) -> str | None:
 
 
 def max_size_bytes() -> int:
-    """The size limit JAX is given (``-1``: none). A limit needs the ``filelock`` package (JAX locks the folder while
-    it evicts); without it there is none."""
-    import importlib.util
-
+    """The size limit in bytes (``-1``: none), from ``$STP_ENV_COMPILATION_CACHE_MAX_GB``."""
     text = os.environ.get(MAX_GB_ENV_VAR, "").strip()
     try:
         gb = float(text) if text else DEFAULT_MAX_GB
     except ValueError:
         raise ValueError(f"{MAX_GB_ENV_VAR}={text!r}: a size in GB (or -1: no limit) was expected.") from None
-    if gb < 0 or importlib.util.find_spec("filelock") is None:
-        return -1
-    return max(1, int(gb * 1e9))
+    return -1 if gb < 0 else int(gb * 1e9)
+
+
+def prune(folder: str | os.PathLike, max_bytes: int) -> int:
+    """Delete the least recently used files of ``folder`` (by the later of their access and modification times)
+    until it holds at most :data:`PRUNE_TO` of ``max_bytes``, if it holds more than ``max_bytes``; the number of
+    files deleted. Done once per process when the cache is turned on: cheap (one directory listing), and it never
+    blocks a compile. (JAX's own limit, ``jax_compilation_cache_max_size``, scans the folder at every write, which
+    with the thousands of small programs of a test run costs more than it saves.) A file that another process is
+    reading stays readable to it; one deleted before another process opens it is compiled again there."""
+    if max_bytes < 0:
+        return 0
+    entries = []
+    with os.scandir(folder) as it:
+        for entry in it:
+            if entry.is_file(follow_symlinks=False):
+                st = entry.stat(follow_symlinks=False)
+                entries.append((max(st.st_atime, st.st_mtime), st.st_size, entry.path))
+    total = sum(size for _, size, _ in entries)
+    if total <= max_bytes:
+        return 0
+    deleted = 0
+    for _, size, path in sorted(entries):
+        if total <= PRUNE_TO * max_bytes:
+            break
+        try:
+            os.unlink(path)
+        except OSError:
+            continue
+        total -= size
+        deleted += 1
+    return deleted
 
 
 def _jax_imported() -> bool:
@@ -137,7 +166,6 @@ def _apply(directory: str | None) -> None:
         jax.config.update("jax_compilation_cache_dir", directory)
         if directory is not None:
             jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_TIME_S)
-            jax.config.update("jax_compilation_cache_max_size", max_size_bytes())
         _reset_jax_cache()
     else:
         if directory is None:
@@ -145,7 +173,6 @@ def _apply(directory: str | None) -> None:
         else:
             os.environ[_JAX_DIR] = directory
             os.environ.setdefault(_JAX_MIN_TIME, str(MIN_COMPILE_TIME_S))
-            os.environ.setdefault(_JAX_MAX_SIZE, str(max_size_bytes()))
     _state["directory"] = directory
     _state["set_by_us"] = True
 
@@ -185,6 +212,12 @@ def configure(enabled: bool | None = None, directory: str | os.PathLike | None =
         warnings.warn(f"not using {path} as the compilation cache: {problem}; programs are compiled in every "
                       f"process. Set {DIR_ENV_VAR} to a private folder, or {ENV_VAR}=0 to silence this.",
                       stacklevel=2)
+        _apply(None)
+        return None
+    try:
+        prune(path, max_size_bytes())
+    except OSError as err:  # a folder that cannot be listed is not used
+        warnings.warn(f"not using {path} as the compilation cache: it cannot be read ({err}).", stacklevel=2)
         _apply(None)
         return None
     _apply(str(path))

@@ -22,7 +22,6 @@ from stp_env import compilation_cache  # noqa: E402
 if compilation_cache.directory() is not None:
     os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(compilation_cache.directory()))
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", str(compilation_cache.MIN_COMPILE_TIME_S))
-    os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(compilation_cache.max_size_bytes()))
 
 # JIT compilation makes the first example of a property test slow; deadlines would only measure compilation.
 settings.register_profile(
