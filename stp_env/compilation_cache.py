@@ -51,16 +51,14 @@ MAX_GB_ENV_VAR = "STP_ENV_COMPILATION_CACHE_MAX_GB"
 """The cache's size limit in GB (default :data:`DEFAULT_MAX_GB`); ``-1``: no limit."""
 DEFAULT_MAX_GB = 2.0
 """Beyond this, the least recently used programs are deleted when a process turns the cache on (:func:`prune`). A
-simulator rollout is tens of MB compiled: the three test files ``test_fleet.py``, ``test_falsify.py`` and
-``test_env.py`` left 466 MB (BENCHMARKS.md, "The test suite with the compilation cache"), the environment's reset
-and step of ``town`` 0.8 MB."""
+simulator rollout is tens of MB compiled, the environment's reset and step well under a MB (BENCHMARKS.md, "The test
+suite with the compilation cache" and "First step of ``parallel_env()`` in a fresh process")."""
 PRUNE_TO = 0.8
 """A folder over its limit is pruned to this fraction of it (so that it is not pruned again at every start)."""
 MIN_COMPILE_TIME_S = 0.0
-"""Programs that compiled faster than this are not written. JAX's default is 1 s; building ``town``'s parameters
-compiles 109 small programs (eager array operations, 20-30 ms each: 2.6 s in all on 2 cores), which load from the
-cache faster than they compile (``params_for("town")`` in a second process: 4.4 s without them, 1.6 s with them;
-456 KB)."""
+"""Programs that compiled faster than this are not written. JAX's default is 1 s; building a scenario's parameters
+compiles about a hundred small programs (eager array operations, tens of ms each), which load from the cache faster
+than they compile (BENCHMARKS.md, "First step of ``parallel_env()`` in a fresh process")."""
 
 _JAX_DIR = "JAX_COMPILATION_CACHE_DIR"
 _JAX_MIN_TIME = "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"
