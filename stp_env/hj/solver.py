@@ -468,9 +468,5 @@ def _progress_bar(total: float, enabled: bool):
         return None
     from tqdm.auto import tqdm
 
-    from stp_env.progress import compiling_until_first_update
-
-    bar = tqdm(total=float(total), unit="sim s", desc="HJ solve", leave=False,
-               bar_format="{l_bar}{bar}| {n:.3f}/{total:.3f} sim s [{elapsed}<{remaining}{postfix}]")
-    compiling_until_first_update(bar, "compiling the solver step")
-    return bar
+    return tqdm(total=float(total), unit="sim s", desc="HJ solve", leave=False,
+                bar_format="{l_bar}{bar}| {n:.3f}/{total:.3f} sim s [{elapsed}<{remaining}]")
