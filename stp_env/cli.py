@@ -503,6 +503,9 @@ def main(argv=None) -> int:
     parser = _build_parser()
     args = parser.parse_args(argv)
     _select_figure_backend()
+    from stp_env.progress import command_started
+
+    command_started(args.command, False if getattr(args, "no_progress", False) else None)  # in a terminal
     try:
         if args.command == "avoid-region":
             return _avoid_region(args)

@@ -1,16 +1,21 @@
 """STP under an intruder: a PettingZoo environment of Dubins vehicles in wind, planned by sequential trajectory
-planning, and one adversarial intruder (Bansal, Chen, Fisac, Tomlin: the STP papers named in the README).
+planning, and one adversarial intruder (Bansal, Chen, Fisac, Tomlin: the STP papers of docs/references.md).
 
 Quick start::
 
-    from stp_env.env import parallel_env
+    import stp_env
 
-    env = parallel_env()                       # the "town" scenario, k̄ = 2, 7 vehicles + 1 intruder
+    env = stp_env.parallel_env()               # the "town" scenario, k̄ = 2, 7 vehicles + 1 intruder
     observations, infos = env.reset(seed=0)
     while env.agents:
         actions = {agent: env.action_space(agent).sample() for agent in env.agents}
         observations, rewards, terminations, truncations, infos = env.step(actions)
-    print(infos["intruder"]["n_forced"], "vehicles were forced to avoid; bound k̄ =", infos["intruder"]["kbar"])
+    print(env.episode["n_forced"], "vehicles were forced to avoid; bound k̄ =", env.episode["kbar"])
+
+(``stp_env.parallel_env`` is :func:`parallel_env` of this module; ``stp_env.env`` is this module, and calling it is
+:func:`env`.) The first ``parallel_env()`` of a machine computes the scenario's reachability artifacts into the
+artifact cache and says so on the terminal (``progress=False`` silences it); the first ``reset`` and ``step`` of a
+machine compile the simulator, later processes load the compiled programs (:mod:`stp_env.compilation_cache`).
 
 The environment is a thin adapter around the pure JAX core :mod:`stp_env.sim` (``reset``, ``step``, ``observe``;
 one jitted call per step); batched rollouts of thousands of episodes use the core directly
@@ -77,16 +82,27 @@ Vehicles: ``status`` (waiting / flying / arrived / collided / out_of_bounds), ``
 after_avoidance), ``avoid_start_time`` (``t_i`` [s], ``None`` if never forced), ``forced``, ``n_forced``
 (``|N^RP|``, eq. 39), ``kbar``, ``collision``, ``guarantee_violation`` (a collision although the intruder
 appeared outside its avoid region and it applied ``u^A`` from ``t_i`` on; not one in which a vehicle flying the
-after-avoidance fallback takes part, see :mod:`stp_env.sim.core`), ``used_filter``, ``min_separation``
-[m], ``cost`` (1.0 in the step of a collision: the safety-gymnasium convention), ``time`` [s], ``sta`` (the
-current STA [s]: a new one after replanning), ``replanned``.
+after-avoidance fallback takes part, see :mod:`stp_env.sim.core`), ``tracking_error`` [m] (distance to its
+nominal position), ``max_tracking_error`` [m] (the largest at an inner control step while it flew its plan in the
+nominal mode, never forced), ``tracked`` (it applied the tracker ``kappa`` at every inner step meanwhile: a
+vehicle policy flew it, or its actions were the tracker's), ``tracking_violation`` (it tracked its plan and
+``max_tracking_error`` exceeded the robust-tracking bound ``r_e``: a guarantee violation of the planner, as
+``stp-env evaluate`` counts it), ``used_filter``, ``min_separation`` [m], ``cost`` (1.0 in the step of a
+collision: the safety-gymnasium convention), ``time`` [s], ``sta`` (the current STA [s]: a new one after
+replanning), ``replanned``.
 Intruder: ``status`` (pending / present / gone), ``n_forced``, ``kbar``, ``kbar_exceeded``, ``collisions``,
-``guarantee_violations``, ``cost`` (0.0), ``time``.
+``guarantee_violations``, ``tracking_violations``, ``cost`` (0.0), ``time``.
+Every agent's info also holds ``episode``, the episode-level results so far (the same for every agent):
+``n_forced``, ``kbar``, ``kbar_exceeded``, ``collisions``, ``guarantee_violations``, ``tracking_violations``,
+``max_tracking_error`` [m] (over the vehicles of the episode that flew and tracked their plan, as
+``stp-env evaluate`` reports it; ``None`` if none did), ``tracking_bound`` (``r_e`` [m]), ``intruder_status``,
+``time``. The same dict is ``env.episode`` after every ``reset`` and ``step``: at the end of an episode it is
+readable whichever agents are left (the intruder leaves ``t_IAT`` after it appears, before the episode ends).
 
 Arguments
 ---------
 ``parallel_env(scenario="town", config=None, *, max_cycles=None, render_mode=None, params=None, store=None,
-backend=None, **config_fields)``:
+backend=None, progress=None, **config_fields)``:
 ``scenario`` is a registry name or a :class:`stp_env.scenarios.Scenario`; ``config`` an
 :class:`stp_env.sim.EnvConfig` (``dt`` [s], the inner control period ``control_dt`` [s], wind model, spawn mode,
 safety filter, episode window, rewards); any field of it can also be given by name and replaces the config's
@@ -103,6 +119,9 @@ batched core) it flies the jittable fallback of eq. 40 with no new STA. Use it w
 ``backend``: ``None`` (the config's plant: the papers' Dubins model in the jitted core by default), ``"jax"``,
 ``"pymunk"`` (the same Dubins motion stepped by the pymunk physics engine) or ``"pymunk-dynamic[:param=value,...]"``
 (rigid bodies with mass, drag, actuator lag and wind as a force; :mod:`stp_env.sim.backends`).
+``progress``: ``True`` shows the artifact builds (bars) and announces the compilation of reset and step on standard
+error, ``False`` never; ``None`` (the default) when standard error is a terminal or ``$STP_ENV_PROGRESS=1``
+(:mod:`stp_env.progress`).
 ``env(...)`` is the AEC form (``parallel_to_aec``), ``raw_env(...)`` the same without the order-enforcing wrapper.
 Render modes: ``"rgb_array"`` (a top-down map: buildings, targets, vehicles with headings and danger zones,
 the intruder, avoid-region footprints when ``render_avoid_regions=True``) and ``"human"`` (the same in a window).
@@ -114,17 +133,21 @@ Version history
   after-avoidance fallback takes part in (it still counts as a collision). Seeds of ``2**32`` and more give their
   own episodes (they were reduced to their low 32 bits); negative seeds, and actions that are not real numbers,
   raise ``ValueError``. Vehicles may fly another plant than Dubins (``EnvConfig(vehicle_model=...)``; the action
-  space is the model's).
+  space is the model's). Added since, with the same dynamics: the infos ``tracking_error``, ``max_tracking_error``,
+  ``tracked``, ``tracking_violation``, ``tracking_violations`` and ``episode``, and ``env.episode``.
 * v0 (``stp_v0``): first release.
 """
 
 from __future__ import annotations
 
+import contextvars
 import dataclasses
 import functools
 import numbers
 import reprlib
+import sys
 import time
+import types
 import warnings
 from typing import Any, ClassVar, NamedTuple
 
@@ -138,6 +161,7 @@ from pettingzoo.utils.wrappers import OrderEnforcingWrapper
 
 from stp_env import sim
 from stp_env.angles import wrap_angle
+from stp_env.progress import compile_note
 from stp_env.seeds import prng_key
 from stp_env.sim import core
 from stp_env.sim.backends import with_backend
@@ -151,15 +175,19 @@ from stp_env.sim.types import (
     MODE_NAMES,
     NOMINAL,
     STATUS_NAMES,
+    WAITING,
     replace,
 )
 
 DEFAULT_SCENARIO = "town"
 
 
+_BUILD_PROGRESS = contextvars.ContextVar("stp_env_build_progress", default=False)
+
+
 @functools.lru_cache(maxsize=8)
 def _cached_params(scenario, config):
-    return sim.params_for(scenario, config, progress=False)
+    return sim.params_for(scenario, config, progress=_BUILD_PROGRESS.get())
 
 
 class StepInfo(NamedTuple):
@@ -175,6 +203,10 @@ class StepInfo(NamedTuple):
     min_separation: jax.Array       # (N,) [m]
     t: jax.Array                    # () [s]
     intruder_status: jax.Array      # () INTRUDER_STATUS_NAMES index
+    tracking_error: jax.Array       # (N,) [m] distance to the nominal position
+    max_tracking_error: jax.Array   # (N,) [m] largest while tracking the plan (never forced)
+    tracked: jax.Array              # (N,) bool: applied the tracker at every inner step while flying its plan
+    tracking_violation: jax.Array   # (N,) bool: tracked, and max_tracking_error exceeded r_e
 
 
 class StepOutput(NamedTuple):
@@ -191,7 +223,9 @@ class StepOutput(NamedTuple):
 def _step_info(prev, new) -> StepInfo:
     return StepInfo(status=new.status, prev_status=prev.status, mode=new.mode, avoid_start=new.avoid_start,
                     guarantee_violation=new.guarantee_violation, used_filter=new.used_filter,
-                    min_separation=new.min_separation, t=new.t, intruder_status=new.intruder_status)
+                    min_separation=new.min_separation, t=new.t, intruder_status=new.intruder_status,
+                    tracking_error=new.tracking_error, max_tracking_error=new.max_tracking_error,
+                    tracked=new.tracked, tracking_violation=new.tracking_violation)
 
 
 def _advance(key, state, actions, params):
@@ -329,7 +363,9 @@ class STPParallelEnv(ParallelEnv):
     def __init__(self, scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, *,
                  max_cycles: int | None = None, render_mode: str | None = None, params: sim.EnvParams | None = None,
                  render_avoid_regions: bool = False, store=None, replan: bool = False,
-                 vehicle_policy: str | None = None, backend: str | None = None, **config_overrides):
+                 vehicle_policy: str | None = None, backend: str | None = None, progress: bool | None = None,
+                 **config_overrides):
+        from stp_env import progress as progress_mod
         from stp_env.baselines import BUFFER_GAME_VEHICLE_POLICIES, VEHICLE_POLICIES
         from stp_env.scenarios import Scenario, make
 
@@ -360,15 +396,24 @@ class STPParallelEnv(ParallelEnv):
         if replan and params is not None:
             raise ValueError("replan=True replans from the scenario's own plan; it cannot be combined with params= "
                              "(pass the scenario and config instead).")
+        self._progress = progress_mod.enabled(progress)
         if params is None:
-            params = _cached_params(scenario, config) if store is None else sim.params_for(
-                scenario, config, store=store, progress=False)
+            progress_mod.note(f"loading the reachability artifacts and plan of {scenario.name!r} (computed and "
+                              "cached on first use)", self._progress)
+            token = _BUILD_PROGRESS.set(self._progress)
+            try:
+                params = _cached_params(scenario, config) if store is None else sim.params_for(
+                    scenario, config, store=store, progress=self._progress)
+            finally:
+                _BUILD_PROGRESS.reset(token)
         elif backend is not None:
             params = replace(params, vehicle_model=config.vehicle_model)
         _check_appear_window(params)
         if vehicle_policy in BUFFER_GAME_VEHICLE_POLICIES and params.buffer_values is None:
-            params = sim.build.with_buffer(params, sim.build.load_buffer(scenario, store=store, progress=False))
+            params = sim.build.with_buffer(params, sim.build.load_buffer(scenario, store=store,
+                                                                         progress=self._progress))
         self._vehicle_policy = None if vehicle_policy is None else VEHICLE_POLICIES[vehicle_policy]
+        self._vehicle_policy_name = vehicle_policy
         self._step_layout = None  # Layout of the packed step output, found at the first step
         self.params = params
         self._base_params = params
@@ -377,7 +422,8 @@ class STPParallelEnv(ParallelEnv):
         if self.replan:
             from stp_env.planning.replan import obstacle_pads
 
-            plan0 = sim.load_plan(scenario, tracking_bound=float(params.tracking_bound), store=store, progress=False)
+            plan0 = sim.load_plan(scenario, tracking_bound=float(params.tracking_bound), store=store,
+                                  progress=self._progress)
             # the windows of the plan's disks (derived once here for plan files that do not record them)
             self._plan0 = dataclasses.replace(plan0, obstacle_pads=obstacle_pads(plan0, self.scenario, store=store))
         self._plan = self._plan0
@@ -399,6 +445,9 @@ class STPParallelEnv(ParallelEnv):
         self._dv, self._di = core.observation_sizes(params)
         self._state_size = core.global_state_size(params)
         self._kbar = int(params.kbar)
+        self._tracking_bound = float(params.tracking_bound)
+        self.episode: dict | None = None  # the episode-level results after the last reset or step (see Infos)
+        self._in_episode = np.ones(n, bool)  # vehicles that are agents of the episode (not done at its start)
         self._observation_spaces: dict[str, gymnasium.spaces.Box] = {}
         self._action_spaces: dict[str, gymnasium.spaces.Box] = {}
         self._key = None
@@ -447,6 +496,7 @@ class STPParallelEnv(ParallelEnv):
         start_params = params
         if appear_time is not None:
             start_params = replace(params, appear_window=jnp.asarray([appear_time, appear_time], jnp.float32))
+        compile_note("the environment's reset", key, start_params, progress=self._progress)
         key, state, out = _start_jit(key, start_params)
         self._key, self._state = key, state
         self.params = params
@@ -462,6 +512,7 @@ class STPParallelEnv(ParallelEnv):
         # terminated by the first step); the intruder always is.
         done_v = info.status >= sim.ARRIVED
         self.agents = [a for a in self.possible_agents if a == "intruder" or not done_v[self._index[a]]]
+        self._in_episode = ~np.asarray(done_v, bool)
         infos = self._infos(info)
         obs = {a: obs[a] for a in self.agents}
         infos = {a: infos[a] for a in self.agents}
@@ -571,8 +622,11 @@ class STPParallelEnv(ParallelEnv):
                        else functools.partial(_advance_scripted, vehicle_policy=self._vehicle_policy))
             self._step_layout = Layout.of(jax.eval_shape(advance, self._key, self._state, arr, self.params)[2])
         if self._vehicle_policy is None:
+            compile_note("the environment's step", self._key, self._state, arr, self.params, progress=self._progress)
             self._key, self._state, words = _advance_jit(self._key, self._state, arr, self.params)
         else:
+            compile_note(f"the environment's step ({self._vehicle_policy_name} vehicles)", self._key, self._state, arr,
+                         self.params, progress=self._progress)
             self._key, self._state, words = _advance_scripted_jit(self._key, self._state, arr, self.params,
                                                                   self._vehicle_policy)
         self._steps += 1
@@ -653,6 +707,21 @@ class STPParallelEnv(ParallelEnv):
         new_collision = collided & (info.prev_status != COLLIDED)
         t = float(info.t)
         violation, used, min_sep = info.guarantee_violation, info.used_filter, info.min_separation
+        error, max_error, track_violation = info.tracking_error, info.max_tracking_error, info.tracking_violation
+        # as the evaluator: vehicles of the episode that flew and tracked their plan (not one flown by the agent)
+        flew_tracked = info.tracked & (status != WAITING) & self._in_episode
+        episode = {
+            "n_forced": n_forced,
+            "kbar": kbar,
+            "kbar_exceeded": bool(kbar > 0 and n_forced > kbar),
+            "collisions": int(collided.sum()),
+            "guarantee_violations": int(violation.sum()),
+            "tracking_violations": int(track_violation.sum()),
+            "max_tracking_error": float(np.max(max_error[flew_tracked])) if flew_tracked.any() else None,
+            "tracking_bound": self._tracking_bound,
+            "intruder_status": INTRUDER_STATUS_NAMES[int(info.intruder_status)],
+            "time": t,
+        }
         infos = {}
         for i in range(n):
             infos[f"vehicle_{i}"] = {
@@ -664,23 +733,31 @@ class STPParallelEnv(ParallelEnv):
                 "kbar": kbar,
                 "collision": bool(collided[i]),
                 "guarantee_violation": bool(violation[i]),
+                "tracking_error": float(error[i]),
+                "max_tracking_error": float(max_error[i]),
+                "tracked": bool(info.tracked[i]),
+                "tracking_violation": bool(track_violation[i]),
                 "used_filter": bool(used[i]),
                 "replanned": bool(self._replanned[i]),
                 "sta": float(self._sta[i]),
                 "min_separation": float(min_sep[i]),
                 "cost": float(new_collision[i]),
                 "time": t,
+                "episode": dict(episode),
             }
         infos["intruder"] = {
-            "status": INTRUDER_STATUS_NAMES[int(info.intruder_status)],
+            "status": episode["intruder_status"],
             "n_forced": n_forced,
             "kbar": kbar,
-            "kbar_exceeded": bool(kbar > 0 and n_forced > kbar),
-            "collisions": int(collided.sum()),
-            "guarantee_violations": int(violation.sum()),
+            "kbar_exceeded": episode["kbar_exceeded"],
+            "collisions": episode["collisions"],
+            "guarantee_violations": episode["guarantee_violations"],
+            "tracking_violations": episode["tracking_violations"],
             "cost": 0.0,
             "time": t,
+            "episode": dict(episode),
         }
+        self.episode = episode
         return infos
 
     def state(self) -> np.ndarray:
@@ -757,3 +834,14 @@ def raw_env(scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, **kw
 def env(scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, **kwargs):
     """The AEC form (``parallel_to_aec`` of :func:`parallel_env`, with PettingZoo's order enforcing)."""
     return OrderEnforcingWrapper(raw_env(scenario, config, **kwargs))
+
+
+class _CallableModule(types.ModuleType):
+    """This module, callable: ``stp_env.env(...)`` is :func:`env` (the package exports ``env`` and
+    ``parallel_env`` at the top level, and ``stp_env.env`` is this module's name)."""
+
+    def __call__(self, *args, **kwargs):
+        return env(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule

@@ -312,3 +312,61 @@ def test_pack_round_trips_every_dtype():
         for k, v in wide.items():
             assert back[k].dtype == np.asarray(v).dtype
             np.testing.assert_array_equal(back[k], np.asarray(v))
+
+
+def test_episode_results_are_readable_at_the_end_whatever_agent_is_left(par):
+    """The quick start reads the episode's results after the loop: the intruder has left before the last step
+    (its info is gone), so they are in every agent's info and in ``env.episode``."""
+    rng = np.random.default_rng(0)
+    _, infos = par.reset(seed=0, options={"appear_time": float(par.params.t_start) + 1.0})
+    assert infos["vehicle_0"]["episode"] == par.episode
+    in_episode = [int(a.split("_")[1]) for a in par.agents if a != "intruder"]
+    intruder_left_at = None
+    while par.agents:
+        _, _, _, _, infos = par.step({a: rng.uniform(-1, 1, 2).astype(np.float32) for a in par.agents})
+        if intruder_left_at is None and "intruder" not in par.agents:
+            intruder_left_at = par.episode["time"]
+    assert intruder_left_at is not None and "intruder" not in infos  # the case the quick start met
+    assert par.episode["intruder_status"] == "gone" and par.episode["time"] > intruder_left_at
+    for info in infos.values():
+        assert info["episode"] == par.episode
+    state = par.env_state
+    assert par.episode["n_forced"] == int(np.isfinite(np.asarray(state.avoid_start)).sum())
+    assert par.episode["kbar"] == int(par.params.kbar)
+    assert par.episode["collisions"] == int((np.asarray(state.status) == sim.COLLIDED).sum())
+    assert par.episode["tracking_violations"] == int(np.asarray(state.tracking_violation).sum())
+    # random actions: no vehicle tracked its plan, so there is no tracking error to bound (the evaluator's rule)
+    assert not np.asarray(state.tracked)[in_episode].any()
+    assert par.episode["max_tracking_error"] is None
+
+
+def test_tracking_error_and_violation_in_the_infos(par):
+    """The infos carry what the evaluator reports: each vehicle's tracking error, its largest while tracking,
+    and the tracking violation (farther than r_e from its plan while tracking it)."""
+    par.reset(seed=1)
+    for _ in range(40):
+        _, _, _, _, infos = par.step({a: np.zeros(2, np.float32) for a in par.agents})
+    state = par.env_state
+    error, largest = np.asarray(state.tracking_error), np.asarray(state.max_tracking_error)
+    violation = np.asarray(state.tracking_violation)
+    flying = [a for a in infos if a.startswith("vehicle_") and infos[a]["status"] == "flying"]
+    assert flying
+    for a in flying:
+        i = int(a.split("_")[1])
+        assert infos[a]["tracking_error"] == pytest.approx(float(error[i]))
+        assert infos[a]["max_tracking_error"] == pytest.approx(float(largest[i]))
+        assert infos[a]["tracking_violation"] is bool(violation[i])
+    assert infos[flying[0]]["tracked"] is bool(np.asarray(state.tracked)[int(flying[0].split("_")[1])])
+    assert par.episode["tracking_bound"] == pytest.approx(float(par.params.tracking_bound))
+    assert infos["intruder"]["tracking_violations"] == int(violation.sum())
+    assert max(infos[a]["tracking_error"] for a in flying) > 0.0  # zero actions: the tracker is not flying them
+
+
+def test_the_package_exports_the_environment():
+    import stp_env
+
+    par = stp_env.parallel_env(max_cycles=5)
+    assert isinstance(par, stp_module.STPParallelEnv)
+    aec = stp_env.env(max_cycles=5)
+    assert type(aec) is type(env(max_cycles=5)) and aec.unwrapped.metadata["name"] == "stp_v1"
+    assert stp_env.env.parallel_env is parallel_env  # still the module

@@ -90,7 +90,7 @@ def run(configs, out_dir, *, episodes: int = 1000, seed: int = 0, batch_size: in
     staging = Path(tempfile.mkdtemp(dir=out, prefix=STAGING_PREFIX + writer_tag()))
     try:
         summaries, markdown = _write_all(results, staging, seed=seed, episodes=episodes, batch_size=batch_size,
-                                         figures=figures)
+                                         figures=figures, progress=progress)
         files = _publish(staging, out)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -98,7 +98,10 @@ def run(configs, out_dir, *, episodes: int = 1000, seed: int = 0, batch_size: in
             "seconds": round(time.perf_counter() - start, 1)}
 
 
-def _write_all(results, out: Path, *, seed, episodes, batch_size, figures):
+def _write_all(results, out: Path, *, seed, episodes, batch_size, figures, progress=None):
+    from stp_env import progress as progress_mod
+
+    progress_mod.note(f"writing the results ({len(results)} configuration(s)) to {out.parent}", progress)
     summaries = [r.summary for r in results]
     markdown = report.markdown_table(summaries)
     report.write_json(summaries, out / "results.json", seed=seed, episodes=episodes, batch_size=batch_size)
@@ -107,6 +110,7 @@ def _write_all(results, out: Path, *, seed, episodes, batch_size, figures):
     report.write_episodes(results, out / "episodes.npz")
     report.write_text(markdown + "\n", out / "results.md")
     if figures:
+        progress_mod.note("drawing the figures", progress)
         plots.plot_forced_histograms(summaries, str(out / "forced_histogram.png"))
         plots.plot_summary(summaries, str(out / "summary.png"))
         best = showcase_result(results)
@@ -120,6 +124,8 @@ def _write_all(results, out: Path, *, seed, episodes, batch_size, figures):
             runs = {best.config.vehicle_policy: (show, show["final"])}
             for other in ("switching", "nominal"):  # the figure compares u* with u^PP (a "worst" run has neither)
                 if other not in runs:
+                    progress_mod.note(f"replaying the showcase episode with {other} vehicles for distance_vs_time.png "
+                                      "(compiles its simulator program once per machine)", progress)
                     other_final, other_traj = counterpart(best, other)
                     runs[other] = (other_traj, other_final)
             plots.plot_distance_vs_time(

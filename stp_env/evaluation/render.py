@@ -17,12 +17,16 @@ from stp_env.sim.types import AVOIDING, COLLIDED, FLYING, PRESENT
 
 
 def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float = 0.5, margin_s: float = 5.0,
-                   fps: int = 8, dpi: int = 70, title: str = "") -> tuple[list[str], int]:
+                   fps: int = 8, dpi: int = 70, title: str = "", progress: bool | None = None
+                   ) -> tuple[list[str], int]:
     """Write the episode to ``path`` (``.gif``); returns the written files (the GIF, or the PNG frames in
-    ``path`` with its suffix removed when pillow is not installed) and the number of frames."""
+    ``path`` with its suffix removed when pillow is not installed) and the number of frames. ``progress``: a bar
+    over the frames (:mod:`stp_env.progress`; ``None``: in a terminal)."""
     import matplotlib.pyplot as plt
     from matplotlib import animation
+    from tqdm.auto import tqdm
 
+    from stp_env import progress as progress_mod
     from stp_env.evaluation.plots import _draw_scene, vehicle_color
 
     t = traj["t"]
@@ -97,14 +101,18 @@ def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float 
         from stp_env.evaluation.report import plain_file_mode
 
         anim = animation.FuncAnimation(fig, draw, frames=list(steps), blit=False)
+        bar = tqdm(total=len(steps), unit="frame", desc=f"rendering {out.name}",
+                   disable=not progress_mod.enabled(progress))
         # written beside the target and moved onto it: an interrupted render leaves no half-written GIF
         fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=TEMP_PREFIX + writer_tag(), suffix=out.suffix or ".gif")
         os.close(fd)
         try:
-            anim.save(tmp, writer=animation.PillowWriter(fps=fps), dpi=dpi)
+            anim.save(tmp, writer=animation.PillowWriter(fps=fps), dpi=dpi,
+                      progress_callback=lambda i, n: bar.update(1))
             os.chmod(tmp, plain_file_mode())
             os.replace(tmp, out)
         finally:
+            bar.close()
             plt.close(fig)
             if os.path.exists(tmp):
                 os.remove(tmp)
@@ -112,7 +120,8 @@ def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float 
     frames_dir = out.with_suffix("")
     frames_dir.mkdir(parents=True, exist_ok=True)
     written = []
-    for j, k in enumerate(steps):
+    for j, k in enumerate(tqdm(steps, unit="frame", desc=f"rendering {frames_dir.name}",
+                               disable=not progress_mod.enabled(progress))):
         draw(k)
         name = frames_dir / f"frame_{j:04d}.png"
         fig.savefig(name, dpi=dpi)

@@ -307,11 +307,14 @@ def _evaluate_one(config, params, vehicle_policy, intruder_policy, key, seed, ep
                   plan_samples, confidence, max_events, progress, record, airborne_only) -> ConfigResult:
     from tqdm.auto import tqdm
 
+    from stp_env.progress import compiling_until_first_update
+
     active = simulated_vehicles(params, airborne_only)
     chunks: list[dict] = []
     showcase, best = None, -1
     start = time.perf_counter()
     with tqdm(total=episodes, desc=config.label, unit="ep", disable=not progress, leave=True) as bar:
+        compiling_until_first_update(bar, "compiling the simulator's batch (once per machine)...")
         for first in range(0, episodes, batch_size):
             indices = np.arange(first, first + batch_size, dtype=np.int32)
             final, traj = run_batch(key, jnp.asarray(indices), params, vehicle_policy, intruder_policy, n_steps,
@@ -341,7 +344,7 @@ def _evaluate_one(config, params, vehicle_policy, intruder_policy, key, seed, ep
 
 
 def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_steps: int, *, batch_size: int = 1,
-           record: bool = True, airborne_only: bool = True):
+           record: bool = True, airborne_only: bool = True, progress: bool | None = None):
     """Episode ``index`` of the run with ``seed``: ``(final state, trajectory)`` as numpy dicts (the trajectory
     ``None`` without ``record``).
 
@@ -350,8 +353,11 @@ def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_ste
     is bit for bit the evaluated episode. Another batch size is another compiled program, which XLA may vectorize
     differently (10 of 10 town episodes of a batch of 250 replayed alone ended identically, BENCHMARKS.md). Either
     way the reachability artifacts must be the same as in the evaluation. ``airborne_only`` as in
-    :func:`evaluate` (the whole fleet or part of it are also different programs).
+    :func:`evaluate` (the whole fleet or part of it are also different programs). ``progress``: announce the
+    replay on standard error (:mod:`stp_env.progress`; ``None``: in a terminal).
     """
+    from stp_env import progress as progress_mod
+
     check_seed(seed)
     for name, value, lo, hi in (("index", index, 0, MAX_EPISODES - 1), ("batch_size", batch_size, 1, MAX_EPISODES),
                                 ("n_steps", n_steps, 1, None)):
@@ -362,6 +368,8 @@ def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_ste
     index, batch_size, n_steps = int(index), int(batch_size), int(n_steps)
     first = (index // batch_size) * batch_size
     indices = jnp.arange(first, first + batch_size, dtype=jnp.int32)
+    progress_mod.note(f"replaying episode {index} of seed {seed} in its batch of {batch_size} (compiles the "
+                      "simulator's batch once per machine)", progress)
     final, traj = run_batch(prng_key(seed), indices, params, vehicle_policy, intruder_policy, n_steps,
                             record=record, active=simulated_vehicles(params, airborne_only))
     j = index - first

@@ -179,7 +179,8 @@ class Outcome:
         z: the worst input found (float32, in ``[0, 1]^dim``).
         worst: the objective there (:func:`canonical_value`).
         bound: the bound under attack; margin: its distance to ``worst`` (negative: the bound is broken).
-        evaluations: attacks simulated; seconds: wall time of the search (compilation included).
+        evaluations: attacks simulated; seconds: wall time of :func:`run` (building the attack, the search, the
+        worst recomputed; compilation included).
         quantiles: the 50/90/99/100 % quantiles of every attack's objective (the spread of the search).
         details: what the simulator says about the worst attack (attack-specific).
         seed_values: the objective at each of the attack's game seeds (where the search started; empty when the
@@ -217,29 +218,37 @@ def run(spec: AttackSpec, config: SearchConfig | None = None, seed: int = 0, *, 
     """Search ``config.budget`` attacks of ``spec`` and return the worst. ``seed``: an integer in ``[0, 2**63 - 1]``,
     each its own search (:func:`stp_env.seeds.prng_key`; checked before anything is built). ``seeded``: start the
     search from the attack's game strategies (its ``seeds()``, when it has them), as well as from the whole box."""
+    from stp_env import progress as progress_mod
+
     config = SearchConfig() if config is None else config
     key = prng_key(seed)
+    start = time.perf_counter()
     attack = build_attack(spec, params, progress=progress)
-    seeds = attack.seeds() if seeded and callable(getattr(attack, "seeds", None)) else None
+    seeds = None
+    if seeded and callable(getattr(attack, "seeds", None)):
+        progress_mod.note("flying the game's own worst strategies in closed loop: where the search starts", progress)
+        seeds = attack.seeds()
     seeds = None if seeds is None else np.asarray(seeds, np.float32)
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
         bar = tqdm(total=config.budget, unit="attack", desc=f"falsify {spec.target}")
-    start = time.perf_counter()
+        progress_mod.compiling_until_first_update(bar, "compiling the attack's batch (once per machine)...")
     try:
         result = search(attack.objective, attack.dim, key, config, progress=bar, seeds=seeds)
     finally:
         if bar is not None:
             bar.close()
-    seconds = time.perf_counter() - start
+    progress_mod.note("recomputing the worst attack alone and its details (compiles a one-attack program once per "
+                      "machine)", progress)
     z = np.asarray(result.best_z, np.float32)
     worst = canonical_value(attack, z)
     finite = result.values[np.isfinite(result.values)]
     quantiles = tuple(float(q) for q in np.quantile(finite, [0.5, 0.9, 0.99, 1.0])) if finite.size else ()
     details = _details(attack, z)
     seed_values = () if seeds is None else tuple(canonical_value(attack, s) for s in seeds)
+    seconds = time.perf_counter() - start  # the whole run: building the attack, the search, the worst recomputed
     return Outcome(spec=spec, config=config, seed=seed, z=z, worst=worst, bound=attack.bound,
                    margin=attack.margin(worst), evaluations=result.evaluations, seconds=seconds,
                    quantiles=quantiles, details=details, seed_values=seed_values)
@@ -258,9 +267,10 @@ def _details(attack, z) -> dict:
     return {"max_error_m": round(float(trace["worst"]), 4)}
 
 
-def save(outcome: Outcome, directory, *, plot: bool = True) -> Path:
+def save(outcome: Outcome, directory, *, plot: bool = True, progress: bool | None = None) -> Path:
     """Write ``counterexample.json`` (and ``counterexample.png``) into ``directory``, atomically."""
     from stp_env import __version__
+    from stp_env import progress as progress_mod
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
@@ -274,6 +284,7 @@ def save(outcome: Outcome, directory, *, plot: bool = True) -> Path:
     if plot:
         from stp_env.falsify.plots import plot_attack
 
+        progress_mod.note(f"drawing {directory / 'counterexample.png'} (traces the worst attack)", progress)
         plot_attack(build_attack(outcome.spec), outcome.z, directory / "counterexample.png",
                     title=f"{outcome.spec.target}: worst {outcome.worst:.3f}, bound {outcome.bound:.3f}")
     return path

@@ -177,11 +177,23 @@ def shipped_intruders() -> list[str]:
 
 @functools.cache
 def load_intruder(name_or_path: str = "town-kbar2"):
-    """A shipped learned intruder by name (see :func:`shipped_intruders`) or an :func:`export_mlp` file, as a
-    jittable policy. Cached, so that repeated loads reuse one function (and its compiled rollouts)."""
+    """A shipped learned intruder by name (see :func:`shipped_intruders`), an :func:`export_mlp` file, or a training
+    run's directory (its ``intruder.npz``), as a jittable policy. Cached, so that repeated loads reuse one function
+    (and its compiled rollouts)."""
     if not isinstance(name_or_path, str):
         raise ValueError(f"a learned intruder is a shipped name or an .npz path; got {name_or_path!r}.")
     path = Path(name_or_path)
+    if path.is_dir():  # a training run's directory (stp-env train-intruder --out DIR): its exported policy
+        if not (path / "intruder.npz").is_file():
+            raise ValueError(f"{name_or_path}: a directory without intruder.npz; pass a finished training run's "
+                             "directory (stp-env train-intruder writes DIR/intruder.npz at the end) or the .npz.")
+        path = path / "intruder.npz"
+    elif path.suffix == ".zip":
+        exported = path.parent / "intruder.npz"
+        hint = (f"use {exported} (or the directory {path.parent})" if exported.is_file()
+                else "use the intruder.npz that stp-env train-intruder writes beside it at the end of training")
+        raise ValueError(f"{name_or_path}: a Stable-Baselines3 model archive is not loaded (it is pickled code); "
+                         f"{hint}.")
     if path.suffix != ".npz":
         if name_or_path not in shipped_intruders():
             raise ValueError(f"unknown intruder {name_or_path!r}; shipped: {', '.join(shipped_intruders())} "

@@ -10,30 +10,14 @@ with Clopper-Pearson bounds), ``best_model.zip`` (best mean ``|N^RP|``), ``model
 deterministic actor for :func:`stp_env.rl.policy.load_intruder`). Same config, same seed, same machine: same run
 (torch uses ``torch_threads`` CPU threads; JAX keys come from :func:`stp_env.rl.key_for_seed`).
 
-The PettingZoo + SuperSuit route
---------------------------------
-For those who want the multi-agent adapter instead (much slower, see ``BENCHMARKS.md``)::
-
-    import supersuit as ss
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.utils import set_random_seed
-    from stp_env.env import parallel_env
-
-    env = ss.black_death_v3(ss.pad_observations_v0(parallel_env()))  # fixed agent set, one observation size
-    venv = ss.concat_vec_envs_v1(ss.pettingzoo_env_to_vec_env_v1(env), 4, num_cpus=0,
-                                 base_class="stable_baselines3")       # every agent of every copy is one env
-    set_random_seed(0)          # python, numpy, torch
-    venv.venv.reset(seed=0)     # the envs: copy i gets seed 0 + i; later resets continue each copy's key
-    model = PPO("MlpPolicy", venv, seed=None)                          # NOT seed=0, see below
-    model.learn(100_000)
-
-Seeding: with SB3 2.9, ``PPO(seed=s)`` calls ``venv.seed(s)``, and SuperSuit's ``SB3VecEnvWrapper`` forwards it
-to its ``ConcatVecEnv``, which has no ``seed`` method (``AttributeError``); ``venv.reset(seed=s)`` fails the same
-way. Seed the inner ``ConcatVecEnv`` with ``venv.venv.reset(seed=s)`` and the rest with ``set_random_seed(s)``
-before building the model, as above: PPO's own first ``reset()`` passes no seed, and
-:func:`stp_env.env.parallel_env` continues from the seeded key. All agents then share one policy, the vehicles
-included: if only the intruder should learn, mask the vehicles' transitions or fix their actions;
-:class:`~stp_env.rl.IntruderVecEnv` does that by construction (the vehicles run ``switching`` inside the core).
+SuperSuit
+---------
+SuperSuit's vector wrappers (``pettingzoo_env_to_vec_env_v1`` with ``black_death_v3``) do not take the PettingZoo
+env: its agents come and go (vehicles that arrived before the episode are not agents of it, the intruder and every
+vehicle leave when done), and SuperSuit 3.11's ``black_death_v3`` fills in only the agents present at ``reset``
+and never ends an episode. :class:`~stp_env.rl.IntruderVecEnv` is the batched route (the vehicles run a baseline
+policy inside the core, so only the intruder learns); ``docs/training.md`` says more, and
+``tests/test_ecosystem.py`` checks the refusal.
 """
 
 from __future__ import annotations
@@ -74,7 +58,9 @@ class TrainConfig:
         algo: ``"ppo"`` or ``"a2c"``; net_arch: hidden layer widths of actor and critic (tanh).
         total_timesteps, n_envs, n_steps (per env per rollout), batch_size, n_epochs, learning_rate, gamma,
         gae_lambda, ent_coef, clip_range: the usual PPO settings (A2C uses n_steps, learning_rate, gamma,
-        gae_lambda, ent_coef).
+        gae_lambda, ent_coef). Training runs whole rollouts of ``n_envs * n_steps`` env steps, so
+        ``total_timesteps`` is rounded up to a multiple of that (:attr:`trained_timesteps`; :func:`train` says so
+        and records both in ``intruder.npz``).
         seed: one integer for torch, SB3 and the JAX env keys.
         eval_every: evaluate every this many env steps (0: only at the end); eval_episodes: episodes per
             evaluation, from seeds ``eval_seed, eval_seed + 1, ...`` (held out from training's ``seed + i``).
@@ -111,6 +97,12 @@ class TrainConfig:
     out_dir: str = "runs/intruder"
     log_formats: tuple[str, ...] = ("stdout", "csv")
     torch_threads: int = 1
+
+    @property
+    def trained_timesteps(self) -> int:
+        """``total_timesteps`` rounded up to whole rollouts (``n_envs * n_steps`` steps each): what PPO trains."""
+        rollout = self.n_envs * self.n_steps
+        return -(-self.total_timesteps // rollout) * rollout
 
     def __post_init__(self) -> None:
         from stp_env.rl.functional import check_horizon, check_vehicle_policy
@@ -315,15 +307,22 @@ def train(config: TrainConfig, *, params: sim.EnvParams | None = None):
     model = make_model(config, venv)
     model.set_logger(configure(str(out), list(config.log_formats)))
     callbacks = _callbacks(config, eval_env, out, kbar)
+    total = config.trained_timesteps
+    if total != config.total_timesteps:
+        from stp_env.progress import note
+
+        note(f"train-intruder: {config.total_timesteps} timesteps rounded up to {total}, whole rollouts of n_envs x "
+             f"n_steps = {config.n_envs} x {config.n_steps} = {config.n_envs * config.n_steps} steps", True)
     start = time.perf_counter()
-    model.learn(total_timesteps=config.total_timesteps, callback=callbacks)
+    model.learn(total_timesteps=total, callback=callbacks)
     final = callbacks[0].evaluate()
     final["train_seconds"] = round(time.perf_counter() - start, 1)
     model.save(out / "model")
     export_mlp(model, out / "intruder.npz", metadata={
         "scenario": config.scenario, "kbar": kbar, "horizon": config.horizon, "seed": config.seed,
         "vehicle_policy": config.vehicle_policy, "spawn_mode": config.spawn_mode,
-        "total_timesteps": config.total_timesteps, "final_eval": {k: v for k, v in final.items()}})
+        "total_timesteps": int(model.num_timesteps), "requested_timesteps": config.total_timesteps,
+        "final_eval": {k: v for k, v in final.items()}})
     venv.close()
     eval_env.close()
     return model, callbacks[0].history
