@@ -211,6 +211,9 @@ def _level_radius(grid: hj.Grid, taus, values, tau, direction, rel_heading, leve
 
 
 _ZERO_LEVEL_PROGRAMS: dict = {}
+SWEEP_CHUNKS = 8
+CERTIFY_STEPS = SWEEP_CHUNKS + 4 + 1
+"""The steps :func:`certify_zero_level` reports: the sweep's chunks, the local search's rounds, the final flights."""
 
 
 def _zero_level_program(game: AvoidGame, h: float, hold: int):
@@ -245,7 +248,7 @@ def _zero_level_program(game: AvoidGame, h: float, hold: int):
 
 def certify_zero_level(game: AvoidGame, taus, values, *, n_taus: int = 20, n_bearings: int = 32,
                        n_headings: int = 32, n_refine: int = 8, level: float = 0.0,
-                       control_dts=CERTIFIED_CONTROL_DT, decision_dt: float = 0.1) -> dict:
+                       control_dts=CERTIFIED_CONTROL_DT, decision_dt: float = 0.1, on_step=None) -> dict:
     """Fly the avoid game in closed loop from the table's level ``level`` (module docstring, "Certification"):
     ``u^A`` against the game's own optimal pursuit and worst combined wind, all three read from the table's
     gradient, the vehicle's control re-read every inner period ``h`` in ``control_dts``, the intruder's every period
@@ -256,7 +259,8 @@ def certify_zero_level(game: AvoidGame, taus, values, *, n_taus: int = 20, n_bea
 
     Returns ``{"loss": largest R_c - min distance [m], "tau0", "bearing", "heading": its start, "starts": count}``.
     A vehicle whose avoidance starts ``loss`` above ``level`` or higher keeps the intruder out of ``R_c`` against
-    these strategies."""
+    these strategies. ``on_step``: called with a short description after each of the :data:`CERTIFY_STEPS` steps
+    (progress)."""
     taus = jnp.asarray(taus, jnp.float32)
     values = jnp.asarray(values, jnp.float32)
     t_iat = float(game.t_iat)
@@ -274,7 +278,14 @@ def certify_zero_level(game: AvoidGame, taus, values, *, n_taus: int = 20, n_bea
 
     # sweep and local search at the coarsest period (the cheapest), then the worst starts at every period and hold
     coarse = [(h, p) for h, p in programs if h == max(control_dts)]
-    sweep = losses(grid, coarse)
+    done = on_step if on_step is not None else (lambda _: None)
+    chunks = np.array_split(np.arange(len(grid)), SWEEP_CHUNKS)
+    parts = []
+    for c in chunks:
+        if len(c):
+            parts.append(losses(grid[c], coarse))
+        done("sweep")
+    sweep = np.concatenate(parts)
     count = len(grid)
     top = grid[np.argsort(-sweep)[:n_refine]].astype(np.float64)
     step = np.array([t_iat / n_taus, 2 * np.pi / n_bearings, 2 * np.pi / n_headings]) / 2
@@ -288,7 +299,9 @@ def certify_zero_level(game: AvoidGame, taus, values, *, n_taus: int = 20, n_bea
         j = np.argmax(vals, axis=1)
         top = cand.reshape(len(top), -1, 3)[np.arange(len(top)), j]
         step = step / 2
+        done("local search")
     best = losses(top, programs)
+    done("every inner period")
     count += len(top)
     i = int(np.argmax(best))
     loss = max(float(best[i]), float(sweep.max()))
@@ -323,14 +336,20 @@ def compute_avoid_region(config: AvoidRegionConfig | None = None, *, store: Arti
         if progress:
             from tqdm.auto import tqdm
 
-            bar = tqdm(total=1, desc="avoid region: certifying in closed loop", unit="run", leave=False)
+            bar = tqdm(total=CERTIFY_STEPS, desc="avoid region: certifying in closed loop (compiling)", unit="step",
+                       leave=False)
+
+        def step(what):
+            if bar is not None:
+                bar.set_description(f"avoid region: certifying in closed loop ({what})")
+                bar.update(1)
+
         try:
             cert = certify_zero_level(config.game, arrays["taus"], arrays["values"], n_taus=config.certify_taus,
                                       n_bearings=config.certify_bearings, n_headings=config.certify_headings,
-                                      n_refine=config.certify_refine)
+                                      n_refine=config.certify_refine, on_step=step)
         finally:
             if bar is not None:
-                bar.update(1)
                 bar.close()
         return {"certificate": np.asarray([cert["loss"], cert["tau0"], cert["bearing"], cert["heading"],
                                            cert["starts"]], np.float64)}
