@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env import hj
+from stp_env.progress import enabled as progress_enabled
 from stp_env.reach.fall_rate import FALL_RATE_BAND
 from stp_env.scenarios.catalog.city import CITY_CASES
 from stp_env.sim.bounds import bounds_row
@@ -312,9 +313,10 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
     )
 
 
-def load_artifacts(scenario, *, store=None, progress: bool = True):
+def load_artifacts(scenario, *, store=None, progress: bool | None = None):
     """``(avoid region, tracking bound)`` for a scenario from the artifact cache (computed on first use: about
     20 s and 30 s on 2 cores for the city vehicle)."""
+    progress = progress_enabled(progress)
     from stp_env.artifacts import ArtifactStore
     from stp_env.reach.avoid import compute_avoid_region
     from stp_env.reach.defaults import default_avoid_config
@@ -328,10 +330,11 @@ def load_artifacts(scenario, *, store=None, progress: bool = True):
     return avoid, tracking
 
 
-def load_plan(scenario, *, tracking_bound: float, store=None, progress: bool = True):
+def load_plan(scenario, *, tracking_bound: float, store=None, progress: bool | None = None):
     """The shipped plan when ``scenario`` is a registry default (at its ``kbar``) that ships one
     (:func:`stp_env.planning.stp.shipped_plan_for`) and that plan is valid for ``tracking_bound`` (made with a bound
     at least as large, at the scenario's sample period), else the cached plan (planned on first use)."""
+    progress = progress_enabled(progress)
     from stp_env.planning.stp import cached_plan
 
     shipped = _shipped_plan(scenario)
@@ -406,8 +409,9 @@ def _shipped_plan(scenario):
     return None
 
 
-def params_for(scenario, config: EnvConfig | None = None, *, store=None, progress: bool = True) -> EnvParams:
+def params_for(scenario, config: EnvConfig | None = None, *, store=None, progress: bool | None = None) -> EnvParams:
     """Everything from a scenario (a :class:`Scenario` or a registry name): artifacts, plan, params."""
+    progress = progress_enabled(progress)
     from stp_env.scenarios import Scenario, make
 
     if isinstance(scenario, str):
@@ -432,9 +436,10 @@ def with_buffer(params: EnvParams, buffer) -> EnvParams:
     return replace(params, buffer_values=jnp.asarray(buffer.values, jnp.float32), buffer_grid=grid)
 
 
-def load_buffer(scenario, kbar: int | None = None, *, store=None, progress: bool = True):
+def load_buffer(scenario, kbar: int | None = None, *, store=None, progress: bool | None = None):
     """The relative buffer region ``V^B(0, t_IAT / k̄)`` of ``scenario``'s vehicle (``kbar``: the scenario's when
     ``None``), from the artifact cache (computed on first use: about a CPU-minute)."""
+    progress = progress_enabled(progress)
     from stp_env.artifacts import ArtifactStore
     from stp_env.reach.avoid import compute_avoid_region
     from stp_env.reach.buffer import BufferConfig, compute_relative_buffer
