@@ -51,8 +51,10 @@ FIG6_SPEED = 13.0            # [m/s] nominal speed (top of the planning set U^p)
 FIG6_LEAD = 5.0              # [s] from departure to the intruder's appearance
 FIG6_Q1_TARGET = (0.0, 600.0)
 FIG6_TARGET_X = -1800.0      # [m] the trail's targets are due west of their starts
-FIG6_MARGIN = 1.0            # [m] the simulator's avoid margin in calm air: 0.02 s x (25 + 25) m/s
-FIG6_Q1_DISTANCE = 118.15
+FIG6_MARGIN = 2.30           # [m] the simulator's certified avoid margin in calm air at the 0.02 s inner period:
+#                              0.02 s x 91.43 m/s (the value's fastest fall) + 0.459 m (the table's closed-loop error)
+#                              + 0.01 m (stp_env.sim.margins.default_avoid_margin), rounded up
+FIG6_Q1_DISTANCE = 119.48
 """Distance [m] of ``Q1`` south of the spawn point: the intruder (heading east, relative heading ``-pi/2``) is on
 the level ``V^A(0, t_IAT) = FIG6_MARGIN + 0.25 m`` straight ahead of ``Q1`` (heading north): just outside the
 margin, so Assumption 3 holds, and ``Q1`` is forced within the first inner steps, ``t_1 = 0``."""
