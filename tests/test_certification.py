@@ -73,15 +73,16 @@ def test_the_closed_loop_of_the_certification_is_the_simulators():
                                    h=float(params.dt) / substeps, n_steps=attack.n_steps * substeps, hold=substeps)
     lean = float(jnp.max(jnp.hypot(xs[:, 0], xs[:, 1])))
     assert 1.0 < in_core <= float(params.tracking_bound)
-    assert in_core == pytest.approx(lean, abs=2e-3), (in_core, lean)
+    # the core reads the plan as 0.1 s samples interpolated between, the lean loop integrates the reference's
+    # controls: they part by millimetres (6 mm measured), a different closed loop by tenths of metres
+    assert in_core == pytest.approx(lean, abs=1e-2), (in_core, lean)
 
 
 @pytest.mark.slow
-def test_the_tracking_bound_holds_the_games_worst_reference_where_the_old_rule_stopped_early(tmp_path):
-    """At 11 m/s wind the stopping rule alone fires while the game's transient still shapes the value: on a
-    41 x 41 x 40 grid (the default box) it fired at 36 s with V(0) = 35.65 m, and the tracker of that value, flown
-    against the game's own worst reference and wind, reached 36.27 m. The certified bound holds that closed loop
-    with its allowance; the first certification check (at the rule's stop) is the break, recorded."""
+def test_the_certified_tracking_bound_holds_the_games_worst_reference(tmp_path):
+    """At 11 m/s on a coarse 41 x 41 x 40 grid (the box the default bound lands in): the solve stops only on a
+    certificate, and the bound it gives holds the game's own worst reference and wind in closed loop, with its
+    allowance, under a zero-order hold of one and five inner steps."""
     vehicle = DubinsWind(v_min=0.0, v_max=25.0, omega_max=2.0, wind=11.0)
     config = default_tracking_config(vehicle)
     for _ in range(4):  # where default_tracking_bound lands at 11 m/s
@@ -91,11 +92,29 @@ def test_the_tracking_bound_holds_the_games_worst_reference_where_the_old_rule_s
     bound = compute_tracking_bound(config, store=ArtifactStore(tmp_path), progress=False)
     stored = ArtifactStore(tmp_path).load_or_compute("tracking_bound", config, lambda: pytest.fail("not cached"))
     checks = np.asarray(stored.arrays["checks"])
-    assert bound.converged
-    assert checks[0, 2] > 0 and checks[0, 3] > checks[0, 1], checks[0]  # the rule's stop: broken in closed loop
+    assert bound.converged and bool(stored.arrays["rule_fired"])
+    assert checks[-1, 2] <= -config.certify_allowance, checks          # the last check is the certificate
+    assert np.all(checks[:-1, 2] > -config.certify_allowance), checks  # and no earlier one was
     worst = max(_max_error(config.error_dynamics, config.grid, bound.value, hold=hold) for hold in (1, 5))
     assert worst <= bound.bound - config.certify_allowance, (worst, bound.bound)
     assert certify(config, bound.value).certified
+
+
+def test_the_shipped_11_ms_bound_was_solved_past_the_rules_stop():
+    """The shipped 11 m/s bound records the finding that made certification necessary: where the stopping rule
+    fired (40 s, V(0) = 35.39 m, the bound once shipped) the tracker's closed loop against the game's worst
+    reference exceeded V(0) by 1.35 m; solving on closed the gap, and the bound stops at the first check that holds
+    with the allowance."""
+    vehicle = DubinsWind(v_min=0.0, v_max=25.0, omega_max=2.0, wind=11.0)
+    tracking = default_tracking_bound(vehicle, store=ArtifactStore(), progress=False)
+    stored = ArtifactStore().load_or_compute("tracking_bound", tracking.config, lambda: pytest.fail("not shipped"))
+    checks = np.asarray(stored.arrays["checks"])
+    allowance = float(stored.arrays["certificate"][2])
+    assert bool(stored.arrays["rule_fired"]) and tracking.certified
+    assert checks[0, 1] == pytest.approx(35.39, abs=0.01) and checks[0, 2] > 1.0, checks[0]
+    assert checks[0, 3] > checks[0, 1]                          # the closed loop left the rule's bound
+    assert checks[-1, 2] <= -allowance and np.all(checks[:-1, 2] > -allowance), checks
+    assert tracking.bound == pytest.approx(checks[-1, 1]) and tracking.raised == 0.0
 
 
 def test_the_certified_tracking_bounds_are_those_shipped():

@@ -67,10 +67,7 @@ class AvoidanceAttack:
             raise ValueError(f"vehicle must be one of {', '.join(VEHICLE_POLICIES)}; got {self.vehicle!r}.")
         if self.wind not in ("search", "worst"):
             raise ValueError(f"wind must be 'search' or 'worst'; got {self.wind!r}.")
-        dt = float(self.base.dt)
-        for label, value in (("segment", self.segment), ("wind_segment", self.wind_segment)):
-            if not (math.isfinite(value) and value >= dt - 1e-9):
-                raise ValueError(f"{label} must be at least the step dt = {dt} s; got {value}.")
+        harness.check_durations(float(self.base.dt), segment=self.segment, wind_segment=self.wind_segment)
         if not (math.isfinite(self.max_level) and self.max_level >= 0):
             raise ValueError(f"max_level must be >= 0 [m]; got {self.max_level}.")
         if self.start not in ("outside", "band"):

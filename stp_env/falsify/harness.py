@@ -63,6 +63,19 @@ def with_reference(params: EnvParams, states, controls) -> EnvParams:
     return replace(params, nominal_states=states[None], nominal_controls=controls[None], starts=states[:1])
 
 
+def check_durations(dt: float, **durations: float) -> None:
+    """``ValueError`` unless every one of ``durations`` (seconds, by name) is finite and at least one step ``dt``.
+    ``dt`` is the params' float32 step, so a duration equal to it in float64 (0.1 against 0.10000000149) passes: the
+    comparison is relative, to float32 precision."""
+    for label, value in durations.items():
+        try:
+            seconds = math.nan if isinstance(value, (bool, str)) else float(value)
+        except (TypeError, ValueError):
+            seconds = math.nan
+        if not (math.isfinite(seconds) and seconds >= dt * (1.0 - 1e-6)):
+            raise ValueError(f"{label} must be at least the step dt = {dt:.6g} s; got {value!r}.")
+
+
 def split(n_steps: int, dt: float, segment: float, searched: bool) -> tuple[int, int]:
     """``(steps per segment, number of segments)`` of an input held piecewise constant over ``segment`` seconds for
     ``n_steps`` steps of ``dt`` (no segments when the input is not ``searched``)."""

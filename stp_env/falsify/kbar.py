@@ -84,8 +84,7 @@ class KbarAttack:
         if self.needs_buffer and self.base.buffer_values is None:
             raise ValueError(f"vehicles={self.vehicles!r} / intruder={self.intruder!r} play the buffer game: the "
                              "params need V^B (stp_env.sim.build.with_buffer).")
-        if not (math.isfinite(self.segment) and self.segment >= float(self.base.dt) - 1e-9):
-            raise ValueError(f"segment must be at least the step dt = {float(self.base.dt)} s; got {self.segment}.")
+        harness.check_durations(float(self.base.dt), segment=self.segment)
         if int(self.base.kbar) < 1:
             raise ValueError("the scenario has no k̄ (plan it intruder-aware) to attack.")
         object.__setattr__(self, "_ids", self._simulated_ids())

@@ -18,7 +18,6 @@ reference read at each segment's start.
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import jax
 import jax.numpy as jnp
@@ -48,10 +47,8 @@ class TrackingAttack:
     def __post_init__(self) -> None:
         if self.wind not in WIND_MODES:
             raise ValueError(f"wind must be one of {WIND_MODES}; got {self.wind!r}.")
-        dt = float(self.base.dt)
-        for label, value in (("horizon", self.horizon), ("segment", self.segment), ("wind_segment", self.wind_segment)):
-            if not (math.isfinite(value) and value >= dt - 1e-9):
-                raise ValueError(f"{label} must be at least the step dt = {dt} s; got {value}.")
+        harness.check_durations(float(self.base.dt), horizon=self.horizon, segment=self.segment,
+                                wind_segment=self.wind_segment)
 
     # -- sizes
     @property
