@@ -8,11 +8,10 @@ Objective: the largest distance to the reference over ``horizon`` seconds, as me
 (``EnvState.max_tracking_error``). The bound under attack is the ``r_e`` the planner and the simulator use.
 
 The search starts from the game's own worst strategy (:meth:`TrackingAttack.seeds`): the reference control that
-the tracking value's gradient says grows the error most (and, with ``wind="search"``, the worst wind), flown in
-closed loop against the tracker with the simulator's tables (:func:`stp_env.reach.closed_loop.rollout`) and
-written as the open-loop plan the attack searches over; the cross-entropy search then looks around it. With a
-``segment`` of one plan sample (``dt``) the seed replays the game exactly; with longer segments it is the game's
-reference read at each segment's start.
+the tracking value's gradient says grows the error most (and, with ``wind="search"``, the worst wind), chosen in
+feedback on the simulator's own closed loop at the start of every ``segment`` and written as the open-loop plan the
+attack searches over; the cross-entropy search then looks around it. Replaying that plan reproduces the feedback
+run exactly (the core is deterministic).
 """
 
 from __future__ import annotations
@@ -25,7 +24,7 @@ import numpy as np
 
 from stp_env.baselines.vehicles import nominal_tracking
 from stp_env.falsify import harness
-from stp_env.reach import closed_loop
+from stp_env.kinematics import dubins_step, relative_state, rotate
 from stp_env.sim import core, tables
 from stp_env.sim.bounds import WIND
 from stp_env.sim.types import EnvParams, replace
@@ -104,37 +103,73 @@ class TrackingAttack:
 
     def seeds(self) -> np.ndarray:
         """The game's worst reference (and worst wind, when searched) from zero error as a point of the search box,
-        ``(1, dim)`` (module docstring)."""
+        ``(1, dim)`` (module docstring).
+
+        The reference is chosen in feedback on the simulator's own closed loop: at the start of each ``segment`` the
+        reference control is the disturbance player's optimal control (the first two components of
+        ``optimal_disturbance``) of the tracking value's gradient at the core's current error, the plan sample
+        after it is written, and the core steps on (the tracker and, with ``wind="worst"``, the wind model are the
+        core's). Replaying a lean closed loop's reference open loop is not the same: at 11 m/s the game has
+        switching surfaces where millimetres of difference between two integrations send the error elsewhere (the
+        lean loop reached 35.8 m where its replay in the core reached 30.0 m)."""
         rep, n_seg, w_rep, n_wind = self._split()
         base = self.base
-        substeps = int(base.control_substeps)
-        h = float(base.dt) / substeps
+        dt = float(base.dt)
         grid, dyn = base.tracking_grid, base.tracking_dynamics
         lo_b, hi_b = jnp.asarray(grid.lo, jnp.float32), jnp.asarray(grid.hi, jnp.float32)
+        lo = jnp.asarray([dyn.other_v_min, -dyn.other_omega_max], jnp.float32)
+        hi = jnp.asarray([dyn.other_v_max, dyn.other_omega_max], jnp.float32)
+        n = self.n_steps + 2
+        radius = base.vehicle_bounds[WIND]
+        searched_wind = self.wind == "search"
+        params0 = harness.with_reference(self._params(), jnp.zeros((n, 3), jnp.float32),
+                                         jnp.zeros((n, 2), jnp.float32))
 
-        def gradient(t, e):
-            del t
-            return tables.interpolate_components(grid, base.tracking_grads, jnp.clip(e, lo_b, hi_b))
-
-        n_inner = self.n_steps * substeps
+        def game(x_ref, x_own):
+            """The game's reference control and the vehicle's worst wind (world frame) at the core's error."""
+            x_rel = relative_state(x_own, x_ref)
+            p = tables.interpolate_components(grid, base.tracking_grads, jnp.clip(x_rel, lo_b, hi_b))
+            d = dyn.optimal_disturbance(tuple(x_rel[i] for i in range(3)), tuple(p[i] for i in range(3)))
+            u = jnp.clip(jnp.stack([d[0], d[1]]), lo, hi)
+            if dyn.wind > 0:  # the combined wind pushes the reference; the vehicle's own wind is its opposite
+                w = -rotate(x_own[2], jnp.stack([d[2], d[3]]))
+            else:
+                w = jnp.zeros(2, jnp.float32)
+            return u, w
 
         @jax.jit
-        def game():
-            return closed_loop.rollout(dyn, gradient, gradient, jnp.zeros(3), h=h, n_steps=n_inner,
-                                       hold=rep * substeps)
+        def fly():
+            def body(carry, k):
+                s, states, controls, u_prev, w_prev = carry
+                u, w = game(states[k], s.x[0])
+                u = jnp.where(k % rep == 0, u, u_prev)
+                w = jnp.where(k % w_rep == 0, w, w_prev)
+                controls = controls.at[k].set(u)
+                states = states.at[k + 1].set(dubins_step(states[k], u[0], u[1], jnp.zeros(2, jnp.float32), dt))
+                params = harness.with_reference(params0, states, controls)
+                if searched_wind:
+                    s = replace(s, wind=jnp.stack([w, jnp.zeros_like(w)]))
+                actions = jnp.zeros((2, 2), s.x.dtype)
+                s, _ = core.step(jax.random.fold_in(jax.random.key(0), k), s, actions, params,
+                                 vehicle_policy=nominal_tracking)
+                return (s, states, controls, u, w), (u, w)
 
-        _, controls, winds = (np.asarray(a, np.float64) for a in game())
-        lo = np.asarray([dyn.other_v_min, -dyn.other_omega_max])
-        hi = np.asarray([dyn.other_v_max, dyn.other_omega_max])
-        u = controls[::rep * substeps][:n_seg]
-        z_ref = np.clip((u - lo) / np.where(hi > lo, hi - lo, 1.0), 0.0, 1.0).reshape(-1)
+            state = core.reset(jax.random.key(0), params0)
+            zeros2 = jnp.zeros(2, jnp.float32)
+            init = (state, params0.nominal_states[0], params0.nominal_controls[0], zeros2, zeros2)
+            _, (us, ws) = jax.lax.scan(body, init, jnp.arange(self.n_steps))
+            return us, ws
+
+        us, ws = (np.asarray(a, np.float64) for a in fly())
+        lo_n, hi_n = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+        u = us[::rep][:n_seg]
+        z_ref = np.clip((u - lo_n) / np.where(hi_n > lo_n, hi_n - lo_n, 1.0), 0.0, 1.0).reshape(-1)
         parts = [z_ref]
-        if self.wind == "search":
-            # the vehicle's own wind is minus the combined wind the game applies to the reference (harness.disk)
-            w = -winds[::w_rep * substeps][:n_wind]
-            radius = float(np.asarray(base.vehicle_bounds)[WIND])
+        if searched_wind:
+            w = ws[::w_rep][:n_wind]
+            r = max(float(radius), 1e-12)
             ang = (np.arctan2(w[:, 1], w[:, 0]) / (2 * np.pi)) % 1.0
-            mag = np.clip(np.hypot(w[:, 0], w[:, 1]) / max(radius, 1e-12), 0.0, 1.0)
+            mag = np.clip(np.hypot(w[:, 0], w[:, 1]) / r, 0.0, 1.0)
             parts.append(np.stack([ang, mag], axis=1).reshape(-1))
         return np.concatenate(parts)[None, :]
 
