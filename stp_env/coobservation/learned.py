@@ -16,7 +16,7 @@ observation, trained on the batched JAX wrapper, and exported to a small ``.npz`
   after it (it does not change which policies are optimal).
 * :func:`train` (PPO, modest budgets; optionally started from a scripted ``teacher`` by behaviour cloning,
   :func:`demonstrations` and :func:`imitate`, since the reward of an entry is rare under random exploration)
-  writes ``attacker.npz`` with :func:`stp_env.rl.policy.export_mlp`;
+  writes ``attacker.npz`` with :func:`stp_env.baselines.learned.export_mlp`;
   :func:`mlp_attacker` turns it into a jittable attacker for :func:`stp_env.coobservation.threat.rollout`.
 """
 
@@ -307,7 +307,7 @@ def train(params, tp, t_window, config: AttackerTrainConfig, out_dir, progress: 
     from stable_baselines3 import PPO
     from stable_baselines3.common.logger import configure
 
-    from stp_env.rl.policy import export_mlp
+    from stp_env.baselines.learned import export_mlp
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -343,7 +343,7 @@ def mlp_attacker(path, name: str = "learned"):
     """The exported MLP as a jittable attacker ``(key, state, params, threat, planned) -> (2,)`` (the deterministic
     action, through :func:`command`: a residual policy corrects ``planned``, the tracker's action; files without
     the ``residual`` entry are direct policies)."""
-    from stp_env.rl.policy import load_mlp
+    from stp_env.baselines.learned import load_mlp
 
     mlp = load_mlp(path)
     if mlp.obs_size != attackers.OBS_SIZE:

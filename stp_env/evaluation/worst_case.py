@@ -16,9 +16,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env import sim
+from stp_env import assembly, sim
+from stp_env.assembly import load_buffer, with_buffer
 from stp_env.sim import core
-from stp_env.sim.build import load_buffer, with_buffer
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.rollout import episode_step
 from stp_env.sim.tables import FAR
@@ -43,9 +43,9 @@ def fig6_params(scenario=None, *, config: sim.EnvConfig | None = None, store=Non
     # fall a hair short of it.
     lo = FIG6_LEAD - 0.5 * config.dt
     config = config.with_overrides(appear_window=(lo, lo), lead=lo)
-    avoid, tracking = sim.load_artifacts(scenario, store=store, progress=progress)
+    avoid, tracking = assembly.load_artifacts(scenario, store=store, progress=progress)
     plan = fig6_plan(scenario, tracking.bound)
-    params = sim.make_params(scenario, plan, avoid, tracking, config)
+    params = assembly.make_params(scenario, plan, avoid, tracking, config)
     return with_buffer(params, load_buffer(scenario, store=store, progress=progress))
 
 
@@ -156,7 +156,7 @@ def pinwheel_params(kbar: int = 3, *, wind_model="converging", appear: float = P
     from stp_env.scenarios.catalog.pinwheel import PINWHEEL_BEFORE
 
     scenario = make("pinwheel", kbar=kbar, n_waves=1)
-    avoid, tracking = sim.load_artifacts(scenario, store=store, progress=progress)
+    avoid, tracking = assembly.load_artifacts(scenario, store=store, progress=progress)
     plan = straight_plan(scenario, tracking.bound, check=False)
     config = sim.EnvConfig() if config is None else config
     # on the step grid from the departure; the window half a step early (as fig6_params) against float32 step times
@@ -165,7 +165,7 @@ def pinwheel_params(kbar: int = 3, *, wind_model="converging", appear: float = P
         raise ValueError(f"appear = {appear} s puts the appearance before the wave departs.")
     lo = at - 0.5 * config.dt
     config = config.with_overrides(wind_model=wind_model, appear_window=(lo, lo), lead=lo)
-    params = sim.make_params(scenario, plan, avoid, tracking, config)
+    params = assembly.make_params(scenario, plan, avoid, tracking, config)
     return with_buffer(params, load_buffer(scenario, store=store, progress=progress)), avoid, plan
 
 

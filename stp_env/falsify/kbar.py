@@ -83,7 +83,7 @@ class KbarAttack:
             raise ValueError(f"fleet must be one of {FLEETS}; got {self.fleet!r}.")
         if self.needs_buffer and self.base.buffer_values is None:
             raise ValueError(f"vehicles={self.vehicles!r} / intruder={self.intruder!r} play the buffer game: the "
-                             "params need V^B (stp_env.sim.build.with_buffer).")
+                             "params need V^B (stp_env.assembly.with_buffer).")
         if not (math.isfinite(self.segment) and self.segment >= float(self.base.dt) - 1e-9):
             raise ValueError(f"segment must be at least the step dt = {float(self.base.dt)} s; got {self.segment}.")
         if int(self.base.kbar) < 1:
