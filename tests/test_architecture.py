@@ -296,6 +296,76 @@ def test_every_import_follows_the_layers():
     assert used == set(ALLOWED_UPWARD), f"allow-list entries no import needs: {set(ALLOWED_UPWARD) - used}"
 
 
+SCANS: dict[str, str] = {
+    # Every module with a ``lax.scan``, and why. One loop over the simulator's step: the episode engine.
+    "stp_env.sim.engine": "the episode engine: the one loop over the steps of an episode (every rollout, the "
+                          "evaluator, the worst-case reproductions, the falsifier's attacks, the co-observation "
+                          "threat and its learned attacker run on it)",
+    "stp_env.sim.core": "the inner control steps inside one step of the core",
+    "stp_env.reach.closed_loop": "the avoid game in closed loop on exact Dubins motion (certification), no core",
+    "stp_env.planning.single": "the planner's extraction of a trajectory from the HJ model, no core",
+    "stp_env.planning.obstacles": "nearest moving disks, a reduction over disks",
+    "stp_env.falsify.harness": "a legal reference of exact Dubins motion (kinematics.dubins_step), no core",
+    "stp_env.survivability.dense": "the dynamic programme over the mission's time windows",
+    "stp_env.coobservation.exploration": "the exploration flows' positions over their waypoints, no core",
+}
+
+
+def scan_sites(root: Path = ROOT, package: str = PACKAGE) -> dict[str, list[int]]:
+    """``module -> [lines]`` of every call of ``lax.scan`` (``jax.lax.scan``, ``lax.scan`` or a ``scan`` imported
+    from ``jax.lax``)."""
+    out: dict[str, list[int]] = {}
+    for name, path in module_names(root, package).items():
+        tree = ast.parse(path.read_text(), str(path))
+        bare = any(isinstance(n, ast.ImportFrom) and n.module == "jax.lax" and any(a.name == "scan" for a in n.names)
+                   for n in ast.walk(tree))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Call):
+                func = ast.unparse(node.func)
+                if func.endswith("lax.scan") or (bare and func == "scan"):
+                    out.setdefault(name, []).append(node.lineno)
+    return out
+
+
+def test_the_scan_finder_finds_every_spelling(tmp_path):
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("import jax\n\ndef f(b, c, x):\n    return jax.lax.scan(b, c, x)\n")
+    (pkg / "b.py").write_text("from jax import lax\n\ndef f(b, c, x):\n    return lax.scan(b, c, x)\n")
+    (pkg / "c.py").write_text("from jax.lax import scan\n\ndef f(b, c, x):\n    return scan(b, c, x)\n")
+    (pkg / "d.py").write_text("def scan(x):\n    return x\n\ndef f(x):\n    return scan(x)\n")  # not JAX's
+    assert scan_sites(pkg, "pkg") == {"pkg.a": [4], "pkg.b": [4], "pkg.c": [4]}
+
+
+def test_one_scan_runs_the_episodes():
+    """Every loop over the core's step is :mod:`stp_env.sim.engine`'s (docs/architecture.md): a new ``lax.scan``
+    fails here until it is classified in :data:`SCANS` (a loop over the core's step belongs on the engine)."""
+    sites = scan_sites()
+    unclassified = {m: lines for m, lines in sites.items() if m not in SCANS}
+    assert not unclassified, (f"lax.scan outside the episode engine (stp_env/sim/engine.py): {unclassified}; build "
+                              "a loop over the core's step on stp_env.sim.engine, or classify the scan in SCANS")
+    assert set(SCANS) <= set(sites), f"SCANS entries without a scan: {set(SCANS) - set(sites)}"
+    assert len(sites["stp_env.sim.engine"]) == 1
+
+
+def test_the_moved_names_answer_from_their_old_places_with_a_warning():
+    from stp_env import assembly, sim
+
+    for name in sim.MOVED_TO_ASSEMBLY:
+        with pytest.warns(DeprecationWarning, match=f"stp_env.assembly.{name}"):
+            assert getattr(sim, name) is getattr(assembly, name)
+    with pytest.warns(DeprecationWarning, match="stp_env.assembly.SHIPPED_PLANS"):
+        from stp_env.sim.build import SHIPPED_PLANS
+    assert SHIPPED_PLANS is assembly.SHIPPED_PLANS
+    with pytest.warns(DeprecationWarning, match="stp_env.assembly.with_buffer"):
+        assert sim.build.with_buffer is assembly.with_buffer
+    with pytest.raises(AttributeError):
+        sim.build.no_such_name  # noqa: B018
+    with pytest.raises(AttributeError):
+        sim.no_such_name  # noqa: B018
+
+
 def test_the_bounds_row_is_read_by_the_names_it_is_built_with():
     """The ``(5,)`` bounds row of ``EnvParams`` is built and read in one place (:mod:`stp_env.sim.bounds`)."""
     from stp_env.dynamics import DubinsWind

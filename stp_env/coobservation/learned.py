@@ -33,6 +33,7 @@ import numpy as np
 
 from stp_env.baselines import nominal_tracking
 from stp_env.coobservation import attackers, threat
+from stp_env.sim import engine
 from stp_env.sim.types import replace
 
 ACTIVATIONS = {"tanh": jnp.tanh, "relu": lambda x: jnp.maximum(x, 0.0)}
@@ -72,20 +73,19 @@ def step_one(key, ts, action, params, tp, action_repeat: int, gamma: float, shap
     c = jnp.maximum(ts.compromised, 0)
 
     def sub(carry, k):
-        s, r, done = carry
+        s, r, _ = carry
         k_v, k_s = jax.random.split(k)
         a_v = nominal_tracking(k_v, s.sim, params)
         new = threat.step(k_s, s, a_v, command(a_v[c], action, residual), params, tp)
         entered = new.entered[c] & ~s.entered[c]
         detected = jnp.isfinite(new.detect_time) & ~jnp.isfinite(s.detect_time)
         rew = 1.0 * entered - 2.0 * detected
-        new = jax.tree.map(lambda a, b: jnp.where(done, a, b), s, new)
-        rew = jnp.where(done, 0.0, rew)
-        done = done | threat.episode_done(new, params) | jnp.isfinite(new.detect_time)
+        done = threat.episode_done(new, params) | jnp.isfinite(new.detect_time)
         return (new, r + rew, done), None
 
-    (ts, r, done), _ = jax.lax.scan(sub, (ts, jnp.zeros(()), jnp.asarray(False)),
-                                    jax.random.split(key, action_repeat))
+    # stop: once done (the episode ended or the attacker was detected), the steps change nothing and earn nothing
+    (ts, r, done), _ = engine.play(sub, (ts, jnp.zeros(()), jnp.asarray(False)), jax.random.split(key, action_repeat),
+                                   stop=lambda carry: carry[2])
     r = r + jnp.where(done, 0.0, gamma * _phi(ts, params, tp, shaping)) - phi0
     return ts, attackers.attacker_observation(ts, params, tp), r, done
 
