@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from stp_env import sim
+from stp_env import assembly
 from stp_env.evaluation import Configuration, build_params, evaluate, same_outcome
 
 
@@ -40,7 +40,7 @@ def case(name: str):
         from stp_env.scenarios import make
 
         config = Configuration(scenario="city", kbar=3, intruder="max-k")
-        return config, sim.params_for(make("city"), config.env_config(), progress=False), False
+        return config, assembly.params_for(make("city"), config.env_config(), progress=False), False
     raise ValueError(f"unknown case {name!r}")
 
 

@@ -18,7 +18,7 @@ import time
 import jax
 import numpy as np
 
-from stp_env import sim
+from stp_env import assembly, sim
 from stp_env.env import parallel_env
 from stp_env.evaluation.config import resolve_intruder, resolve_vehicle_policy
 from stp_env.sim.backends import vehicle_model
@@ -49,7 +49,7 @@ def adapter_rate(scenario: str, backend: str, steps: int) -> float:
 
 
 def core_rate(scenario: str, backend: str, steps: int, envs: int) -> float:
-    params = sim.params_for(scenario, sim.EnvConfig(vehicle_model=vehicle_model(backend)),
+    params = assembly.params_for(scenario, sim.EnvConfig(vehicle_model=vehicle_model(backend)),
                             progress=False)
     vp, ip = resolve_vehicle_policy("switching"), resolve_intruder("max-k")
     jax.block_until_ready(sim.rollout(jax.random.key(0), params, vp, ip, envs, steps))  # compile

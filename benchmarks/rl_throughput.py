@@ -30,7 +30,7 @@ from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-from stp_env import sim
+from stp_env import assembly, sim
 from stp_env.rl import IntruderEnv, IntruderVecEnv
 
 
@@ -81,7 +81,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
     torch.set_num_threads(1)
-    params = sim.params_for("town", sim.EnvConfig(), progress=False)
+    params = assembly.params_for("town", sim.EnvConfig(), progress=False)
     common = {"scenario": "town", "cpu_count": os.cpu_count(), "load_avg_1min": round(os.getloadavg()[0], 2)}
     native = collection_rate(IntruderVecEnv(args.n_envs, params=params), args.rollout_steps, args.repeats, 1, 0)
     print(json.dumps({"case": "native", "n_envs": args.n_envs, **native, **common}))

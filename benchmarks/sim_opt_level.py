@@ -65,11 +65,11 @@ def main() -> None:
     if 3 not in levels:
         parser.error("--levels must include 3, XLA's default, the reference of the ratios")
 
-    from stp_env import sim
+    from stp_env import assembly, sim
     from stp_env.baselines import INTRUDERS, switching
     from stp_env.sim.rollout import rollout
 
-    params = sim.params_for(args.scenario, sim.EnvConfig(), progress=False)
+    params = assembly.params_for(args.scenario, sim.EnvConfig(), progress=False)
     # the undecorated function, jitted here without the project's options, so that each level is set explicitly
     plain = jax.jit(rollout.__wrapped__, static_argnums=(2, 3, 4, 5, 6))
     out = {"case": "sim_opt_level", "scenario": args.scenario, "envs": args.envs, "steps": args.steps,

@@ -72,14 +72,14 @@ def peer_reads():
 
 def program(kind: str, batch: int, steps: int, peer: bool = False):
     """``(jitted function, arguments)`` of the program measured."""
-    from stp_env import sim
+    from stp_env import assembly, sim
     from stp_env.scenarios import make
 
     if kind == "rollout":
         from stp_env.baselines import INTRUDERS, VEHICLE_POLICIES
         from stp_env.sim.rollout import rollout_keys
 
-        params = sim.params_for(make("town", kbar=2), sim.EnvConfig(), progress=False)
+        params = assembly.params_for(make("town", kbar=2), sim.EnvConfig(), progress=False)
         params = unpadded(params) if peer else params
         keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.key(0), i))(jnp.arange(batch))
         veh, intr = VEHICLE_POLICIES["switching"], INTRUDERS["hj"]
@@ -91,7 +91,7 @@ def program(kind: str, batch: int, steps: int, peer: bool = False):
         return jax.jit(run), (keys, params)
     from stp_env.falsify.search import compiled
 
-    params = sim.params_for(make("town", kbar=2), sim.EnvConfig(control_dt=0.02, wind_model="worst"),
+    params = assembly.params_for(make("town", kbar=2), sim.EnvConfig(control_dt=0.02, wind_model="worst"),
                             progress=False)
     params = unpadded(params) if peer else params
     if kind == "tracking":

@@ -62,13 +62,13 @@ def main() -> None:
     parser.add_argument("--scenario", default="pinwheel", help="a scenario with the town's vehicle (any k̄)")
     args = parser.parse_args()
 
-    from stp_env import sim
+    from stp_env import assembly
+    from stp_env.assembly import load_buffer
     from stp_env.scenarios import make
-    from stp_env.sim.build import load_buffer
 
     for kbar in args.kbars:
         scenario = make(args.scenario, kbar=kbar)
-        avoid, tracking = sim.load_artifacts(scenario, progress=False)
+        avoid, tracking = assembly.load_artifacts(scenario, progress=False)
         buffer = load_buffer(scenario, progress=False)
         k0 = int(np.argmin(np.abs(np.asarray(avoid.taus))))
         a = footprint(avoid.grid, np.asarray(avoid.values)[k0])

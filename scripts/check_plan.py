@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
+from stp_env.assembly import SHIPPED_PLANS, plan_mismatch
 from stp_env.planning.plan import Plan, VehiclePlan, plan_from_arrays
 from stp_env.planning.verify import domain_margin, planner_disks, trajectory_faults, vehicle_clearances
 from stp_env.scenarios import make
-from stp_env.sim.build import SHIPPED_PLANS, plan_mismatch
 
 SHOW = 10  # the deepest vehicles listed
 

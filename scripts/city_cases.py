@@ -33,11 +33,11 @@ from pathlib import Path
 
 import numpy as np
 
+from stp_env.assembly import plan_mismatch
 from stp_env.planning.plots import plot_plan
 from stp_env.planning.stp import plan_scenario, plan_to_arrays, shipped_plan
 from stp_env.scenarios import CITY_CASES, make
 from stp_env.scenarios.catalog.city import CITY_DESTINATIONS
-from stp_env.sim.build import plan_mismatch
 
 
 def city_case(case: int, n_vehicles: int):

@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
+from stp_env.assembly import flying_counts, plan_mismatch
 from stp_env.planning.plots import plot_plan
 from stp_env.planning.stp import shipped_plan
 from stp_env.scenarios import make
-from stp_env.sim.build import flying_counts, plan_mismatch
 
 
 def main() -> None:

@@ -18,9 +18,9 @@ from __future__ import annotations
 import argparse
 import json
 
+from stp_env.assembly import load_artifacts
 from stp_env.planning.verify import obstacle_margin, planner_disks, straight_plan
 from stp_env.scenarios import make
-from stp_env.sim.build import load_artifacts
 
 
 def margin_at(name: str, kbar: int, disks, bound: float, **overrides) -> float:

@@ -29,15 +29,15 @@ def main() -> int:
 
     from tqdm.auto import tqdm
 
-    from stp_env import sim
+    from stp_env import assembly, sim
+    from stp_env.assembly import load_buffer, with_buffer
     from stp_env.baselines import optimal_max_k, worst
     from stp_env.evaluation.worst_case import reproduce
     from stp_env.scenarios import make
     from stp_env.scenarios.catalog.fig6 import FIG6_LEAD, FIG6_SPEED, fig6_plan
-    from stp_env.sim.build import load_buffer, with_buffer
 
     base = make("fig6")
-    avoid, tracking = sim.load_artifacts(base, progress=False)
+    avoid, tracking = assembly.load_artifacts(base, progress=False)
     buffer = load_buffer(base, progress=False)
     lo = FIG6_LEAD - 0.5 * 0.1
     config = sim.EnvConfig(appear_window=(lo, lo), lead=lo)
@@ -51,7 +51,7 @@ def main() -> int:
             vehicles[k] = dataclasses.replace(vehicles[k], start=(x + lead, y, -math.pi))
         scenario = base.with_overrides(vehicles=tuple(vehicles))
         plan = fig6_plan(scenario, tracking.bound, min_samples=600)
-        params = with_buffer(sim.make_params(scenario, plan, avoid, tracking, config), buffer)
+        params = with_buffer(assembly.make_params(scenario, plan, avoid, tracking, config), buffer)
         r = reproduce(params, worst, optimal_max_k, n_steps=160)
         log.append({"x3": x3, "x4": x4, "avoid_start_s": r["avoid_start_s"], "collisions": r["collisions"]})
         return r["avoid_start_s"]

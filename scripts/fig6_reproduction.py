@@ -133,7 +133,7 @@ def main() -> int:
     ap.add_argument("--orders", action="store_true", help="brute force over the intruder's vehicle orders")
     args = ap.parse_args()
 
-    from stp_env import sim
+    from stp_env import assembly
     from stp_env.baselines import optimal_max_k, ordered_max_k, switching, worst
     from stp_env.evaluation.worst_case import FIG6_PAPER_TIMES, FIG7_PAPER_TIMES, fig6_params, reproduce
     from stp_env.planning.stp import plan_to_arrays
@@ -142,7 +142,7 @@ def main() -> int:
     from stp_env.scenarios.catalog.fig6 import fig6_plan
 
     scenario = make("fig6")
-    avoid, tracking = sim.load_artifacts(scenario, progress=True)
+    avoid, tracking = assembly.load_artifacts(scenario, progress=True)
     params = fig6_params(scenario, progress=True)
     out = {"command": "python scripts/fig6_reproduction.py" + (" --orders" if args.orders else ""),
            "tracking_bound_m": round(float(tracking.bound), 3),

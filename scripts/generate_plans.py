@@ -5,7 +5,7 @@
 
 
 Each file holds the arrays of :func:`stp_env.planning.stp.plan_to_arrays` for a registered scenario planned with
-robust trajectory tracking and the scenario's default tracking bound (:func:`stp_env.sim.build.load_artifacts`,
+robust trajectory tracking and the scenario's default tracking bound (:func:`stp_env.assembly.load_artifacts`,
 computed into the artifact cache on first use); ``tests/test_planning.py`` regenerates the small one and compares
 it bit for bit. ``town-kbar{k}`` is ``make("town", kbar=k)`` (load it with
 :func:`stp_env.planning.stp.shipped_plan_for`); the three take a few minutes each on 2 cores.
@@ -17,7 +17,7 @@ cases (``city-case1`` .. ``city-case4``, :data:`stp_env.scenarios.CITY_CASES`) p
 With ``--checkpoint-dir`` every vehicle's plan is saved as it is made (:mod:`stp_env.planning.checkpoint`, one
 file per plan name) and a rerun of the same command resumes after the last saved vehicle. ``--tracking-bound``
 plans with the given ``r_e`` instead of computing the default one (the shipped plan is accepted only if that is
-not smaller than the default: :func:`stp_env.sim.build.plan_mismatch`).
+not smaller than the default: :func:`stp_env.assembly.plan_mismatch`).
 """
 
 from __future__ import annotations
@@ -30,14 +30,14 @@ from pathlib import Path
 
 import numpy as np
 
+from stp_env.assembly import SHIPPED_PLANS, load_artifacts
 from stp_env.planning.plan import pack_trajectories, trim_after_arrival
 from stp_env.planning.stp import plan_scenario, plan_to_arrays
 from stp_env.scenarios import make
-from stp_env.sim.build import SHIPPED_PLANS, load_artifacts
 
 DATA = Path(__file__).resolve().parents[1] / "stp_env" / "data" / "plans"
 SHIPPED = {name: entry for name, entry in SHIPPED_PLANS.items() if name != "fig6-kbar3"}
-"""File name -> (registered scenario, overrides): :data:`stp_env.sim.build.SHIPPED_PLANS` but ``fig6-kbar3``
+"""File name -> (registered scenario, overrides): :data:`stp_env.assembly.SHIPPED_PLANS` but ``fig6-kbar3``
 (``scripts/fig6_reproduction.py`` makes it)."""
 
 

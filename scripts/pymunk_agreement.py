@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from stp_env import sim
+from stp_env import assembly, sim
 from stp_env.evaluation.config import resolve_intruder, resolve_vehicle_policy
 from stp_env.sim.rollout import episode_step
 from stp_env.sim.vehicle_models.rigid_body import PymunkKinematic
@@ -56,7 +56,7 @@ def run(params, seed: int, n_steps: int, vehicle: str, intruder: str, progress: 
 
 def compare(scenario: str, *, seed: int = 0, n_steps: int = 0, vehicle: str = "switching", intruder: str = "max-k",
             progress: bool = False) -> dict:
-    params = cast_params(sim.params_for(scenario, sim.EnvConfig(), progress=progress))
+    params = cast_params(assembly.params_for(scenario, sim.EnvConfig(), progress=progress))
     n_steps = n_steps or sim.steps_for(params)
     start = time.perf_counter()
     x_j, st_j, av_j = run(params, seed, n_steps, vehicle, intruder, progress)

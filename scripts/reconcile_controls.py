@@ -21,11 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
+from stp_env.assembly import SHIPPED_PLANS
 from stp_env.evaluation.report import atomic_open
 from stp_env.planning.plan import pack_trajectories, plan_from_arrays, plan_to_arrays
 from stp_env.planning.verify import reconcile_controls
 from stp_env.scenarios import make
-from stp_env.sim.build import SHIPPED_PLANS
 
 DATA = Path(__file__).resolve().parents[1] / "stp_env" / "data" / "plans"
 TRAJECTORIES = ("times", "states", "controls", "packed_trajectories")

@@ -5,7 +5,7 @@
     python scripts/ship_artifacts.py --recompute  # compute every shipped artifact from scratch (an empty cache)
                                                   # and exit 1 unless the shipped copies hold the same arrays
 
-What ships: every artifact the default scenario's parameters read (:func:`stp_env.sim.params_for` of ``town``, the
+What ships: every artifact the default scenario's parameters read (:func:`stp_env.assembly.params_for` of ``town``, the
 default ``stp-env evaluate`` run), and the tracking-error bound and avoid region of every scenario a shipped plan is
 for (the 11 m/s ones of the city Cases 1, 3, 4 and the bay area: solves of several minutes, certified in closed loop),
 whose array file is at most ``--max-mb``: the tracking bounds and the avoid regions' closed-loop certificates; the
@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stp_env import sim
+from stp_env import assembly, sim
 from stp_env.artifacts import SHIPPED_DIR, ArtifactStore
 
 PLAN_DIR = SHIPPED_DIR.parent / "plans"
@@ -54,12 +54,12 @@ class _Recording(ArtifactStore):
 def wanted(max_mb: float, root=None) -> list:
     """The cache files (npz paths) of the artifacts to ship, computed if not cached (in ``root``, or the default
     cache)."""
+    from stp_env.assembly import SHIPPED_PLANS, load_artifacts
     from stp_env.scenarios import make
-    from stp_env.sim.build import SHIPPED_PLANS, load_artifacts
 
     store = _Recording(root)
     finals = [load_artifacts(make("town"), store=store, progress=True)[1]]
-    sim.params_for("town", sim.EnvConfig(), store=store, progress=True)
+    assembly.params_for("town", sim.EnvConfig(), store=store, progress=True)
     for file, (name, overrides) in sorted(SHIPPED_PLANS.items()):
         if (PLAN_DIR / f"{file}.npz").is_file():
             finals.append(load_artifacts(make(name, **overrides), store=store, progress=True)[1])

@@ -20,12 +20,12 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env import hj, sim
+from stp_env import assembly, hj, sim
+from stp_env.assembly import load_buffer, with_buffer
 from stp_env.baselines import intruder_policy, vehicle_policy
 from stp_env.evaluation.worst_case import reproduce
 from stp_env.planning.verify import obstacle_margin, planner_disks, straight_plan
 from stp_env.scenarios import make
-from stp_env.sim.build import load_buffer, with_buffer
 
 LEADER_ALONG = 1500.0  # [m] the leader's distance down the route when the intruder appears
 
@@ -49,13 +49,13 @@ def rear_boundary(avoid, level: float) -> float:
 
 def run(kbar: int, spacing: float, n_vehicles: int, vehicles: str, wind_model: str) -> dict:
     scenario = make("corridor", kbar=kbar, n_vehicles=n_vehicles, sta_spacing=spacing)
-    avoid, tracking = sim.load_artifacts(scenario, progress=False)
+    avoid, tracking = assembly.load_artifacts(scenario, progress=False)
     disks = planner_disks(scenario, tracking.bound)
     plan = straight_plan(scenario, tracking.bound, disks=disks, check=False)
     clearance = obstacle_margin(plan, disks)[0]
     t_app = LEADER_ALONG / scenario.planning_v[1]
     config = sim.EnvConfig(appear_window=(t_app, t_app), wind_model=wind_model)
-    params = with_buffer(sim.make_params(scenario, plan, avoid, tracking, config),
+    params = with_buffer(assembly.make_params(scenario, plan, avoid, tracking, config),
                          load_buffer(scenario, progress=False))
     behind = rear_boundary(avoid, float(params.avoid_margin) + 1.0)
     lead = plan.vehicles[0].plan

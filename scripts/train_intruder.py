@@ -31,10 +31,10 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from stp_env import sim
+from stp_env import assembly, sim
 from stp_env.baselines import INTRUDERS, switching
+from stp_env.baselines.learned import load_intruder
 from stp_env.evaluation.summary import forced_summary
-from stp_env.rl.policy import load_intruder
 from stp_env.rl.train import TrainConfig, train
 
 # forced_reward 5: one forced vehicle outweighs the shaping of a whole approach (shaping_reward * d_sense = 3.7).
@@ -82,7 +82,7 @@ def plot_episode(params, trajectory, index: int, title: str, path: Path) -> None
 
 
 def run_compare(args) -> None:
-    params = sim.params_for("town", sim.EnvConfig(), progress=False)
+    params = assembly.params_for("town", sim.EnvConfig(), progress=False)
     kbar = int(params.kbar)
     n_steps = sim.steps_for(params)
     key = jax.random.PRNGKey(HELD_OUT_KEY)

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import warnings as _warnings
 
-__version__ = "0.1.0"
+from stp_env.version import __version__
+
 __all__ = ["__version__", "env", "parallel_env"]
 
 try:

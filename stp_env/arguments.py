@@ -18,8 +18,6 @@ from __future__ import annotations
 import math
 import numbers
 
-from stp_env.seeds import MAX_SEED, check_seed
-
 INT32_MAX = 2**31 - 1
 """The largest count or index any entry point takes: JAX without 64-bit mode holds integers as ``int32``."""
 
@@ -28,7 +26,7 @@ MAX_KBAR = 1000
 largest scenario has 200), and the buffer horizon ``t_BRD = t_IAT / k̄`` it sets stays at least a thousandth of
 ``t_IAT`` (10 ms at the papers' 10 s), which the solver resolves."""
 
-__all__ = ["INT32_MAX", "MAX_KBAR", "MAX_SEED", "check_int", "check_kbar", "check_real", "check_seed", "show"]
+__all__ = ["INT32_MAX", "MAX_KBAR", "check_int", "check_kbar", "check_real", "show"]
 
 
 def show(value) -> str:

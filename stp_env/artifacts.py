@@ -269,9 +269,9 @@ def _file_sha256(path: Path) -> str:
 def _library_versions() -> dict[str, str]:
     import jax
 
-    import stp_env
+    from stp_env.version import __version__
 
-    return {"stp_env": stp_env.__version__, "jax": jax.__version__, "numpy": np.__version__}
+    return {"stp_env": __version__, "jax": jax.__version__, "numpy": np.__version__}
 
 
 @dataclasses.dataclass(frozen=True)

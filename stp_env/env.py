@@ -159,7 +159,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 from pettingzoo.utils.wrappers import OrderEnforcingWrapper
 
-from stp_env import sim
+from stp_env import assembly, sim
 from stp_env.angles import wrap_angle
 from stp_env.progress import compile_note
 from stp_env.seeds import prng_key
@@ -187,7 +187,7 @@ _BUILD_PROGRESS = contextvars.ContextVar("stp_env_build_progress", default=False
 
 @functools.lru_cache(maxsize=8)
 def _cached_params(scenario, config):
-    return sim.params_for(scenario, config, progress=_BUILD_PROGRESS.get())
+    return assembly.params_for(scenario, config, progress=_BUILD_PROGRESS.get())
 
 
 class StepInfo(NamedTuple):
@@ -402,7 +402,7 @@ class STPParallelEnv(ParallelEnv):
                               "cached on first use)", self._progress)
             token = _BUILD_PROGRESS.set(self._progress)
             try:
-                params = _cached_params(scenario, config) if store is None else sim.params_for(
+                params = _cached_params(scenario, config) if store is None else assembly.params_for(
                     scenario, config, store=store, progress=self._progress)
             finally:
                 _BUILD_PROGRESS.reset(token)
@@ -410,7 +410,7 @@ class STPParallelEnv(ParallelEnv):
             params = replace(params, vehicle_model=config.vehicle_model)
         _check_appear_window(params)
         if vehicle_policy in BUFFER_GAME_VEHICLE_POLICIES and params.buffer_values is None:
-            params = sim.build.with_buffer(params, sim.build.load_buffer(scenario, store=store,
+            params = assembly.with_buffer(params, assembly.load_buffer(scenario, store=store,
                                                                          progress=self._progress))
         self._vehicle_policy = None if vehicle_policy is None else VEHICLE_POLICIES[vehicle_policy]
         self._vehicle_policy_name = vehicle_policy
@@ -422,7 +422,7 @@ class STPParallelEnv(ParallelEnv):
         if self.replan:
             from stp_env.planning.replan import obstacle_pads
 
-            plan0 = sim.load_plan(scenario, tracking_bound=float(params.tracking_bound), store=store,
+            plan0 = assembly.load_plan(scenario, tracking_bound=float(params.tracking_bound), store=store,
                                   progress=self._progress)
             # the windows of the plan's disks (derived once here for plan files that do not record them)
             self._plan0 = dataclasses.replace(plan0, obstacle_pads=obstacle_pads(plan0, self.scenario, store=store))
@@ -656,7 +656,7 @@ class STPParallelEnv(ParallelEnv):
     def _maybe_replan(self, obs, info: StepInfo):
         """Algorithm 4 after the intruder has left: every flying vehicle in the after-avoidance mode that has not
         been replanned gets a new STA and plan (:func:`stp_env.planning.replan.replan`, host side), the
-        simulator's nominal tables are updated (:func:`stp_env.sim.with_plan`; same shapes, no retrace) and the
+        simulator's nominal tables are updated (:func:`stp_env.assembly.with_plan`; same shapes, no retrace) and the
         vehicle is back in the nominal mode, tracking its new plan. Returns the observations and info arrays of
         the updated state."""
         need = (info.mode == AFTER_AVOIDANCE) & (info.status == FLYING) & ~self._replan_tried
@@ -678,7 +678,7 @@ class STPParallelEnv(ParallelEnv):
             self.replan_log.append({"time": t_bar, "vehicles": idx, "error": str(err)})
             return obs, info
         self._plan = new_plan
-        self.params = sim.with_plan(self.params, new_plan)
+        self.params = assembly.with_plan(self.params, new_plan)
         self._state = replace(self._state, mode=self._state.mode.at[jnp.asarray(idx)].set(NOMINAL))
         self._replanned[idx] = True
         self._sta = np.asarray(self.params.sta, np.float64)

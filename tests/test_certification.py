@@ -12,8 +12,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from stp_env import hj, sim
+from stp_env import assembly, hj, sim
 from stp_env.artifacts import ArtifactStore
+from stp_env.assembly import load_artifacts, make_params, with_plan
 from stp_env.dynamics import DubinsWind
 from stp_env.falsify.avoidance import AvoidanceAttack
 from stp_env.falsify.counterexample import AttackSpec, build_attack, canonical_value
@@ -28,14 +29,13 @@ from stp_env.reach.tracking import (
     default_tracking_config,
 )
 from stp_env.scenarios import make
-from stp_env.sim.build import load_artifacts, make_params, with_plan
 
 
 @functools.lru_cache(maxsize=4)
 def _town(control_dt: float = 0.02, avoid_margin: float | None = None, allow_uncertified: bool = False):
     config = sim.EnvConfig(control_dt=control_dt, wind_model="worst", avoid_margin=avoid_margin,
                            allow_uncertified=allow_uncertified)
-    return sim.params_for(make("town", kbar=2), config, progress=False)
+    return assembly.params_for(make("town", kbar=2), config, progress=False)
 
 
 def _max_error(dynamics, grid, tracker_value, x0=(0.0, 0.0, 0.0), *, h=0.02, hold=1, duration=60.0):

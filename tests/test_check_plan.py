@@ -157,7 +157,7 @@ def test_a_plan_the_disk_check_would_pass_vacuously_fails(check_plan, mutant):
 
 
 def test_every_shipped_plan_is_a_flight_of_the_planning_dynamics():
-    from stp_env.sim.build import SHIPPED_PLANS
+    from stp_env.assembly import SHIPPED_PLANS
 
     checked = 0
     for file, (name, overrides) in SHIPPED_PLANS.items():

@@ -126,7 +126,7 @@ def test_training_outcome_rates_count_only_finished_episodes():
 def _zero_mlp(path, **meta):
     import json
 
-    from stp_env.rl.policy import FORMAT_VERSION
+    from stp_env.baselines.learned import FORMAT_VERSION
 
     arrays = {"w0": np.zeros((4, attackers.OBS_SIZE), np.float32), "b0": np.zeros(4, np.float32),
               "w1": np.zeros((2, 4), np.float32), "b1": np.zeros(2, np.float32)}

@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from stp_env.assembly import load_artifacts
 from stp_env.planning.plan import InfeasiblePlanError, Plan, SinglePlan, VehiclePlan
 from stp_env.planning.stp import plan_scenario
 from stp_env.planning.verify import ObstacleDisks, obstacle_margin, planner_disks, straight_plan
@@ -16,7 +17,6 @@ from stp_env.scenarios import make
 from stp_env.scenarios.catalog.corridor import CORRIDOR_SPACING
 from stp_env.scenarios.catalog.crossing import CROSSING_SPACING
 from stp_env.scenarios.catalog.pinwheel import PINWHEEL_RADIUS, PINWHEEL_SPACING
-from stp_env.sim.build import load_artifacts
 
 
 def _line(index, priority, t0, start, velocity, n=200, dt=0.5):

@@ -28,8 +28,8 @@ SMALL = {
     'gymnasium.make("stp_env/Intruder-v0", scenario="town")': [
         ('gymnasium.make("stp_env/Intruder-v0", scenario="town")',
          'gymnasium.make("stp_env/Intruder-v0", scenario="tiny-intruder")')],
-    'sim.params_for("town", sim.EnvConfig(spawn_mode="boundary"))': [
-        ('sim.params_for("town"', 'sim.params_for("tiny-intruder"'), ("n_envs=1000", "n_envs=4")],
+    'assembly.params_for("town", sim.EnvConfig(spawn_mode="boundary"))': [
+        ('assembly.params_for("town"', 'assembly.params_for("tiny-intruder"'), ("n_envs=1000", "n_envs=4")],
     "SearchConfig(budget=10_000)": [("SearchConfig(budget=10_000)", "SearchConfig(budget=64)")],
     '(61, 61, 60)': [("(61, 61, 60)", "(21, 21, 20)"), ('with_accuracy("very_high")', 'with_accuracy("low")')],
 }

@@ -323,7 +323,7 @@ def test_source_hash_changes_with_any_source_file(tmp_path, monkeypatch):
 
     copy = tmp_path / "stp_env"
     shutil.copytree(Path(stp_env.__file__).parent, copy, ignore=shutil.ignore_patterns("data", "__pycache__"))
-    monkeypatch.setattr(stp_env, "__file__", str(copy / "__init__.py"))
+    monkeypatch.setattr(report, "PACKAGE_ROOT", copy)
     before = report.source_hash()
     assert before == report.source_hash()
     (copy / "sim" / "core.py").write_text((copy / "sim" / "core.py").read_text() + "\n# changed\n")

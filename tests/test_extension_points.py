@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from stp_env import scenarios, sim
+from stp_env import assembly, scenarios, sim
 from stp_env.env import parallel_env
 from stp_env.evaluation.config import resolve_intruder
 from stp_env.sim import winds
@@ -91,7 +91,7 @@ def circling(key, state, params):
 def test_an_intruder_module_is_found_by_its_import_spec():
     policy = resolve_intruder(f"{__name__}:circling")
     assert policy is circling
-    params = sim.params_for(SCENARIO, sim.EnvConfig(appear_window=(5.0, 5.0)), progress=False)
+    params = assembly.params_for(SCENARIO, sim.EnvConfig(appear_window=(5.0, 5.0)), progress=False)
     key = jax.random.key(0)
 
     @sim_jit

@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from stp_env import sim
+from stp_env import assembly, sim
 from stp_env.falsify import cli as falsify_cli
 from stp_env.falsify.avoidance import AvoidanceAttack
 from stp_env.falsify.counterexample import (
@@ -36,7 +36,7 @@ def _params(control_dt: float = 0.02, kbar: int = 2):
     """``town`` at k̄ with the worst-case wind model (the attacks that search the wind switch it themselves)."""
     # an inner period outside the certified range (the zero-order-hold test) must be asked for explicitly
     config = sim.EnvConfig(control_dt=control_dt, wind_model="worst", allow_uncertified=control_dt > 0.02)
-    return sim.params_for(make("town", kbar=kbar), config, progress=False)
+    return assembly.params_for(make("town", kbar=kbar), config, progress=False)
 
 
 def _zigzag(attack: TrackingAttack) -> np.ndarray:

@@ -87,12 +87,12 @@ def test_avoid_start_order_statistics():
 
 @pytest.fixture(scope="module")
 def fig6_setup():
-    from stp_env import sim
+    from stp_env import assembly
     from stp_env.evaluation.worst_case import fig6_params
     from stp_env.scenarios import make
 
     scenario = make("fig6")
-    avoid, _ = sim.load_artifacts(scenario, progress=False)
+    avoid, _ = assembly.load_artifacts(scenario, progress=False)
     return scenario, avoid, fig6_params(scenario)
 
 

@@ -420,7 +420,7 @@ def _policy_arrays():
 
 # ---- case 4: NaN weights are rejected at load, naming the file
 def test_nan_weights_are_rejected_at_load_naming_the_file(tmp_path, no_work):
-    from stp_env.rl.policy import load_intruder
+    from stp_env.baselines.learned import load_intruder
 
     arrays = _policy_arrays()
     arrays["w1"][3, 4] = np.nan
@@ -454,7 +454,7 @@ def _write_policy(path, **changes):
     ({"w2": np.zeros((3, 64), np.float32), "b2": np.zeros(3, np.float32)}, "has 3 outputs"),
 ])
 def test_learned_policy_files_are_checked(tmp_path, changes, needle):
-    from stp_env.rl.policy import load_mlp
+    from stp_env.baselines.learned import load_mlp
 
     path = tmp_path / "policy.npz"
     _write_policy(path, **changes)

@@ -59,7 +59,7 @@ def test_the_planner_forbids_the_band_within_r_e_of_the_domain_edge(name):
 def _shipped():
     from importlib import resources
 
-    from stp_env.sim.build import SHIPPED_PLANS
+    from stp_env.assembly import SHIPPED_PLANS
 
     files = {p.name[:-4] for p in (resources.files("stp_env") / "data" / "plans").iterdir()
              if p.name.endswith(".npz")}
@@ -85,7 +85,7 @@ def test_every_shipped_plan_keeps_its_tracking_bubble_inside_the_domain(file, na
 
 @pytest.mark.parametrize("file,name,overrides", SHIPPED, ids=[s[0] for s in SHIPPED])
 def test_a_shipped_plan_serves_exactly_its_scenario(file, name, overrides):
-    from stp_env.sim.build import _shipped_plan, plan_mismatch
+    from stp_env.assembly import _shipped_plan, plan_mismatch
 
     scenario = make(name, **overrides)
     plan = _shipped_plan(scenario)
@@ -97,13 +97,13 @@ def test_a_shipped_plan_serves_exactly_its_scenario(file, name, overrides):
 @pytest.mark.parametrize("name,overrides", [("tiny-intruder", {"kbar": 1}), ("tiny-intruder", {"sta_spacing": 0}),
                                             ("town", {"kbar": 4}), ("tiny", {"wind": 11.0})])
 def test_no_shipped_plan_for_a_scenario_it_was_not_made_for(name, overrides):
-    from stp_env.sim.build import _shipped_plan
+    from stp_env.assembly import _shipped_plan
 
     assert _shipped_plan(make(name, **overrides)) is None
 
 
 def test_plan_mismatch_names_kbar_stas_and_vehicle_count():
-    from stp_env.sim.build import plan_mismatch
+    from stp_env.assembly import plan_mismatch
 
     town1 = shipped_plan("town-kbar1")
     assert "kbar" in plan_mismatch(town1, make("town", kbar=2), town1.tracking_bound)
@@ -118,7 +118,7 @@ STUDIES = [s for s in SHIPPED if s[1] in ("city", "city-intruder", "bay-area")]
 
 @pytest.mark.parametrize("file,name,overrides", STUDIES, ids=[s[0] for s in STUDIES])
 def test_the_shipped_city_and_bay_area_plans_hold_the_planners_constraints(file, name, overrides):
-    from stp_env.sim.build import _shipped_plan, plan_mismatch
+    from stp_env.assembly import _shipped_plan, plan_mismatch
 
     scenario = make(name, **overrides)
     plan = _shipped_plan(scenario)  # what params_for(scenario) and parallel_env(scenario=...) load

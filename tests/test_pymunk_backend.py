@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from pettingzoo.test import parallel_api_test, parallel_seed_test
 
-from stp_env import sim
+from stp_env import assembly, sim
 from stp_env.env import parallel_env
 from stp_env.sim.backends import vehicle_model, with_backend
 from stp_env.sim.physics import dubins_step
@@ -153,7 +153,7 @@ def test_sensor_shapes_agree_with_the_signed_distance_events():
     from stp_env.sim.vehicle_models.contacts import SensorWorld
 
     scenario = make("town")
-    params = sim.params_for(scenario, sim.EnvConfig(), progress=False)
+    params = assembly.params_for(scenario, sim.EnvConfig(), progress=False)
     world = SensorWorld(scenario.buildings, float(params.collision_radius))
     rng = np.random.default_rng(0)
     lo, hi = np.asarray(params.domain_lo), np.asarray(params.domain_hi)

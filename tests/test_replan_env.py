@@ -1,5 +1,5 @@
 """Replanning (Algorithm 4) inside a running simulation: ``parallel_env(..., replan=True)`` and
-``sim.with_plan``."""
+``assembly.with_plan``."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import jax
 import numpy as np
 import pytest
 
-from stp_env import sim
+from stp_env import assembly, sim
 from stp_env.baselines.intruders import intruder_policy
 from stp_env.baselines.vehicles import vehicle_policy
 from stp_env.env import TRACE_COUNTS, parallel_env
@@ -70,9 +70,9 @@ def test_forced_vehicles_are_replanned_and_arrive_by_their_new_sta():
 
 def test_with_plan_keeps_or_grows_the_tables_and_checks_its_input():
     scenario = make("town")
-    params = sim.params_for(scenario, CONFIG, progress=False)
-    plan = sim.load_plan(scenario, tracking_bound=float(params.tracking_bound), progress=False)
-    same = sim.with_plan(params, plan)
+    params = assembly.params_for(scenario, CONFIG, progress=False)
+    plan = assembly.load_plan(scenario, tracking_bound=float(params.tracking_bound), progress=False)
+    same = assembly.with_plan(params, plan)
     assert same.nominal_states.shape == params.nominal_states.shape
     assert np.array_equal(np.asarray(same.nominal_states), np.asarray(params.nominal_states))
     # a longer trajectory for vehicle 3 grows every table to a multiple of 256 samples
@@ -84,20 +84,20 @@ def test_with_plan_keeps_or_grows_the_tables_and_checks_its_input():
                                  controls=np.repeat(v.plan.controls[-1:], k, axis=0), sta=v.plan.sta + 60.0)
     grown_plan = dataclasses.replace(plan, vehicles=tuple(dataclasses.replace(w, plan=longer) if w.index == 3
                                                            else w for w in plan.vehicles))
-    grown = sim.with_plan(params, grown_plan)
+    grown = assembly.with_plan(params, grown_plan)
     assert grown.nominal_states.shape[1] % 256 == 0 and grown.nominal_states.shape[1] >= k
     assert int(grown.nominal_len[3]) == k and float(grown.sta[3]) == pytest.approx(v.plan.sta + 60.0)
     m = params.nominal_states.shape[1]
     assert np.array_equal(np.asarray(grown.nominal_states)[[0, 1, 2], :m], np.asarray(params.nominal_states)[[0, 1, 2]])
     with pytest.raises(ValueError, match="vehicles"):
-        sim.with_plan(params, dataclasses.replace(plan, vehicles=plan.vehicles[:-1]))
+        assembly.with_plan(params, dataclasses.replace(plan, vehicles=plan.vehicles[:-1]))
     resampled = dataclasses.replace(v.plan, times=v.plan.times[0] + 2 * dt * np.arange(len(v.plan.times)))
     with pytest.raises(ValueError, match="sample period"):
-        sim.with_plan(params, dataclasses.replace(plan, vehicles=tuple(
+        assembly.with_plan(params, dataclasses.replace(plan, vehicles=tuple(
             dataclasses.replace(w, plan=resampled) for w in plan.vehicles)))
 
 
 def test_replan_cannot_be_combined_with_prebuilt_params():
-    params = sim.params_for(make("town"), CONFIG, progress=False)
+    params = assembly.params_for(make("town"), CONFIG, progress=False)
     with pytest.raises(ValueError, match="replan=True"):
         parallel_env("town", CONFIG, params=params, replan=True)

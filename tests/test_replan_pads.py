@@ -1,5 +1,5 @@
 """Replanning keeps the windows in which the original plan held each vehicle's disks: the flight widened by the
-pads of the folded lag disks (``stp_env.planning.stp.fold_contained_disks``), recorded in the plan or derived
+pads of the folded lag disks (``stp_env.planning.disks.fold_contained_disks``), recorded in the plan or derived
 again for plan files that predate the record."""
 
 from __future__ import annotations

@@ -15,9 +15,9 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, VecCheckNan, VecMonitor
 
-from stp_env import sim
+from stp_env import assembly, sim
+from stp_env.baselines.learned import export_mlp, load_mlp, mlp_intruder
 from stp_env.rl import IntruderEnv, IntruderVecEnv
-from stp_env.rl.policy import export_mlp, load_mlp, mlp_intruder
 from stp_env.rl.train import TrainConfig, evaluate_on_vec_env, make_model, summarize
 
 N_ENVS = 4
@@ -29,7 +29,7 @@ def params():
     4 s of the window start and the time limit 5 s after it: an intruder appearing in the first 2 s leaves before
     the limit (terminated), a later one is cut by it (truncated), so short runs see both kinds of auto-reset.
     Only array fields change: the same compiled programs as the default ``town``."""
-    base = sim.params_for("town", sim.EnvConfig(), progress=False)
+    base = assembly.params_for("town", sim.EnvConfig(), progress=False)
     lo = base.appear_window[0]
     return dataclasses.replace(base, t_iat=jnp.asarray(3.0, jnp.float32), appear_window=jnp.stack([lo, lo + 4.0]),
                                t_end=lo + 5.0)
@@ -154,8 +154,8 @@ def test_shipped_intruder_matches_its_sb3_model(params):
 
     from stable_baselines3 import PPO
 
+    from stp_env.baselines.learned import load_intruder, shipped_intruders
     from stp_env.rl import functional
-    from stp_env.rl.policy import load_intruder, shipped_intruders
 
     assert "town-kbar2" in shipped_intruders()
     policy = load_intruder("town-kbar2")
@@ -186,9 +186,10 @@ def test_train_config_spawn_mode_and_the_buffer_of_worst_vehicles(monkeypatch):
     with pytest.raises(ValueError, match="spawn_mode 'sky'"):
         TrainConfig(spawn_mode="sky")
     calls = []
-    monkeypatch.setattr(sim, "params_for", lambda scenario, config, **kw: types.SimpleNamespace(kbar=scenario.kbar))
-    monkeypatch.setattr(sim.build, "load_buffer", lambda scenario, kbar, **kw: calls.append(kbar) or "V^B")
-    monkeypatch.setattr(sim.build, "with_buffer", lambda params, buffer: (params, buffer))
+    monkeypatch.setattr(assembly, "params_for",
+                        lambda scenario, config, **kw: types.SimpleNamespace(kbar=scenario.kbar))
+    monkeypatch.setattr(assembly, "load_buffer", lambda scenario, kbar, **kw: calls.append(kbar) or "V^B")
+    monkeypatch.setattr(assembly, "with_buffer", lambda params, buffer: (params, buffer))
     assert train_module.build_params(TrainConfig(scenario="town", kbar=3, vehicle_policy="worst"))[1] == "V^B"
     assert calls == [3]
     assert not isinstance(train_module.build_params(TrainConfig(scenario="town", kbar=3)), tuple)

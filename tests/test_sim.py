@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from stp_env import sim
+from stp_env import assembly, sim
 from stp_env.baselines import INTRUDERS, mixture, mixture_index, nominal_tracking, switching
 from stp_env.planning.stp import shipped_plan_for
 from stp_env.scenarios import make
@@ -27,11 +27,11 @@ N_EPISODES = 500  # per intruder type (3,500 in all)
 def _params(spawn_mode: str, safety_filter: bool = True):
     """``town`` (k̄ = 2) with the intruder appearing in the first 10 s of the busiest part of the schedule."""
     plan = shipped_plan_for("town", 2)
-    lo, _ = sim.busiest_window(plan)
+    lo, _ = assembly.busiest_window(plan)
     first = min(v.plan.t_ldt for v in plan.vehicles)
     cfg = sim.EnvConfig(spawn_mode=spawn_mode, safety_filter=safety_filter,
                         appear_window=(lo - first, lo - first + 10.0))
-    return sim.params_for("town", cfg, progress=False)
+    return assembly.params_for("town", cfg, progress=False)
 
 
 def test_dubins_step_is_exact():
@@ -91,7 +91,7 @@ def test_switching_controller_keeps_the_guarantee_against_every_scripted_intrude
     half of them appearing on a vehicle's avoid boundary (Observation 1), half anywhere outside the avoid
     regions. Only the vehicles that can fly in the episode window are simulated (stp_env.sim.fleet)."""
     # The buffer-game intruder ('optimal-max-k') reads V^B: the params carry it.
-    params = sim.build.with_buffer(_params("mixed"), sim.build.load_buffer(make("town", kbar=2), progress=False))
+    params = assembly.with_buffer(_params("mixed"), assembly.load_buffer(make("town", kbar=2), progress=False))
     params = fleet.select(params, fleet.airborne(params))   # the vehicles that fly in the window (the same episodes)
     names = tuple(INTRUDERS)
     n_steps = sim.steps_for(params)
@@ -160,7 +160,7 @@ def test_wind_models_respect_their_bounds():
 
 def test_impossible_configs_are_rejected():
     with pytest.raises(ValueError, match="d_sense"):
-        sim.params_for("town", sim.EnvConfig(d_sense=50.0), progress=False)
+        assembly.params_for("town", sim.EnvConfig(d_sense=50.0), progress=False)
     with pytest.raises(ValueError, match="appear_window"):
         sim.EnvConfig(appear_window=(5.0, 1.0))
     with pytest.raises(ValueError, match="dt"):
@@ -181,7 +181,7 @@ def test_every_town_plan_is_tracked_within_r_e(wind_model):
     first = min(v.plan.t_ldt for v in plan.vehicles)
     last = max(v.plan.sta for v in plan.vehicles)
     cfg = sim.EnvConfig(wind_model=wind_model, episode="full", appear_window=(last - first + 30.0,) * 2)
-    params = sim.params_for("town", cfg, progress=False)
+    params = assembly.params_for("town", cfg, progress=False)
     final, _ = sim.rollout(jax.random.key(5), params, switching, INTRUDERS["hover"], 8, sim.steps_for(params))
     r_e = float(params.tracking_bound)
     err = np.asarray(final.max_tracking_error)

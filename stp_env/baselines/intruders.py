@@ -17,7 +17,7 @@
   buffer game ``V^B`` (eqs. 46-47: the game the buffer region is built from; the heading of steepest descent of
   ``V^B`` at full speed, see :func:`_hop_to`), choosing as next vehicle the unforced
   one with the smallest ``V^B`` (the one it can force soonest). Where ``V^B > 0`` it flies straight at that vehicle
-  (the nearest unforced one outside the table). Needs the buffer table (:func:`stp_env.sim.build.with_buffer`).
+  (the nearest unforced one outside the table). Needs the buffer table (:func:`stp_env.assembly.with_buffer`).
   :func:`ordered_max_k` plays a fixed vehicle order instead (to check by brute force over orders that the greedy
   choice forces the most).
 """

@@ -18,7 +18,7 @@
   ``V^B > 0`` (the intruder cannot reach the avoid region within ``t_BRD``, and the table's gradient carries no
   direction) it turns toward the intruder at full speed.
   Forced vehicles apply ``u^A`` (the safety filter), and the others ``u^PP`` when no intruder is present. Needs the
-  buffer table (:func:`stp_env.sim.build.with_buffer`).
+  buffer table (:func:`stp_env.assembly.with_buffer`).
 
 After the intruder leaves, eq. (40) replans the affected vehicles (Algorithm 4,
 :func:`stp_env.planning.replan.replan`, a level-set solve per vehicle: not jittable). The fallback here is the

@@ -50,7 +50,7 @@ def resolve_attackers(names):
     out = {}
     for name in names:
         if name.startswith("learned:"):
-            path = Path(name.split(":", 1)[1])  # read under the loader contract (stp_env.rl.policy.load_mlp)
+            path = Path(name.split(":", 1)[1])  # read under the loader contract (stp_env.baselines.learned.load_mlp)
             from stp_env.coobservation.learned import mlp_attacker
 
             out[name] = mlp_attacker(path, name="learned")

@@ -16,7 +16,7 @@ observation, trained on the batched JAX wrapper, and exported to a small ``.npz`
   after it (it does not change which policies are optimal).
 * :func:`train` (PPO, modest budgets; optionally started from a scripted ``teacher`` by behaviour cloning,
   :func:`demonstrations` and :func:`imitate`, since the reward of an entry is rare under random exploration)
-  writes ``attacker.npz`` with :func:`stp_env.rl.policy.export_mlp`;
+  writes ``attacker.npz`` with :func:`stp_env.baselines.learned.export_mlp`;
   :func:`mlp_attacker` turns it into a jittable attacker for :func:`stp_env.coobservation.threat.rollout`.
 """
 
@@ -33,6 +33,7 @@ import numpy as np
 
 from stp_env.baselines import nominal_tracking
 from stp_env.coobservation import attackers, threat
+from stp_env.sim import engine
 from stp_env.sim.types import replace
 
 ACTIVATIONS = {"tanh": jnp.tanh, "relu": lambda x: jnp.maximum(x, 0.0)}
@@ -72,20 +73,19 @@ def step_one(key, ts, action, params, tp, action_repeat: int, gamma: float, shap
     c = jnp.maximum(ts.compromised, 0)
 
     def sub(carry, k):
-        s, r, done = carry
+        s, r, _ = carry
         k_v, k_s = jax.random.split(k)
         a_v = nominal_tracking(k_v, s.sim, params)
         new = threat.step(k_s, s, a_v, command(a_v[c], action, residual), params, tp)
         entered = new.entered[c] & ~s.entered[c]
         detected = jnp.isfinite(new.detect_time) & ~jnp.isfinite(s.detect_time)
         rew = 1.0 * entered - 2.0 * detected
-        new = jax.tree.map(lambda a, b: jnp.where(done, a, b), s, new)
-        rew = jnp.where(done, 0.0, rew)
-        done = done | threat.episode_done(new, params) | jnp.isfinite(new.detect_time)
+        done = threat.episode_done(new, params) | jnp.isfinite(new.detect_time)
         return (new, r + rew, done), None
 
-    (ts, r, done), _ = jax.lax.scan(sub, (ts, jnp.zeros(()), jnp.asarray(False)),
-                                    jax.random.split(key, action_repeat))
+    # stop: once done (the episode ended or the attacker was detected), the steps change nothing and earn nothing
+    (ts, r, done), _ = engine.play(sub, (ts, jnp.zeros(()), jnp.asarray(False)), jax.random.split(key, action_repeat),
+                                   stop=lambda carry: carry[2])
     r = r + jnp.where(done, 0.0, gamma * _phi(ts, params, tp, shaping)) - phi0
     return ts, attackers.attacker_observation(ts, params, tp), r, done
 
@@ -307,7 +307,7 @@ def train(params, tp, t_window, config: AttackerTrainConfig, out_dir, progress: 
     from stable_baselines3 import PPO
     from stable_baselines3.common.logger import configure
 
-    from stp_env.rl.policy import export_mlp
+    from stp_env.baselines.learned import export_mlp
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -343,7 +343,7 @@ def mlp_attacker(path, name: str = "learned"):
     """The exported MLP as a jittable attacker ``(key, state, params, threat, planned) -> (2,)`` (the deterministic
     action, through :func:`command`: a residual policy corrects ``planned``, the tracker's action; files without
     the ``residual`` entry are direct policies)."""
-    from stp_env.rl.policy import load_mlp
+    from stp_env.baselines.learned import load_mlp
 
     mlp = load_mlp(path)
     if mlp.obs_size != attackers.OBS_SIZE:

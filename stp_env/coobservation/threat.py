@@ -29,7 +29,7 @@ import numpy as np
 from stp_env.baselines import nominal_tracking
 from stp_env.coobservation.admm import polygon_halfplanes
 from stp_env.coobservation.schedule import Observation
-from stp_env.sim import core
+from stp_env.sim import core, engine
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.types import COLLIDED, FLYING, OUT_OF_BOUNDS, EnvParams, EnvState, replace
 
@@ -235,12 +235,10 @@ def rollout(key, params: EnvParams, threat: ThreatParams, attacker, n_envs: int,
             k_v, k_a, k_s = jax.random.split(k, 3)
             a_v = vehicle_policy(k_v, ts.sim, params)
             a_att = attacker(k_a, ts, params, threat, a_v[jnp.maximum(ts.compromised, 0)])
-            new = step(k_s, ts, a_v, a_att, params, threat, vehicle_policy=vehicle_policy)
-            over = episode_done(ts, params)
-            new = jax.tree.map(lambda a, b: jnp.where(over, a, b), ts, new)
-            return new, (new.sim.x[:, :2] if record else None)
+            return step(k_s, ts, a_v, a_att, params, threat, vehicle_policy=vehicle_policy), None
 
-        return jax.lax.scan(body, ts0, jax.random.split(k_run, n_steps))
+        return engine.play(body, ts0, jax.random.split(k_run, n_steps), stop=lambda ts: episode_done(ts, params),
+                           record=(lambda ts, _: ts.sim.x[:, :2]) if record else None)
 
     keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(n_envs))
     return jax.vmap(one)(keys)

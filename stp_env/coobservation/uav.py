@@ -207,12 +207,12 @@ class FormationScenario:
         artifacts of the UAV (or ``artifacts = (avoid, tracking)``, e.g. :meth:`coarse_artifacts`), then the episode
         window set to the flight (start at 0, end one step after the goal observation) and the intruder's
         appearance moved out of reach (it never appears)."""
-        from stp_env import sim
+        from stp_env import assembly, sim
         from stp_env.sim.types import replace
 
         scenario = self.scenario()
         if artifacts is None:
-            avoid, tracking = sim.load_artifacts(scenario, store=store, progress=progress)
+            avoid, tracking = assembly.load_artifacts(scenario, store=store, progress=progress)
         else:
             avoid, tracking = artifacts
         # The co-observation study does not rest on the STP guarantees (no intruder appears; the honest vehicles'
@@ -222,7 +222,7 @@ class FormationScenario:
                                tail=0.0, wind_model=self.wind_model, allow_uncertified=True)
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=".*assumption failures", category=UserWarning)
-            params = sim.make_params(scenario, self.plan(), avoid, tracking, config)
+            params = assembly.make_params(scenario, self.plan(), avoid, tracking, config)
         never = jnp.asarray([1e9, 1e9], jnp.float32)
         return replace(params, appear_window=never, t_start=jnp.asarray(0.0, jnp.float32),
                        t_end=jnp.asarray(self.duration + self.dt, jnp.float32))

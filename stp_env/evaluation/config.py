@@ -32,8 +32,8 @@ def resolve_intruder(spec: str, *, allow_plugins: bool = True) -> Callable:
     """An intruder policy from a name or an import spec.
 
     * a scripted intruder: one of :data:`stp_env.baselines.INTRUDERS`;
-    * ``"learned:NAME_OR_PATH"``: a learned intruder, :func:`stp_env.rl.policy.load_intruder` (a shipped name or
-      an ``.npz`` exported by :func:`stp_env.rl.policy.export_mlp`);
+    * ``"learned:NAME_OR_PATH"``: a learned intruder, :func:`stp_env.baselines.learned.load_intruder` (a shipped name or
+      an ``.npz`` exported by :func:`stp_env.baselines.learned.export_mlp`);
     * ``"package.module:attribute"``: a jittable policy ``(key, state, params) -> (2,)`` defined in an importable
       module (how a learned intruder exported to JAX is evaluated);
     * ``"package.module:factory=ARGUMENT"``: ``factory(ARGUMENT)`` must return such a policy (e.g. a loader
@@ -51,12 +51,12 @@ def resolve_intruder(spec: str, *, allow_plugins: bool = True) -> Callable:
     if spec in INTRUDERS:
         return INTRUDERS[spec]
     if spec.startswith(LEARNED_PREFIX):
-        from stp_env.rl.policy import load_intruder
+        from stp_env.baselines.learned import load_intruder
 
         return load_intruder(spec[len(LEARNED_PREFIX):])
     if ":" not in spec:
         raise ValueError(f"unknown intruder {spec!r}; allowed: {', '.join(INTRUDERS)}, 'learned:NAME_OR_PATH' "
-                         "(stp_env.rl.policy.load_intruder), or 'package.module:policy' / "
+                         "(stp_env.baselines.learned.load_intruder), or 'package.module:policy' / "
                          "'package.module:factory=ARGUMENT' for any jittable intruder policy.")
     if not allow_plugins:
         raise ValueError(f"intruder {spec!r} is a plug-in spec (code to import), which is not accepted here; "

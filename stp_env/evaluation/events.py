@@ -3,7 +3,7 @@
 
 An events file is meant to be shared, so it is data and never a way to run code: a record's intruder must be a
 registered scripted intruder (:data:`stp_env.baselines.INTRUDERS`) or a learned one (``learned:NAME_OR_PATH``, a
-shipped intruder or an ``.npz`` exported by :func:`stp_env.rl.policy.export_mlp`, read with
+shipped intruder or an ``.npz`` exported by :func:`stp_env.baselines.learned.export_mlp`, read with
 ``allow_pickle=False``). A plug-in spec ``package.module:attribute`` is code: it is never imported because a file
 names it. Replaying such a record needs the policy from the caller (``replay_event(..., intruder_policy=...)``, or
 ``stp-env render --events FILE --intruder SPEC`` with the same spec typed on the command line); otherwise it is

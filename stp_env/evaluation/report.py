@@ -18,6 +18,9 @@ import numpy as np
 
 from stp_env.evaluation.events import load_event_state  # noqa: F401  (re-exported)
 
+PACKAGE_ROOT = Path(__file__).resolve().parents[1]
+"""The ``stp_env`` package's directory (the one this module was imported from)."""
+
 CSV_COLUMNS = (
     "label", "scenario", "kbar", "intruder", "scenario_wind_mps", "wind_model", "spawn_mode", "vehicle_policy",
     "episode", "episodes", "forced_mean", "forced_max", "exceed", "exceed_rate", "exceed_upper", "confidence",
@@ -118,9 +121,7 @@ def write_csv(summaries: list[dict], path) -> str:
 def source_hash() -> str:
     """SHA-256 (first 16 hex digits) of every ``.py`` file of the installed ``stp_env`` package, in path order: the
     code that produced a result, whether or not it was installed from a git checkout."""
-    import stp_env
-
-    root = Path(stp_env.__file__).resolve().parent
+    root = PACKAGE_ROOT
     h = hashlib.sha256()
     for file in sorted(root.rglob("*.py")):
         h.update(file.relative_to(root).as_posix().encode())
@@ -131,9 +132,7 @@ def source_hash() -> str:
 def git_commit() -> str | None:
     """The commit of the checkout the package is imported from (an editable install), ``"<sha>-dirty"`` with local
     changes, or ``None`` (a wheel install, or no ``git``)."""
-    import stp_env
-
-    root = Path(stp_env.__file__).resolve().parent
+    root = PACKAGE_ROOT
     try:
         sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10,
                              check=True).stdout.strip()
@@ -150,10 +149,10 @@ def provenance() -> dict:
     records this."""
     import jax
 
-    import stp_env
     from stp_env.artifacts import CODE_VERSION
+    from stp_env.version import __version__
 
-    return {"stp_env_version": stp_env.__version__, "source_hash": source_hash(), "git_commit": git_commit(),
+    return {"stp_env_version": __version__, "source_hash": source_hash(), "git_commit": git_commit(),
             "numerics_code_version": CODE_VERSION, "jax_version": jax.__version__, "numpy_version": np.__version__,
             "python_version": platform.python_version()}
 

@@ -23,11 +23,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env import sim
+from stp_env import assembly, sim
 from stp_env.evaluation.config import Configuration
 from stp_env.evaluation.summary import forced_summary
 from stp_env.seeds import check_seed, prng_key
-from stp_env.sim import fleet
+from stp_env.sim import fleet, fleet_expand
 from stp_env.sim.bounds import WIND
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.rollout import rollout_keys
@@ -44,17 +44,18 @@ def run_batch(key, indices, params, vehicle_policy, intruder_policy, n_steps: in
     (trajectories ``None`` unless ``record``; fields as in :func:`stp_env.sim.rollout`), of the whole fleet.
 
     ``active``: simulate only these vehicles (:func:`stp_env.sim.fleet.airborne`: every other vehicle stays on
-    the ground or in its target for the whole episode) and put the others back with :func:`stp_env.sim.fleet.expand`:
-    the same episodes (the same random numbers) at a fraction of the cost; ``None``: the whole fleet."""
+    the ground or in its target for the whole episode) and put the others back with
+    :func:`stp_env.sim.fleet_expand.expand`: the same episodes (the same random numbers) at a fraction of the cost;
+    ``None``: the whole fleet."""
     keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.fold_in(key, i), 0))(indices)
     if active is None or len(active) == params.n_vehicles:
         return rollout_keys(keys, params, vehicle_policy, intruder_policy, n_steps, record=record)
     ids = np.asarray(active)
     final, traj = rollout_keys(keys, fleet.select(params, ids), vehicle_policy, intruder_policy, n_steps,
                                record=record)
-    parked = fleet.parked_state(params, np.setdiff1d(np.arange(params.n_vehicles), ids))
-    final = jax.vmap(lambda s: fleet.expand(s, params, ids, parked))(final)
-    return final, (None if traj is None else fleet.expand_trajectory(traj, params, ids, parked))
+    parked = fleet_expand.parked_state(params, np.setdiff1d(np.arange(params.n_vehicles), ids))
+    final = jax.vmap(lambda s: fleet_expand.expand(s, params, ids, parked))(final)
+    return final, (None if traj is None else fleet_expand.expand_trajectory(traj, params, ids, parked))
 
 
 def simulated_vehicles(params, airborne_only: bool) -> tuple[int, ...] | None:
@@ -254,9 +255,9 @@ def build_params(configs, *, store=None, progress: bool = True) -> list:
         scenario, env_config = config.make_scenario(), config.env_config()
         key = (scenario, env_config, needs_buffer(config))
         if key not in cache:
-            params = sim.params_for(scenario, env_config, store=store, progress=progress)
+            params = assembly.params_for(scenario, env_config, store=store, progress=progress)
             if needs_buffer(config):
-                params = sim.build.with_buffer(params, sim.build.load_buffer(scenario, config.kbar, store=store,
+                params = assembly.with_buffer(params, assembly.load_buffer(scenario, config.kbar, store=store,
                                                                              progress=progress))
             cache[key] = params
         out.append(cache[key])

@@ -12,15 +12,14 @@ from __future__ import annotations
 import functools
 import math
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env import sim
-from stp_env.sim import core
-from stp_env.sim.build import load_buffer, with_buffer
+from stp_env import assembly, sim
+from stp_env.assembly import load_buffer, with_buffer
+from stp_env.sim import core, engine
 from stp_env.sim.jit import sim_jit
-from stp_env.sim.rollout import episode_step
+from stp_env.sim.rollout import episode_step, over
 from stp_env.sim.tables import FAR
 from stp_env.sim.types import replace
 
@@ -43,9 +42,9 @@ def fig6_params(scenario=None, *, config: sim.EnvConfig | None = None, store=Non
     # fall a hair short of it.
     lo = FIG6_LEAD - 0.5 * config.dt
     config = config.with_overrides(appear_window=(lo, lo), lead=lo)
-    avoid, tracking = sim.load_artifacts(scenario, store=store, progress=progress)
+    avoid, tracking = assembly.load_artifacts(scenario, store=store, progress=progress)
     plan = fig6_plan(scenario, tracking.bound)
-    params = sim.make_params(scenario, plan, avoid, tracking, config)
+    params = assembly.make_params(scenario, plan, avoid, tracking, config)
     return with_buffer(params, load_buffer(scenario, store=store, progress=progress))
 
 
@@ -62,19 +61,19 @@ def run_fixed_spawn(key, params, spawn, vehicle_policy, intruder_policy, n_steps
     """One episode with the intruder appearing at ``spawn`` (3,): ``(final state, trajectory)``, the trajectory a
     dict of per-step arrays ``t``, ``x``, ``mode``, ``status``, ``intruder_x``, ``intruder_status``,
     ``avoid_value`` (``V^A`` of each vehicle against the intruder, ``FAR`` when absent)."""
-    k_reset, k_run = jax.random.split(key)
-    s0 = core.reset(k_reset, params)
-    memory = jnp.concatenate([jnp.asarray(spawn, s0.intruder_memory.dtype), jnp.zeros((1,), s0.intruder_memory.dtype)])
-    s0 = replace(s0, intruder_memory=memory)
 
-    def body(state, k):
-        new, _ = episode_step(k, state, params, vehicle_policy, intruder_policy)
-        term, trunc = core.episode_over(state, params)
-        new = jax.tree.map(lambda a, b: jnp.where(term | trunc, a, b), state, new)
-        return new, {"t": new.t, "x": new.x, "mode": new.mode, "status": new.status, "intruder_x": new.intruder_x,
-                     "intruder_status": new.intruder_status, "avoid_value": new.avoid_value}
+    def init(k_reset):
+        s0 = core.reset(k_reset, params)
+        memory = jnp.concatenate([jnp.asarray(spawn, s0.intruder_memory.dtype),
+                                  jnp.zeros((1,), s0.intruder_memory.dtype)])
+        return replace(s0, intruder_memory=memory)
 
-    return jax.lax.scan(body, s0, jax.random.split(k_run, n_steps))
+    def record(new, _):
+        return {"t": new.t, "x": new.x, "mode": new.mode, "status": new.status, "intruder_x": new.intruder_x,
+                "intruder_status": new.intruder_status, "avoid_value": new.avoid_value}
+
+    return engine.episode(key, init, lambda state, k: episode_step(k, state, params, vehicle_policy, intruder_policy),
+                          n_steps, stop=lambda state: over(state, params), record=record)
 
 
 def reproduce(params, vehicle_policy, intruder_policy, *, seed: int = 0, spawn=None, n_steps: int | None = None):
@@ -156,7 +155,7 @@ def pinwheel_params(kbar: int = 3, *, wind_model="converging", appear: float = P
     from stp_env.scenarios.catalog.pinwheel import PINWHEEL_BEFORE
 
     scenario = make("pinwheel", kbar=kbar, n_waves=1)
-    avoid, tracking = sim.load_artifacts(scenario, store=store, progress=progress)
+    avoid, tracking = assembly.load_artifacts(scenario, store=store, progress=progress)
     plan = straight_plan(scenario, tracking.bound, check=False)
     config = sim.EnvConfig() if config is None else config
     # on the step grid from the departure; the window half a step early (as fig6_params) against float32 step times
@@ -165,7 +164,7 @@ def pinwheel_params(kbar: int = 3, *, wind_model="converging", appear: float = P
         raise ValueError(f"appear = {appear} s puts the appearance before the wave departs.")
     lo = at - 0.5 * config.dt
     config = config.with_overrides(wind_model=wind_model, appear_window=(lo, lo), lead=lo)
-    params = sim.make_params(scenario, plan, avoid, tracking, config)
+    params = assembly.make_params(scenario, plan, avoid, tracking, config)
     return with_buffer(params, load_buffer(scenario, store=store, progress=progress)), avoid, plan
 
 

@@ -118,7 +118,7 @@ class AttackSpec:
 
 def environment(spec: AttackSpec, *, progress: bool = False):
     """The environment the attack runs in (registered scenario, typed config)."""
-    from stp_env import sim
+    from stp_env import assembly, sim
     from stp_env.falsify.kbar import plays_buffer_game
     from stp_env.scenarios import factory_parameters, make
 
@@ -133,11 +133,11 @@ def environment(spec: AttackSpec, *, progress: bool = False):
         overrides["wind"] = float(spec.wind)
     scenario = make(spec.scenario, **overrides)
     config = sim.EnvConfig(dt=spec.dt, control_dt=spec.control_dt, wind_model=spec.wind_model)
-    params = sim.params_for(scenario, config, progress=progress)
+    params = assembly.params_for(scenario, config, progress=progress)
     opts = dict(spec.options)
     if spec.target == "kbar" and plays_buffer_game(str(opts.get("vehicles", "switching")),
                                                    str(opts.get("intruder", "search"))):
-        from stp_env.sim.build import load_buffer, with_buffer
+        from stp_env.assembly import load_buffer, with_buffer
 
         params = with_buffer(params, load_buffer(scenario, progress=progress))
     return params
@@ -269,8 +269,8 @@ def _details(attack, z) -> dict:
 
 def save(outcome: Outcome, directory, *, plot: bool = True, progress: bool | None = None) -> Path:
     """Write ``counterexample.json`` (and ``counterexample.png``) into ``directory``, atomically."""
-    from stp_env import __version__
     from stp_env import progress as progress_mod
+    from stp_env.version import __version__
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)

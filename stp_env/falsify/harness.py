@@ -1,5 +1,5 @@
 """Building blocks shared by the attacks: small environments cut from a scenario's, legal references, inputs
-decoded from the unit box, and the simulator's own step in a ``lax.scan``.
+decoded from the unit box, and the simulator's own step on the episode engine (:mod:`stp_env.sim.engine`).
 
 Every attack runs the simulation core itself (:func:`stp_env.sim.core.step`: the inner control loop, the
 papers' controllers, the events), so that what is attacked is what the environment and the evaluation run.
@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env import hj
-from stp_env.sim import core
+from stp_env.sim import core, engine
 from stp_env.sim.physics import dubins_step
 from stp_env.sim.types import EnvParams, EnvState, replace
 
@@ -123,10 +123,14 @@ def run(params: EnvParams, state: EnvState, n_steps: int, *, vehicle_policy, int
             s = replace(s, wind=winds[i])
         actions = jnp.concatenate([jnp.zeros((n, 2), s.x.dtype), a_i[None, :]], axis=0)
         s2, _ = core.step(key, s, actions, params, vehicle_policy=vehicle_policy)
-        out = (s2.x, s2.intruder_x, s2.t) if record else None
-        return s2, out
+        return s2, None
 
-    return jax.lax.scan(body, state, (jnp.arange(n_steps), keys))
+    return engine.play(body, state, (jnp.arange(n_steps), keys), record=record_path if record else None)
+
+
+def record_path(state, _):
+    """What the attacks record of each step: ``(vehicle states, intruder state, time)`` after it."""
+    return state.x, state.intruder_x, state.t
 
 
 def to_numpy(tree):

@@ -37,7 +37,7 @@ import numpy as np
 from stp_env.baselines.intruders import BUFFER_GAME_INTRUDERS, INTRUDERS
 from stp_env.baselines.vehicles import BUFFER_GAME_VEHICLE_POLICIES, VEHICLE_POLICIES
 from stp_env.falsify import harness
-from stp_env.sim import core, fleet
+from stp_env.sim import core, engine, fleet
 from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN
 from stp_env.sim.physics import control_to_action, rotate, wrap_angle
 from stp_env.sim.reference import nominal_reference
@@ -83,7 +83,7 @@ class KbarAttack:
             raise ValueError(f"fleet must be one of {FLEETS}; got {self.fleet!r}.")
         if self.needs_buffer and self.base.buffer_values is None:
             raise ValueError(f"vehicles={self.vehicles!r} / intruder={self.intruder!r} play the buffer game: the "
-                             "params need V^B (stp_env.sim.build.with_buffer).")
+                             "params need V^B (stp_env.assembly.with_buffer).")
         harness.check_durations(float(self.base.dt), segment=self.segment)
         if int(self.base.kbar) < 1:
             raise ValueError("the scenario has no k̄ (plan it intruder-aware) to attack.")
@@ -185,10 +185,10 @@ class KbarAttack:
             actions = jnp.concatenate([jnp.zeros((n, 2), s.x.dtype), a_i[None, :]], axis=0)
             s2, _ = core.step(key, s, actions, params, vehicle_policy=VEHICLE_POLICIES[self.vehicles])
             vmin = jnp.minimum(vmin, jnp.where(s2.status == FLYING, s2.avoid_value, jnp.inf))
-            out = (s2.x, s2.intruder_x, s2.t) if record else None
-            return (s2, vmin), out
+            return (s2, vmin), None
 
-        (final, vmin), traj = jax.lax.scan(body, (state, jnp.full((n,), jnp.inf, jnp.float32)), keys)
+        (final, vmin), traj = engine.play(body, (state, jnp.full((n,), jnp.inf, jnp.float32)), keys,
+                                          record=(lambda c, info: harness.record_path(c[0], info)) if record else None)
         return final, vmin, traj
 
     def objective(self, z):

@@ -25,7 +25,7 @@ import numpy as np
 from stp_env.baselines.vehicles import nominal_tracking
 from stp_env.falsify import harness
 from stp_env.kinematics import dubins_step, relative_state, rotate
-from stp_env.sim import core, tables
+from stp_env.sim import core, engine, tables
 from stp_env.sim.bounds import WIND
 from stp_env.sim.types import EnvParams, replace
 
@@ -139,7 +139,8 @@ class TrackingAttack:
 
         @jax.jit
         def fly():
-            def body(carry, k):
+            def body(carry, x):
+                k, key = x
                 s, states, controls, u_prev, w_prev = carry
                 u, w = game(states[k], s.x[0])
                 u = jnp.where(k % rep == 0, u, u_prev)
@@ -150,14 +151,14 @@ class TrackingAttack:
                 if searched_wind:
                     s = replace(s, wind=jnp.stack([w, jnp.zeros_like(w)]))
                 actions = jnp.zeros((2, 2), s.x.dtype)
-                s, _ = core.step(jax.random.fold_in(jax.random.key(0), k), s, actions, params,
-                                 vehicle_policy=nominal_tracking)
+                s, _ = core.step(key, s, actions, params, vehicle_policy=nominal_tracking)  # harness.run's keys
                 return (s, states, controls, u, w), (u, w)
 
             state = core.reset(jax.random.key(0), params0)
             zeros2 = jnp.zeros(2, jnp.float32)
             init = (state, params0.nominal_states[0], params0.nominal_controls[0], zeros2, zeros2)
-            _, (us, ws) = jax.lax.scan(body, init, jnp.arange(self.n_steps))
+            keys = jax.random.split(jax.random.key(0), self.n_steps)
+            _, (us, ws) = engine.play(body, init, (jnp.arange(self.n_steps), keys), record=lambda c, info: info)
             return us, ws
 
         us, ws = (np.asarray(a, np.float64) for a in fly())

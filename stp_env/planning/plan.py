@@ -85,7 +85,7 @@ class Plan:
         kbar: ``k̄`` for intruder-aware plans, else ``None``.
         obstacle_pads: ``(before, after)`` [s]: every vehicle's disks were present from ``before`` s before its
             departure to ``after`` s after its arrival for the lower-priority vehicles
-            (:func:`stp_env.planning.stp.fold_contained_disks`, plus any ``hold_slices``); replanning keeps them.
+            (:func:`stp_env.planning.disks.fold_contained_disks`, plus any ``hold_slices``); replanning keeps them.
             ``None`` when not recorded (plan files written before the field existed).
     """
 

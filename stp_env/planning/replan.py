@@ -10,13 +10,13 @@ The vehicles forced to avoid (``N^RP``, eq. 39) end up at states ``x~_i^0`` at `
 The obstacles are the nominal trajectories of every vehicle outside ``N^RP`` (as in Algorithm 4) and, so that the
 replanned vehicles cannot collide with each other either, those already replanned, with the disks of the original
 plan, present over the same windows (each flight widened by the plan's ``obstacle_pads``: the lag disks folded into
-the lag-0 disk are only covered that way, :func:`stp_env.planning.stp.fold_contained_disks`); and the buildings,
+the lag-0 disk are only covered that way, :func:`stp_env.planning.disks.fold_contained_disks`); and the buildings,
 grown as for the original plan (:func:`stp_env.planning.stp.planning_static_obstacle`). Plans of the other vehicles
 are returned unchanged (the same objects).
 
 ``replan`` is host-side (level-set solves) and can be called while a simulation runs: ``parallel_env(...,
 replan=True)`` calls it when the intruder leaves and swaps the new plans into the running simulation
-(:func:`stp_env.sim.with_plan`).
+(:func:`stp_env.assembly.with_plan`).
 """
 
 from __future__ import annotations

@@ -90,7 +90,7 @@ absorbs that; measured on ``tiny-intruder``: 43 m with 50 m cells, 2 s before th
 def _rollout(key, x0, t0, dt, slice_times, stack, time_to_reach, *, grid, dynamics, n_steps, wind_mode,
              extraction="goal"):
     """The nominal trajectory: a control evaluated at every sample and held over it, with the exact Dubins motion
-    (:func:`stp_env.sim.physics.dubins_step`) under a wind held over the sample. With ``wind_mode="zero"`` (robust
+    (:func:`stp_env.kinematics.dubins_step`) under a wind held over the sample. With ``wind_mode="zero"`` (robust
     trajectory tracking) the samples and controls therefore *are* a trajectory of the planning dynamics at every
     instant: the simulator reconstructs the reference between samples exactly
     (:func:`stp_env.sim.reference.nominal_reference`). Returns the states at the samples and the controls held
@@ -112,7 +112,7 @@ def _rollout(key, x0, t0, dt, slice_times, stack, time_to_reach, *, grid, dynami
 
     Returns ``(states, controls, values)`` at the samples; ``values`` is the tube value ``V(t, x(t))`` (positive:
     the trajectory has left the tube)."""
-    from stp_env.sim.physics import dubins_step
+    from stp_env.kinematics import dubins_step
 
     margin = EXTRACTION_MARGIN_CELLS * float(min(grid.spacing[:2]))
     sta = slice_times[-1]

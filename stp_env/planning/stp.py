@@ -37,6 +37,11 @@ from tqdm.auto import tqdm
 from stp_env import hj
 from stp_env.dynamics import DubinsWind
 from stp_env.planning import checkpoint as checkpoint_io
+from stp_env.planning.disks import (  # noqa: F401  (fold_contained_disks: re-exported, its old place)
+    aware_obstacles,
+    fold_contained_disks,
+    obstacle_disks,
+)
 from stp_env.planning.obstacles import planning_obstacles
 from stp_env.planning.plan import (
     InfeasiblePlanError,
@@ -296,48 +301,6 @@ def plan_clear_of_disks(plan_with, windows, lags, radii, tolerance: float, name:
     return single
 
 
-def obstacle_disks(collision_radius: float, tracking_bound: float, planning_speed: float,
-                   buffer_radius: float | None = None, obstacle_profiles: dict | None = None):
-    """The disks every lower-priority vehicle avoids around a higher-priority nominal trajectory: the lag-0 disk of
-    radius ``R_c + 2 r_e`` (at least the buffer radius of eqs. (21), (48) in intruder-aware planning) and the lag
-    disks of the obstacle profiles (eqs. (26)-(31), (49)-(57)) grown by ``r_e``, folded by
-    :func:`fold_contained_disks` at the top planning speed. Returns ``(lags, radii, pad_before, pad_after)``."""
-    lags = [0.0]
-    rads = [collision_radius + 2 * tracking_bound]
-    if (buffer_radius is None) != (obstacle_profiles is None):
-        raise ValueError("buffer_radius and obstacle_profiles go together (intruder-aware planning) or not at all.")
-    if buffer_radius is not None:
-        rads[0] = max(rads[0], buffer_radius)
-        for prof in obstacle_profiles.values():
-            lags.extend(prof.lags.tolist())
-            rads.extend((prof.radii + tracking_bound).tolist())
-    return fold_contained_disks(np.asarray(lags), np.asarray(rads), planning_speed)
-
-
-def fold_contained_disks(lags: np.ndarray, radii: np.ndarray, speed: float):
-    """Drops the lag disks that lie inside the lag-0 disk ``radii[0]`` (cheaper obstacles, same or larger set).
-
-    A nominal trajectory moves at most ``speed`` (the top planning speed: it is planned with ``U^p`` and no wind),
-    so the disk of radius ``rho`` around ``p_j(t + lambda)`` lies inside the disk of radius ``rho_0`` around
-    ``p_j(t)`` whenever ``rho + speed |lambda| <= rho_0``. In intruder-aware planning that holds for most lag
-    profiles of eqs. (26)-(31), (49)-(57) against the buffer disk of eqs. (21), (48) (for ``k̄ <= 3`` at 6 m/s wind
-    for all of them). A lag disk is active while ``t + lambda`` lies in the flight window ``[t_LDT_j, arrival_j]``
-    (:func:`stp_env.planning.obstacles.moving_disks`); the lag-0 disk only while ``t`` does. To keep the union a
-    superset, the flight window of every higher-priority vehicle is widened by the largest dropped positive lag
-    before departure and the largest dropped negative lag's size after arrival: there the lag-0 disk sits at the
-    clamped end position, within ``speed |lambda|`` of every dropped disk's centre.
-
-    Returns ``(lags, radii, pad_before, pad_after)`` with the kept disks, lag-0 disk first.
-    """
-    lags, radii = np.asarray(lags, np.float64), np.asarray(radii, np.float64)
-    inside = radii + speed * np.abs(lags) <= radii[0]
-    inside[0] = False
-    dropped = lags[inside]
-    pad_before = float(max(dropped.max(initial=0.0), 0.0))
-    pad_after = float(max(-dropped.min(initial=0.0), 0.0))
-    return lags[~inside], radii[~inside], pad_before, pad_after
-
-
 def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, horizon: float | None = None,
                   settings: hj.SolverSettings | None = None, progress: bool = True, solver: str | None = None,
                   checkpoint=None, on_vehicle=None, max_slice_dt: float | None = None, hold_slices: int = 0,
@@ -408,30 +371,6 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
                     time_step=scenario.time_step, progress=progress, solver=solver, checkpoint=checkpoint,
                     on_vehicle=on_vehicle, max_slice_dt=max_slice_dt, hold_slices=hold_slices,
                     disk_tolerance=disk_tolerance, **aware)
-
-
-def aware_obstacles(scenario, tracking_bound: float, *, store=None, progress: bool = True) -> dict:
-    """The intruder-aware keyword arguments of :func:`plan_rtt` for ``scenario`` (``{}`` when its ``kbar`` is
-    ``None``): ``kbar``, the buffer radius (:func:`stp_env.reach.buffer.buffer_radii`, from the avoid and
-    relative-buffer artifacts of the scenario's vehicle, cached in ``store``) and the obstacle lag profiles."""
-    from stp_env.artifacts import ArtifactStore
-    from stp_env.reach.avoid import compute_avoid_region
-    from stp_env.reach.buffer import BufferConfig, buffer_radii, compute_relative_buffer
-    from stp_env.reach.defaults import default_avoid_config
-    from stp_env.reach.obstacles import intruder_obstacle_profiles
-
-    if scenario.kbar is None:
-        return {}
-    store = ArtifactStore() if store is None else store
-    vehicle = scenario.vehicle
-    avoid_cfg = default_avoid_config(vehicle, scenario.collision_radius, scenario.t_iat)
-    avoid = compute_avoid_region(avoid_cfg, store=store, progress=progress)
-    buffer = compute_relative_buffer(BufferConfig(avoid=avoid_cfg, kbar=scenario.kbar), avoid, store=store,
-                                     progress=progress)
-    radii = buffer_radii(scenario.kbar, tracking_bound, avoid.detection_range(), buffer.radius, scenario.t_iat)
-    return {"kbar": scenario.kbar, "buffer_radius": radii.buffer,
-            "obstacle_profiles": intruder_obstacle_profiles(vehicle, tracking_bound, scenario.collision_radius,
-                                                            scenario.t_iat, scenario.kbar)}
 
 
 def planning_static_obstacle(scenario, tracking_bound: float):

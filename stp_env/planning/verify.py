@@ -6,7 +6,8 @@ The constraint (robust trajectory tracking, SPP eq. 27; intruder-aware, intruder
 profiles of eqs. 26-31, 49-57) is that of :func:`stp_env.planning.obstacles.moving_disks`: while a lower-priority
 vehicle flies (departure to arrival), its nominal position stays outside every disk of radius ``rho_l`` around a
 higher-priority vehicle's nominal position ``p_j(t + lambda_l)``, for each lag ``lambda_l`` at which that vehicle is
-present (``t + lambda_l`` in its flight window grown by the pads of :func:`stp_env.planning.stp.fold_contained_disks`).
+present (``t + lambda_l`` in its flight window grown by the pads of
+:func:`stp_env.planning.disks.fold_contained_disks`). The disks themselves are :mod:`stp_env.planning.disks`.
 """
 
 from __future__ import annotations
@@ -17,29 +18,8 @@ import math
 import numpy as np
 
 from stp_env.angles import wrap_angle
+from stp_env.planning.disks import ObstacleDisks, planner_disks
 from stp_env.planning.plan import InfeasiblePlanError, Plan, SinglePlan, VehiclePlan, obstacle_window
-
-
-@dataclasses.dataclass(frozen=True)
-class ObstacleDisks:
-    """The moving disks every higher-priority vehicle induces: ``lags`` [s] and ``radii`` [m] (one per lag), present
-    from ``pad_before`` s before its departure to ``pad_after`` s after its arrival."""
-
-    lags: np.ndarray
-    radii: np.ndarray
-    pad_before: float = 0.0
-    pad_after: float = 0.0
-
-
-def planner_disks(scenario, tracking_bound: float, *, store=None, progress: bool = False) -> ObstacleDisks:
-    """The disks :func:`stp_env.planning.stp.plan_rtt` plans ``scenario`` with (the same artifacts and folding)."""
-    from stp_env.planning.stp import aware_obstacles, obstacle_disks
-
-    aware = aware_obstacles(scenario, tracking_bound, store=store, progress=progress)
-    lags_arr, rads_arr, before, after = obstacle_disks(scenario.collision_radius, tracking_bound,
-                                                       scenario.planning_v[1], aware.get("buffer_radius"),
-                                                       aware.get("obstacle_profiles"))
-    return ObstacleDisks(np.asarray(lags_arr, float), np.asarray(rads_arr, float), float(before), float(after))
 
 
 def flight_clearance(times, states, windows, lags, radii) -> tuple[float, int, float]:

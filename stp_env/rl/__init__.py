@@ -5,8 +5,8 @@
 * :class:`IntruderVecEnv` (:mod:`stp_env.rl.vec_env`): a native SB3 ``VecEnv`` of ``n`` of them, one compiled JAX
   program per step (auto-reset included).
 * :mod:`stp_env.rl.train`: ``TrainConfig`` and ``train`` (PPO by default), the evaluation callback.
-* :mod:`stp_env.rl.policy`: a trained MLP as a jittable intruder policy ``(key, state, params) -> (2,)``
-  (``load_intruder("town-kbar2")`` for the shipped one).
+* :mod:`stp_env.baselines.learned` (also :mod:`stp_env.rl.policy`): a trained MLP as a jittable intruder policy
+  ``(key, state, params) -> (2,)`` (``load_intruder("town-kbar2")`` for the shipped one).
 
 The functional layer (:mod:`stp_env.rl.functional`) needs only JAX; the env classes need ``gymnasium`` and
 ``stable-baselines3`` (the ``rl`` extra).

@@ -27,18 +27,18 @@ import gymnasium as gym
 import jax
 import numpy as np
 
-from stp_env import sim
+from stp_env import assembly, sim
 from stp_env.rl import functional as F
 from stp_env.sim.core import intruder_observation_size
 
 
 def build_params(scenario="town", config: sim.EnvConfig | None = None, *, params=None, store=None) -> sim.EnvParams:
-    """``params`` if given, else :func:`stp_env.sim.params_for` of the scenario and config."""
+    """``params`` if given, else :func:`stp_env.assembly.params_for` of the scenario and config."""
     if params is not None:
         if scenario != "town" or config is not None:
             raise ValueError("Pass either params or scenario/config, not both.")
         return params
-    return sim.params_for(scenario, sim.EnvConfig() if config is None else config, store=store, progress=False)
+    return assembly.params_for(scenario, sim.EnvConfig() if config is None else config, store=store, progress=False)
 
 
 def check_action(action, shape) -> np.ndarray:

@@ -7,7 +7,7 @@
 ``log_formats``), ``checkpoints/`` every ``checkpoint_every`` steps, ``evaluations.csv`` (one row per evaluation,
 :func:`summarize`: mean, 95 % interval and max of ``|N^RP|``, collisions, guarantee violations, episodes above k̄,
 with Clopper-Pearson bounds), ``best_model.zip`` (best mean ``|N^RP|``), ``model.zip`` and ``intruder.npz`` (the
-deterministic actor for :func:`stp_env.rl.policy.load_intruder`). Same config, same seed, same machine: same run
+deterministic actor for :func:`stp_env.baselines.learned.load_intruder`). Same config, same seed, same machine: same run
 (torch uses ``torch_threads`` CPU threads; JAX keys come from :func:`stp_env.rl.key_for_seed`).
 
 SuperSuit
@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stp_env import sim
+from stp_env import assembly, sim
 from stp_env.evaluation.summary import forced_summary
 from stp_env.sim.types import SPAWN_MODES
 
@@ -274,9 +274,9 @@ def build_params(config: TrainConfig, *, store=None, progress: bool = False) -> 
     from stp_env.baselines import BUFFER_GAME_VEHICLE_POLICIES
 
     scenario = config.scenario_object()
-    params = sim.params_for(scenario, config.env_config(), store=store, progress=progress)
+    params = assembly.params_for(scenario, config.env_config(), store=store, progress=progress)
     if config.vehicle_policy in BUFFER_GAME_VEHICLE_POLICIES:
-        params = sim.build.with_buffer(params, sim.build.load_buffer(scenario, int(params.kbar), store=store,
+        params = assembly.with_buffer(params, assembly.load_buffer(scenario, int(params.kbar), store=store,
                                                                      progress=progress))
     return params
 
@@ -288,7 +288,7 @@ def train(config: TrainConfig, *, params: sim.EnvParams | None = None):
     from stable_baselines3.common.logger import configure
     from stable_baselines3.common.vec_env import VecMonitor
 
-    from stp_env.rl.policy import export_mlp
+    from stp_env.baselines.learned import export_mlp
     from stp_env.rl.vec_env import IntruderVecEnv
 
     torch.set_num_threads(config.torch_threads)

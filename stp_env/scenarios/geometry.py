@@ -10,14 +10,20 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import jax.numpy as jnp
 import numpy as np
 
 if TYPE_CHECKING:
     from stp_env.hj import Grid
-    from stp_env.scenarios.config import Building
+
+
+class Polygon(Protocol):
+    """Anything with polygon ``vertices`` (:class:`stp_env.scenarios.config.Building` is one): this module is
+    below the scenario configuration, which uses it, and does not import it."""
+
+    vertices: Sequence[Sequence[float]]
 
 NO_OBSTACLE_DISTANCE = 1.0e6
 """Signed distance [m] reported where there are no buildings at all: finite (so that differences and gradients of
@@ -120,7 +126,7 @@ def self_intersections(vertices: Sequence[Sequence[float]]) -> list[tuple[int, i
     return bad
 
 
-def buildings_sdf(buildings: Iterable[Building | Sequence[Sequence[float]]], grid: Grid, dtype=jnp.float32):
+def buildings_sdf(buildings: Iterable[Polygon | Sequence[Sequence[float]]], grid: Grid, dtype=jnp.float32):
     """Signed distance to the union of ``buildings`` on ``grid``: ``min_b sd_b(p_x, p_y)``, shape ``grid.shape``.
 
     The first two grid dimensions are ``(p_x, p_y)`` [m]; the value is broadcast over every further dimension

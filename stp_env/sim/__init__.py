@@ -2,16 +2,20 @@
 
 * :mod:`~stp_env.sim.types`: ``EnvParams`` (constants), ``EnvState`` (per step), status and mode codes.
 * :mod:`~stp_env.sim.config`: ``EnvConfig`` and ``RewardConfig`` (typed).
-* :mod:`~stp_env.sim.build`: ``make_params`` / ``params_for`` (scenario + plan + artifacts -> ``EnvParams``).
 * :mod:`~stp_env.sim.core`: ``reset``, ``step``, ``observe`` and the events of a step.
 * :mod:`~stp_env.sim.rollout`: ``rollout`` (a ``lax.scan`` over steps of the ``vmap``-ed step).
 * :mod:`~stp_env.sim.fleet`: simulating only the vehicles that can fly in an episode window, with the whole
   fleet's random numbers.
 * :mod:`~stp_env.sim.wind`, :mod:`~stp_env.sim.spawn`, :mod:`~stp_env.sim.tables`,
   :mod:`~stp_env.sim.physics`: wind models, intruder spawning, value-table reads, kinematics.
+
+The core knows no scenario, plan or artifact: :mod:`stp_env.assembly`, the layer above it, makes ``EnvParams``
+from them (``params_for``, ``make_params``, ``load_artifacts``, ``load_plan``, ``with_plan``, ``busiest_window``,
+which this package still answers for, with a ``DeprecationWarning`` naming their new place).
 """
 
-from stp_env.sim.build import busiest_window, load_artifacts, load_plan, make_params, params_for, with_plan
+import warnings as _warnings
+
 from stp_env.sim.config import EnvConfig, RewardConfig
 from stp_env.sim.core import episode_over, global_state, lifecycle, observation_sizes, observe, reset, step
 from stp_env.sim.reference import nominal_reference
@@ -36,8 +40,24 @@ from stp_env.sim.types import (
 
 __all__ = [
     "AFTER_AVOIDANCE", "ARRIVED", "AVOIDING", "COLLIDED", "FLYING", "GONE", "NOMINAL", "OUT_OF_BOUNDS", "PENDING",
-    "PRESENT", "WAITING", "EnvConfig", "EnvParams", "EnvState", "RewardConfig", "RewardWeights", "busiest_window",
-    "episode_over", "global_state", "lifecycle", "load_artifacts", "load_plan", "make_params", "n_forced",
-    "nominal_reference", "observation_sizes", "observe", "params_for", "reset", "rollout", "step", "steps_for",
-    "with_plan",
+    "PRESENT", "WAITING", "EnvConfig", "EnvParams", "EnvState", "RewardConfig", "RewardWeights", "episode_over",
+    "global_state", "lifecycle", "n_forced", "nominal_reference", "observation_sizes", "observe", "reset", "rollout",
+    "step", "steps_for",
 ]
+
+MOVED_TO_ASSEMBLY = ("busiest_window", "load_artifacts", "load_plan", "make_params", "params_for", "with_plan")
+"""Names this package had before the assembly layer (:mod:`stp_env.assembly`) took them out of the core."""
+
+
+def __getattr__(name):
+    # Deprecated aliases (tests/test_architecture.py: ALLOWED_UPWARD): the core's one import of the layer above it.
+    if name in MOVED_TO_ASSEMBLY:
+        from stp_env import assembly
+
+        _warnings.warn(f"stp_env.sim.{name} moved to stp_env.assembly.{name}.", DeprecationWarning, stacklevel=2)
+        return getattr(assembly, name)
+    if name == "build":  # ``sim.build.X``: the old module, now an alias of stp_env.assembly
+        import importlib
+
+        return importlib.import_module("stp_env.sim.build")
+    raise AttributeError(f"module 'stp_env.sim' has no attribute {name!r}")

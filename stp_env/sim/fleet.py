@@ -2,7 +2,7 @@
 random numbers.
 
 An evaluation episode covers a window of a plan (town: 73-93 s of a 7-vehicle plan; the dense scenarios: 26-53 s of a
-20-vehicle plan, ``stp_env.sim.build.busiest_window``). Vehicles that arrived before the window starts, or depart
+20-vehicle plan, ``stp_env.assembly.busiest_window``). Vehicles that arrived before the window starts, or depart
 after it ends, stay outside the airspace for the whole episode: the core neither moves them nor lets them collide,
 their avoid values are ``FAR``, spawns and observations consider flying vehicles only. Simulating only the others
 (3 of 7 on town, 4 of 20 on the crossing) gives the same episode at a fraction of the cost: the pair distances
@@ -11,12 +11,14 @@ grow with the square of the count, the table reads linearly.
 "The same episode" needs the same random numbers. Per-agent draws (winds, heading disturbances, the vehicle the
 intruder spawns next to) have one row per agent, so part of a fleet draws for the whole fleet and takes its rows
 (:func:`agent_rows`, :func:`random_vehicle`), and the wind state stays the whole fleet's. The vehicles left out are
-put back by :func:`expand` with the state the full simulation gives them: their reset state, with the controllers'
-outputs (``u^A``, ``kappa``, the tracking error) refreshed at the final time as every step's lifecycle does.
+put back by :func:`stp_env.sim.fleet_expand.expand` with the state the full simulation gives them: their reset
+state, with the controllers' outputs (``u^A``, ``kappa``, the tracking error) refreshed at the final time as every
+step's lifecycle does.
 
 * :func:`airborne`: the vehicles that can fly in ``[t_start, t_end]`` (host side, from the plan).
 * :func:`select`: ``EnvParams`` of those vehicles (``vehicle_ids``, ``fleet_size`` set).
-* :func:`expand`: a state of the selected vehicles as the whole fleet's state.
+* :func:`stp_env.sim.fleet_expand.expand`: a state of the selected vehicles as the whole fleet's state (in a module
+  above the core, whose reset and controllers it runs; this one is below it).
 
 ``tests/test_fleet.py`` compares evaluations against the whole fleet's (statuses, modes, forced sets, avoid starts
 and flags equal; states up to rounding) and shows that leaving out a vehicle that flies is caught. Part of a fleet
@@ -33,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env.sim.types import VEHICLE_FIELDS, EnvParams, EnvState, replace
+from stp_env.sim.types import EnvParams
 
 # EnvParams fields with one entry per vehicle (axis 0); select() slices them.
 PARAM_VEHICLE_FIELDS = ("departure", "sta", "nominal_arrival", "starts", "targets", "target_radii", "nominal_t0",
@@ -113,54 +115,3 @@ def arrived_at_start(params: EnvParams, slack=0.0):
     departed = params.departure <= params.t_start
     landed = params.nominal_arrival <= params.t_start
     return departed & (landed | (jnp.hypot(*(x_nom[:, :2] - params.targets).T) <= params.target_radii - slack))
-
-
-def parked_state(params: EnvParams, ids) -> EnvState:
-    """The reset state of the fleet's vehicles ``ids`` (of ``params``, the whole fleet), which the episode never
-    changes when they are outside the airspace throughout (their rows only; the global fields are unused)."""
-    from stp_env.sim import core
-
-    return core.reset(jax.random.key(0), select(params, ids))
-
-
-def expand(state: EnvState, params: EnvParams, ids, parked: EnvState | None) -> EnvState:
-    """The whole fleet's state (one episode) from ``state``, of the fleet's vehicles ``ids`` (numpy, as given to
-    :func:`select`), and the ``parked`` rows of the others (:func:`parked_state`; ``None`` when none is left
-    out). The parked rows get the controllers' outputs at ``state``'s time and intruder, as the full simulation's
-    lifecycle computes them for vehicles on the ground."""
-    from stp_env.sim import core
-
-    n = params.n_vehicles
-    ids = np.asarray(ids)
-    rest = np.setdiff1d(np.arange(n), ids)
-    if rest.size == 0:
-        return state
-    if parked is None:
-        raise ValueError("the vehicles left out need their parked state.")
-    now = replace(parked, t=state.t, intruder_x=state.intruder_x, intruder_status=state.intruder_status,
-                  t_appear=state.t_appear)
-    now = core.refresh_controllers(now, select(params, rest))
-    rows = {}
-    for name in VEHICLE_FIELDS:
-        a, b = getattr(state, name), getattr(now, name)
-        full = jnp.zeros((n, *a.shape[1:]), a.dtype)
-        rows[name] = full.at[jnp.asarray(ids)].set(a).at[jnp.asarray(rest)].set(b.astype(a.dtype))
-    return replace(state, **rows)
-
-
-def expand_trajectory(traj: dict, params: EnvParams, ids, parked: EnvState) -> dict:
-    """A recorded trajectory (:func:`stp_env.sim.rollout`, batched ``(B, T, ...)``) of the vehicles ``ids`` as the
-    whole fleet's: the others keep their parked pose, status and mode, and get zero rewards (the core rewards
-    only flying vehicles)."""
-    n = params.n_vehicles
-    ids = np.asarray(ids)
-    rest = np.setdiff1d(np.arange(n), ids)
-    out = dict(traj)
-    for name in ("x", "status", "mode"):
-        a = traj[name]
-        full = jnp.broadcast_to(getattr(parked, name).astype(a.dtype), (*a.shape[:2], rest.size, *a.shape[3:]))
-        out[name] = jnp.zeros((*a.shape[:2], n, *a.shape[3:]), a.dtype).at[:, :, ids].set(a).at[:, :, rest].set(
-            full)
-    r = traj["rewards"]
-    out["rewards"] = jnp.zeros((*r.shape[:2], n + 1), r.dtype).at[:, :, np.append(ids, n)].set(r)
-    return out

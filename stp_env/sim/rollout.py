@@ -1,4 +1,5 @@
-"""Batched rollouts: a ``lax.scan`` over steps of the step ``vmap``-ed over episode keys (one compiled program)."""
+"""Batched rollouts: a ``lax.scan`` over steps of the step ``vmap``-ed over episode keys (one compiled program), on
+the episode engine (:mod:`stp_env.sim.engine`)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from stp_env.sim import core
+from stp_env.sim import core, engine
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.types import EnvParams
 
@@ -39,33 +40,26 @@ def rollout(key, params: EnvParams, vehicle_policy, intruder_policy, n_envs: int
 def rollout_keys(episode_keys, params: EnvParams, vehicle_policy, intruder_policy, n_steps: int,
                  record: bool = False):
     """:func:`rollout` of one episode per key of ``episode_keys`` ``(B,)``: the episode keyed ``k`` resets with the
-    first half of ``split(k)`` and steps with ``split(second half, n_steps)``.
+    first half of ``split(k)`` and steps with ``split(second half, n_steps)`` (:func:`stp_env.sim.engine.episodes`:
+    a ``lax.scan`` over steps of the step ``vmap``-ed over episodes). Steps after the episode is over
+    (:func:`~stp_env.sim.core.episode_over`) leave the state unchanged and earn nothing."""
+    return engine.episodes(episode_keys, lambda k: core.reset(k, params),
+                           lambda state, k: episode_step(k, state, params, vehicle_policy, intruder_policy), n_steps,
+                           stop=lambda state: over(state, params), record=record_step if record else None)
 
-    The program is a ``lax.scan`` over steps of the step ``vmap``-ed over episodes, not a ``vmap`` of a scan: the
-    same arithmetic, but tracing a batched scan re-batches its whole body until the batching of its carry settles,
-    which made the rollout several times slower to trace and compile."""
 
-    def split(ep_key):
-        k_reset, k_run = jax.random.split(ep_key)
-        return k_reset, jax.random.split(k_run, n_steps)
+def over(state, params: EnvParams):
+    """The rollouts' stop rule: every vehicle done and the intruder gone, or the time limit
+    (:func:`~stp_env.sim.core.episode_over`)."""
+    term, trunc = core.episode_over(state, params)
+    return term | trunc
 
-    k_reset, k_steps = jax.vmap(split)(episode_keys)
-    s0 = jax.vmap(core.reset, in_axes=(0, None))(k_reset, params)
 
-    def one(state, k):
-        new, rewards = episode_step(k, state, params, vehicle_policy, intruder_policy)
-        term, trunc = core.episode_over(state, params)
-        over = term | trunc
-        new = jax.tree.map(lambda a, b: jnp.where(over, a, b), state, new)
-        rewards = jnp.where(over, 0.0, rewards)
-        out = None
-        if record:
-            out = {"t": new.t, "x": new.x, "status": new.status, "mode": new.mode,
-                   "intruder_x": new.intruder_x, "intruder_status": new.intruder_status, "rewards": rewards}
-        return new, out
-
-    final, traj = jax.lax.scan(jax.vmap(one), s0, jnp.swapaxes(k_steps, 0, 1))
-    return final, jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), traj)
+def record_step(state, rewards) -> dict:
+    """What a recorded rollout keeps of each step: ``t``, ``x``, ``status``, ``mode``, ``intruder_x``,
+    ``intruder_status`` of the state after it, and its ``rewards``."""
+    return {"t": state.t, "x": state.x, "status": state.status, "mode": state.mode, "intruder_x": state.intruder_x,
+            "intruder_status": state.intruder_status, "rewards": rewards}
 
 
 def steps_for(params: EnvParams) -> int:

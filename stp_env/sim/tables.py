@@ -233,7 +233,7 @@ def tracking_control(params, error):
 def _require_buffer(params):
     if params.buffer_values is None or params.buffer_grid is None:
         raise ValueError("this policy plays the buffer game and needs V^B in the params: build them with "
-                         "stp_env.sim.build.with_buffer (the evaluation does so for the 'worst' vehicles and the "
+                         "stp_env.assembly.with_buffer (the evaluation does so for the 'worst' vehicles and the "
                          "'optimal-max-k' intruder).")
 
 

@@ -56,7 +56,7 @@ def _pytree(cls, meta=()):
 
 @dataclasses.dataclass(frozen=True)
 class EnvParams:
-    """Constants of an environment (see :func:`stp_env.sim.build.make_params`, which fills them from a scenario,
+    """Constants of an environment (see :func:`stp_env.assembly.make_params`, which fills them from a scenario,
     a plan and the reachability artifacts). ``N`` vehicles, ``K`` plan samples, ``S`` avoid-region slices.
 
     Static (metadata, hashable):
@@ -72,7 +72,7 @@ class EnvParams:
         n_nearest: vehicles listed in each observation.
         buffer_grid: grid of ``buffer_values`` (``None`` when no buffer table is loaded).
 
-    Optional (``None`` unless loaded with :func:`stp_env.sim.build.with_buffer`; only the policies of the buffer
+    Optional (``None`` unless loaded with :func:`stp_env.assembly.with_buffer`; only the policies of the buffer
     game read it: the ``worst`` vehicles and the ``optimal-max-k`` intruder):
         buffer_values: ``V^B(0, t_BRD)`` of the plan's k̄ (intruder paper eqs. 46-47) on ``buffer_grid``.
 
@@ -202,7 +202,8 @@ class EnvState:
 EnvState = _pytree(EnvState)
 
 # EnvState fields with one row per simulated vehicle (axis 0 unbatched); the others are global or, ``wind``, the
-# whole fleet's (stp_env.sim.fleet.expand relies on this list; tests/test_fleet.py checks it against the shapes).
+# whole fleet's (stp_env.sim.fleet_expand.expand relies on this list; tests/test_fleet.py checks it against the
+# shapes).
 VEHICLE_FIELDS = ("x", "status", "mode", "avoid_start", "complied", "assumption_ok", "used_filter", "min_separation",
                   "arrival_time", "collision_time", "collided_with_intruder", "guarantee_violation",
                   "intruder_distance", "avoid_value", "avoid_action", "track_action", "tracking_error",

@@ -20,7 +20,7 @@ the planner's disks around its leader (``scripts/dense_spacing.py``; one second 
 13 m/s the trail is ``13 x spacing`` m: 1131, 897, 806 and 819 m against buffer radii
 (:func:`stp_env.reach.buffer.buffer_radii`, 6 m/s wind) of 989, 760, 673 and 632 m. The gap over the radius is
 the flight time from the start to the target's edge rounding to whole samples plus the pads: a leader's disk is
-present 10 s before its departure and after its arrival (:func:`stp_env.planning.stp.fold_contained_disks`), when
+present 10 s before its departure and after its arrival (:func:`stp_env.planning.disks.fold_contained_disks`), when
 it stands still; for ``k̄ = 4`` the intruder-aware lag disks reach further than the buffer disk."""
 
 

@@ -1,0 +1,68 @@
+"""The episode engine: the package's one ``lax.scan`` over the steps of an episode.
+
+Every loop over the core's step is built on :func:`play` (``tests/test_architecture.py`` fails on another
+``lax.scan`` that is not classified there): the batched rollouts (:func:`stp_env.sim.rollout`, and the evaluator's
+batches on them), the worst-case reproductions (:mod:`stp_env.evaluation.worst_case`), every falsifier attack
+(:func:`stp_env.falsify.harness.run`, :class:`stp_env.falsify.kbar.KbarAttack`), the co-observation threat's
+rollouts and its attacker's decisions (:mod:`stp_env.coobservation.threat`, :mod:`stp_env.coobservation.learned`).
+They differ only in their hooks:
+
+* the **step** ``step(carry, x) -> (carry, info)``: one step of the episode (the core's step with the caller's
+  actions; the carry may hold more than the :class:`~stp_env.sim.types.EnvState`, e.g. a running minimum);
+* the **initial state** ``init(key) -> carry`` (:func:`episode`, :func:`episodes`): the reset, and whatever the
+  caller fixes at the start (an intruder's spawn);
+* the **stop rule** ``stop(carry) -> bool``: the episode is over before this step, which then leaves the carry as
+  it is and its ``info`` zero (the rollouts' episode-over freeze: steps after the end change nothing);
+* the **per-step record** ``record(carry, info) -> pytree``: what to keep of each step, from the carry after it
+  (``None``: nothing is kept and the records are ``None``).
+
+:func:`episode` and :func:`episodes` fix the keying that the rollouts and the reproductions share: the episode
+keyed ``k`` resets with the first half of ``split(k)`` and steps with ``split(second half, n_steps)``.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+
+def play(step, carry, xs, *, stop=None, record=None, batched: bool = False):
+    """``lax.scan`` of ``step`` over ``xs`` (leading axis: the steps) from ``carry``: ``(final carry, records)``.
+
+    ``stop``, ``record``: the hooks of the module docstring. ``batched``: ``carry`` and every step's ``xs`` hold a
+    batch of episodes on their leading axis, and the step (with its stop rule and record) is ``vmap``-ed over it
+    inside the scan (a ``lax.scan`` over steps of the ``vmap``-ed step, not a ``vmap`` of a scan: the same
+    arithmetic, but tracing a batched scan re-batches its whole body until the batching of its carry settles, which
+    made the rollout several times slower to trace and compile); the records are then ``(n_steps, B, ...)``."""
+
+    def body(c, x):
+        new, info = step(c, x)
+        if stop is not None:
+            over = stop(c)
+            new = jax.tree.map(lambda a, b: jnp.where(over, a, b), c, new)
+            info = jax.tree.map(lambda a: jnp.where(over, jnp.zeros_like(a), a), info)
+        return new, (None if record is None else record(new, info))
+
+    return jax.lax.scan(jax.vmap(body) if batched else body, carry, xs)
+
+
+def _split(episode_key, n_steps: int):
+    k_reset, k_run = jax.random.split(episode_key)
+    return k_reset, jax.random.split(k_run, n_steps)
+
+
+def episode(key, init, step, n_steps: int, *, stop=None, record=None):
+    """One episode of ``n_steps`` steps keyed by ``key``: ``init(first half of split(key))`` then :func:`play` of
+    ``step(carry, step_key)`` over ``split(second half, n_steps)``. Returns ``(final carry, records)``, the
+    records ``(n_steps, ...)``."""
+    k_reset, k_steps = _split(key, n_steps)
+    return play(step, init(k_reset), k_steps, stop=stop, record=record)
+
+
+def episodes(episode_keys, init, step, n_steps: int, *, stop=None, record=None):
+    """:func:`episode` of each key of ``episode_keys`` ``(B,)``, batched (:func:`play` with ``batched=True``):
+    ``(final carries, records)`` batched over ``B`` on the leading axis, the records ``(B, n_steps, ...)``."""
+    k_reset, k_steps = jax.vmap(lambda k: _split(k, n_steps))(episode_keys)
+    final, records = play(step, jax.vmap(init)(k_reset), jnp.swapaxes(k_steps, 0, 1), stop=stop, record=record,
+                          batched=True)
+    return final, jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), records)
