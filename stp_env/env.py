@@ -47,7 +47,12 @@ action replaced by the avoidance control ``u^A`` (eq. 15) until the intruder lea
 ``used_filter`` says when. ``vehicle_policy="worst"`` (or any name of
 :data:`stp_env.baselines.VEHICLE_POLICIES`) flies the vehicles by that scripted policy instead of their actions
 (which are still checked, then ignored): ``"worst"`` is the buffer game's worst vehicle, under which an optimal
-intruder can reach the k̄ bound (the intruder paper's Fig. 6; scenario ``"fig6"``).
+intruder can reach the k̄ bound (the intruder paper's Fig. 6; scenario ``"fig6"``). ``intruder="max-k"`` (a name of
+:data:`stp_env.baselines.INTRUDERS`, ``"learned:NAME_OR_PATH"``, a plug-in ``"package.module:policy"``, or the
+policy itself) flies the intruder by that policy the same way (the ``intruder`` agent's actions are checked, then
+ignored); its record's capabilities apply (:class:`stp_env.baselines.intruders.Intruder`): the buffer table is
+loaded for one that reads ``V^B``, and without a ``config`` or a ``spawn_mode`` it appears where it spawns by
+default (``"boundary"`` for ``max-k``).
 
 Observations
 ------------
@@ -263,9 +268,15 @@ def _count_traces(fn):
     return wrapped
 
 
-def _advance_scripted(key, state, actions, params, vehicle_policy):
-    """:func:`_advance` with the vehicles flown by a scripted policy (their actions ignored)."""
+def _advance_scripted(key, state, actions, params, vehicle_policy=None, intruder_policy=None):
+    """:func:`_advance` with the vehicles and/or the intruder flown by scripted policies (their actions ignored):
+    the intruder's action once per step from its own key (as in :func:`stp_env.sim.rollout`), the vehicles' policy
+    as the feedback law of every inner control step."""
     key, sub = jax.random.split(key)
+    if intruder_policy is not None:
+        k_i, sub = jax.random.split(sub)
+        a_i = intruder_policy(k_i, state, params)
+        actions = actions.at[params.n_vehicles, :2].set(a_i.astype(actions.dtype))
     new, rewards = core.step(sub, state, actions, params, vehicle_policy=vehicle_policy)
     obs_v, obs_i = core.observe(new, params)
     term, trunc = core.episode_over(new, params)
@@ -340,7 +351,7 @@ def _packed(fn):
 
 
 _advance_jit = sim_jit(_count_traces(_packed(_advance)))
-_advance_scripted_jit = sim_jit(_packed(_advance_scripted), static_argnames=("vehicle_policy",))
+_advance_scripted_jit = sim_jit(_packed(_advance_scripted), static_argnames=("vehicle_policy", "intruder_policy"))
 
 
 def _check_appear_window(params) -> None:
@@ -363,10 +374,11 @@ class STPParallelEnv(ParallelEnv):
     def __init__(self, scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, *,
                  max_cycles: int | None = None, render_mode: str | None = None, params: sim.EnvParams | None = None,
                  render_avoid_regions: bool = False, store=None, replan: bool = False,
-                 vehicle_policy: str | None = None, backend: str | None = None, progress: bool | None = None,
-                 **config_overrides):
+                 vehicle_policy: str | None = None, intruder=None, backend: str | None = None,
+                 progress: bool | None = None, **config_overrides):
         from stp_env import progress as progress_mod
         from stp_env.baselines import BUFFER_GAME_VEHICLE_POLICIES, VEHICLE_POLICIES
+        from stp_env.baselines.intruders import capabilities, resolve_intruder
         from stp_env.scenarios import Scenario, make
 
         if vehicle_policy is not None and vehicle_policy not in VEHICLE_POLICIES:
@@ -378,6 +390,12 @@ class STPParallelEnv(ParallelEnv):
                              f"{self.metadata['render_modes']} or None.")
         if config is not None and not isinstance(config, sim.EnvConfig):
             raise ValueError(f"config must be a stp_env.sim.EnvConfig; got {type(config).__name__}.")
+        intruder_policy = resolve_intruder(intruder) if isinstance(intruder, str) else intruder
+        if intruder_policy is not None and not callable(intruder_policy):
+            raise ValueError(f"intruder must be None (the agent acts), an intruder spec or a policy; got {intruder!r}.")
+        intruder_caps = None if intruder_policy is None else capabilities(intruder_policy)
+        if config is None and intruder_caps is not None and "spawn_mode" not in config_overrides:
+            config = sim.EnvConfig(spawn_mode=intruder_caps.spawn)  # where the scripted intruder appears by default
         config = sim.EnvConfig() if config is None else config
         if config_overrides:
             fields = {f.name for f in dataclasses.fields(sim.EnvConfig)}
@@ -409,11 +427,16 @@ class STPParallelEnv(ParallelEnv):
         elif backend is not None:
             params = replace(params, vehicle_model=config.vehicle_model)
         _check_appear_window(params)
-        if vehicle_policy in BUFFER_GAME_VEHICLE_POLICIES and params.buffer_values is None:
+        buffer_game = vehicle_policy in BUFFER_GAME_VEHICLE_POLICIES or (intruder_caps is not None
+                                                                          and intruder_caps.needs_buffer)
+        if buffer_game and params.buffer_values is None:
             params = assembly.with_buffer(params, assembly.load_buffer(scenario, store=store,
                                                                          progress=self._progress))
         self._vehicle_policy = None if vehicle_policy is None else VEHICLE_POLICIES[vehicle_policy]
         self._vehicle_policy_name = vehicle_policy
+        self._intruder_policy = intruder_policy
+        self._intruder_name = None if intruder is None else (intruder if isinstance(intruder, str)
+                                                             else intruder_caps.__name__)
         self._step_layout = None  # Layout of the packed step output, found at the first step
         self.params = params
         self._base_params = params
@@ -618,17 +641,21 @@ class STPParallelEnv(ParallelEnv):
     def step(self, actions):
         arr = self._parse_actions(actions)  # raises before anything changes
         if self._step_layout is None:  # traced once per environment, not compiled
-            advance = (_advance if self._vehicle_policy is None
-                       else functools.partial(_advance_scripted, vehicle_policy=self._vehicle_policy))
+            advance = (_advance if self._vehicle_policy is None and self._intruder_policy is None
+                       else functools.partial(_advance_scripted, vehicle_policy=self._vehicle_policy,
+                                              intruder_policy=self._intruder_policy))
             self._step_layout = Layout.of(jax.eval_shape(advance, self._key, self._state, arr, self.params)[2])
-        if self._vehicle_policy is None:
+        if self._vehicle_policy is None and self._intruder_policy is None:
             compile_note("the environment's step", self._key, self._state, arr, self.params, progress=self._progress)
             self._key, self._state, words = _advance_jit(self._key, self._state, arr, self.params)
         else:
-            compile_note(f"the environment's step ({self._vehicle_policy_name} vehicles)", self._key, self._state, arr,
-                         self.params, progress=self._progress)
+            scripted = ", ".join(f"{name} {who}" for name, who in ((self._vehicle_policy_name, "vehicles"),
+                                                                   (self._intruder_name, "intruder")) if name)
+            compile_note(f"the environment's step ({scripted})", self._key, self._state, arr, self.params,
+                         progress=self._progress)
             self._key, self._state, words = _advance_scripted_jit(self._key, self._state, arr, self.params,
-                                                                  self._vehicle_policy)
+                                                                  vehicle_policy=self._vehicle_policy,
+                                                                  intruder_policy=self._intruder_policy)
         self._steps += 1
         out = self._step_layout.unpack(np.asarray(words))
         obs, rewards, info = self._observations(out.obs_vehicles, out.obs_intruder), out.rewards, out.info

@@ -131,7 +131,10 @@ def test_resolve_intruder_names_and_import_specs():
     from stp_env.baselines import INTRUDERS
 
     assert resolve_intruder("max-k") is INTRUDERS["max-k"]
-    assert resolve_intruder("stp_env.baselines.intruders:hover") is INTRUDERS["hover"]
+    from stp_env.baselines.intruders import hover
+
+    # the module's attribute itself: here the bare function, whose record INTRUDERS lists
+    assert resolve_intruder("stp_env.baselines.intruders:hover") is hover is INTRUDERS["hover"].policy
     # a factory called with the text after '=' (how a checkpoint loader is passed its path)
     assert resolve_intruder("stp_env.evaluation.config:resolve_intruder=greedy") is INTRUDERS["greedy"]
     for bad, message in (("nope", "unknown intruder"), ("learned:no-such-intruder", "unknown intruder"),

@@ -5,6 +5,7 @@ in place of the Dubins plant), each run through the environment or the registry 
 from __future__ import annotations
 
 import dataclasses
+import math
 import sys
 import textwrap
 
@@ -14,8 +15,18 @@ import numpy as np
 import pytest
 
 from stp_env import assembly, scenarios, sim
+from stp_env.baselines.intruders import (
+    BUFFER_GAME_INTRUDERS,
+    INTRUDERS,
+    Intruder,
+    capabilities,
+    register_intruder,
+    resolve_intruder,
+)
 from stp_env.env import parallel_env
-from stp_env.evaluation.config import resolve_intruder
+from stp_env.evaluation.config import Configuration
+from stp_env.evaluation.runner import needs_buffer
+from stp_env.falsify.kbar import plays_buffer_game
 from stp_env.sim import winds
 from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN
 from stp_env.sim.jit import sim_jit
@@ -108,6 +119,68 @@ def test_an_intruder_module_is_found_by_its_import_spec():
     assert len(headings) > 20
     turn = np.diff(np.unwrap(headings)) / float(params.dt)
     assert np.all(turn > 0.0) and np.median(turn) == pytest.approx(float(params.intruder_bounds[OMEGA_MAX]), rel=0.05)
+
+
+# A plug-in intruder with its capabilities: a record, not a bare function, in this file only. The environment, the
+# evaluator and the falsifier read where it spawns and whether it needs V^B from the record.
+CIRCLING = Intruder(circling, spawn="boundary", description="full speed in its tightest left turn")
+
+
+def test_an_intruder_record_says_what_running_it_takes():
+    spec = f"{__name__}:CIRCLING"
+    assert resolve_intruder(spec) is CIRCLING and resolve_intruder(spec) is resolve_intruder(spec)  # once
+    assert capabilities(spec) is CIRCLING and capabilities(circling) == Intruder(circling)   # a bare policy: defaults
+    assert capabilities("optimal-max-k").needs_buffer and capabilities("max-k").spawn == "boundary"
+    assert BUFFER_GAME_INTRUDERS == {"optimal-max-k"}
+    reader = Intruder(circling, needs_buffer=True)
+    assert needs_buffer(Configuration(intruder=spec)) is False
+    assert Configuration(intruder=spec).effective_spawn_mode == "boundary"
+    assert Configuration(intruder="hj").effective_spawn_mode == "outside"
+    with pytest.raises(ValueError, match="spawn must be one of"):
+        Intruder(circling, spawn="sky")
+    with pytest.raises(ValueError, match="a function"):
+        Intruder("circling")
+    register_intruder("test-circling-reader", reader)
+    try:
+        assert needs_buffer(Configuration(intruder="test-circling-reader")) is True
+        assert plays_buffer_game("switching", "test-circling-reader") and not plays_buffer_game("switching", spec)
+        with pytest.raises(ValueError, match="already registered"):
+            register_intruder("test-circling-reader", Intruder(circling))
+    finally:
+        del INTRUDERS["test-circling-reader"]
+
+
+@pytest.mark.slow  # compiles the environment's step, an evaluation batch and a falsifier search
+def test_a_plugin_intruder_flies_in_the_environment_the_evaluator_and_the_falsifier():
+    from stp_env.evaluation.runner import evaluate
+    from stp_env.falsify.counterexample import AttackSpec, run
+    from stp_env.falsify.search import SearchConfig
+
+    spec = f"{__name__}:CIRCLING"
+    # the environment flies it (the intruder agent's actions ignored) from where it spawns by default
+    env = parallel_env(SCENARIO, intruder=spec, appear_window=(0.0, 0.0), progress=False)
+    assert env.config.spawn_mode == "boundary"
+    omega = float(env.params.intruder_bounds[OMEGA_MAX])
+    env.reset(seed=0)
+    headings = []
+    for _ in range(150):
+        if "intruder" not in env.agents:  # it left (t_IAT after it appeared)
+            break
+        actions = {a: np.zeros(env.action_space(a).shape, np.float32) for a in env.agents}
+        actions["intruder"] = np.asarray([-1.0, -1.0], np.float32)  # a right turn, ignored
+        env.step(actions)
+        if int(env._state.intruder_status) == sim.PRESENT:
+            headings.append(float(env._state.intruder_x[2]))
+    turn = np.diff(np.unwrap(headings)) / float(env.params.dt)
+    assert len(headings) > 10 and np.median(turn) == pytest.approx(omega, rel=0.05)
+    # the evaluator runs it, spawned on the boundary by its record
+    (result,) = evaluate([Configuration(scenario=SCENARIO, kbar=2, intruder=spec)], episodes=4, batch_size=4,
+                         progress=False, showcase=False)
+    assert result.summary["episodes"] == 4 and "boundary" in result.config.label
+    # the falsifier's k̄ attack flies it from the spawn it searches
+    outcome = run(AttackSpec(target="kbar", scenario=SCENARIO, kbar=2, options=(("intruder", spec),)),
+                  SearchConfig(budget=8, population=8, restarts=1, batch=8), progress=False)
+    assert outcome.evaluations == 8 and math.isfinite(outcome.worst)
 
 
 # ------------------------------------------------------------------------------------------------ a scenario

@@ -24,7 +24,11 @@
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+import importlib
 import math
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -32,7 +36,7 @@ import jax.numpy as jnp
 from stp_env.sim import tables
 from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN
 from stp_env.sim.physics import control_to_action, relative_state, wrap_angle
-from stp_env.sim.types import FLYING
+from stp_env.sim.types import FLYING, SPAWN_MODES
 
 HEADING_GAIN = 3.0  # [1/s]
 
@@ -188,18 +192,82 @@ def ordered_max_k(order):
     return policy
 
 
+@dataclasses.dataclass(frozen=True)
+class Intruder:
+    """An intruder policy and what running it takes: the record every entry of :data:`INTRUDERS` is, and what a
+    plug-in module may define instead of a bare function (:func:`resolve_intruder`), so that the environment, the
+    evaluator and the falsifier treat it as they treat the registered ones.
+
+    Attributes:
+        policy: the jittable ``(key, state, params) -> (2,)`` actions in ``[-1, 1]``.
+        needs_buffer: the policy reads ``V^B`` (``params.buffer_values``): whoever runs it loads the buffer table
+            (:func:`stp_env.assembly.load_buffer`, :func:`stp_env.assembly.with_buffer`).
+        spawn: where it appears when the configuration leaves it open (``SPAWN_MODES`` of
+            :mod:`stp_env.sim.types`: ``"outside"``, ``"boundary"`` on a vehicle's avoid boundary, ``"mixed"``).
+        description: one line, for listings.
+
+    The record is called like its policy (the simulator takes it wherever it takes a policy); it is hashable, so
+    it is a static argument of the compiled rollouts like a function.
+    """
+
+    policy: Callable
+    needs_buffer: bool = False
+    spawn: str = "outside"
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        if not callable(self.policy) or isinstance(self.policy, Intruder):
+            raise ValueError(f"an intruder's policy is a function (key, state, params) -> (2,); got "
+                             f"{type(self.policy).__name__}.")
+        if not isinstance(self.needs_buffer, bool):
+            raise ValueError(f"needs_buffer must be a bool; got {self.needs_buffer!r}.")
+        if self.spawn not in SPAWN_MODES:
+            raise ValueError(f"spawn must be one of {', '.join(SPAWN_MODES)}; got {self.spawn!r}.")
+        if not isinstance(self.description, str):
+            raise ValueError(f"description must be a string; got {type(self.description).__name__}.")
+
+    def __call__(self, key, state, params):
+        return self.policy(key, state, params)
+
+    @property
+    def __name__(self) -> str:
+        return getattr(self.policy, "__name__", "intruder")
+
+
 INTRUDERS = {
-    "hover": hover,
-    "random": random_intruder,
-    "bezier2": bezier_intruder(2),
-    "bezier3": bezier_intruder(3),
-    "greedy": greedy_pursuit,
-    "hj": hj_pursuit,
-    "max-k": max_k,
-    "optimal-max-k": optimal_max_k,
+    "hover": Intruder(hover, description="stays where it appeared (v_min, no turn)"),
+    "random": Intruder(random_intruder, description="uniform random actions every step"),
+    "bezier2": Intruder(bezier_intruder(2), description="a random Bezier curve of degree 2 from its spawn"),
+    "bezier3": Intruder(bezier_intruder(3), description="a random Bezier curve of degree 3 from its spawn"),
+    "greedy": Intruder(greedy_pursuit, description="full speed at the nearest flying vehicle"),
+    "hj": Intruder(hj_pursuit, description="optimal pursuit of the most threatened vehicle (the avoid game)"),
+    "max-k": Intruder(max_k, spawn="boundary",
+                      description="the papers' Figs. 6-7: from a vehicle's avoid boundary, on to the next unforced "
+                                  "vehicle's"),
+    "optimal-max-k": Intruder(optimal_max_k, needs_buffer=True, spawn="boundary",
+                              description="max-k with the buffer game's time-optimal hops (reads V^B)"),
 }
-BUFFER_GAME_INTRUDERS = frozenset({"optimal-max-k"})
-"""The intruders that read the buffer table (the evaluation loads it for them)."""
+"""The scripted intruders by name, each an :class:`Intruder` (its policy and capabilities). A plug-in intruder
+needs no entry (``package.module:attribute``, :func:`resolve_intruder`); :func:`register_intruder` lists one by
+name in this process."""
+
+BUFFER_GAME_INTRUDERS = frozenset(name for name, entry in INTRUDERS.items() if entry.needs_buffer)
+"""The registered intruders that read the buffer table, as names (a view of :data:`INTRUDERS`'
+``needs_buffer``; :func:`capabilities` answers for any intruder, plug-ins included)."""
+
+LEARNED_PREFIX = "learned:"
+
+
+def register_intruder(name: str, intruder: Intruder) -> Intruder:
+    """List ``intruder`` under ``name`` in :data:`INTRUDERS` (for this process); a name is registered once."""
+    if not isinstance(name, str) or not name or ":" in name or name.startswith(LEARNED_PREFIX[:-1]):
+        raise ValueError(f"an intruder name is a non-empty string without ':' (not 'learned'); got {name!r}.")
+    if not isinstance(intruder, Intruder):
+        raise ValueError(f"register an Intruder record (its policy and capabilities); got {type(intruder).__name__}.")
+    if name in INTRUDERS and INTRUDERS[name] is not intruder:
+        raise ValueError(f"an intruder named {name!r} is already registered.")
+    INTRUDERS[name] = intruder
+    return intruder
 
 
 def intruder_policy(name: str):
@@ -207,6 +275,74 @@ def intruder_policy(name: str):
     if name not in INTRUDERS:
         raise ValueError(f"unknown intruder {name!r}; allowed: {', '.join(INTRUDERS)}.")
     return INTRUDERS[name]
+
+
+def is_plugin(spec: str) -> bool:
+    """Whether ``spec`` names code to import (``package.module:attribute``), not a registered or learned intruder."""
+    return isinstance(spec, str) and ":" in spec and not spec.startswith(LEARNED_PREFIX)
+
+
+def resolve_intruder(spec: str, *, allow_plugins: bool = True) -> Callable:
+    """An intruder policy from a name or an import spec.
+
+    * a scripted intruder: one of :data:`INTRUDERS` (its :class:`Intruder` record);
+    * ``"learned:NAME_OR_PATH"``: a learned intruder, :func:`stp_env.baselines.learned.load_intruder` (a shipped
+      name or an ``.npz`` exported by :func:`stp_env.baselines.learned.export_mlp`);
+    * ``"package.module:attribute"``: a jittable policy ``(key, state, params) -> (2,)``, or an :class:`Intruder`
+      record of one, defined in an importable module (how a learned intruder exported to JAX is evaluated);
+    * ``"package.module:factory=ARGUMENT"``: ``factory(ARGUMENT)`` must return such a policy (e.g. a loader
+      taking a checkpoint path).
+
+    The policy is a static argument of the compiled rollout: the same object must be passed for every batch, or
+    each batch would compile again; a plug-in spec is therefore resolved once per process (a factory is called
+    once).
+
+    An import spec runs code (it imports the module and may call the factory): it is for specs the user typed
+    (the command line) or wrote (their own code), never for names read from a file. ``allow_plugins=False``
+    refuses them (how saved events and counterexamples are replayed).
+    """
+    if not isinstance(spec, str) or not spec:
+        raise ValueError(f"an intruder is a non-empty name or spec string; got {spec!r}.")
+    if spec in INTRUDERS:
+        return INTRUDERS[spec]
+    if spec.startswith(LEARNED_PREFIX):
+        from stp_env.baselines.learned import load_intruder
+
+        return load_intruder(spec[len(LEARNED_PREFIX):])
+    if ":" not in spec:
+        raise ValueError(f"unknown intruder {spec!r}; allowed: {', '.join(INTRUDERS)}, 'learned:NAME_OR_PATH' "
+                         "(stp_env.baselines.learned.load_intruder), or 'package.module:policy' / "
+                         "'package.module:factory=ARGUMENT' for any jittable intruder policy.")
+    if not allow_plugins:
+        raise ValueError(f"intruder {spec!r} is a plug-in spec (code to import), which is not accepted here; "
+                         f"allowed: {', '.join(INTRUDERS)} or 'learned:NAME_OR_PATH'.")
+    return _plugin(spec)
+
+
+@functools.cache
+def _plugin(spec: str):
+    module_name, _, attribute = spec.partition(":")
+    attribute, has_argument, argument = attribute.partition("=")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as err:
+        raise ValueError(f"intruder {spec!r}: cannot import {module_name!r} ({err}).") from None
+    if not hasattr(module, attribute):
+        raise ValueError(f"intruder {spec!r}: module {module_name!r} has no attribute {attribute!r}.")
+    policy = getattr(module, attribute)
+    if has_argument:
+        policy = policy(argument)
+    if not callable(policy):
+        raise ValueError(f"intruder {spec!r} is not callable; expected a policy (key, state, params) -> (2,).")
+    return policy
+
+
+def capabilities(intruder) -> Intruder:
+    """What running ``intruder`` takes, as an :class:`Intruder` record: of a spec (:func:`resolve_intruder`), of a
+    record, or of a bare policy (a function says nothing: no buffer, spawns outside)."""
+    if isinstance(intruder, str):
+        intruder = resolve_intruder(intruder)
+    return intruder if isinstance(intruder, Intruder) else Intruder(intruder)
 
 
 def mixture(names):

@@ -9,72 +9,29 @@ functions ``(key, state, params) -> actions`` (:mod:`stp_env.baselines`); a lear
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import math
 from collections.abc import Callable
 
 from stp_env.arguments import check_kbar
 from stp_env.baselines import INTRUDERS, vehicle_policy
+from stp_env.baselines.intruders import (  # noqa: F401  (LEARNED_PREFIX: re-exported)
+    LEARNED_PREFIX,
+    capabilities,
+    resolve_intruder,
+)
 from stp_env.sim import EnvConfig, winds
 from stp_env.sim.backends import vehicle_model as backend_model
 from stp_env.sim.types import SPAWN_MODES
 
 SPAWN_CHOICES = ("auto", *SPAWN_MODES)
-"""``auto``: ``boundary`` for the ``max-k`` and ``optimal-max-k`` intruders (the strategy of the intruder paper's
-Figs. 6-7 starts on a vehicle's avoid boundary), ``outside`` for every other intruder."""
-BOUNDARY_INTRUDERS = ("max-k", "optimal-max-k")
+"""``auto``: the intruder's own default (its :class:`~stp_env.baselines.intruders.Intruder` record's ``spawn``):
+``boundary`` for ``max-k`` and ``optimal-max-k`` (the strategy of the intruder paper's Figs. 6-7 starts on a
+vehicle's avoid boundary), ``outside`` for every other registered intruder and for a bare policy."""
+BOUNDARY_INTRUDERS = tuple(name for name, entry in INTRUDERS.items() if entry.spawn == "boundary")
+"""The registered intruders that spawn on an avoid boundary by default, as names (a view of :data:`INTRUDERS`'
+``spawn``; :func:`stp_env.baselines.intruders.capabilities` answers for any intruder, plug-ins included)."""
 
 EPISODE_CHOICES = ("window", "full")
-LEARNED_PREFIX = "learned:"
-
-
-def resolve_intruder(spec: str, *, allow_plugins: bool = True) -> Callable:
-    """An intruder policy from a name or an import spec.
-
-    * a scripted intruder: one of :data:`stp_env.baselines.INTRUDERS`;
-    * ``"learned:NAME_OR_PATH"``: a learned intruder, :func:`stp_env.baselines.learned.load_intruder` (a shipped name or
-      an ``.npz`` exported by :func:`stp_env.baselines.learned.export_mlp`);
-    * ``"package.module:attribute"``: a jittable policy ``(key, state, params) -> (2,)`` defined in an importable
-      module (how a learned intruder exported to JAX is evaluated);
-    * ``"package.module:factory=ARGUMENT"``: ``factory(ARGUMENT)`` must return such a policy (e.g. a loader
-      taking a checkpoint path).
-
-    The policy is a static argument of the compiled rollout: the same object must be passed for every batch (a
-    factory is called once here), or each batch would compile again.
-
-    An import spec runs code (it imports the module and may call the factory): it is for specs the user typed
-    (the command line) or wrote (their own code), never for names read from a file. ``allow_plugins=False``
-    refuses them (how saved events are replayed, :mod:`stp_env.evaluation.events`).
-    """
-    if not isinstance(spec, str) or not spec:
-        raise ValueError(f"an intruder is a non-empty name or spec string; got {spec!r}.")
-    if spec in INTRUDERS:
-        return INTRUDERS[spec]
-    if spec.startswith(LEARNED_PREFIX):
-        from stp_env.baselines.learned import load_intruder
-
-        return load_intruder(spec[len(LEARNED_PREFIX):])
-    if ":" not in spec:
-        raise ValueError(f"unknown intruder {spec!r}; allowed: {', '.join(INTRUDERS)}, 'learned:NAME_OR_PATH' "
-                         "(stp_env.baselines.learned.load_intruder), or 'package.module:policy' / "
-                         "'package.module:factory=ARGUMENT' for any jittable intruder policy.")
-    if not allow_plugins:
-        raise ValueError(f"intruder {spec!r} is a plug-in spec (code to import), which is not accepted here; "
-                         f"allowed: {', '.join(INTRUDERS)} or 'learned:NAME_OR_PATH'.")
-    module_name, _, attribute = spec.partition(":")
-    attribute, has_argument, argument = attribute.partition("=")
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as err:
-        raise ValueError(f"intruder {spec!r}: cannot import {module_name!r} ({err}).") from None
-    if not hasattr(module, attribute):
-        raise ValueError(f"intruder {spec!r}: module {module_name!r} has no attribute {attribute!r}.")
-    policy = getattr(module, attribute)
-    if has_argument:
-        policy = policy(argument)
-    if not callable(policy):
-        raise ValueError(f"intruder {spec!r} is not callable; expected a policy (key, state, params) -> (2,).")
-    return policy
 
 
 resolve_vehicle_policy = vehicle_policy  # the one lookup by name (stp_env.baselines.vehicles)
@@ -136,7 +93,7 @@ class Configuration:
     def effective_spawn_mode(self) -> str:
         if self.spawn_mode != "auto":
             return self.spawn_mode
-        return "boundary" if self.intruder in BOUNDARY_INTRUDERS else "outside"
+        return capabilities(self.intruder).spawn
 
     @property
     def label(self) -> str:

@@ -20,6 +20,7 @@ from pathlib import Path
 
 from stp_env.arguments import INT32_MAX, check_int
 from stp_env.baselines import INTRUDERS
+from stp_env.baselines.intruders import is_plugin
 from stp_env.evaluation.config import LEARNED_PREFIX, Configuration
 from stp_env.loaders import read_json, read_npz
 from stp_env.seeds import check_seed
@@ -34,7 +35,7 @@ _REPLAY_FIELDS = ("config", "seed", "index", "n_steps", "plan_samples", "batch_s
 
 def is_plugin_spec(spec: str) -> bool:
     """Whether an intruder spec names code to import (``package.module:attribute[=ARG]``)."""
-    return isinstance(spec, str) and ":" in spec and not spec.startswith(LEARNED_PREFIX)
+    return is_plugin(spec)
 
 
 def _int(value, name: str, where: str, lo: int, hi: int = INT32_MAX) -> int:

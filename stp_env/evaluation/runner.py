@@ -240,10 +240,12 @@ def avoid_start_order_stats(ep: dict, n: int) -> tuple[list, list]:
 
 
 def needs_buffer(config: Configuration) -> bool:
-    """Whether a policy of ``config`` plays the buffer game (reads ``V^B``)."""
-    from stp_env.baselines import BUFFER_GAME_INTRUDERS, BUFFER_GAME_VEHICLE_POLICIES
+    """Whether a policy of ``config`` plays the buffer game (reads ``V^B``): the vehicles', or the intruder's by
+    its record (:func:`stp_env.baselines.intruders.capabilities`, plug-ins included)."""
+    from stp_env.baselines import BUFFER_GAME_VEHICLE_POLICIES
+    from stp_env.baselines.intruders import capabilities
 
-    return config.vehicle_policy in BUFFER_GAME_VEHICLE_POLICIES or config.intruder in BUFFER_GAME_INTRUDERS
+    return config.vehicle_policy in BUFFER_GAME_VEHICLE_POLICIES or capabilities(config.intruder).needs_buffer
 
 
 def build_params(configs, *, store=None, progress: bool = True) -> list:

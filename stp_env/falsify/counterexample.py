@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env.arguments import INT32_MAX, check_int, check_kbar, check_real, show
+from stp_env.baselines.intruders import is_plugin
 from stp_env.evaluation.report import atomic_open
 from stp_env.falsify.search import SearchConfig, search
 from stp_env.loaders import read_json
@@ -305,6 +306,9 @@ def load(path) -> tuple[AttackSpec, np.ndarray, float]:
         if missing:
             raise ValueError(f"missing field(s) {missing}")
         spec = AttackSpec.from_json(record["spec"])
+        if is_plugin(dict(spec.options).get("intruder")):  # a file never makes this process import code
+            raise ValueError(f"the intruder {dict(spec.options)['intruder']!r} is a plug-in spec (code to import), "
+                             "which a counterexample file may not name")
         z = record["z"]
         if not isinstance(z, list) or not 0 < len(z) <= MAX_ATTACK_DIM:
             raise ValueError(f"z must be a list of 1 to {MAX_ATTACK_DIM} numbers in [0, 1]")

@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env.baselines.intruders import BUFFER_GAME_INTRUDERS, INTRUDERS
+from stp_env.baselines.intruders import capabilities, resolve_intruder
 from stp_env.baselines.vehicles import BUFFER_GAME_VEHICLE_POLICIES, VEHICLE_POLICIES
 from stp_env.falsify import harness
 from stp_env.sim import core, engine, fleet
@@ -45,6 +45,8 @@ from stp_env.sim.spawn import radius_on_level
 from stp_env.sim.types import FLYING, EnvParams, replace
 
 SCRIPTED = ("max-k", "hj", "optimal-max-k")
+"""The scripted intruders of the papers' pursuit; any intruder :func:`stp_env.baselines.intruders.resolve_intruder`
+takes flies here too (a registered name, ``learned:NAME_OR_PATH`` or a plug-in ``package.module:attribute``)."""
 FLEETS = ("airborne", "whole")
 
 
@@ -58,8 +60,9 @@ VEHICLES = ("switching", "worst")
 
 
 def plays_buffer_game(vehicles: str = "switching", intruder: str = "search") -> bool:
-    """Whether the attack's vehicles or intruder read ``V^B`` (the buffer-game policies of :mod:`stp_env.baselines`)."""
-    return vehicles in BUFFER_GAME_VEHICLE_POLICIES or intruder in BUFFER_GAME_INTRUDERS
+    """Whether the attack's vehicles or intruder read ``V^B`` (the buffer-game vehicle policies of
+    :mod:`stp_env.baselines`; the intruder by its record, :func:`stp_env.baselines.intruders.capabilities`)."""
+    return vehicles in BUFFER_GAME_VEHICLE_POLICIES or (intruder != "search" and capabilities(intruder).needs_buffer)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,8 +78,13 @@ class KbarAttack:
     name: str = "kbar"
 
     def __post_init__(self) -> None:
-        if self.intruder not in ("search", *SCRIPTED):
-            raise ValueError(f"intruder must be 'search' or one of {SCRIPTED}; got {self.intruder!r}.")
+        if not isinstance(self.intruder, str):
+            raise ValueError(f"intruder must be 'search' or an intruder spec; got {self.intruder!r}.")
+        if self.intruder != "search":
+            try:
+                resolve_intruder(self.intruder)
+            except ValueError as err:
+                raise ValueError(f"intruder must be 'search' or an intruder spec ({err})") from None
         if self.vehicles not in VEHICLES:
             raise ValueError(f"vehicles must be one of {VEHICLES}; got {self.vehicles!r}.")
         if self.fleet not in FLEETS:
@@ -166,7 +174,7 @@ class KbarAttack:
         t_app, xi0 = self.spawn(z[:5], params)
         state = core.reset(jax.random.key(0), params)
         state = replace(state, t_appear=t_app, intruder_memory=jnp.concatenate([xi0, jnp.zeros(1)]))
-        policy = None if self.intruder == "search" else INTRUDERS[self.intruder]
+        policy = None if self.intruder == "search" else resolve_intruder(self.intruder)
         if self.intruder == "search":
             b = params.intruder_bounds
             u = harness.segments(z[5:5 + 2 * n_seg], n_seg, rep, (b[V_MIN], -b[OMEGA_MAX]),
