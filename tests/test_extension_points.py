@@ -1,9 +1,11 @@
 """The extension points of docs/architecture.md, each used by one small piece written here as a user would: a wind
-model, an intruder, a scenario (a catalog module found automatically) and a vehicle model (a double integrator
-in place of the Dubins plant), each run through the environment or the registry that picks it up."""
+model, an intruder, a falsifier target, a scenario (a catalog module found automatically) and a vehicle model (a
+double integrator in place of the Dubins plant), each run through the environment or the registry that picks it
+up."""
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import math
 import sys
@@ -23,12 +25,15 @@ from stp_env.baselines.intruders import (
     register_intruder,
     resolve_intruder,
 )
+from stp_env.baselines.vehicles import nominal_tracking
 from stp_env.env import parallel_env
 from stp_env.evaluation.config import Configuration
 from stp_env.evaluation.runner import needs_buffer
+from stp_env.falsify import harness
 from stp_env.falsify.kbar import plays_buffer_game
+from stp_env.falsify.targets import register as register_target
 from stp_env.sim import winds
-from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN
+from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN, WIND
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.physics import dubins_step
 from stp_env.sim.vehicle_models import Dubins, VehicleModel
@@ -181,6 +186,85 @@ def test_a_plugin_intruder_flies_in_the_environment_the_evaluator_and_the_falsif
     outcome = run(AttackSpec(target="kbar", scenario=SCENARIO, kbar=2, options=(("intruder", spec),)),
                   SearchConfig(budget=8, population=8, restarts=1, batch=8), progress=False)
     assert outcome.evaluations == 8 and math.isfinite(outcome.worst)
+
+
+# ---------------------------------------------------------------------------------------- a falsifier target
+@register_target
+@dataclasses.dataclass(frozen=True)
+class SteadyWindAttack:
+    """A falsifier target written as a user would: the wind held constant over ``horizon`` seconds (its direction
+    and strength searched) against the tracker of a straight 12 m/s reference; the bound is ``r_e``."""
+
+    base: sim.EnvParams
+    horizon: float = 3.0
+    name: str = "test-steady-wind"
+
+    @property
+    def n_steps(self) -> int:
+        return round(self.horizon / float(self.base.dt))
+
+    @property
+    def dim(self) -> int:
+        return 2
+
+    @property
+    def bound(self) -> float:
+        return float(self.base.tracking_bound)
+
+    def margin(self, value: float) -> float:
+        return self.bound - value
+
+    def simulate(self, z, record: bool = False):
+        n = self.n_steps + 2
+        params = harness.one_vehicle(self.base, n, wind_model="constant")
+        params = dataclasses.replace(params, appear_window=jnp.full((2,), 1.0e9, jnp.float32))  # no intruder
+        controls = jnp.tile(jnp.asarray([12.0, 0.0], jnp.float32), (n, 1))
+        params = harness.with_reference(params, harness.reference(jnp.zeros(3), controls, float(self.base.dt)),
+                                        controls)
+        w = harness.disk(z, self.base.vehicle_bounds[WIND], 1, self.n_steps)
+        state = sim.reset(jax.random.key(0), params)
+        return harness.run(params, state, self.n_steps, vehicle_policy=nominal_tracking,
+                           winds=jnp.stack([w, jnp.zeros_like(w)], axis=1), record=record)
+
+    def objective(self, z):
+        final, _ = self.simulate(z)
+        return final.max_tracking_error[0]
+
+    def details(self, z) -> dict:
+        return {"max_error_m": round(float(self.objective(jnp.asarray(z, jnp.float32))), 4)}
+
+    def draw(self, ax, ax2, z) -> None:
+        final, (x, _, t) = self.simulate(jnp.asarray(z, jnp.float32), record=True)
+        ax.plot(np.asarray(x[:, 0, 0]), np.asarray(x[:, 0, 1]), label="vehicle")
+        ax2.axhline(self.bound, ls="--", label="r_e")
+        ax2.plot(np.asarray(t), np.full(len(t), float(final.max_tracking_error[0])), label="largest error")
+
+
+@pytest.mark.slow  # compiles a search over the core step
+def test_a_falsifier_target_from_one_file_searches_saves_draws_and_replays(tmp_path):
+    from stp_env.falsify import targets
+    from stp_env.falsify.cli import add_parser
+    from stp_env.falsify.counterexample import AttackSpec, replay, run, save
+    from stp_env.falsify.search import SearchConfig
+
+    assert targets.attack_class("test-steady-wind") is SteadyWindAttack
+    parser = argparse.ArgumentParser()
+    add_parser(parser.add_subparsers())
+    args = parser.parse_args(["falsify", "--target", "test-steady-wind", "--option", "horizon=2"])
+    assert args.target == "test-steady-wind"
+    spec = AttackSpec(target="test-steady-wind", scenario=SCENARIO, options=(("horizon", 2.0),))
+    outcome = run(spec, SearchConfig(budget=8, population=8, restarts=1, batch=8), progress=False)
+    assert outcome.evaluations == 8 and 0.0 < outcome.worst < outcome.bound
+    assert outcome.details == {"max_error_m": round(outcome.worst, 4)}
+    path = save(outcome, tmp_path, plot=True, progress=False)
+    assert (tmp_path / "counterexample.png").stat().st_size > 0
+    recorded, recomputed = replay(path)
+    assert recorded == recomputed
+    with pytest.raises(ValueError, match="unknown target"):
+        targets.attack_class("test-no-such-target")
+    with pytest.raises(ValueError, match="already registered"):
+        register_target(dataclasses.make_dataclass("Other", [("base", object)], bases=(SteadyWindAttack,),
+                                                   frozen=True))
 
 
 # ------------------------------------------------------------------------------------------------ a scenario

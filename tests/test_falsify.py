@@ -3,6 +3,7 @@ fail), find none against the guarantees in use, and their counterexamples replay
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import functools
 import json
@@ -162,6 +163,14 @@ def test_malformed_counterexample_files_are_refused(tmp_path, edit):
 
 
 def test_cli_targets_match_the_attacks():
-    assert falsify_cli.TARGETS == TARGETS
+    from stp_env.falsify import targets
+
+    parser = argparse.ArgumentParser()
+    falsify_cli.add_parser(parser.add_subparsers())
+    choices = next(a for a in parser._subparsers._group_actions[0].choices["falsify"]._actions
+                   if a.dest == "target").choices
+    assert tuple(choices) == targets.names() and set(TARGETS) <= set(choices)
+    for name in TARGETS:
+        assert targets.attack_class(name).name == name
     with pytest.raises(ValueError, match="unknown option"):
         build_attack(AttackSpec(target="tracking", options=(("horizonn", 3.0),)), params=_params())

@@ -10,6 +10,7 @@ One small module per attack, each a jittable objective on the unit box (larger i
 * :mod:`~stp_env.falsify.kbar`: intruder appearance, spawn and trajectory against a planned scenario (the bound
   k̄ on ``|N^RP|``, eq. 39).
 
+:mod:`~stp_env.falsify.targets` names them (a new target is a module whose attack class it registers);
 :mod:`~stp_env.falsify.search` holds the searchers (cross-entropy with restarts, Adam through the differentiable
 core), :mod:`~stp_env.falsify.counterexample` the replayable record of the worst attack found. ``stp-env
 falsify`` runs them from the command line::

@@ -37,6 +37,7 @@ import numpy as np
 from stp_env.baselines.intruders import hj_pursuit
 from stp_env.baselines.vehicles import VEHICLE_POLICIES
 from stp_env.falsify import harness
+from stp_env.falsify.targets import register
 from stp_env.sim import core
 from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN, WIND
 from stp_env.sim.physics import control_to_action
@@ -45,6 +46,7 @@ from stp_env.sim.tables import PERIODIC_PAD
 from stp_env.sim.types import EnvParams, replace
 
 
+@register
 @dataclasses.dataclass(frozen=True)
 class AvoidanceAttack:
     """See the module docstring. ``base``: the environment whose vehicle, intruder, tables and rates are used."""
@@ -213,6 +215,25 @@ class AvoidanceAttack:
         return harness.to_numpy({"t": t, "vehicle": x[:, 0, :], "intruder": xi,
                                  "min_distance": final.min_separation[0], "avoid_start": final.avoid_start[0],
                                  "collision_radius": self.base.collision_radius})
+
+    def details(self, z) -> dict:
+        tr = self.trace(z)
+        start = float(tr["avoid_start"])
+        return {"min_distance_m": round(float(tr["min_distance"]), 4),
+                "avoid_start_s": round(start, 3) if math.isfinite(start) else None}
+
+    def draw(self, ax, ax2, z) -> None:
+        """The vehicle's and the intruder's paths; their distance over time against ``R_c``."""
+        tr = self.trace(z)
+        veh, intr = tr["vehicle"], tr["intruder"]
+        ax.plot(veh[:, 0], veh[:, 1], "C0", label="vehicle (u*)")
+        ax.plot(intr[:, 0], intr[:, 1], "C3", label="intruder")
+        ax.plot(intr[0, 0], intr[0, 1], "C3o", ms=4)
+        ax2.plot(tr["t"], np.hypot(*(veh[:, :2] - intr[:, :2]).T), "C0", label="vehicle-intruder distance")
+        ax2.axhline(float(tr["collision_radius"]), color="C3", ls="--", label="R_c")
+        if np.isfinite(tr["avoid_start"]):
+            ax2.axvline(float(tr["avoid_start"]), color="k", lw=0.8, label="avoid start")
+        ax2.set_ylabel("distance [m]")
 
     def describe(self) -> dict:
         return {"attack": self.name, "segment": self.segment, "intruder": self.intruder, "wind": self.wind,

@@ -6,7 +6,7 @@ import argparse
 import json
 import math
 
-TARGETS = ("tracking", "avoidance", "kbar")  # the attacks of stp_env.falsify.counterexample (kept in step by a test)
+from stp_env.falsify import targets
 
 
 def _option(text: str):
@@ -38,7 +38,8 @@ def add_parser(sub) -> None:
                     "appearance, spawn and path against a planned scenario; bound k̄). Prints one JSON line with "
                     "the worst value found, the bound and the margin (negative: broken), and writes a replayable "
                     "counterexample.json with a figure to --out. --replay FILE recomputes a saved one.")
-    fa.add_argument("--target", choices=TARGETS, default="tracking", help="the bound to attack")
+    fa.add_argument("--target", choices=targets.names(), default="tracking",
+                    help="the bound to attack (stp_env.falsify.targets: the built-in targets and any registered)")
     kit.add_scenario(fa, "town", "registered scenario (vehicle, tables, plan)")
     fa.add_argument("--kbar", type=kit.kbar, default=None,
                     help=f"the scenario's k̄ (1-{kit.MAX_KBAR}; default: the scenario's own)")

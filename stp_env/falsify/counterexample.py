@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import time
 from pathlib import Path
 
@@ -21,11 +20,13 @@ import numpy as np
 from stp_env.arguments import INT32_MAX, check_int, check_kbar, check_real, show
 from stp_env.baselines.intruders import is_plugin
 from stp_env.evaluation.report import atomic_open
+from stp_env.falsify import targets
 from stp_env.falsify.search import SearchConfig, search
 from stp_env.loaders import read_json
 from stp_env.seeds import prng_key
 
-TARGETS = ("tracking", "avoidance", "kbar")
+TARGETS = tuple(targets.BUILT_IN)
+"""The built-in targets' names (every target, registered ones included: :func:`stp_env.falsify.targets.names`)."""
 FORMAT = 1
 MAX_ATTACK_DIM = 1_000_000
 """The most inputs an attack may have (its ``z``): what a search samples, and what a counterexample file may hold."""
@@ -60,8 +61,8 @@ class AttackSpec:
     options: tuple = ()
 
     def __post_init__(self) -> None:
-        if not isinstance(self.target, str) or self.target not in TARGETS:
-            raise ValueError(f"target must be one of {', '.join(TARGETS)}; got {show(self.target)}.")
+        if not isinstance(self.target, str) or self.target not in targets.names():
+            raise ValueError(f"target must be one of {', '.join(targets.names())}; got {show(self.target)}.")
         for name in ("scenario", "wind_model"):
             value = getattr(self, name)
             if not isinstance(value, str) or not 0 < len(value) <= MAX_TEXT:
@@ -120,7 +121,6 @@ class AttackSpec:
 def environment(spec: AttackSpec, *, progress: bool = False):
     """The environment the attack runs in (registered scenario, typed config)."""
     from stp_env import assembly, sim
-    from stp_env.falsify.kbar import plays_buffer_game
     from stp_env.scenarios import factory_parameters, make
 
     overrides = {}
@@ -135,9 +135,7 @@ def environment(spec: AttackSpec, *, progress: bool = False):
     scenario = make(spec.scenario, **overrides)
     config = sim.EnvConfig(dt=spec.dt, control_dt=spec.control_dt, wind_model=spec.wind_model)
     params = assembly.params_for(scenario, config, progress=progress)
-    opts = dict(spec.options)
-    if spec.target == "kbar" and plays_buffer_game(str(opts.get("vehicles", "switching")),
-                                                   str(opts.get("intruder", "search"))):
+    if targets.needs_buffer(spec.target, dict(spec.options)):
         from stp_env.assembly import load_buffer, with_buffer
 
         params = with_buffer(params, load_buffer(scenario, progress=progress))
@@ -146,11 +144,7 @@ def environment(spec: AttackSpec, *, progress: bool = False):
 
 def build_attack(spec: AttackSpec, params=None, *, progress: bool = False):
     """The attack object of ``spec`` (in ``params``, or the environment :func:`environment` builds)."""
-    from stp_env.falsify.avoidance import AvoidanceAttack
-    from stp_env.falsify.kbar import KbarAttack
-    from stp_env.falsify.tracking import TrackingAttack
-
-    cls = {"tracking": TrackingAttack, "avoidance": AvoidanceAttack, "kbar": KbarAttack}[spec.target]
+    cls = targets.attack_class(spec.target)
     params = environment(spec, progress=progress) if params is None else params
     allowed = {f.name for f in dataclasses.fields(cls)} - {"base", "name"}
     opts = dict(spec.options)
@@ -247,25 +241,12 @@ def run(spec: AttackSpec, config: SearchConfig | None = None, seed: int = 0, *, 
     worst = canonical_value(attack, z)
     finite = result.values[np.isfinite(result.values)]
     quantiles = tuple(float(q) for q in np.quantile(finite, [0.5, 0.9, 0.99, 1.0])) if finite.size else ()
-    details = _details(attack, z)
+    details = attack.details(z)
     seed_values = () if seeds is None else tuple(canonical_value(attack, s) for s in seeds)
     seconds = time.perf_counter() - start  # the whole run: building the attack, the search, the worst recomputed
     return Outcome(spec=spec, config=config, seed=seed, z=z, worst=worst, bound=attack.bound,
                    margin=attack.margin(worst), evaluations=result.evaluations, seconds=seconds,
                    quantiles=quantiles, details=details, seed_values=seed_values)
-
-
-def _details(attack, z) -> dict:
-    if attack.name == "kbar":
-        out = attack.outcome(z)
-        return {"forced": int(out["forced"]), "guarantee_violations": int(out["guarantee_violations"]),
-                "min_separation_m": round(float(out["min_separation"]), 3), "assumption_ok": bool(out["assumption_ok"])}
-    trace = attack.trace(z)
-    if attack.name == "avoidance":
-        return {"min_distance_m": round(float(trace["min_distance"]), 4),
-                "avoid_start_s": None if not math.isfinite(float(trace["avoid_start"])) else
-                round(float(trace["avoid_start"]), 3)}
-    return {"max_error_m": round(float(trace["worst"]), 4)}
 
 
 def save(outcome: Outcome, directory, *, plot: bool = True, progress: bool | None = None) -> Path:

@@ -37,6 +37,7 @@ import numpy as np
 from stp_env.baselines.intruders import capabilities, resolve_intruder
 from stp_env.baselines.vehicles import BUFFER_GAME_VEHICLE_POLICIES, VEHICLE_POLICIES
 from stp_env.falsify import harness
+from stp_env.falsify.targets import register
 from stp_env.sim import core, engine, fleet
 from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN
 from stp_env.sim.physics import control_to_action, rotate, wrap_angle
@@ -65,6 +66,7 @@ def plays_buffer_game(vehicles: str = "switching", intruder: str = "search") -> 
     return vehicles in BUFFER_GAME_VEHICLE_POLICIES or (intruder != "search" and capabilities(intruder).needs_buffer)
 
 
+@register
 @dataclasses.dataclass(frozen=True)
 class KbarAttack:
     """See the module docstring. ``base``: the planned scenario's environment (its plan, k̄, tables, wind model)."""
@@ -222,6 +224,34 @@ class KbarAttack:
                                  "status": final.status, "forced": jnp.sum(jnp.isfinite(final.avoid_start)),
                                  "t_appear": final.t_appear, "collision_radius": self.base.collision_radius,
                                  "min_separation": jnp.min(final.min_separation)})
+
+    @classmethod
+    def needs_buffer_for(cls, options: dict) -> bool:
+        """Whether the attack with ``options`` plays the buffer game (its environment must carry ``V^B``)."""
+        return plays_buffer_game(str(options.get("vehicles", "switching")), str(options.get("intruder", "search")))
+
+    def details(self, z) -> dict:
+        out = self.outcome(z)
+        return {"forced": int(out["forced"]), "guarantee_violations": int(out["guarantee_violations"]),
+                "min_separation_m": round(float(out["min_separation"]), 3),
+                "assumption_ok": bool(out["assumption_ok"])}
+
+    def draw(self, ax, ax2, z) -> None:
+        """Every vehicle's path (red: forced) and the intruder's while present; the closest vehicle's distance."""
+        tr = self.trace(z)
+        veh, intr, t = tr["vehicles"], tr["intruder"], tr["t"]
+        present = (t >= float(tr["t_appear"])) & (t <= float(tr["t_appear"]) + float(self.base.t_iat))
+        for i in range(veh.shape[1]):
+            forced = np.isfinite(tr["avoid_start"][i])
+            ax.plot(veh[:, i, 0], veh[:, i, 1], color="C3" if forced else "C0", lw=0.8)
+        ax.plot(intr[present, 0], intr[present, 1], "k", lw=1.5, label="intruder")
+        d = np.min(np.hypot(veh[:, :, 0] - intr[:, None, 0], veh[:, :, 1] - intr[:, None, 1]), axis=1)
+        ax2.plot(t[present], d[present], "k", label="closest vehicle to the intruder")
+        for s in tr["avoid_start"][np.isfinite(tr["avoid_start"])]:
+            ax2.axvline(float(s), color="C3", lw=0.8)
+        ax2.axhline(float(tr["collision_radius"]), color="C3", ls="--", label="R_c")
+        ax2.set_ylabel("distance [m]")
+        ax.set_title(f"|N^RP| = {int(tr['forced'])} (red: forced), k̄ = {int(self.base.kbar)}")
 
     def describe(self) -> dict:
         return {"attack": self.name, "intruder": self.intruder, "segment": self.segment,

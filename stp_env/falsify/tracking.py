@@ -24,6 +24,7 @@ import numpy as np
 
 from stp_env.baselines.vehicles import nominal_tracking
 from stp_env.falsify import harness
+from stp_env.falsify.targets import register
 from stp_env.kinematics import dubins_step, relative_state, rotate
 from stp_env.sim import core, engine, tables
 from stp_env.sim.bounds import WIND
@@ -32,6 +33,7 @@ from stp_env.sim.types import EnvParams, replace
 WIND_MODES = ("search", "worst")
 
 
+@register
 @dataclasses.dataclass(frozen=True)
 class TrackingAttack:
     """See the module docstring. ``base``: the environment whose vehicle, tables, step and inner rate are used."""
@@ -184,6 +186,21 @@ class TrackingAttack:
         x, _, t = traj
         return harness.to_numpy({"t": t, "vehicle": x[:, 0, :], "reference": states[:self.n_steps + 1],
                                  "worst": final.max_tracking_error[0]})
+
+    def details(self, z) -> dict:
+        return {"max_error_m": round(float(self.trace(z)["worst"]), 4)}
+
+    def draw(self, ax, ax2, z) -> None:
+        """The reference and the vehicle's path; the distance between them over time against ``r_e``."""
+        tr = self.trace(z)
+        ref, veh = tr["reference"], tr["vehicle"]
+        ax.plot(ref[:, 0], ref[:, 1], "k--", lw=1, label="reference (legal, U^p)")
+        ax.plot(veh[:, 0], veh[:, 1], "C0", lw=1.2, label="vehicle (u^PP)")
+        k = np.clip(np.round(np.asarray(tr["t"]) / float(self.base.dt)).astype(int), 0, len(ref) - 1)
+        err = np.hypot(*(veh[:, :2] - ref[k, :2]).T)  # the plan is sampled at the step
+        ax2.plot(tr["t"], err, "C0", label="distance to reference")
+        ax2.axhline(self.bound, color="C3", ls="--", label=f"r_e = {self.bound:.2f} m")
+        ax2.set_ylabel("error [m]")
 
     def describe(self) -> dict:
         return {"attack": self.name, "horizon": self.horizon, "segment": self.segment, "wind": self.wind,
