@@ -25,6 +25,8 @@ import sys
 import tempfile
 import time
 
+from core_revisions import export  # the same export of a revision's package (this folder is on sys.path)
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 CASES = ("evaluate", "worst_case", "falsify", "coobservation", "survivability")
@@ -177,13 +179,6 @@ def run_one(case: str, episodes: int) -> dict:
     summary = globals()[f"case_{case}"](d, episodes)
     return {"case": case, "digest": d.hexdigest(), "leaves": d.leaves, "seconds": round(time.perf_counter() - t0, 1),
             "summary": summary, "package": stp_env.__file__}
-
-
-def export(rev: str, into: str) -> str:
-    """``rev``'s ``stp_env`` package under ``into`` (``git archive``); returns the directory to import from."""
-    archive = subprocess.run(["git", "-C", ROOT, "archive", rev, "stp_env"], capture_output=True, check=True)
-    subprocess.run(["tar", "-x", "-C", into], input=archive.stdout, check=True)
-    return into
 
 
 def main() -> None:
