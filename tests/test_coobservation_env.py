@@ -211,3 +211,39 @@ def test_a_failed_reset_changes_nothing_and_seeds_do_not_wrap():
         with pytest.raises(ValueError):
             env.reset(seed=seed, options=options)
         assert snapshot() == before, (seed, options)
+
+
+def test_the_attackers_vec_env_keeps_the_batched_vec_env_contract():
+    """The attacker's SB3 VecEnv (one batched JAX state): actions checked before anything is stored, the zero
+    residual flies the plan for as many steps as asked, shared attributes, finished episodes' infos."""
+    from stp_env.coobservation.attacker_vec_env import AttackerVecEnv
+    from stp_env.coobservation.learned import make_vec_env
+    from stp_env.rl.jax_vec_env import JaxVecEnv
+
+    params, threats, _ = _setup()
+    venv = make_vec_env(3, params, threats["unsecured"], (100.0, 100.0), action_repeat=5, seed=1)
+    assert isinstance(venv, AttackerVecEnv) and isinstance(venv, JaxVecEnv)
+    obs = venv.reset()
+    assert obs.shape == (3, attackers.OBS_SIZE) and np.all(np.isfinite(obs))
+    for bad in (np.zeros((2, 2)), np.full((3, 2), np.nan)):
+        with pytest.raises(ValueError, match="actions"):
+            venv.step_async(bad)
+        assert venv._actions is None
+    infos_done = []
+    for _ in range(40):
+        venv.step_async(np.zeros((3, 2), np.float32))
+        obs, rew, done, infos = venv.step_wait()
+        assert obs.shape == (3, attackers.OBS_SIZE) and rew.shape == (3,) and done.dtype == bool
+        infos_done += [info for info, d in zip(infos, done) if d]
+    for info in infos_done:  # the honest flight: no entry, and the episode's return and length for the logger
+        assert not info["entered"] and info["episode"]["l"] > 0
+    assert venv.get_attr("action_repeat") == [5, 5, 5] and venv.env_is_wrapped(object) == [False] * 3
+    venv.set_attr("shaping", 0.5)
+    assert venv.shaping == 0.5
+    with pytest.raises(ValueError, match="share"):
+        venv.set_attr("shaping", 1.0, indices=[0])
+    with pytest.raises(ValueError, match="cannot be set"):
+        venv.set_attr("_keys", None)
+    venv.close()
+    with pytest.raises(RuntimeError, match="reset"):
+        venv.step_wait()

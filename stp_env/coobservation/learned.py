@@ -1,7 +1,8 @@
 """A learned attacker (Stable-Baselines3 PPO) whose reward is entering a forbidden zone without missing an
 observation, trained on the batched JAX wrapper, and exported to a small ``.npz`` (numpy weights, no pickle).
 
-* :class:`AttackerVecEnv`: a native SB3 ``VecEnv`` of ``n`` attacker episodes in one JAX program per step.
+* :func:`make_vec_env` (:class:`~stp_env.coobservation.attacker_vec_env.AttackerVecEnv`): a native SB3
+  ``VecEnv`` of ``n`` attacker episodes in one JAX program per step.
   An episode starts at the compromise (a random vehicle at a random time on the simulator's grid in
   ``t_window``; the core is reset *at* that time with every vehicle on its plan, as the intruder's training env
   does) and ends at the end of the schedule or at the detection. The attacker decides every ``action_repeat``
@@ -121,65 +122,12 @@ def make_vec_env(n_envs: int, params, tp, t_window, *, action_repeat: int = 5, g
                  shaping: float = 1.0, seed: int = 0, residual: bool = True):
     """A Stable-Baselines3 ``VecEnv`` (imported lazily: needs the ``rl`` extra). ``seed``: an integer in
     ``[0, 2**63 - 1]`` (:func:`stp_env.seeds.prng_key`: every seed its own keys)."""
+    from stp_env.coobservation.attacker_vec_env import AttackerVecEnv
     from stp_env.seeds import prng_key
 
     base = jax.random.key_data(prng_key(seed))  # raw key data: the keys are selected with jnp.where
-    import gymnasium as gym
-    from stable_baselines3.common.vec_env.base_vec_env import VecEnv
-
-    class AttackerVecEnv(VecEnv):
-        """``n_envs`` attacker episodes in one batched JAX state (see the module docstring)."""
-
-        render_mode = None
-
-        def __init__(self):
-            super().__init__(n_envs, gym.spaces.Box(-2.0, 2.0, (attackers.OBS_SIZE,), np.float32),
-                             gym.spaces.Box(-1.0, 1.0, (2,), np.float32))
-            self._keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.arange(n_envs))
-            self._states = None
-            self._actions = None
-            self.window = jnp.asarray(t_window, jnp.float32)
-            self._returns = np.zeros(n_envs)
-            self._lengths = np.zeros(n_envs, int)
-
-        def reset(self):
-            self._keys, self._states, obs = batch_reset(self._keys, params, tp, self.window)
-            return np.asarray(obs)
-
-        def step_async(self, actions):
-            self._actions = jnp.asarray(np.clip(np.asarray(actions, np.float32), -1, 1))
-
-        def step_wait(self):
-            out = batch_step(self._keys, self._states, self._actions, params, tp, self.window, action_repeat,
-                             gamma, shaping, residual)
-            self._keys, self._states = out[0], out[1]
-            obs, rew, done, term_obs, stats = jax.device_get(out[2:])
-            self._returns += rew
-            self._lengths += 1
-            infos = [{} for _ in range(n_envs)]
-            for i in np.flatnonzero(done):  # "episode": SB3's Monitor convention (logged as rollout/ep_rew_mean)
-                infos[i] = {"terminal_observation": term_obs[i], "TimeLimit.truncated": False,
-                            "entered": bool(stats[i, 0]), "detected": bool(stats[i, 1]),
-                            "episode": {"r": float(self._returns[i]), "l": int(self._lengths[i])}}
-                self._returns[i], self._lengths[i] = 0.0, 0
-            return np.asarray(obs), rew.astype(np.float32), done.astype(bool), infos
-
-        def close(self):
-            pass
-
-        def get_attr(self, attr_name, indices=None):
-            return [getattr(self, attr_name) for _ in self._get_indices(indices)]
-
-        def set_attr(self, attr_name, value, indices=None):
-            setattr(self, attr_name, value)
-
-        def env_method(self, method_name, *args, indices=None, **kwargs):
-            return [getattr(self, method_name)(*args, **kwargs) for _ in self._get_indices(indices)]
-
-        def env_is_wrapped(self, wrapper_class, indices=None):
-            return [False for _ in self._get_indices(indices)]
-
-    return AttackerVecEnv()
+    return AttackerVecEnv(n_envs, params, tp, t_window, base, (batch_reset, batch_step), action_repeat=action_repeat,
+                          gamma=gamma, shaping=shaping, residual=residual)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -208,8 +156,8 @@ class AttackerTrainConfig:
 
 def outcome_rates(infos, dones) -> tuple[int, int, int, int]:
     """``(finished, entered, detected, succeeded)`` counts of the episodes that ended in one vector step of
-    :class:`AttackerVecEnv` (its ``infos`` carry ``entered`` and ``detected`` at an episode's end; success is an
-    entry that was not detected)."""
+    :class:`~stp_env.coobservation.attacker_vec_env.AttackerVecEnv` (its ``infos`` carry ``entered`` and
+    ``detected`` at an episode's end; success is an entry that was not detected)."""
     n = e = d = s = 0
     for info, done in zip(infos, dones):
         if done and "entered" in info:
@@ -300,7 +248,7 @@ def imitate(policy, obs, actions, epochs: int, lr: float = 1e-3, batch: int = 10
 
 
 def train(params, tp, t_window, config: AttackerTrainConfig, out_dir, progress: bool = True) -> Path:
-    """Train PPO on :class:`AttackerVecEnv` and write ``out_dir/attacker.npz`` (and ``config.json``, the
+    """Train PPO on :func:`make_vec_env`'s env and write ``out_dir/attacker.npz`` (and ``config.json``, the
     training log ``progress.csv`` with the outcome rates of :func:`_outcome_logger`). Returns the path of the
     ``.npz``."""
     import torch

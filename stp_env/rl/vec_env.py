@@ -13,33 +13,28 @@ step for the same seeds):
   ``TimeLimit.truncated`` (truncated and not terminated), and ``reset_infos[i]`` the new episode's reset info.
 * Every info has ``n_forced`` (``|N^RP|``), ``kbar``, ``collisions``, ``intruder_collisions``,
   ``guarantee_violations`` and ``time`` [s] (the values of the state the step reached).
-* The envs share one :class:`stp_env.sim.EnvParams`: ``get_attr(name)`` returns the shared attribute once per
-  index, except the per-env arrays in :attr:`IntruderVecEnv.PER_ENV_ATTRS`; ``set_attr`` only sets shared
-  attributes on every env at once; ``env_method`` calls the shared method once per index;
-  ``env_is_wrapped`` is ``False`` (there are no Gymnasium wrappers inside).
+* The envs share one :class:`stp_env.sim.EnvParams`: attributes as for every batched JAX ``VecEnv`` of the
+  project (:class:`stp_env.rl.jax_vec_env.JaxVecEnv`), the per-env ones being :attr:`IntruderVecEnv.PER_ENV_ATTRS`.
 """
 
 from __future__ import annotations
-
-from collections.abc import Sequence
-from typing import Any
 
 import gymnasium as gym
 import jax
 import jax.numpy as jnp
 import numpy as np
-from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 
 from stp_env import sim
 from stp_env.rl import functional as F
-from stp_env.rl.gym_env import build_params, check_action
+from stp_env.rl.gym_env import build_params
+from stp_env.rl.jax_vec_env import JaxVecEnv
 from stp_env.sim.core import intruder_observation_size
 
 STAT_NAMES = ("n_forced", "collisions", "intruder_collisions", "guarantee_violations")
 INFO_NAMES = (*STAT_NAMES, "time")
 
 
-class IntruderVecEnv(VecEnv):
+class IntruderVecEnv(JaxVecEnv):
     """``n_envs`` intruder envs in one batched JAX state (see the module docstring).
 
     Args:
@@ -48,7 +43,6 @@ class IntruderVecEnv(VecEnv):
     """
 
     PER_ENV_ATTRS = ("n_forced", "time", "intruder_status")
-    render_mode = None
 
     def __init__(self, n_envs: int, scenario="town", config: sim.EnvConfig | None = None, *,
                  horizon: str = "intruder", vehicle_policy: str = "switching", params: sim.EnvParams | None = None,
@@ -64,8 +58,6 @@ class IntruderVecEnv(VecEnv):
         super().__init__(n_envs, gym.spaces.Box(-2.0, 2.0, (size,), np.float32),
                          gym.spaces.Box(-1.0, 1.0, (2,), np.float32))
         self._keys = None
-        self._states = None
-        self._actions = None
 
     # ---------------------------------------------------------------------------------------------- core API
     def reset(self) -> np.ndarray:
@@ -83,9 +75,6 @@ class IntruderVecEnv(VecEnv):
         self._reset_seeds()
         self._reset_options()
         return obs
-
-    def step_async(self, actions: np.ndarray) -> None:
-        self._actions = check_action(actions, (self.num_envs, 2))
 
     def step_wait(self):
         if self._states is None:
@@ -110,41 +99,12 @@ class IntruderVecEnv(VecEnv):
         return obs, rewards.astype(np.float32), dones, infos
 
     def close(self) -> None:
-        self._keys = self._states = None
+        self._keys = None
+        super().close()
 
-    # ---------------------------------------------------------------------------------------------- attributes
     def _per_env(self, name: str) -> np.ndarray:
-        if self._states is None:
-            raise AttributeError(f"{name!r} is known after reset().")
         if name == "n_forced":
             return np.asarray(jax.vmap(sim.n_forced)(self._states))
         if name == "time":
             return np.asarray(self._states.t)
         return np.asarray(self._states.intruder_status)
-
-    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
-        idx = list(self._get_indices(indices))
-        if attr_name in self.PER_ENV_ATTRS:
-            values = self._per_env(attr_name)
-            return [values[i].item() for i in idx]
-        value = getattr(self, attr_name)
-        return [value for _ in idx]
-
-    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
-        idx = list(self._get_indices(indices))
-        if sorted(idx) != list(range(self.num_envs)):
-            raise ValueError("IntruderVecEnv envs share their attributes: set_attr applies to every env at once "
-                             f"(indices=None); got indices {indices!r}.")
-        if attr_name in self.PER_ENV_ATTRS or attr_name.startswith("_"):
-            raise ValueError(f"{attr_name!r} cannot be set.")
-        setattr(self, attr_name, value)
-
-    def env_method(self, method_name: str, *method_args, indices: VecEnvIndices = None, **method_kwargs) -> list:
-        method = getattr(self, method_name)
-        return [method(*method_args, **method_kwargs) for _ in self._get_indices(indices)]
-
-    def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
-        return [False for _ in self._get_indices(indices)]
-
-    def get_images(self) -> Sequence[np.ndarray | None]:
-        return [None for _ in range(self.num_envs)]
