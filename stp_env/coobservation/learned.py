@@ -34,6 +34,7 @@ import numpy as np
 
 from stp_env.baselines import nominal_tracking
 from stp_env.coobservation import attackers, threat
+from stp_env.rl.ppo import PPOConfig, make_model
 from stp_env.sim import engine
 from stp_env.sim.types import replace
 
@@ -131,27 +132,21 @@ def make_vec_env(n_envs: int, params, tp, t_window, *, action_repeat: int = 5, g
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
-class AttackerTrainConfig:
-    """A modest PPO run (defaults: about 0.5 M decisions)."""
+class AttackerTrainConfig(PPOConfig):
+    """A modest PPO run (defaults: about 0.5 M decisions): the algorithm's settings
+    (:class:`stp_env.rl.ppo.PPOConfig`, with the attacker's defaults below) and the attacker's env and imitation."""
 
     total_timesteps: int = 500_000
     n_envs: int = 32
-    n_steps: int = 128
     batch_size: int = 1024
     n_epochs: int = 5
-    learning_rate: float = 3e-4
-    gamma: float = 0.99
-    ent_coef: float = 0.0
-    net_arch: tuple[int, ...] = (64, 64)
+    log_std_init: float = -1.0  # exploration noise std e^-1 = 0.37 (of the residual: about 9 m/s and 1.5 rad/s)
     action_repeat: int = 5
     shaping: float = 1.0
     residual: bool = True
-    log_std_init: float = -1.0  # exploration noise std e^-1 = 0.37 (of the residual: about 9 m/s and 1.5 rad/s)
     teacher: str | None = None  # a scripted attacker (attackers.ATTACKERS) to imitate before PPO (residual only)
     demo_decisions: int = 3000  # decisions of every env recorded from the teacher
     imitation_epochs: int = 20
-    seed: int = 0
-    torch_threads: int = 1
 
 
 def outcome_rates(infos, dones) -> tuple[int, int, int, int]:
@@ -252,7 +247,6 @@ def train(params, tp, t_window, config: AttackerTrainConfig, out_dir, progress: 
     training log ``progress.csv`` with the outcome rates of :func:`_outcome_logger`). Returns the path of the
     ``.npz``."""
     import torch
-    from stable_baselines3 import PPO
     from stable_baselines3.common.logger import configure
 
     from stp_env.baselines.learned import export_mlp
@@ -262,11 +256,7 @@ def train(params, tp, t_window, config: AttackerTrainConfig, out_dir, progress: 
     torch.set_num_threads(config.torch_threads)
     venv = make_vec_env(config.n_envs, params, tp, t_window, action_repeat=config.action_repeat, gamma=config.gamma,
                         shaping=config.shaping, seed=config.seed, residual=config.residual)
-    model = PPO("MlpPolicy", venv, n_steps=config.n_steps, batch_size=config.batch_size, n_epochs=config.n_epochs,
-                learning_rate=config.learning_rate, gamma=config.gamma, ent_coef=config.ent_coef, seed=config.seed,
-                policy_kwargs={"net_arch": list(config.net_arch), "activation_fn": torch.nn.Tanh,
-                               "log_std_init": config.log_std_init}, verbose=0,
-                device="cpu")
+    model = make_model(config, venv)
     model.set_logger(configure(str(out), ["csv"]))
     imitation = None
     if config.teacher is not None:

@@ -4,7 +4,9 @@
   policy (``switching`` = ``u*`` with the HJ safety filter, eq. 38) inside the core.
 * :class:`IntruderVecEnv` (:mod:`stp_env.rl.vec_env`): a native SB3 ``VecEnv`` of ``n`` of them, one compiled JAX
   program per step (auto-reset included).
-* :mod:`stp_env.rl.train`: ``TrainConfig`` and ``train`` (PPO by default), the evaluation callback.
+* :mod:`stp_env.rl.train`: ``TrainConfig`` and ``train`` (PPO by default), the evaluation callback;
+  :mod:`stp_env.rl.ppo`: the PPO settings every training configuration shares, and the model they make;
+  :mod:`stp_env.rl.jax_vec_env`: the base of the batched JAX ``VecEnv``s.
 * :mod:`stp_env.baselines.learned` (also :mod:`stp_env.rl.policy`): a trained MLP as a jittable intruder policy
   ``(key, state, params) -> (2,)`` (``load_intruder("town-kbar2")`` for the shipped one).
 

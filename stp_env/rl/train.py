@@ -32,15 +32,16 @@ from pathlib import Path
 import numpy as np
 
 from stp_env import assembly, sim
+from stp_env.arguments import check_int, check_real
 from stp_env.evaluation.summary import forced_summary
+from stp_env.rl.ppo import PPOConfig, make_model
 from stp_env.sim.types import SPAWN_MODES
 
-ALGORITHMS = ("ppo", "a2c")
 LOG_FORMATS = ("stdout", "csv", "tensorboard", "log", "json")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
-class TrainConfig:
+class TrainConfig(PPOConfig):
     """Everything that shapes a training run (unknown fields are a ``TypeError``).
 
     Attributes:
@@ -55,18 +56,14 @@ class TrainConfig:
             [per m] (both potentials of a step over the same vehicles, so forcing one is rewarded; before that fix
             the potential jumped by up to ``d_sense`` when a vehicle was forced, and with ``forced_reward = 1`` the
             intruder learned to approach and not force).
-        algo: ``"ppo"`` or ``"a2c"``; net_arch: hidden layer widths of actor and critic (tanh).
-        total_timesteps, n_envs, n_steps (per env per rollout), batch_size, n_epochs, learning_rate, gamma,
-        gae_lambda, ent_coef, clip_range: the usual PPO settings (A2C uses n_steps, learning_rate, gamma,
-        gae_lambda, ent_coef). Training runs whole rollouts of ``n_envs * n_steps`` env steps, so
-        ``total_timesteps`` is rounded up to a multiple of that (:attr:`trained_timesteps`; :func:`train` says so
-        and records both in ``intruder.npz``).
-        seed: one integer for torch, SB3 and the JAX env keys.
+        algo, net_arch, total_timesteps, n_envs, n_steps, batch_size, n_epochs, learning_rate, gamma, gae_lambda,
+        ent_coef, clip_range, log_std_init, seed, torch_threads: the algorithm's settings
+        (:class:`stp_env.rl.ppo.PPOConfig`). ``total_timesteps`` is rounded up to whole rollouts
+        (:attr:`trained_timesteps`; :func:`train` says so and records both in ``intruder.npz``).
         eval_every: evaluate every this many env steps (0: only at the end); eval_episodes: episodes per
             evaluation, from seeds ``eval_seed, eval_seed + 1, ...`` (held out from training's ``seed + i``).
         checkpoint_every: save a checkpoint every this many env steps (0: never).
         out_dir: output folder; log_formats: SB3 logger formats.
-        torch_threads: CPU threads for torch.
     """
 
     scenario: str = "town"
@@ -77,68 +74,32 @@ class TrainConfig:
     forced_reward: float = 5.0
     collision_reward: float = 10.0
     shaping_reward: float = 0.01
-    algo: str = "ppo"
-    net_arch: tuple[int, ...] = (64, 64)
-    total_timesteps: int = 2_000_000
-    n_envs: int = 64
-    n_steps: int = 128
-    batch_size: int = 2048
-    n_epochs: int = 10
-    learning_rate: float = 3e-4
-    gamma: float = 0.99
-    gae_lambda: float = 0.95
-    ent_coef: float = 0.0
-    clip_range: float = 0.2
-    seed: int = 0
     eval_every: int = 200_000
     eval_episodes: int = 256
     eval_seed: int = 1_000_000
     checkpoint_every: int = 500_000
     out_dir: str = "runs/intruder"
     log_formats: tuple[str, ...] = ("stdout", "csv")
-    torch_threads: int = 1
-
-    @property
-    def trained_timesteps(self) -> int:
-        """``total_timesteps`` rounded up to whole rollouts (``n_envs * n_steps`` steps each): what PPO trains."""
-        rollout = self.n_envs * self.n_steps
-        return -(-self.total_timesteps // rollout) * rollout
 
     def __post_init__(self) -> None:
         from stp_env.rl.functional import check_horizon, check_vehicle_policy
 
+        super().__post_init__()
         check_horizon(self.horizon)
         check_vehicle_policy(self.vehicle_policy)
         if self.spawn_mode not in SPAWN_MODES:
             raise ValueError(f"spawn_mode {self.spawn_mode!r} is not known; allowed: {', '.join(SPAWN_MODES)}.")
-        if self.algo not in ALGORITHMS:
-            raise ValueError(f"algo {self.algo!r} is not known; allowed: {', '.join(ALGORITHMS)}.")
-        for name in ("total_timesteps", "n_envs", "n_steps", "batch_size", "n_epochs", "eval_episodes",
-                     "torch_threads"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be an integer >= 1; got {value!r}.")
-        for name in ("seed", "eval_every", "checkpoint_every", "eval_seed"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                raise ValueError(f"{name} must be an integer >= 0; got {value!r}.")
+        check_int(self.eval_episodes, "eval_episodes", 1, None)
+        for name in ("eval_every", "checkpoint_every", "eval_seed"):
+            check_int(getattr(self, name), name, 0, None)
         if self.kbar is not None and (isinstance(self.kbar, bool) or not isinstance(self.kbar, int) or self.kbar < 1):
             raise ValueError(f"kbar must be None or an integer >= 1; got {self.kbar!r}.")
-        object.__setattr__(self, "net_arch", tuple(self.net_arch))
         object.__setattr__(self, "log_formats", tuple(self.log_formats))
-        if not self.net_arch or any(isinstance(w, bool) or not isinstance(w, int) or w < 1 for w in self.net_arch):
-            raise ValueError(f"net_arch must be widths >= 1; got {self.net_arch!r}.")
         unknown = sorted(set(self.log_formats) - set(LOG_FORMATS))
         if unknown:
             raise ValueError(f"unknown log formats {unknown}; allowed: {', '.join(LOG_FORMATS)}.")
-        for name in ("forced_reward", "collision_reward", "shaping_reward", "learning_rate", "gamma",
-                     "gae_lambda", "ent_coef", "clip_range"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ValueError(f"{name} must be a finite number; got {value!r}.")
-        if (self.n_envs * self.n_steps) % self.batch_size and self.algo == "ppo":
-            raise ValueError(f"n_envs * n_steps ({self.n_envs * self.n_steps}) must be a multiple of batch_size "
-                             f"({self.batch_size}).")
+        for name in ("forced_reward", "collision_reward", "shaping_reward"):
+            check_real(getattr(self, name), name)
 
     def env_config(self) -> sim.EnvConfig:
         rewards = sim.RewardConfig(forced=self.forced_reward, intruder_collision=self.collision_reward,
@@ -252,20 +213,6 @@ def _callbacks(config: TrainConfig, eval_env, out: Path, kbar: int):
         callbacks.append(CheckpointCallback(save_freq=max(config.checkpoint_every // config.n_envs, 1),
                                             save_path=str(out / "checkpoints"), name_prefix="intruder"))
     return callbacks
-
-
-def make_model(config: TrainConfig, venv):
-    from stable_baselines3 import A2C, PPO
-
-    policy_kwargs = {"net_arch": {"pi": list(config.net_arch), "vf": list(config.net_arch)}}
-    if config.algo == "a2c":
-        return A2C("MlpPolicy", venv, n_steps=config.n_steps, learning_rate=config.learning_rate,
-                   gamma=config.gamma, gae_lambda=config.gae_lambda, ent_coef=config.ent_coef,
-                   policy_kwargs=policy_kwargs, seed=config.seed, device="cpu", verbose=0)
-    return PPO("MlpPolicy", venv, n_steps=config.n_steps, batch_size=config.batch_size, n_epochs=config.n_epochs,
-               learning_rate=config.learning_rate, gamma=config.gamma, gae_lambda=config.gae_lambda,
-               ent_coef=config.ent_coef, clip_range=config.clip_range, policy_kwargs=policy_kwargs,
-               seed=config.seed, device="cpu", verbose=0)
 
 
 def build_params(config: TrainConfig, *, store=None, progress: bool = False) -> sim.EnvParams:
