@@ -5,17 +5,18 @@
 
 ``train`` runs :func:`stp_env.rl.train.train` with :data:`SHIPPED` (``--timesteps`` overrides the length) and
 with ``--ship`` copies ``model.zip`` and ``intruder.npz`` to ``stp_env/data/intruders/town-kbar2.{zip,npz}``.
-``compare`` runs full core episodes (:func:`stp_env.sim.rollout`, the vehicles on ``switching`` with the HJ safety
-filter, the default ``EnvConfig``) on held-out seeds for the learned intruder and the scripted ones, and prints one
-JSON line per intruder (:func:`stp_env.evaluation.summary.forced_summary`): mean ``|N^RP|`` with its 95 % interval,
-max ``|N^RP|`` against k̄, collisions and guarantee violations, Clopper-Pearson bounds; a guarantee violation or
-``|N^RP| > k̄`` is a finding, reported with its episode seed and a plot.
+``compare`` evaluates the learned intruder and the scripted ones with the package's evaluator
+(:func:`stp_env.evaluation.pipeline.run`: the vehicles on ``switching`` with the HJ safety filter, every intruder
+spawned outside the avoid regions, a held-out seed) and prints one JSON line per intruder: mean and max
+``|N^RP|`` against k̄, collisions and guarantee violations with their Clopper-Pearson bounds; a guarantee violation
+or ``|N^RP| > k̄`` is a finding, saved replayable in ``--out/events.json`` with the results and figures.
 
 Reproducibility: a run is deterministic given the seed and the code (same config in two processes: identical
 rollouts and weights). The shipped ``town-kbar2`` was trained from the tree of commit d1ce834 (06:35, 589 s); the
 simulation core changed after that (commits 5231dfe, 0b2d824), and a 1 M-step re-run on 3bebeed diverges from the
 shipped run's 1 M-step checkpoint from the first update (held-out mean ``|N^RP|`` 0.574 vs 0.531 at that point).
-The shipped weights still give the same held-out numbers on 3bebeed (0.528, 95 % 0.497-0.559, 1,000 episodes).
+The shipped weights still gave the same held-out numbers on 3bebeed (0.528, 95 % 0.497-0.559, 1,000 episodes,
+measured by an earlier ``compare`` that drew its own episodes, not the evaluator's).
 """
 
 from __future__ import annotations
@@ -25,16 +26,9 @@ import dataclasses
 import json
 import shutil
 import sys
-import time
 from pathlib import Path
 
-import jax
-import numpy as np
-
-from stp_env import assembly, sim
-from stp_env.baselines import INTRUDERS, switching
-from stp_env.baselines.learned import load_intruder
-from stp_env.evaluation.summary import forced_summary
+from stp_env.baselines import INTRUDERS
 from stp_env.rl.train import TrainConfig, train
 
 # forced_reward 5: one forced vehicle outweighs the shaping of a whole approach (shaping_reward * d_sense = 3.7).
@@ -43,7 +37,7 @@ SHIPPED = TrainConfig(scenario="town", n_envs=256, n_steps=64, batch_size=4096, 
                       total_timesteps=4_194_304, seed=0, eval_every=524_288, eval_episodes=256,
                       checkpoint_every=1_048_576, out_dir="runs/town-kbar2",
                       log_formats=("stdout", "csv", "tensorboard"))
-HELD_OUT_KEY = 20_240_601  # compare's episodes use jax.random.fold_in(PRNGKey(HELD_OUT_KEY), i), not training's
+HELD_OUT_SEED = 20_240_601  # compare's episodes: the evaluator's seed, not training's
 DATA = Path(__file__).resolve().parents[1] / "stp_env" / "data" / "intruders"
 
 
@@ -58,68 +52,23 @@ def run_train(args) -> None:
         shutil.copy(Path(config.out_dir) / "intruder.npz", DATA / "town-kbar2.npz")
 
 
-def plot_episode(params, trajectory, index: int, title: str, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    x = np.asarray(trajectory["x"][index])
-    xi = np.asarray(trajectory["intruder_x"][index])
-    present = np.asarray(trajectory["intruder_status"][index]) == sim.PRESENT
-    status = np.asarray(trajectory["status"][index])
-    fig, ax = plt.subplots(figsize=(7, 7))
-    for j in range(x.shape[1]):
-        fly = status[:, j] == sim.FLYING
-        ax.plot(x[fly, j, 0], x[fly, j, 1], lw=1, label=f"vehicle {j}")
-    ax.plot(xi[present, 0], xi[present, 1], "k--", lw=2, label="intruder")
-    ax.scatter(*np.asarray(params.targets).T, marker="x", c="grey")
-    ax.set_aspect("equal")
-    ax.set_title(title)
-    ax.legend(fontsize=7)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
 def run_compare(args) -> None:
-    params = assembly.params_for("town", sim.EnvConfig(), progress=False)
-    kbar = int(params.kbar)
-    n_steps = sim.steps_for(params)
-    key = jax.random.PRNGKey(HELD_OUT_KEY)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    intruders = {args.intruder: load_intruder(args.intruder)}
-    intruders.update({name: INTRUDERS[name] for name in args.scripted})
-    for name, policy in intruders.items():
-        start = time.perf_counter()
-        forced, collisions, violations = [], [], []
-        findings = []
-        for first in range(0, args.episodes, args.batch):
-            batch = min(args.batch, args.episodes - first)
-            k = jax.random.fold_in(key, first)
-            final, _ = sim.rollout(k, params, switching, policy, batch, n_steps)
-            nf = np.asarray(jax.vmap(sim.n_forced)(final))
-            gv = np.asarray(final.guarantee_violation).sum(axis=1)
-            forced.append(nf)
-            collisions.append((np.asarray(final.status) == sim.COLLIDED).sum(axis=1))
-            violations.append(gv)
-            for i in np.flatnonzero((gv > 0) | (nf > kbar)):
-                findings.append({"batch_key": [HELD_OUT_KEY, first], "episode": int(i), "n_forced": int(nf[i]),
-                                 "guarantee_violations": int(gv[i])})
-                _, traj = sim.rollout(k, params, switching, policy, batch, n_steps, record=True)
-                png = out / f"finding-{name}-{first}-{i}.png"
-                plot_episode(params, traj, int(i), f"{name}: |N^RP| = {nf[i]}, violations = {gv[i]}", png)
-                findings[-1]["plot"] = str(png)
-        forced, collisions, violations = (np.concatenate(v) for v in (forced, collisions, violations))
-        s = forced_summary(forced, kbar, collisions, violations)
-        mean, half = s["forced_mean"], s["forced_ci95"]
+    """The learned intruder and the scripted ones through the package's evaluator
+    (:func:`stp_env.evaluation.pipeline.run`: results, events and figures in ``--out``), one JSON line each."""
+    from stp_env.evaluation.config import Configuration
+    from stp_env.evaluation.pipeline import run
+
+    specs = [f"learned:{args.intruder}", *args.scripted]
+    # the default EnvConfig's spawn for every intruder (outside the avoid regions), the held-out seed
+    configs = [Configuration(scenario="town", intruder=spec, spawn_mode="outside") for spec in specs]
+    out = run(configs, args.out, episodes=args.episodes, seed=HELD_OUT_SEED, batch_size=args.batch)
+    for spec, s in zip(specs, out["summaries"]):
         print(json.dumps({
-            "intruder": name, "episodes": s["episodes"], "mean_n_forced": round(mean, 4),
-            "ci95": [round(mean - half, 4), round(mean + half, 4)], "max_n_forced": s["forced_max"], "kbar": kbar,
-            "episodes_above_kbar": s["exceed"], "episodes_above_kbar_upper": s["exceed_upper"],
-            "collisions": s["collisions"], "guarantee_violations": s["guarantee_violations"],
-            "violation_episodes_upper": s["violation_upper"], "findings": findings,
-            "seconds": round(time.perf_counter() - start, 1)}))
+            "intruder": spec, "episodes": s["episodes"], "mean_n_forced": s["forced_mean"],
+            "max_n_forced": s["forced_max"], "kbar": s["kbar"], "episodes_above_kbar": s["exceed"],
+            "episodes_above_kbar_upper": s["exceed_upper"], "collisions": s["collisions"],
+            "guarantee_violations": s["guarantee_violations"], "violation_episodes_upper": s["violation_upper"],
+            "findings": s["events_saved"], "seconds": out["seconds"]}))
 
 
 def main(argv=None) -> int:
@@ -134,7 +83,7 @@ def main(argv=None) -> int:
     co.add_argument("--scripted", nargs="*", default=["bezier3", "greedy", "max-k"], choices=list(INTRUDERS))
     co.add_argument("--episodes", type=int, default=1000)
     co.add_argument("--batch", type=int, default=250, help="episodes per compiled rollout")
-    co.add_argument("--out", default="runs/compare", help="folder for the plots of findings")
+    co.add_argument("--out", default="runs/compare", help="folder of the evaluation's results, events and figures")
     args = parser.parse_args(argv)
     if args.command == "train":
         run_train(args)
