@@ -136,8 +136,7 @@ def test_the_shipped_city_and_bay_area_plans_hold_the_planners_constraints(file,
     assert math.isfinite(margin)
 
 
-STALE = {"bay-area": "planned with r_e = 35.392 m before the 11 m/s bound was certified (37.673 m); its replan "
-                     "runs resumably (docs/planning.md)"}
+STALE: dict[str, str] = {}  # shipped plans known to predate their scenario's certified bound (none): name -> why
 
 
 @pytest.mark.parametrize("file,name,overrides",
