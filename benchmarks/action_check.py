@@ -34,7 +34,7 @@ def main() -> None:
     env = parallel_env(scenario=args.scenario)
     env.reset(seed=0)
     actions = {a: np.full(2, 0.3, np.float32) for a in env.agents}
-    n = env.params.n_vehicles
+    n = env.params.vehicles.n
 
     def per_agent():
         arr = np.zeros((n + 1, 2), np.float32)

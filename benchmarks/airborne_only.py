@@ -92,7 +92,7 @@ def falsify_case(attacks: int) -> dict:
         start = time.perf_counter()
         values[which] = np.asarray(f(z * 0.999))
         seconds = time.perf_counter() - start
-        out[which] = {"vehicles": attack.params.n_vehicles, "seconds": round(seconds, 2),
+        out[which] = {"vehicles": attack.params.vehicles.n, "seconds": round(seconds, 2),
                       "compile_s": round(first - seconds, 1)}
     out["ratio"] = round(out["whole"]["seconds"] / out["airborne"]["seconds"], 2)
     out["same_forced"] = bool(np.array_equal(np.floor(values["whole"]), np.floor(values["airborne"])))
@@ -119,7 +119,7 @@ def main() -> None:
         # the control: the whole fleet in batches of another size (another compiled program, the same episodes)
         other, _ = timed(config, params, args.episodes, args.batch_size // 2, record, airborne_only=False)
         out[name] = {
-            "vehicles": params.n_vehicles, "simulated": part.summary["simulated_vehicles"],
+            "vehicles": params.vehicles.n, "simulated": part.summary["simulated_vehicles"],
             "whole_fleet": t_whole, "airborne_only": t_part,
             "ratio": round(t_part["episodes_per_s"] / t_whole["episodes_per_s"], 2),
             "same_forced_hist": whole.summary["forced_hist"] == part.summary["forced_hist"],

@@ -39,13 +39,13 @@ def run_one(scenario: str, variant: str, n_envs: int, n_steps: int, k: int) -> d
     _, params = env_throughput._params(scenario)
 
     def _optimal(params, x_rel, p):
-        dyn = params.avoid_dynamics
+        dyn = params.tables.avoid_dynamics
         return jnp.stack(dyn.optimal_control((x_rel[0], x_rel[1], x_rel[2]), (p[0], p[1], p[2])))
 
     def value_and_control(params, tau, x_rel):
         """``tables.avoid_value`` and ``tables.avoidance_control`` from one block read."""
-        grid = params.avoid_grid
-        v, p = tables._avoid_read(grid, params.avoid_taus, params.avoid_values, tau, x_rel)
+        grid = params.tables.avoid_grid
+        v, p = tables._avoid_read(grid, params.tables.avoid_taus, params.tables.avoid_values, tau, x_rel)
         return jnp.where(tables._inside(grid, x_rel), v, tables.FAR), _optimal(params, x_rel, p)
 
     def one_read(params, state):
@@ -54,21 +54,21 @@ def run_one(scenario: str, variant: str, n_envs: int, n_steps: int, k: int) -> d
         vals, u = jax.vmap(lambda r: value_and_control(params, tau, r))(rel)
         ok = core.flying(state) & core.intruder_present(state)
         return (jnp.where(ok, vals, tables.FAR),
-                params.vehicle_model.command_to_action(state.x, u[:, 0], u[:, 1], params.vehicle_bounds))
+                params.vehicles.model.command_to_action(state.x, u[:, 0], u[:, 1], params.vehicles.bounds))
 
     def k_nearest(params, state):
         tau = state.t - state.t_appear
         pose = core.poses(params, state)
         d = jnp.where(core.flying(state), jnp.hypot(*(pose[:, :2] - state.intruder_x[None, :2]).T), jnp.inf)
-        _, idx = jax.lax.top_k(-d, min(k, params.n_vehicles))
+        _, idx = jax.lax.top_k(-d, min(k, params.vehicles.n))
         rel = relative_state(pose[idx], state.intruder_x[None, :])
         v, u = jax.vmap(lambda r: value_and_control(params, tau, r))(rel)
-        n = params.n_vehicles
+        n = params.vehicles.n
         vals = jnp.full((n,), tables.FAR, v.dtype).at[idx].set(v)
         u = jnp.zeros((n, 2), u.dtype).at[idx].set(u)
         ok = core.flying(state) & core.intruder_present(state)
         return (jnp.where(ok, vals, tables.FAR),
-                params.vehicle_model.command_to_action(state.x, u[:, 0], u[:, 1], params.vehicle_bounds))
+                params.vehicles.model.command_to_action(state.x, u[:, 0], u[:, 1], params.vehicles.bounds))
 
     def patched_refresh(state, params):
         track_action, err = core.tracking_actions(params, state)

@@ -60,7 +60,7 @@ def adapter_rate(scenario, params, n_steps: int) -> float:
     policy = jax.jit(switching)
     rng = np.random.default_rng(0)
     names = env.possible_agents
-    n = params.n_vehicles
+    n = params.vehicles.n
     steps, key = 0, jax.random.key(0)
     start = None
     while steps < n_steps + 20:
@@ -108,7 +108,7 @@ def core_rate(params, n_envs: int, n_steps: int) -> tuple[float, float]:
     jax.block_until_ready(out)
     elapsed = time.perf_counter() - start
     env_steps = n_envs * n_steps / elapsed
-    return env_steps, env_steps * (params.n_vehicles + 1)
+    return env_steps, env_steps * (params.vehicles.n + 1)
 
 
 def long_run(scenario, params, n_steps: int) -> dict:
@@ -141,7 +141,7 @@ def main() -> None:
     parser.add_argument("--long", type=int, default=0)
     args = parser.parse_args()
     scenario, params = _params(args.scenario)
-    result = {"case": "env_throughput", "scenario": args.scenario, "n_agents": params.n_vehicles + 1,
+    result = {"case": "env_throughput", "scenario": args.scenario, "n_agents": params.vehicles.n + 1,
               "loadavg_1min_before": round(os.getloadavg()[0], 2)}
     result["mpe2_env_steps_per_s"] = round(mpe2_rate(args.mpe_steps), 1)
     result["adapter_env_steps_per_s"] = round(adapter_rate(scenario, params, args.adapter_steps), 1)

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import json
 import os
 import time
@@ -52,9 +51,10 @@ def _unpad(v, grid, lead: int):
 def unpadded(params):
     """``params`` with the avoid table and the tracking gradients in their plain layouts (what the peer's scalar
     reads index)."""
-    grads = _unpad(params.tracking_grads, params.tracking_grid, 0)
-    return dataclasses.replace(params, avoid_values=jnp.asarray(_unpad(params.avoid_values, params.avoid_grid, 1)),
-                               tracking_grads=tuple(jnp.asarray(grads[..., i]) for i in range(grads.shape[-1])))
+    grads = _unpad(params.tables.tracking_grads, params.tables.tracking_grid, 0)
+    avoid = jnp.asarray(_unpad(params.tables.avoid_values, params.tables.avoid_grid, 1))
+    return params.replace(tables=dict(avoid_values=avoid,
+                                      tracking_grads=tuple(jnp.asarray(grads[..., i]) for i in range(grads.shape[-1]))))
 
 
 @contextlib.contextmanager
@@ -97,7 +97,8 @@ def program(kind: str, batch: int, steps: int, peer: bool = False):
     if kind == "tracking":
         from stp_env.falsify.tracking import TrackingAttack
 
-        attack = TrackingAttack(base=params, horizon=float(steps) * float(params.dt), segment=1.0, wind="search",
+        attack = TrackingAttack(base=params, horizon=float(steps) * float(params.episode.dt), segment=1.0,
+                                wind="search",
                                 wind_segment=1.0)
     else:
         from stp_env.falsify.avoidance import AvoidanceAttack

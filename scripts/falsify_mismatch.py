@@ -8,7 +8,6 @@ cross-entropy method (the pymunk step has no gradient). Prints one JSON line per
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 
 from stp_env.falsify.counterexample import AttackSpec, environment, run
@@ -29,7 +28,7 @@ def main(argv=None) -> int:
     config = SearchConfig(method="cem", budget=args.attacks, population=max(4, args.attacks // 4), restarts=2,
                           batch=max(4, args.attacks // 4))
     for backend in args.backend:
-        params = dataclasses.replace(base, vehicle_model=vehicle_model(backend))
+        params = base.replace(vehicles=dict(model=vehicle_model(backend)))
         outcome = run(spec, config, args.seed, params=params, progress=False)
         summary = outcome.summary()
         print(json.dumps({"backend": backend, "worst_tracking_error_m": summary.get("worst"),

@@ -65,7 +65,7 @@ def plot_run(run, params, avoid, title, path, paper_times):
     ax.plot(xi[present, 0], xi[present, 1], "k-", lw=2, label="intruder (present)")
     ax.plot(*xi[present][0, :2], "k^", ms=9)
     starts = run["avoid_start_s"]
-    for i in range(params.n_vehicles):
+    for i in range(params.vehicles.n):
         fly = traj["status"][:, i] == 1
         ax.plot(traj["x"][fly, i, 0], traj["x"][fly, i, 1], "-", color=COLORS[i], lw=1.6, label=f"Q{i + 1}")
         k0 = int(np.argmin(np.abs(t)))
@@ -88,8 +88,9 @@ def plot_run(run, params, avoid, title, path, paper_times):
 
     k0 = int(np.argmin(np.abs(t)))
     x2 = traj["x"][k0, 1]
-    bvals = jnp.asarray(params.buffer_values)
-    xs, vals = _outline(params.buffer_grid, lambda x: hj.interpolation.interpolate(params.buffer_grid, bvals, x),
+    bvals = jnp.asarray(params.tables.buffer_values)
+    xs, vals = _outline(params.tables.buffer_grid, lambda x: hj.interpolation.interpolate(params.tables.buffer_grid,
+                                                                                          bvals, x),
                         float(xi[k0, 2] - x2[2]))
     _draw_in_frame(ax, x2, xs, vals, colors=["k"], linewidths=0.8, linestyles=":")
     ax.plot([], [], "k:", lw=0.8, label="V^B(0, t_BRD) of Q2 at t = 0")
@@ -103,7 +104,7 @@ def plot_run(run, params, avoid, title, path, paper_times):
                  "dashed: the avoid region V^A(t_i) of Q_i at its avoid start; dotted: Q2's buffer region at t = 0)",
                  fontsize=9)
     ax.grid(alpha=0.3)
-    names = [f"Q{i + 1}" for i in range(params.n_vehicles)]
+    names = [f"Q{i + 1}" for i in range(params.vehicles.n)]
     y = np.arange(len(names))
     sim_t = [s if math.isfinite(s) else np.nan for s in starts]
     pap_t = [s if math.isfinite(s) else np.nan for s in paper_times]
@@ -113,9 +114,9 @@ def plot_run(run, params, avoid, title, path, paper_times):
         for val, dy in ((starts[i], 0.18), (paper_times[i], -0.18)):
             bx.text(min(val, 10.2) if math.isfinite(val) else 0.2, y[i] + dy,
                     f"{val:.2f}" if math.isfinite(val) else "never", va="center", fontsize=8)
-    bx.axvline(float(params.t_iat), color="k", ls=":", label="t_IAT (intruder leaves)")
+    bx.axvline(float(params.intruder.t_iat), color="k", ls=":", label="t_IAT (intruder leaves)")
     for k in (1, 2):
-        bx.axvline(k * float(params.t_iat) / 3, color="gray", ls="--", lw=0.8)
+        bx.axvline(k * float(params.intruder.t_iat) / 3, color="gray", ls="--", lw=0.8)
     bx.set_yticks(y, names)
     bx.set_xlim(0, 11.5)
     bx.set_xlabel("avoid start t_i - t_ [s]")
@@ -146,9 +147,10 @@ def main() -> int:
     params = fig6_params(scenario, progress=True)
     out = {"command": "python scripts/fig6_reproduction.py" + (" --orders" if args.orders else ""),
            "tracking_bound_m": round(float(tracking.bound), 3),
-           "detection_range_m": round(float(params.detection_range), 2),
-           "relative_buffer_radius_m": round(position_radius(params.buffer_grid, params.buffer_values), 2),
-           "avoid_margin_m": float(params.avoid_margin), "runs": {}}
+           "detection_range_m": round(float(params.tables.detection_range), 2),
+           "relative_buffer_radius_m": round(position_radius(params.tables.buffer_grid, params.tables.buffer_values),
+                                             2),
+           "avoid_margin_m": float(params.tables.avoid_margin), "runs": {}}
     plan_path = ROOT / "stp_env" / "data" / "plans" / "fig6-kbar3.npz"
     np.savez_compressed(plan_path, **plan_to_arrays(fig6_plan(scenario, tracking.bound)))
     runs = {"fig6_worst": (worst, optimal_max_k, FIG6_PAPER_TIMES,

@@ -14,7 +14,6 @@ up to a control step's worth of motion, while in float64 they agree to rounding.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import time
 
@@ -43,7 +42,7 @@ def run(params, seed: int, n_steps: int, vehicle: str, intruder: str, progress: 
     step = jax.jit(lambda k, s: episode_step(k, s, params, vp, ip)[0])
     state = sim.reset(k_reset, params)
     xs, status, avoid = [], [], []
-    for k in tqdm(jax.random.split(k_run, n_steps), disable=not progress, desc=type(params.vehicle_model).__name__):
+    for k in tqdm(jax.random.split(k_run, n_steps), disable=not progress, desc=type(params.vehicles.model).__name__):
         term, trunc = sim.episode_over(state, params)
         if bool(term | trunc):
             break
@@ -60,12 +59,12 @@ def compare(scenario: str, *, seed: int = 0, n_steps: int = 0, vehicle: str = "s
     n_steps = n_steps or sim.steps_for(params)
     start = time.perf_counter()
     x_j, st_j, av_j = run(params, seed, n_steps, vehicle, intruder, progress)
-    pm = dataclasses.replace(params, vehicle_model=PymunkKinematic())
+    pm = params.replace(vehicles=dict(model=PymunkKinematic()))
     x_p, st_p, av_p = run(pm, seed, n_steps, vehicle, intruder, progress)
     n = min(len(x_j), len(x_p))
     fly = (st_j[:n] == sim.FLYING) & (st_p[:n] == sim.FLYING)
     diff = np.hypot(*(x_j[:n] - x_p[:n]).transpose(2, 0, 1))
-    return {"scenario": scenario, "seed": seed, "steps": int(n), "dtype": str(params.dt.dtype),
+    return {"scenario": scenario, "seed": seed, "steps": int(n), "dtype": str(params.episode.dt.dtype),
             "flying_vehicle_steps": int(fly.sum()),
             "max_position_difference_m": float(diff[fly].max()) if fly.any() else 0.0,
             "same_status": bool(np.array_equal(st_j[:n], st_p[:n])),

@@ -32,7 +32,7 @@ def run(scenario: str, episodes: int, seed: int, intruder: str, replan: bool) ->
     config = sim.EnvConfig(episode="full", spawn_mode="boundary")
     env = parallel_env(scenario, config, replan=replan)
     vpol, ipol = jax.jit(vehicle_policy("switching")), jax.jit(intruder_policy(intruder))
-    n = env.params.n_vehicles
+    n = env.params.vehicles.n
     totals = {"forced": 0, "forced_arrived": 0, "forced_on_time": 0, "replans": 0, "replan_failures": 0,
               "replan_seconds": [], "sta_delay_s": []}
     per_episode = {"n_forced": [], "collisions": [], "violations": []}  # (episodes, vehicles) flags
@@ -68,7 +68,7 @@ def run(scenario: str, episodes: int, seed: int, intruder: str, replan: bool) ->
                 totals["replan_seconds"].append(record["seconds"])
                 totals["sta_delay_s"] += [s - o for s, o in zip(record["sta"], record["old_sta"])]
     seconds, delays = totals.pop("replan_seconds"), totals.pop("sta_delay_s")
-    summary = forced_summary(np.sum(per_episode["n_forced"], axis=1), int(env.params.kbar),
+    summary = forced_summary(np.sum(per_episode["n_forced"], axis=1), int(env.params.intruder.kbar),
                              per_episode["collisions"], per_episode["violations"])
     return {"scenario": scenario, "intruder": intruder, "replan": replan, "episodes": episodes, "seed": seed,
             **totals, "collisions": summary["collisions"], "guarantee_violations": summary["guarantee_violations"],

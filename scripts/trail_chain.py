@@ -57,7 +57,7 @@ def run(kbar: int, spacing: float, n_vehicles: int, vehicles: str, wind_model: s
     config = sim.EnvConfig(appear_window=(t_app, t_app), wind_model=wind_model)
     params = with_buffer(assembly.make_params(scenario, plan, avoid, tracking, config),
                          load_buffer(scenario, progress=False))
-    behind = rear_boundary(avoid, float(params.avoid_margin) + 1.0)
+    behind = rear_boundary(avoid, float(params.tables.avoid_margin) + 1.0)
     lead = plan.vehicles[0].plan
     tq = lead.t_ldt + t_app
     spawn = np.asarray([np.interp(tq, lead.times, lead.states[:, 0]) - behind,

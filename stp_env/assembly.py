@@ -26,7 +26,7 @@ from stp_env.sim.bounds import bounds_row
 from stp_env.sim.config import EnvConfig
 from stp_env.sim.margins import default_avoid_margin
 from stp_env.sim.tables import pad_components, pad_periodic
-from stp_env.sim.types import EnvParams, replace
+from stp_env.sim.types import EnvParams, EpisodeParams, IntruderParams, TableParams, VehicleParams, WindParams
 
 
 def flying_counts(plan, times: np.ndarray) -> np.ndarray:
@@ -140,30 +140,31 @@ def with_plan(params: EnvParams, plan, *, pad_to: int = 256, allow_uncertified: 
     plan has another number of vehicles or another sample period, or if a trajectory is not a flight of the
     planning dynamics (:func:`plan_faults`, dynamics only: replanned vehicles start in the air) unless
     ``allow_uncertified``, in which case those vehicles are no longer ``certified``."""
-    n = params.n_vehicles
+    n = params.vehicles.n
     if len(plan.vehicles) != n:
         raise ValueError(f"the plan has {len(plan.vehicles)} vehicles; these params have {n}.")
     arrays = _plan_arrays(plan)
-    if not math.isclose(float(arrays["nominal_dt"]), float(params.nominal_dt), rel_tol=1e-5):
+    if not math.isclose(float(arrays["nominal_dt"]), float(params.vehicles.nominal_dt), rel_tol=1e-5):
         raise ValueError(f"the plan's sample period is {float(arrays['nominal_dt'])} s; the simulator's nominal "
-                         f"tables use {float(params.nominal_dt)} s.")
-    dyn = params.tracking_dynamics
+                         f"tables use {float(params.vehicles.nominal_dt)} s.")
+    dyn = params.tables.tracking_dynamics
     faults = plan_faults(plan, dt=float(arrays["nominal_dt"]), planning_v=(dyn.other_v_min, dyn.other_v_max),
-                         planning_omega_max=dyn.other_omega_max, targets=np.asarray(params.targets),
-                         target_radii=np.asarray(params.target_radii))
+                         planning_omega_max=dyn.other_omega_max, targets=np.asarray(params.vehicles.targets),
+                         target_radii=np.asarray(params.vehicles.target_radii))
     if faults and not allow_uncertified:
         raise ValueError(_faults_message(faults, "the new plan"))
     faulty = np.asarray([v.index in faults for v in plan.vehicles])
-    k_old, k_new = params.nominal_states.shape[1], arrays["nominal_states"].shape[1]
+    k_old, k_new = params.vehicles.nominal_states.shape[1], arrays["nominal_states"].shape[1]
     k = k_old if k_new <= k_old else pad_to * math.ceil(k_new / pad_to)
     states, controls = arrays["nominal_states"], arrays["nominal_controls"]
     if k > k_new:  # pad with the last sample, as _plan_arrays does
         states = np.concatenate([states, np.repeat(states[:, -1:], k - k_new, axis=1)], axis=1)
         controls = np.concatenate([controls, np.repeat(controls[:, -1:], k - k_new, axis=1)], axis=1)
-    return replace(params, nominal_t0=jnp.asarray(arrays["nominal_t0"]), nominal_states=jnp.asarray(states),
-                   nominal_controls=jnp.asarray(controls), nominal_len=jnp.asarray(arrays["nominal_len"]),
-                   sta=jnp.asarray(arrays["sta"]), nominal_arrival=jnp.asarray(arrays["arrival"]),
-                   certified=jnp.asarray(np.asarray(params.certified) & ~faulty))
+    return params.replace(vehicles=dict(
+        nominal_t0=jnp.asarray(arrays["nominal_t0"]), nominal_states=jnp.asarray(states),
+        nominal_controls=jnp.asarray(controls), nominal_len=jnp.asarray(arrays["nominal_len"]),
+        sta=jnp.asarray(arrays["sta"]), nominal_arrival=jnp.asarray(arrays["arrival"]),
+        certified=jnp.asarray(np.asarray(params.vehicles.certified) & ~faulty)))
 
 
 def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None) -> EnvParams:
@@ -271,54 +272,62 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
     kbar = plan.kbar if plan.kbar is not None else (scenario.kbar if scenario.kbar is not None else -1)
     f32 = np.float32
     return EnvParams(
-        dt=jnp.asarray(config.dt, f32),
-        t_start=jnp.asarray(t_start, f32),
-        t_end=jnp.asarray(t_end, f32),
-        domain_lo=jnp.asarray(scenario.domain_lo, f32),
-        domain_hi=jnp.asarray(scenario.domain_hi, f32),
-        vehicle_bounds=jnp.asarray(bounds_row(veh), f32),
-        intruder_bounds=jnp.asarray(bounds_row(intr), f32),
-        collision_radius=jnp.asarray(scenario.collision_radius, f32),
-        departure=jnp.asarray(arrays["departure"]),
-        sta=jnp.asarray(arrays["sta"]),
-        nominal_arrival=jnp.asarray(arrays["arrival"]),
-        starts=jnp.asarray(arrays["starts"]),
-        targets=jnp.asarray(scenario.targets(), f32),
-        target_radii=jnp.asarray(scenario.target_radii(), f32),
-        nominal_t0=jnp.asarray(arrays["nominal_t0"]),
-        nominal_dt=jnp.asarray(arrays["nominal_dt"]),
-        nominal_states=jnp.asarray(arrays["nominal_states"]),
-        nominal_controls=jnp.asarray(arrays["nominal_controls"]),
-        nominal_len=jnp.asarray(arrays["nominal_len"]),
-        certified=jnp.asarray(certified),
-        planning_v_max=jnp.asarray(scenario.planning_v[1], f32),
-        sdf=jnp.asarray(sdf),
-        avoid_taus=jnp.asarray(avoid.taus, f32),
-        avoid_values=jnp.asarray(pad_periodic(avoid.values, acfg.grid, lead=1), f32),
-        detection_range=jnp.asarray(d_a, f32),
-        tracking_grads=jnp.asarray(pad_components(grads, tcfg.grid), f32),
-        tracking_bound=jnp.asarray(tracking.bound, f32),
-        t_iat=jnp.asarray(t_iat, f32),
-        appear_window=jnp.asarray([lo, hi], f32),
-        spawn_radius=jnp.asarray(1.5 * d_a if config.spawn_radius is None else config.spawn_radius, f32),
-        spawn_boundary_probability=jnp.asarray({"outside": 0.0, "boundary": 1.0, "mixed": 0.5}[config.spawn_mode],
-                                               f32),
-        avoid_margin=jnp.asarray(margin, f32),
-        avoid_fall_rate=jnp.asarray(avoid.fall_rate, f32),
-        kbar=jnp.asarray(kbar, jnp.int32),
-        d_sense=jnp.asarray(d_sense, f32),
-        reward_weights=config.rewards.weights(),
-        n_vehicles=n,
-        avoid_grid=acfg.grid,
-        tracking_grid=tcfg.grid,
-        sdf_grid=sdf_grid,
-        avoid_dynamics=acfg.relative_dynamics,
-        tracking_dynamics=tcfg.error_dynamics,
-        wind_model=config.wind_model,
-        vehicle_model=config.vehicle_model,
-        safety_filter=config.safety_filter,
-        n_nearest=config.n_nearest,
-        control_substeps=config.control_substeps,
+        episode=EpisodeParams(
+            dt=jnp.asarray(config.dt, f32),
+            t_start=jnp.asarray(t_start, f32),
+            t_end=jnp.asarray(t_end, f32),
+            domain_lo=jnp.asarray(scenario.domain_lo, f32),
+            domain_hi=jnp.asarray(scenario.domain_hi, f32),
+            collision_radius=jnp.asarray(scenario.collision_radius, f32),
+            reward_weights=config.rewards.weights(),
+            safety_filter=config.safety_filter,
+            n_nearest=config.n_nearest,
+            control_substeps=config.control_substeps,
+        ),
+        vehicles=VehicleParams(
+            bounds=jnp.asarray(bounds_row(veh), f32),
+            departure=jnp.asarray(arrays["departure"]),
+            sta=jnp.asarray(arrays["sta"]),
+            nominal_arrival=jnp.asarray(arrays["arrival"]),
+            starts=jnp.asarray(arrays["starts"]),
+            targets=jnp.asarray(scenario.targets(), f32),
+            target_radii=jnp.asarray(scenario.target_radii(), f32),
+            nominal_t0=jnp.asarray(arrays["nominal_t0"]),
+            nominal_dt=jnp.asarray(arrays["nominal_dt"]),
+            nominal_states=jnp.asarray(arrays["nominal_states"]),
+            nominal_controls=jnp.asarray(arrays["nominal_controls"]),
+            nominal_len=jnp.asarray(arrays["nominal_len"]),
+            certified=jnp.asarray(certified),
+            planning_v_max=jnp.asarray(scenario.planning_v[1], f32),
+            n=n,
+            model=config.vehicle_model,
+        ),
+        intruder=IntruderParams(
+            bounds=jnp.asarray(bounds_row(intr), f32),
+            t_iat=jnp.asarray(t_iat, f32),
+            appear_window=jnp.asarray([lo, hi], f32),
+            spawn_radius=jnp.asarray(1.5 * d_a if config.spawn_radius is None else config.spawn_radius, f32),
+            spawn_boundary_probability=jnp.asarray(
+                {"outside": 0.0, "boundary": 1.0, "mixed": 0.5}[config.spawn_mode], f32),
+            kbar=jnp.asarray(kbar, jnp.int32),
+            d_sense=jnp.asarray(d_sense, f32),
+        ),
+        tables=TableParams(
+            sdf=jnp.asarray(sdf),
+            avoid_taus=jnp.asarray(avoid.taus, f32),
+            avoid_values=jnp.asarray(pad_periodic(avoid.values, acfg.grid, lead=1), f32),
+            detection_range=jnp.asarray(d_a, f32),
+            avoid_margin=jnp.asarray(margin, f32),
+            avoid_fall_rate=jnp.asarray(avoid.fall_rate, f32),
+            tracking_grads=jnp.asarray(pad_components(grads, tcfg.grid), f32),
+            tracking_bound=jnp.asarray(tracking.bound, f32),
+            sdf_grid=sdf_grid,
+            avoid_grid=acfg.grid,
+            tracking_grid=tcfg.grid,
+            avoid_dynamics=acfg.relative_dynamics,
+            tracking_dynamics=tcfg.error_dynamics,
+        ),
+        wind=WindParams(model=config.wind_model),
     )
 
 
@@ -440,9 +449,10 @@ def with_buffer(params: EnvParams, buffer) -> EnvParams:
     if tuple(np.shape(buffer.values)) != tuple(grid.shape):
         raise ValueError(f"the buffer values have shape {np.shape(buffer.values)}, its grid {grid.shape}.")
     acfg = buffer.config.avoid
-    if acfg.grid != params.avoid_grid or not math.isclose(acfg.t_iat, float(params.t_iat), rel_tol=1e-6):
+    if acfg.grid != params.tables.avoid_grid or not math.isclose(acfg.t_iat, float(params.intruder.t_iat),
+                                                                 rel_tol=1e-6):
         raise ValueError("the relative buffer was computed for another avoid region than these params use.")
-    return replace(params, buffer_values=jnp.asarray(buffer.values, jnp.float32), buffer_grid=grid)
+    return params.replace(tables=dict(buffer_values=jnp.asarray(buffer.values, jnp.float32), buffer_grid=grid))
 
 
 def load_buffer(scenario, kbar: int | None = None, *, store=None, progress: bool | None = None):

@@ -247,7 +247,7 @@ def _start(key, params):
     state = core.reset(sub, params)
     obs_v, obs_i = core.observe(state, params)
     no = jnp.zeros((), bool)
-    return key, state, StepOutput(obs_v, obs_i, jnp.zeros((params.n_vehicles + 1,), jnp.float32),
+    return key, state, StepOutput(obs_v, obs_i, jnp.zeros((params.vehicles.n + 1,), jnp.float32),
                                   _step_info(state, state), no, no)
 
 
@@ -276,7 +276,7 @@ def _advance_scripted(key, state, actions, params, vehicle_policy=None, intruder
     if intruder_policy is not None:
         k_i, sub = jax.random.split(sub)
         a_i = intruder_policy(k_i, state, params)
-        actions = actions.at[params.n_vehicles, :2].set(a_i.astype(actions.dtype))
+        actions = actions.at[params.vehicles.n, :2].set(a_i.astype(actions.dtype))
     new, rewards = core.step(sub, state, actions, params, vehicle_policy=vehicle_policy)
     obs_v, obs_i = core.observe(new, params)
     term, trunc = core.episode_over(new, params)
@@ -356,8 +356,8 @@ _advance_scripted_jit = sim_jit(_packed(_advance_scripted), static_argnames=("ve
 
 def _check_appear_window(params) -> None:
     """The intruder's appearance window must lie within the episode ``[t_start, t_end]``."""
-    lo, hi = (float(v) for v in np.asarray(params.appear_window))
-    t0, t1 = float(params.t_start), float(params.t_end)
+    lo, hi = (float(v) for v in np.asarray(params.intruder.appear_window))
+    t0, t1 = float(params.episode.t_start), float(params.episode.t_end)
     if not (np.isfinite(lo) and np.isfinite(hi) and t0 - 1e-3 <= lo <= hi <= t1 + 1e-3):
         raise ValueError(f"the intruder's appearance window [{lo:.2f}, {hi:.2f}] s (plan time; "
                          "EnvConfig.appear_window is relative to the first departure) is not within the episode "
@@ -425,11 +425,11 @@ class STPParallelEnv(ParallelEnv):
             finally:
                 _BUILD_PROGRESS.reset(token)
         elif backend is not None:
-            params = replace(params, vehicle_model=config.vehicle_model)
+            params = params.replace(vehicles=dict(model=config.vehicle_model))
         _check_appear_window(params)
         buffer_game = vehicle_policy in BUFFER_GAME_VEHICLE_POLICIES or (intruder_caps is not None
                                                                           and intruder_caps.needs_buffer)
-        if buffer_game and params.buffer_values is None:
+        if buffer_game and params.tables.buffer_values is None:
             params = assembly.with_buffer(params, assembly.load_buffer(scenario, store=store,
                                                                          progress=self._progress))
         self._vehicle_policy = None if vehicle_policy is None else VEHICLE_POLICIES[vehicle_policy]
@@ -445,16 +445,16 @@ class STPParallelEnv(ParallelEnv):
         if self.replan:
             from stp_env.planning.replan import obstacle_pads
 
-            plan0 = assembly.load_plan(scenario, tracking_bound=float(params.tracking_bound), store=store,
+            plan0 = assembly.load_plan(scenario, tracking_bound=float(params.tables.tracking_bound), store=store,
                                   progress=self._progress)
             # the windows of the plan's disks (derived once here for plan files that do not record them)
             self._plan0 = dataclasses.replace(plan0, obstacle_pads=obstacle_pads(plan0, self.scenario, store=store))
         self._plan = self._plan0
-        self._replan_tried = np.zeros(params.n_vehicles, bool)
-        self._replanned = np.zeros(params.n_vehicles, bool)
-        self._sta = np.asarray(params.sta, np.float64)
+        self._replan_tried = np.zeros(params.vehicles.n, bool)
+        self._replanned = np.zeros(params.vehicles.n, bool)
+        self._sta = np.asarray(params.vehicles.sta, np.float64)
         self.replan_log: list[dict] = []
-        n = params.n_vehicles
+        n = params.vehicles.n
         self.possible_agents = [f"vehicle_{i}" for i in range(n)] + ["intruder"]
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
         default_cycles = sim.steps_for(params)
@@ -467,8 +467,8 @@ class STPParallelEnv(ParallelEnv):
         self.render_avoid_regions = render_avoid_regions
         self._dv, self._di = core.observation_sizes(params)
         self._state_size = core.global_state_size(params)
-        self._kbar = int(params.kbar)
-        self._tracking_bound = float(params.tracking_bound)
+        self._kbar = int(params.intruder.kbar)
+        self._tracking_bound = float(params.tables.tracking_bound)
         self.episode: dict | None = None  # the episode-level results after the last reset or step (see Infos)
         self._in_episode = np.ones(n, bool)  # vehicles that are agents of the episode (not done at its start)
         self._observation_spaces: dict[str, gymnasium.spaces.Box] = {}
@@ -501,7 +501,7 @@ class STPParallelEnv(ParallelEnv):
 
     def _action_dim(self, agent) -> int:
         """The intruder flies Dubins (speed, turn rate); the vehicles' action size is their model's."""
-        return 2 if agent == "intruder" else self.params.vehicle_model.action_dim
+        return 2 if agent == "intruder" else self.params.vehicles.model.action_dim
 
     def _check_known(self, agent):
         if agent not in self._index:
@@ -518,15 +518,16 @@ class STPParallelEnv(ParallelEnv):
         params = self._base_params
         start_params = params
         if appear_time is not None:
-            start_params = replace(params, appear_window=jnp.asarray([appear_time, appear_time], jnp.float32))
+            start_params = params.replace(intruder=dict(appear_window=jnp.asarray([appear_time, appear_time],
+                                                                                  jnp.float32)))
         compile_note("the environment's reset", key, start_params, progress=self._progress)
         key, state, out = _start_jit(key, start_params)
         self._key, self._state = key, state
         self.params = params
         self._plan = self._plan0
-        self._replan_tried = np.zeros(params.n_vehicles, bool)
-        self._replanned = np.zeros(params.n_vehicles, bool)
-        self._sta = np.asarray(params.sta, np.float64)
+        self._replan_tried = np.zeros(params.vehicles.n, bool)
+        self._replanned = np.zeros(params.vehicles.n, bool)
+        self._sta = np.asarray(params.vehicles.sta, np.float64)
         self.replan_log = []
         self._steps = 0
         out = jax.device_get(out)
@@ -563,7 +564,7 @@ class STPParallelEnv(ParallelEnv):
         t = float(t)
         if not np.isfinite(t):
             raise ValueError(f"appear_time must be finite; got {t}.")
-        lo, hi = float(self._base_params.t_start), float(self._base_params.t_end)
+        lo, hi = float(self._base_params.episode.t_start), float(self._base_params.episode.t_end)
         if not lo <= t <= hi:
             raise ValueError(f"appear_time {t} s is outside the episode [{lo:.2f}, {hi:.2f}] s (plan time): the "
                              "intruder would appear before the episode starts or after it ends.")
@@ -604,8 +605,8 @@ class STPParallelEnv(ParallelEnv):
                                "before step().")
         if not isinstance(actions, dict):
             raise ValueError(f"actions must be a dict {{agent: action}}; got {type(actions).__name__}.")
-        n = self.params.n_vehicles
-        arr = np.zeros((n + 1, max(2, self.params.vehicle_model.action_dim)), np.float32)
+        n = self.params.vehicles.n
+        arr = np.zeros((n + 1, max(2, self.params.vehicles.model.action_dim)), np.float32)
         if self._parse_plain(actions, arr):
             return arr
         for agent, a in actions.items():  # the general path: every action checked on its own, errors named
@@ -708,10 +709,10 @@ class STPParallelEnv(ParallelEnv):
         self.params = assembly.with_plan(self.params, new_plan)
         self._state = replace(self._state, mode=self._state.mode.at[jnp.asarray(idx)].set(NOMINAL))
         self._replanned[idx] = True
-        self._sta = np.asarray(self.params.sta, np.float64)
+        self._sta = np.asarray(self.params.vehicles.sta, np.float64)
         self.replan_log.append({"time": t_bar, "vehicles": idx,
                                 "sta": [float(new_plan.vehicles[i].plan.sta) for i in idx],
-                                "old_sta": [float(self._base_params.sta[i]) for i in idx],
+                                "old_sta": [float(self._base_params.vehicles.sta[i]) for i in idx],
                                 "seconds": round(time.perf_counter() - start, 2)})
         obs = self._observations(*jax.device_get(_observe_jit(self._state, self.params)))
         mode = np.array(info.mode)
@@ -720,12 +721,12 @@ class STPParallelEnv(ParallelEnv):
 
     # ------------------------------------------------------------------------------------------ conversions
     def _observations(self, obs_vehicles, obs_intruder) -> dict[str, np.ndarray]:
-        obs = {f"vehicle_{i}": obs_vehicles[i] for i in range(self.params.n_vehicles)}
+        obs = {f"vehicle_{i}": obs_vehicles[i] for i in range(self.params.vehicles.n)}
         obs["intruder"] = obs_intruder
         return obs
 
     def _infos(self, info: StepInfo):
-        n = self.params.n_vehicles
+        n = self.params.vehicles.n
         status, mode, avoid_start = info.status.astype(int), info.mode.astype(int), info.avoid_start
         forced = np.isfinite(avoid_start)
         n_forced = int(forced.sum())

@@ -16,12 +16,12 @@ VEHICLE_COLOURS = {"nominal": "tab:blue", "avoiding": "tab:orange", "after_avoid
 
 def _footprint(params, state, i, n=81):
     """``V^A(tau)`` of vehicle ``i`` against the intruder's current relative heading, on a world-frame grid."""
-    grid = params.avoid_grid
+    grid = params.tables.avoid_grid
     w = float(grid.hi[0])
     s = np.linspace(-w, w, n)
     px, py = np.meshgrid(s, s, indexing="ij")
     xi = state.intruder_x
-    pose = np.asarray(params.vehicle_model.pose(state.x[i]))
+    pose = np.asarray(params.vehicles.model.pose(state.x[i]))
     rel_heading = wrap_angle(float(xi[2]) - float(pose[2]))
     pts = jnp.stack([px.ravel(), py.ravel(), jnp.full(px.size, rel_heading)], 1).astype(jnp.float32)
     tau = state.t - state.t_appear
@@ -43,26 +43,26 @@ def draw_frame(env, fig=None):
         fig = plt.figure(figsize=(6, 6), dpi=80)
     fig.clf()
     ax = fig.add_subplot(1, 1, 1)
-    lo, hi = np.asarray(params.domain_lo), np.asarray(params.domain_hi)
+    lo, hi = np.asarray(params.episode.domain_lo), np.asarray(params.episode.domain_hi)
     for b in scenario.buildings:
         ax.add_patch(Polygon(np.asarray(b.vertices), closed=True, color="0.55", zorder=1))
-    rc = float(params.collision_radius)
+    rc = float(params.episode.collision_radius)
     targets = {}
-    for i, (c, r) in enumerate(zip(np.asarray(params.targets), np.asarray(params.target_radii))):
+    for i, (c, r) in enumerate(zip(np.asarray(params.vehicles.targets), np.asarray(params.vehicles.target_radii))):
         targets.setdefault((float(c[0]), float(c[1]), float(r)), []).append(i)
     for (cx, cy, r), owners in targets.items():
         ax.add_patch(Circle((cx, cy), r, fill=False, ec="tab:green", lw=1.2, zorder=2))
         ax.annotate(",".join(map(str, owners)), (cx, cy), fontsize=7, color="tab:green", ha="center", va="center")
-    states = np.asarray(params.nominal_states)
-    lengths = np.asarray(params.nominal_len)
-    for i in range(params.n_vehicles):
+    states = np.asarray(params.vehicles.nominal_states)
+    lengths = np.asarray(params.vehicles.nominal_len)
+    for i in range(params.vehicles.n):
         ax.plot(states[i, :lengths[i], 0], states[i, :lengths[i], 1], color="0.8", lw=0.8, zorder=1)
-    x = np.asarray(params.vehicle_model.pose(state.x))  # (x, y, heading) whatever the vehicle model
+    x = np.asarray(params.vehicles.model.pose(state.x))  # (x, y, heading) whatever the vehicle model
     status, mode = np.asarray(state.status), np.asarray(state.mode)
     span = float(np.max(hi - lo))
     arrow = 0.03 * span
     present = int(state.intruder_status) == PRESENT
-    for i in range(params.n_vehicles):
+    for i in range(params.vehicles.n):
         if status[i] == WAITING:
             ax.plot(*x[i, :2], marker="s", ms=3, color="0.6", zorder=3)
             continue
@@ -82,7 +82,7 @@ def draw_frame(env, fig=None):
         ax.arrow(xi[0], xi[1], arrow * np.cos(xi[2]), arrow * np.sin(xi[2]), width=0.005 * span, color="red",
                  zorder=5, length_includes_head=True)
     n_forced = int(np.isfinite(np.asarray(state.avoid_start)).sum())
-    kbar = int(params.kbar)
+    kbar = int(params.intruder.kbar)
     avoiding = int(np.sum((mode == AVOIDING) & (status == FLYING)))
     ax.set_title(f"t = {float(state.t):7.1f} s   forced |N^RP| = {n_forced} (k̄ = {kbar})   avoiding now: {avoiding}",
                  fontsize=9)

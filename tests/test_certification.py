@@ -65,17 +65,18 @@ def test_the_closed_loop_of_the_certification_is_the_simulators(wind, horizon):
     params = attack.base
     z = attack.seeds()[0]
     in_core = canonical_value(attack, z)
-    substeps = int(params.control_substeps)
-    grid = params.tracking_grid
+    substeps = int(params.episode.control_substeps)
+    grid = params.tables.tracking_grid
     lo, hi = jnp.asarray(grid.lo), jnp.asarray(grid.hi)
 
     def gradient(t, e):
-        return sim.tables.interpolate_components(grid, params.tracking_grads, jnp.clip(e, lo, hi))
+        return sim.tables.interpolate_components(grid, params.tables.tracking_grads, jnp.clip(e, lo, hi))
 
-    xs, _, _ = closed_loop.rollout(params.tracking_dynamics, gradient, gradient, jnp.zeros(3),
-                                   h=float(params.dt) / substeps, n_steps=attack.n_steps * substeps, hold=substeps)
+    xs, _, _ = closed_loop.rollout(params.tables.tracking_dynamics, gradient, gradient, jnp.zeros(3),
+                                   h=float(params.episode.dt) / substeps, n_steps=attack.n_steps * substeps,
+                                   hold=substeps)
     lean = float(jnp.max(jnp.hypot(xs[:, 0], xs[:, 1])))
-    assert 1.0 < in_core <= float(params.tracking_bound)
+    assert 1.0 < in_core <= float(params.tables.tracking_bound)
     # the core's error is measured at its steps, the lean loop's at every inner period: a centimetre apart
     assert in_core == pytest.approx(lean, abs=1e-2), (in_core, lean)
     if wind is not None:
@@ -141,12 +142,12 @@ def test_the_avoid_margin_covers_the_tables_closed_loop_error():
     certification's sweep, flown in the simulator's core); from the old floor (the old margin, which had no
     allowance for the table's error: 0.01 m) the same game gets inside."""
     params = _town()
-    assert float(params.avoid_margin) > 0.5 + float(params.avoid_fall_rate) * 0.02
+    assert float(params.tables.avoid_margin) > 0.5 + float(params.tables.avoid_fall_rate) * 0.02
     attack = AvoidanceAttack(base=params, intruder="hj", wind="worst", start="band", band_level=0.0)
     seed = attack.seeds()
     assert attack.band_floor > 0.3
     assert canonical_value(attack, seed[0]) < 0.0
-    old_margin = 0.02 * float(params.avoid_fall_rate) + 0.01
+    old_margin = 0.02 * float(params.tables.avoid_fall_rate) + 0.01
     old = _town(avoid_margin=old_margin, allow_uncertified=True)
     old_attack = AvoidanceAttack(base=old, intruder="hj", wind="worst", start="band", band_level=0.0)
     assert old_attack.band_floor == pytest.approx(0.01, abs=1e-4)
@@ -178,7 +179,7 @@ def test_the_finest_inner_period_keeps_the_tables_error_in_its_margin():
     plan = shipped_plan("tiny")
     for control_dt in (0.005, 0.01, 0.02):
         params = make_params(scenario, plan, avoid, tracking, sim.EnvConfig(control_dt=control_dt))
-        floor = float(params.avoid_margin) - control_dt * float(params.avoid_fall_rate)
+        floor = float(params.tables.avoid_margin) - control_dt * float(params.tables.avoid_fall_rate)
         assert floor == pytest.approx(avoid.table_error + 0.01, abs=1e-4), control_dt
         assert avoid.table_error > control_dt * avoid.fall_rate or control_dt > 0.005
 
@@ -188,12 +189,12 @@ def test_uncertified_settings_are_booked_as_assumption_failures():
     avoid, tracking = load_artifacts(scenario, progress=False)
     plan = shipped_plan("tiny")
     params = make_params(scenario, plan, avoid, tracking)
-    assert np.all(np.asarray(params.certified))
+    assert np.all(np.asarray(params.vehicles.certified))
     with pytest.warns(UserWarning, match="assumption failures"):
         loose = make_params(scenario, plan, avoid, tracking,
                             sim.EnvConfig(control_dt=0.1, allow_uncertified=True))
-    assert not np.any(np.asarray(loose.certified))
-    low = float(params.avoid_margin) - 0.5
+    assert not np.any(np.asarray(loose.vehicles.certified))
+    low = float(params.tables.avoid_margin) - 0.5
     with pytest.raises(ValueError, match="avoid_margin"):
         make_params(scenario, plan, avoid, tracking, sim.EnvConfig(avoid_margin=low))
     state = sim.reset(jax.random.key(0), loose)
@@ -232,7 +233,7 @@ def test_a_plan_outside_the_planning_dynamics_is_refused(mutate):
     assert "vehicle 1" in str(err.value)
     with pytest.warns(UserWarning, match="assumption failures"):
         params = make_params(scenario, bad, avoid, tracking, sim.EnvConfig(allow_uncertified=True))
-    assert np.asarray(params.certified).tolist() == [i != 1 for i in range(len(plan.vehicles))]
+    assert np.asarray(params.vehicles.certified).tolist() == [i != 1 for i in range(len(plan.vehicles))]
     good = make_params(scenario, plan, avoid, tracking)
     with pytest.raises(ValueError, match="U\\^p"):
         with_plan(good, bad)
@@ -272,4 +273,4 @@ def test_winds_beyond_the_tables_bound_are_scaled_back_into_their_disks():
     scaled = np.asarray(within_bounds(params, jnp.asarray(beyond)))
     assert np.allclose(np.linalg.norm(scaled, axis=1), r, rtol=1e-6)
     _, heading = within_bounds(params, jnp.asarray(inside), jnp.full((len(r),), 5.0))
-    assert np.all(np.asarray(heading) <= float(params.vehicle_bounds[4]) + 1e-7)
+    assert np.all(np.asarray(heading) <= float(params.vehicles.bounds[4]) + 1e-7)

@@ -122,7 +122,7 @@ def test_adapter_matches_the_pure_core(par):
     key = jax.random.key(5)
     key, sub = jax.random.split(key)
     state = sim.reset(sub, par.params)
-    n = par.params.n_vehicles
+    n = par.params.vehicles.n
     for _ in range(120):
         acts = rng.uniform(-1, 1, (n + 1, 2)).astype(np.float32)
         par.step({a: acts[i] for i, a in enumerate(par.possible_agents) if a in par.agents})
@@ -206,7 +206,7 @@ def test_finished_agents_and_bad_arguments_are_rejected(par):
 
 def _per_agent(par, actions):
     """The general path of the action check, agent by agent (the reference for the vectorised one)."""
-    arr = np.zeros((par.params.n_vehicles + 1, 2), np.float32)
+    arr = np.zeros((par.params.vehicles.n + 1, 2), np.float32)
     for agent, a in actions.items():
         checked = par._check_action(agent, a)
         if checked is not None:
@@ -220,7 +220,7 @@ def _per_agent(par, actions):
 def test_the_vectorised_action_check_equals_the_per_agent_one(par, values, dtype, drop):
     par.reset(seed=1)
     acts = {a: np.asarray(values[2 * i:2 * i + 2], dtype) for i, a in enumerate(par.agents) if i not in drop}
-    fast = np.zeros((par.params.n_vehicles + 1, 2), np.float32)
+    fast = np.zeros((par.params.vehicles.n + 1, 2), np.float32)
     assert par._parse_plain(acts, fast)
     np.testing.assert_array_equal(fast, _per_agent(par, acts))
 
@@ -231,7 +231,7 @@ def test_anything_but_plain_float_arrays_takes_the_general_path(par, odd):
     par.reset(seed=1)
     acts = {a: np.full(2, 0.25, np.float32) for a in par.agents}
     acts["vehicle_3"] = odd
-    untouched = np.full((par.params.n_vehicles + 1, 2), 9.0, np.float32)
+    untouched = np.full((par.params.vehicles.n + 1, 2), 9.0, np.float32)
     assert not par._parse_plain(acts, untouched)
     assert np.all(untouched == 9.0)
 
@@ -248,7 +248,7 @@ def test_out_of_range_actions_are_clipped(par):
 
 
 def test_appear_time_option_and_infos(par):
-    t = float(par.params.t_start) + 1.0
+    t = float(par.params.episode.t_start) + 1.0
     _, infos = par.reset(seed=0, options={"appear_time": t})
     assert set(infos["vehicle_0"]) >= {"avoid_start_time", "forced", "n_forced", "kbar", "collision",
                                        "guarantee_violation", "used_filter", "min_separation", "cost"}
@@ -285,7 +285,7 @@ def test_long_run_without_recompiling_or_growing_memory(par):
 def test_packed_step_output_is_the_unpacked_one_bit_for_bit(par):
     """The adapter fetches a step's outputs as one packed array: unpacked, they are exactly the step's outputs."""
     par.reset(seed=3)
-    n = par.params.n_vehicles
+    n = par.params.vehicles.n
     acts = jnp.asarray(np.random.default_rng(1).uniform(-1, 1, (n + 1, 2)), jnp.float32)
     key, state = par._key, par._state
     _, _, direct = sim_jit(stp_module._advance)(key, state, acts, par.params)
@@ -318,7 +318,7 @@ def test_episode_results_are_readable_at_the_end_whatever_agent_is_left(par):
     """The quick start reads the episode's results after the loop: the intruder has left before the last step
     (its info is gone), so they are in every agent's info and in ``env.episode``."""
     rng = np.random.default_rng(0)
-    _, infos = par.reset(seed=0, options={"appear_time": float(par.params.t_start) + 1.0})
+    _, infos = par.reset(seed=0, options={"appear_time": float(par.params.episode.t_start) + 1.0})
     assert infos["vehicle_0"]["episode"] == par.episode
     in_episode = [int(a.split("_")[1]) for a in par.agents if a != "intruder"]
     intruder_left_at = None
@@ -332,7 +332,7 @@ def test_episode_results_are_readable_at_the_end_whatever_agent_is_left(par):
         assert info["episode"] == par.episode
     state = par.env_state
     assert par.episode["n_forced"] == int(np.isfinite(np.asarray(state.avoid_start)).sum())
-    assert par.episode["kbar"] == int(par.params.kbar)
+    assert par.episode["kbar"] == int(par.params.intruder.kbar)
     assert par.episode["collisions"] == int((np.asarray(state.status) == sim.COLLIDED).sum())
     assert par.episode["tracking_violations"] == int(np.asarray(state.tracking_violation).sum())
     # random actions: no vehicle tracked its plan, so there is no tracking error to bound (the evaluator's rule)
@@ -357,7 +357,7 @@ def test_tracking_error_and_violation_in_the_infos(par):
         assert infos[a]["max_tracking_error"] == pytest.approx(float(largest[i]))
         assert infos[a]["tracking_violation"] is bool(violation[i])
     assert infos[flying[0]]["tracked"] is bool(np.asarray(state.tracked)[int(flying[0].split("_")[1])])
-    assert par.episode["tracking_bound"] == pytest.approx(float(par.params.tracking_bound))
+    assert par.episode["tracking_bound"] == pytest.approx(float(par.params.tables.tracking_bound))
     assert infos["intruder"]["tracking_violations"] == int(violation.sum())
     assert max(infos[a]["tracking_error"] for a in flying) > 0.0  # zero actions: the tracker is not flying them
 

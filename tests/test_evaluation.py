@@ -88,8 +88,9 @@ def test_the_tracking_error_column_counts_only_vehicles_that_flew_with_kappa():
     from stp_env.evaluation.runner import summarize
     from stp_env.sim.types import ARRIVED, WAITING
 
-    params = types.SimpleNamespace(sta=np.array([10.0, 20.0]), t_start=0.0, t_end=30.0, tracking_bound=5.0,
-                                   vehicle_bounds=np.array([0.0, 0.0, 0.0, 0.0, 6.0, 0.0]), collision_radius=20.0)
+    ns = types.SimpleNamespace
+    params = ns(vehicles=ns(sta=np.array([10.0, 20.0]), bounds=np.array([0.0, 0.0, 0.0, 0.0, 6.0, 0.0])),
+                episode=ns(t_start=0.0, t_end=30.0, collision_radius=20.0), tables=ns(tracking_bound=5.0))
     ep = {"n_forced": np.array([0, 0]), "status": np.array([[ARRIVED, WAITING], [ARRIVED, ARRIVED]]),
           "guarantee_violation": np.zeros((2, 2), bool), "collided_with_intruder": np.zeros((2, 2), bool),
           "assumption_ok": np.ones((2, 2), bool), "tracking_violation": np.zeros((2, 2), bool),
@@ -225,7 +226,7 @@ def test_replay_of_any_episode_matches_the_batch(tiny_run):
 
     config = Configuration(scenario="tiny-intruder", kbar=2, intruder="greedy", vehicle_policy="nominal")
     params = build_params([config], progress=False)[0]
-    params = pad_plan(params, params.nominal_states.shape[1])
+    params = pad_plan(params, params.vehicles.nominal_states.shape[1])
     final, _ = replay(1, 2, params, *config.policies(), summary["n_steps"])
     episode = {k: v[2] for k, v in saved.items()}
     assert same_outcome(episode, final)

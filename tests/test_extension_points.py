@@ -84,15 +84,15 @@ def test_a_registered_wind_model_is_configurable_by_spec_and_moves_the_vehicles(
             break
     assert moving.any(), "no vehicle flew a whole step"
     # The motion is exact Dubins with the steady wind over the inner steps (tiny has no heading disturbance).
-    b = params.vehicle_bounds
+    b = params.vehicles.bounds
     v = b[V_MIN] + 0.5 * 1.3 * (b[V_MAX] - b[V_MIN])
     omega = -0.2 * b[OMEGA_MAX]
     x = before.x
-    h = params.dt / params.control_substeps
-    for _ in range(params.control_substeps):
+    h = params.episode.dt / params.episode.control_substeps
+    for _ in range(params.episode.control_substeps):
         x = dubins_step(x, v, omega, jnp.asarray([3.0, 0.0]), h)
     np.testing.assert_allclose(np.asarray(after.x)[moving], np.asarray(x)[moving], atol=1e-3)
-    x_calm = dubins_step(before.x, v, omega, jnp.zeros(2), params.dt)
+    x_calm = dubins_step(before.x, v, omega, jnp.zeros(2), params.episode.dt)
     assert np.all(np.abs(np.asarray(after.x)[moving, 0] - np.asarray(x_calm)[moving, 0] - 0.3) < 1e-2)
 
 
@@ -122,8 +122,8 @@ def test_an_intruder_module_is_found_by_its_import_spec():
     status, heading = jax.device_get(run(sim.reset(key, params)))
     headings = heading[status == sim.PRESENT]
     assert len(headings) > 20
-    turn = np.diff(np.unwrap(headings)) / float(params.dt)
-    assert np.all(turn > 0.0) and np.median(turn) == pytest.approx(float(params.intruder_bounds[OMEGA_MAX]), rel=0.05)
+    turn = np.diff(np.unwrap(headings)) / float(params.episode.dt)
+    assert np.all(turn > 0.0) and np.median(turn) == pytest.approx(float(params.intruder.bounds[OMEGA_MAX]), rel=0.05)
 
 
 # A plug-in intruder with its capabilities: a record, not a bare function, in this file only. The environment, the
@@ -165,7 +165,7 @@ def test_a_plugin_intruder_flies_in_the_environment_the_evaluator_and_the_falsif
     # the environment flies it (the intruder agent's actions ignored) from where it spawns by default
     env = parallel_env(SCENARIO, intruder=spec, appear_window=(0.0, 0.0), progress=False)
     assert env.config.spawn_mode == "boundary"
-    omega = float(env.params.intruder_bounds[OMEGA_MAX])
+    omega = float(env.params.intruder.bounds[OMEGA_MAX])
     env.reset(seed=0)
     headings = []
     for _ in range(150):
@@ -176,7 +176,7 @@ def test_a_plugin_intruder_flies_in_the_environment_the_evaluator_and_the_falsif
         env.step(actions)
         if int(env._state.intruder_status) == sim.PRESENT:
             headings.append(float(env._state.intruder_x[2]))
-    turn = np.diff(np.unwrap(headings)) / float(env.params.dt)
+    turn = np.diff(np.unwrap(headings)) / float(env.params.episode.dt)
     assert len(headings) > 10 and np.median(turn) == pytest.approx(omega, rel=0.05)
     # the evaluator runs it, spawned on the boundary by its record
     (result,) = evaluate([Configuration(scenario=SCENARIO, kbar=2, intruder=spec)], episodes=4, batch_size=4,
@@ -201,7 +201,7 @@ class SteadyWindAttack:
 
     @property
     def n_steps(self) -> int:
-        return round(self.horizon / float(self.base.dt))
+        return round(self.horizon / float(self.base.episode.dt))
 
     @property
     def dim(self) -> int:
@@ -209,7 +209,7 @@ class SteadyWindAttack:
 
     @property
     def bound(self) -> float:
-        return float(self.base.tracking_bound)
+        return float(self.base.tables.tracking_bound)
 
     def margin(self, value: float) -> float:
         return self.bound - value
@@ -217,11 +217,11 @@ class SteadyWindAttack:
     def simulate(self, z, record: bool = False):
         n = self.n_steps + 2
         params = harness.one_vehicle(self.base, n, wind_model="constant")
-        params = dataclasses.replace(params, appear_window=jnp.full((2,), 1.0e9, jnp.float32))  # no intruder
+        params = params.replace(intruder=dict(appear_window=jnp.full((2,), 1.0e9, jnp.float32)))  # no intruder
         controls = jnp.tile(jnp.asarray([12.0, 0.0], jnp.float32), (n, 1))
-        params = harness.with_reference(params, harness.reference(jnp.zeros(3), controls, float(self.base.dt)),
+        params = harness.with_reference(params, harness.reference(jnp.zeros(3), controls, float(self.base.episode.dt)),
                                         controls)
-        w = harness.disk(z, self.base.vehicle_bounds[WIND], 1, self.n_steps)
+        w = harness.disk(z, self.base.vehicles.bounds[WIND], 1, self.n_steps)
         state = sim.reset(jax.random.key(0), params)
         return harness.run(params, state, self.n_steps, vehicle_policy=nominal_tracking,
                            winds=jnp.stack([w, jnp.zeros_like(w)], axis=1), record=record)
@@ -347,9 +347,9 @@ def test_a_second_vehicle_model_runs_in_the_environment():
     model = DoubleIntegrator()
     dubins = parallel_env(SCENARIO, max_cycles=5)
     env = parallel_env(SCENARIO, sim.EnvConfig(vehicle_model=model, safety_filter=False), max_cycles=150)
-    assert env.params.vehicle_model == model
+    assert env.params.vehicles.model == model
     obs, _ = env.reset(seed=1)
-    assert env.env_state.x.shape == (env.params.n_vehicles, 4)
+    assert env.env_state.x.shape == (env.params.vehicles.n, 4)
     assert env.observation_space("vehicle_0") == dubins.observation_space("vehicle_0")
     assert env.action_space("vehicle_0").shape == (model.action_dim,)
     speeds, checked = [], 0

@@ -4,7 +4,6 @@ fail), find none against the guarantees in use, and their counterexamples replay
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import functools
 import json
 
@@ -44,7 +43,7 @@ def _zigzag(attack: TrackingAttack) -> np.ndarray:
     """The legal reference that defeated the boundary-layer tracker: v_r = 12 m/s, omega_r = +-1.2 rad/s switching
     every 1 to 6 s (1 s segments), from zero error."""
     rep, n_seg, _, _ = attack._split()
-    assert rep * float(attack.base.dt) == pytest.approx(1.0)
+    assert rep * float(attack.base.episode.dt) == pytest.approx(1.0)
     z = np.zeros((n_seg, 2), np.float32)
     z[:, 0] = 0.5  # 12 m/s in [11, 13]
     sign, k = 1.0, 0
@@ -95,11 +94,11 @@ def test_the_attacks_find_violations_where_there_are_some():
     fail."""
     params = _params()
     config = SearchConfig(budget=160, population=20, restarts=2, batch=40)
-    tight = TrackingAttack(base=dataclasses.replace(params, tracking_bound=jnp.asarray(1.0, jnp.float32)),
+    tight = TrackingAttack(base=params.replace(tables=dict(tracking_bound=jnp.asarray(1.0, jnp.float32))),
                            horizon=20.0, segment=1.0, wind="worst")
     res = cross_entropy(tight.objective, tight.dim, jax.random.key(0), config)
     assert tight.margin(res.best_value) < 0
-    unguarded = AvoidanceAttack(base=dataclasses.replace(params, safety_filter=False), vehicle="nominal",
+    unguarded = AvoidanceAttack(base=params.replace(episode=dict(safety_filter=False)), vehicle="nominal",
                                 intruder="hj", wind="worst")
     res = cross_entropy(unguarded.objective, unguarded.dim, jax.random.key(1), config)
     assert unguarded.margin(res.best_value) < 0
@@ -129,7 +128,7 @@ def test_kbar_attack_vehicle_option_needs_the_buffer_table():
             KbarAttack(base=params, **opts)
     spec = AttackSpec(target="kbar", scenario="town", kbar=2, options=(("vehicles", "worst"),))
     attack = build_attack(spec)
-    assert attack.needs_buffer and attack.base.buffer_values is not None
+    assert attack.needs_buffer and attack.base.tables.buffer_values is not None
 
 
 def test_counterexample_replays_bit_for_bit(tmp_path):

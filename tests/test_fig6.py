@@ -107,7 +107,7 @@ def test_fig6_placement_is_derived_from_the_tables(fig6_setup):
     x2 = FIG6_TRAIL[0][0]
     assert derive_q2_offset(avoid) == pytest.approx(x2, abs=0.05)
     assert derive_q1_distance(avoid) == pytest.approx(FIG6_Q1_DISTANCE, abs=0.05)
-    cell = float(params.buffer_grid.spacing[0])
+    cell = float(params.tables.buffer_grid.spacing[0])
     vb = float(tables.buffer_value(params, jnp.asarray([x2, 0.0, -math.pi], jnp.float32)))
     assert abs(vb) < cell
     assert float(tables.buffer_value(params, jnp.asarray([x2 + 2 * cell, 0.0, -math.pi], jnp.float32))) > 0
@@ -122,7 +122,7 @@ def test_fig6_worst_vehicles_reach_kbar(fig6_setup):
 
     _, _, params = fig6_setup
     run = reproduce(params, worst, optimal_max_k, n_steps=160)
-    assert run["n_forced"] == 3 <= int(params.kbar)
+    assert run["n_forced"] == 3 <= int(params.intruder.kbar)
     assert all(run["assumption_ok"])
     assert run["collisions"] == 0
     for got, want in zip(run["avoid_start_s"][:3], FIG6_PAPER_TIMES[:3]):

@@ -41,7 +41,7 @@ def test_vehicle_fields_are_exactly_the_state_fields_with_a_row_per_vehicle(cros
                if getattr(full, f.name).shape != getattr(part, f.name).shape}
     assert changed == set(VEHICLE_FIELDS)
     assert all(getattr(part, name).shape[0] == 3 for name in VEHICLE_FIELDS)
-    assert part.wind.shape == full.wind.shape == (params.n_vehicles + 1, 2)   # the wind state is the fleet's
+    assert part.wind.shape == full.wind.shape == (params.vehicles.n + 1, 2)   # the wind state is the fleet's
 
 
 def test_random_draws_are_the_whole_fleets(crossing):
@@ -55,7 +55,7 @@ def test_random_draws_are_the_whole_fleets(crossing):
         # the vehicle an intruder spawns next to: the fleet's draw among the same flying vehicles
         mask = np.array(jax.random.bernoulli(jax.random.fold_in(key, 1), 0.5, (ids.size,)))
         mask[seed % ids.size] = True
-        full_mask = np.zeros(params.n_vehicles, bool)
+        full_mask = np.zeros(params.vehicles.n, bool)
         full_mask[ids] = mask
         j_full, _ = fleet.random_vehicle(key, jnp.asarray(full_mask), params)
         j_part, any_part = fleet.random_vehicle(key, jnp.asarray(mask), part)
@@ -88,7 +88,7 @@ def test_part_of_the_fleet_plays_the_same_episodes(crossing):
     ``airborne`` would be caught here)."""
     config, params = crossing
     active = simulated_vehicles(params, True)
-    assert 1 <= len(active) < params.n_vehicles
+    assert 1 <= len(active) < params.vehicles.n
     vehicle_policy, intruder_policy = config.policies()
     n_steps = sim.steps_for(params)
     idx = jnp.arange(EPISODES, dtype=jnp.int32)
@@ -110,7 +110,7 @@ def test_part_of_the_fleet_plays_the_same_episodes(crossing):
         np.testing.assert_array_equal(ta[k], tb[k], err_msg=k)
     np.testing.assert_allclose(ta["x"], tb["x"], atol=2.0)
     # the vehicles left out: exactly the whole fleet's rows (float fields up to rounding)
-    rest = np.setdiff1d(np.arange(params.n_vehicles), active)
+    rest = np.setdiff1d(np.arange(params.vehicles.n), active)
     for k in (*VEHICLE_FIELDS, "wind"):
         x, y = np.asarray(a[k], float)[:, rest], np.asarray(b[k], float)[:, rest]
         np.testing.assert_allclose(np.where(np.isfinite(x), x, 0), np.where(np.isfinite(y), y, 0), atol=1e-4,
@@ -143,16 +143,16 @@ def test_wind_models_may_answer_for_the_whole_fleet(crossing):
         name = "undersized"
 
         def initial(self, key, params):
-            return jnp.zeros((params.n_vehicles + 1, 2))
+            return jnp.zeros((params.vehicles.n + 1, 2))
 
     _, params = crossing
     ids = np.array([2, 7, 9])
-    part = fleet.select(dataclasses.replace(params, wind_model=PerAgent()), ids)
+    part = fleet.select(params.replace(wind=dict(model=PerAgent())), ids)
     state = SimpleNamespace(wind=wind_lib.initial_wind(jax.random.key(0), part))   # all draw() reads
     winds, heading, new = wind_lib.sample(jax.random.key(1), state, part)
     assert np.allclose(np.asarray(winds)[:, 0], [0.2, 0.7, 0.9, 2.0]) and heading.shape == (4,) and new.shape == (21, 2)
     with pytest.raises(ValueError, match="whole fleet"):
-        wind_lib.initial_wind(jax.random.key(0), fleet.select(dataclasses.replace(params, wind_model=Undersized()),
+        wind_lib.initial_wind(jax.random.key(0), fleet.select(params.replace(wind=dict(model=Undersized())),
                                                               ids))
 
 
@@ -160,17 +160,17 @@ def test_part_of_a_fleet_ends_when_the_whole_fleet_would(crossing):
     """The episode of part of a fleet ends early (every vehicle done, the intruder gone) only if no vehicle left
     out still waits to take off, as for the whole fleet."""
     _, params = crossing
-    t0 = jnp.sort(params.departure)[10] + 1.0           # a window in the middle of the plan
-    params = dataclasses.replace(params, t_start=t0, t_end=t0 + 30.0)
+    t0 = jnp.sort(params.vehicles.departure)[10] + 1.0           # a window in the middle of the plan
+    params = params.replace(episode=dict(t_start=t0, t_end=t0 + 30.0))
     arrived = np.asarray(fleet.arrived_at_start(params))
     airborne = fleet.airborne(params)
     later = np.setdiff1d(np.flatnonzero(~arrived), airborne)          # they take off after the window
     assert arrived.any() and later.size
     for ids, waits in ((airborne, True), (np.flatnonzero(~arrived), False)):
         part = fleet.select(params, ids)
-        assert bool(part.outside_waiting) is waits
+        assert bool(part.vehicles.outside_waiting) is waits
         done = SimpleNamespace(status=jnp.full((ids.size,), sim.ARRIVED), intruder_status=jnp.asarray(sim.GONE),
-                               t=part.t_start)                 # what episode_over reads
+                               t=part.episode.t_start)                 # what episode_over reads
         terminated, _ = sim.episode_over(done, part)
         assert bool(terminated) is not waits
 
@@ -180,35 +180,37 @@ def test_a_vehicle_whose_trajectory_flies_on_past_its_target_has_arrived(crossin
     flies on out of the target disk (the city planner's do, by up to 1 km): at the episode's start it is ARRIVED,
     not simulated and no spawn anchor, and its position after the arrival is never read as a flight."""
     _, params = crossing
-    order = np.argsort(np.asarray(params.nominal_arrival))
+    order = np.argsort(np.asarray(params.vehicles.nominal_arrival))
     i = int(order[0])                                                   # the first to arrive
-    t_arr = float(params.nominal_arrival[i])
+    t_arr = float(params.vehicles.nominal_arrival[i])
     t0 = t_arr + 20.0
-    assert t0 < float(np.sort(np.asarray(params.nominal_arrival))[1])   # nobody else has arrived yet
-    last = int(params.nominal_len[i]) - 1        # the reference stays at the last sample after it
-    k = min(int(np.ceil((t_arr + 1.0 - float(params.nominal_t0[i])) / float(params.nominal_dt))), last)
-    states = np.array(params.nominal_states)
-    states[i, k:, :2] = np.asarray(params.targets[i]) + np.array([0.0, 400.0])  # 400 m north of the centre
-    flown_on = dataclasses.replace(params, nominal_states=jnp.asarray(states), t_start=jnp.float32(t0),
-                                   t_end=jnp.float32(t0 + 30.0),
-                                   appear_window=jnp.asarray([t0, t0 + 1.0], jnp.float32))
-    x_nom, _ = sim.nominal_reference(flown_on, flown_on.t_start)
-    assert np.hypot(*(np.asarray(x_nom[i, :2]) - np.asarray(params.targets[i]))) > 300.0  # outside by position
+    assert t0 < float(np.sort(np.asarray(params.vehicles.nominal_arrival))[1])   # nobody else has arrived yet
+    last = int(params.vehicles.nominal_len[i]) - 1        # the reference stays at the last sample after it
+    k = min(int(np.ceil((t_arr + 1.0 - float(params.vehicles.nominal_t0[i])) / float(params.vehicles.nominal_dt))),
+            last)
+    states = np.array(params.vehicles.nominal_states)
+    states[i, k:, :2] = np.asarray(params.vehicles.targets[i]) + np.array([0.0, 400.0])  # 400 m north of the centre
+    flown_on = params.replace(vehicles=dict(nominal_states=jnp.asarray(states)),
+                              episode=dict(t_start=jnp.float32(t0), t_end=jnp.float32(t0 + 30.0)),
+                              intruder=dict(appear_window=jnp.asarray([t0, t0 + 1.0], jnp.float32)))
+    x_nom, _ = sim.nominal_reference(flown_on, flown_on.episode.t_start)
+    assert np.hypot(*(np.asarray(x_nom[i, :2]) - np.asarray(params.vehicles.targets[i]))) > 300.0  # outside by position
     arrived = np.asarray(fleet.arrived_at_start(flown_on))
     assert arrived[i] and arrived.sum() == 1
     assert i not in fleet.airborne(flown_on)
     state = sim.reset(jax.random.key(0), flown_on)
     assert int(state.status[i]) == sim.ARRIVED and float(state.arrival_time[i]) == pytest.approx(t_arr)
     # the position rule alone (the mutant) would have put it back in the air, 400 m from its target
-    mutant = dataclasses.replace(flown_on, nominal_arrival=jnp.full_like(params.nominal_arrival, jnp.inf))
+    mutant = flown_on.replace(vehicles=dict(nominal_arrival=jnp.full_like(params.vehicles.nominal_arrival, jnp.inf)))
     assert not np.asarray(fleet.arrived_at_start(mutant))[i]
 
 
 def test_select_slices_every_per_vehicle_parameter(crossing):
     _, params = crossing
-    n = params.n_vehicles
-    per_vehicle = {f.name for f in dataclasses.fields(params)
-                   if hasattr(getattr(params, f.name), "shape") and getattr(params, f.name).shape[:1] == (n,)}
+    n = params.vehicles.n
+    per_vehicle = {f.name for f in dataclasses.fields(params.vehicles)
+                   if hasattr(getattr(params.vehicles, f.name), "shape")
+                   and getattr(params.vehicles, f.name).shape[:1] == (n,)}
     assert per_vehicle == set(fleet.PARAM_VEHICLE_FIELDS)
 
 
@@ -223,7 +225,7 @@ def test_the_kbar_attack_on_the_airborne_vehicles_scores_as_on_the_whole_fleet(c
     for which in ("whole", "airborne"):
         attack = KbarAttack(base=params, intruder="max-k", fleet=which)
         values[which] = np.asarray(sim_jit(jax.vmap(attack.objective))(z))
-    assert attack.params.n_vehicles < params.n_vehicles
+    assert attack.params.vehicles.n < params.vehicles.n
     np.testing.assert_array_equal(np.floor(values["whole"]), np.floor(values["airborne"]))
     assert np.mean(values["whole"] >= 1) >= 0.5                            # the attacks force vehicles
     np.testing.assert_allclose(values["whole"], values["airborne"], atol=1e-3)

@@ -144,7 +144,7 @@ def test_bad_seeds_and_options_raise_and_change_nothing(par, aec, data, use_aec,
         kwargs = {"seed": data.draw(_bad_seeds(), "seed")}
         match = "seed"
     else:
-        lo, hi = float(inner.params.t_start), float(inner.params.t_end)
+        lo, hi = float(inner.params.episode.t_start), float(inner.params.episode.t_end)
         kwargs = {"seed": 2, "options": data.draw(_bad_options(lo, hi), "options")}
         match = "appear_time|options"
     with pytest.raises(ValueError, match=match):
@@ -330,8 +330,9 @@ def test_replaying_an_event_never_imports_what_it_names(tmp_path, monkeypatch):
     from stp_env.evaluation import runner
 
     marker = tmp_path / "pwned"
-    params = SimpleNamespace(nominal_states=np.zeros((1, 100, 3)), t_start=jnp.asarray(0.0),
-                             t_end=jnp.asarray(9.9), dt=jnp.asarray(0.1))
+    params = SimpleNamespace(vehicles=SimpleNamespace(nominal_states=np.zeros((1, 100, 3))),
+                             episode=SimpleNamespace(t_start=jnp.asarray(0.0), t_end=jnp.asarray(9.9),
+                                                     dt=jnp.asarray(0.1)))
     monkeypatch.setattr(runner, "build_params", lambda *a, **k: [params])
     monkeypatch.setattr(runner, "replay", lambda *a, **k: pytest.fail("replayed an event naming code"))
     with pytest.raises(ValueError) as err:

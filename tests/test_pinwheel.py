@@ -37,7 +37,7 @@ def test_converging_winds_blow_the_unforced_vehicles_and_the_intruder_toward_eac
                     avoid_start=jnp.asarray([np.inf, 12.0, np.inf], state.avoid_start.dtype),
                     intruder_x=jnp.asarray(intruder), intruder_status=jnp.asarray(PRESENT, state.intruder_status.dtype))
     w = np.asarray(converging_winds(state, params))
-    d_r, d_i = float(params.vehicle_bounds[WIND]), float(params.intruder_bounds[WIND])
+    d_r, d_i = float(params.vehicles.bounds[WIND]), float(params.intruder.bounds[WIND])
     for i in (0, 2):  # not forced: full wind toward the intruder
         gap = intruder[:2] - pos[i]
         np.testing.assert_allclose(w[i], d_r * gap / np.linalg.norm(gap), rtol=1e-5, atol=1e-4)

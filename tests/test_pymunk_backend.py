@@ -92,7 +92,7 @@ def test_rigid_body_config_is_checked(field, value, match):
 @pytest.mark.slow  # compiles the adapter's step for the pymunk plant
 def test_pettingzoo_api_and_seeds_on_pymunk():
     par = parallel_env(SCENARIO, backend="pymunk", max_cycles=50)
-    assert isinstance(par.params.vehicle_model, PymunkKinematic)
+    assert isinstance(par.params.vehicles.model, PymunkKinematic)
     parallel_api_test(par, num_cycles=50)
     parallel_seed_test(lambda: parallel_env(SCENARIO, backend="pymunk", max_cycles=30), num_cycles=30)
 
@@ -154,16 +154,16 @@ def test_sensor_shapes_agree_with_the_signed_distance_events():
 
     scenario = make("town")
     params = assembly.params_for(scenario, sim.EnvConfig(), progress=False)
-    world = SensorWorld(scenario.buildings, float(params.collision_radius))
+    world = SensorWorld(scenario.buildings, float(params.episode.collision_radius))
     rng = np.random.default_rng(0)
-    lo, hi = np.asarray(params.domain_lo), np.asarray(params.domain_hi)
-    spacing = float(np.max((hi - lo) / (np.asarray(params.sdf.shape) - 1)))
+    lo, hi = np.asarray(params.episode.domain_lo), np.asarray(params.episode.domain_hi)
+    spacing = float(np.max((hi - lo) / (np.asarray(params.tables.sdf.shape) - 1)))
     checked_inside = checked_pairs = 0
     boxes = [(np.min(b.vertices, axis=0) - spacing, np.max(b.vertices, axis=0) + spacing)
              for b in scenario.buildings]
     for _ in range(10):
         p = lo + rng.uniform(size=(40, 2)) * (hi - lo)
-        p[10:20] = p[:10] + rng.normal(size=(10, 2)) * float(params.collision_radius)  # close pairs
+        p[10:20] = p[:10] + rng.normal(size=(10, 2)) * float(params.episode.collision_radius)  # close pairs
         for k in range(20, 40):  # around the buildings
             b_lo, b_hi = boxes[rng.integers(len(boxes))]
             p[k] = b_lo + rng.uniform(size=2) * (b_hi - b_lo)
@@ -176,8 +176,8 @@ def test_sensor_shapes_agree_with_the_signed_distance_events():
         assert not hit_building[~active].any() and not hit_vehicle[~active].any()
         d = np.hypot(*(p[:, None] - p[None]).transpose(2, 0, 1)) + np.where(np.eye(40, dtype=bool), np.inf, 0.0)
         d = np.where(active[:, None] & active[None, :], d, np.inf)
-        near = np.any(d <= float(params.collision_radius), axis=1)
-        sure = np.all(np.abs(d - float(params.collision_radius)) > 1e-6, axis=1)
+        near = np.any(d <= float(params.episode.collision_radius), axis=1)
+        sure = np.all(np.abs(d - float(params.episode.collision_radius)) > 1e-6, axis=1)
         np.testing.assert_array_equal(hit_vehicle[sure], near[sure])
         checked_inside += int((active & clear & (sdf <= 0)).sum())
         checked_pairs += int(near.sum())

@@ -24,7 +24,7 @@ def _run(env, seed):
     vpol, ipol = jax.jit(vehicle_policy("switching")), jax.jit(intruder_policy("max-k"))
     env.reset(seed=seed)
     key = jax.random.key(seed)
-    n = env.params.n_vehicles
+    n = env.params.vehicles.n
     arrival = np.full(n, np.inf)
     last, traces = {}, None
     while env.agents:
@@ -55,10 +55,11 @@ def test_forced_vehicles_are_replanned_and_arrive_by_their_new_sta():
         assert info["forced"] and info["replanned"] and info["sta"] == pytest.approx(sta)
         assert sta > record["time"]
         assert arrival[i] <= sta + 1e-6, (i, arrival[i], sta, old)  # on time for the new STA
-    others = [i for i in range(base.n_vehicles) if i not in replanned]
+    others = [i for i in range(base.vehicles.n) if i not in replanned]
     # the other vehicles' plans are untouched
-    assert np.array_equal(np.asarray(env.params.nominal_states)[others], np.asarray(base.nominal_states)[others])
-    assert np.array_equal(np.asarray(env.params.sta)[others], np.asarray(base.sta)[others])
+    assert np.array_equal(np.asarray(env.params.vehicles.nominal_states)[others],
+                          np.asarray(base.vehicles.nominal_states)[others])
+    assert np.array_equal(np.asarray(env.params.vehicles.sta)[others], np.asarray(base.vehicles.sta)[others])
     assert not any(infos[f"vehicle_{i}"]["replanned"] for i in others)
     assert infos["intruder"]["collisions"] == 0 and infos["intruder"]["guarantee_violations"] == 0
     # swapping plans did not retrace the step (same table shapes)
@@ -71,24 +72,25 @@ def test_forced_vehicles_are_replanned_and_arrive_by_their_new_sta():
 def test_with_plan_keeps_or_grows_the_tables_and_checks_its_input():
     scenario = make("town")
     params = assembly.params_for(scenario, CONFIG, progress=False)
-    plan = assembly.load_plan(scenario, tracking_bound=float(params.tracking_bound), progress=False)
+    plan = assembly.load_plan(scenario, tracking_bound=float(params.tables.tracking_bound), progress=False)
     same = assembly.with_plan(params, plan)
-    assert same.nominal_states.shape == params.nominal_states.shape
-    assert np.array_equal(np.asarray(same.nominal_states), np.asarray(params.nominal_states))
+    assert same.vehicles.nominal_states.shape == params.vehicles.nominal_states.shape
+    assert np.array_equal(np.asarray(same.vehicles.nominal_states), np.asarray(params.vehicles.nominal_states))
     # a longer trajectory for vehicle 3 grows every table to a multiple of 256 samples
     v = plan.vehicles[3]
-    k = params.nominal_states.shape[1] + 10
-    dt = float(params.nominal_dt)
+    k = params.vehicles.nominal_states.shape[1] + 10
+    dt = float(params.vehicles.nominal_dt)
     longer = dataclasses.replace(v.plan, times=v.plan.times[0] + dt * np.arange(k),
                                  states=np.repeat(v.plan.states[-1:], k, axis=0),
                                  controls=np.repeat(v.plan.controls[-1:], k, axis=0), sta=v.plan.sta + 60.0)
     grown_plan = dataclasses.replace(plan, vehicles=tuple(dataclasses.replace(w, plan=longer) if w.index == 3
                                                            else w for w in plan.vehicles))
     grown = assembly.with_plan(params, grown_plan)
-    assert grown.nominal_states.shape[1] % 256 == 0 and grown.nominal_states.shape[1] >= k
-    assert int(grown.nominal_len[3]) == k and float(grown.sta[3]) == pytest.approx(v.plan.sta + 60.0)
-    m = params.nominal_states.shape[1]
-    assert np.array_equal(np.asarray(grown.nominal_states)[[0, 1, 2], :m], np.asarray(params.nominal_states)[[0, 1, 2]])
+    assert grown.vehicles.nominal_states.shape[1] % 256 == 0 and grown.vehicles.nominal_states.shape[1] >= k
+    assert int(grown.vehicles.nominal_len[3]) == k and float(grown.vehicles.sta[3]) == pytest.approx(v.plan.sta + 60.0)
+    m = params.vehicles.nominal_states.shape[1]
+    assert np.array_equal(np.asarray(grown.vehicles.nominal_states)[[0, 1, 2], :m],
+                          np.asarray(params.vehicles.nominal_states)[[0, 1, 2]])
     with pytest.raises(ValueError, match="vehicles"):
         assembly.with_plan(params, dataclasses.replace(plan, vehicles=plan.vehicles[:-1]))
     resampled = dataclasses.replace(v.plan, times=v.plan.times[0] + 2 * dt * np.arange(len(v.plan.times)))

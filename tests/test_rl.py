@@ -4,8 +4,6 @@ VecEnv wrappers, a short PPO run, same seed -> same actions, and the exported ML
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -30,9 +28,9 @@ def params():
     the limit (terminated), a later one is cut by it (truncated), so short runs see both kinds of auto-reset.
     Only array fields change: the same compiled programs as the default ``town``."""
     base = assembly.params_for("town", sim.EnvConfig(), progress=False)
-    lo = base.appear_window[0]
-    return dataclasses.replace(base, t_iat=jnp.asarray(3.0, jnp.float32), appear_window=jnp.stack([lo, lo + 4.0]),
-                               t_end=lo + 5.0)
+    lo = base.intruder.appear_window[0]
+    return base.replace(intruder=dict(t_iat=jnp.asarray(3.0, jnp.float32), appear_window=jnp.stack([lo, lo + 4.0])),
+                        episode=dict(t_end=lo + 5.0))
 
 
 def test_gym_env_passes_gymnasium_and_sb3_checks(params):
@@ -90,7 +88,7 @@ def test_vec_env_sb3_api_and_seeding(params):
     single.seed(8)  # env i gets seed 8 + i: envs 1..3 of seed 7 are envs 0..2 of seed 8
     np.testing.assert_array_equal(single.reset()[:-1], first[1:])
     assert not np.array_equal(first[0], first[1])
-    assert venv.get_attr("kbar") == [int(params.kbar)] * N_ENVS
+    assert venv.get_attr("kbar") == [int(params.intruder.kbar)] * N_ENVS
     assert venv.get_attr("n_forced", indices=[1, 3]) == [0, 0]
     assert venv.get_attr("time", indices=2) == [pytest.approx(float(venv._states.t[2]))]
     with pytest.raises(AttributeError):
@@ -99,7 +97,7 @@ def test_vec_env_sb3_api_and_seeding(params):
     assert venv.get_attr("custom", indices=[0, 1]) == [3, 3]
     with pytest.raises(ValueError, match="share"):
         venv.set_attr("custom", 4, indices=[0])
-    assert venv.env_method("get_attr", "kbar", indices=[0, 2]) == [[int(params.kbar)] * N_ENVS] * 2
+    assert venv.env_method("get_attr", "kbar", indices=[0, 2]) == [[int(params.intruder.kbar)] * N_ENVS] * 2
     assert venv.env_is_wrapped(Monitor) == [False] * N_ENVS
     with pytest.raises(ValueError, match="finite"):
         venv.step(np.full((N_ENVS, 2), np.nan, np.float32))
@@ -131,7 +129,7 @@ def test_short_ppo_run_is_seeded_and_exports_a_jittable_intruder(params, tmp_pat
 
     path = export_mlp(model_a, tmp_path / "intruder.npz", metadata={"seed": 3})
     mlp = load_mlp(path)
-    assert mlp.metadata["seed"] == 3 and mlp.obs_size == 8 + 7 * params.n_nearest
+    assert mlp.metadata["seed"] == 3 and mlp.obs_size == 8 + 7 * params.episode.n_nearest
     venv = IntruderVecEnv(N_ENVS, params=params)
     venv.seed(11)
     obs = venv.reset()
@@ -142,7 +140,7 @@ def test_short_ppo_run_is_seeded_and_exports_a_jittable_intruder(params, tmp_pat
     np.testing.assert_allclose(np.asarray(action), model_a.predict(obs, deterministic=True)[0], atol=1e-5)
     result = evaluate_on_vec_env(lambda o: model_a.predict(o, deterministic=True)[0], venv, N_ENVS, seed=5)
     assert result["n_forced"].shape == (N_ENVS,) and np.all(result["guarantee_violations"] == 0)
-    row = summarize(result, int(params.kbar))  # the row of evaluations.csv: the package's one episode summary
+    row = summarize(result, int(params.intruder.kbar))  # the row of evaluations.csv: the package's one episode summary
     assert row["episodes"] == N_ENVS and row["max_n_forced"] == result["n_forced"].max()
     assert row["guarantee_violations"] == row["violation_episodes"] == 0
     assert row["violation_episodes_upper"] == pytest.approx(1 - 0.05 ** (1 / N_ENVS))
@@ -187,7 +185,8 @@ def test_train_config_spawn_mode_and_the_buffer_of_worst_vehicles(monkeypatch):
         TrainConfig(spawn_mode="sky")
     calls = []
     monkeypatch.setattr(assembly, "params_for",
-                        lambda scenario, config, **kw: types.SimpleNamespace(kbar=scenario.kbar))
+                        lambda scenario, config, **kw: types.SimpleNamespace(
+                            intruder=types.SimpleNamespace(kbar=scenario.kbar)))
     monkeypatch.setattr(assembly, "load_buffer", lambda scenario, kbar, **kw: calls.append(kbar) or "V^B")
     monkeypatch.setattr(assembly, "with_buffer", lambda params, buffer: (params, buffer))
     assert train_module.build_params(TrainConfig(scenario="town", kbar=3, vehicle_policy="worst"))[1] == "V^B"

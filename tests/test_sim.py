@@ -54,7 +54,7 @@ def _late_plan_run(key, params, step_keys):
     every plan time: the times are arguments, not constants)."""
 
     def body(state, k):
-        actions = jnp.zeros((params.n_vehicles + 1, 2), jnp.float32)
+        actions = jnp.zeros((params.vehicles.n + 1, 2), jnp.float32)
         state, _ = sim.step(k, state, actions, params)
         return state, (state.t, state.intruder_status, state.t_appear)
 
@@ -68,12 +68,11 @@ def test_the_intruder_stays_exactly_t_iat_at_late_plan_times(t_start):
     forced 10.02 s after the appearance collided with it, a guarantee violation of the k̄ evaluation on the
     crossing); from 2,096.25 s the sum runs ahead (10.0098 s) and the avoid tables were read at a shifted time.
     Both plan times are the dense scenarios' episode windows. Every step's time stays on the grid to one ulp."""
-    import dataclasses
 
     base = _params("outside")
     f32 = jnp.float32
-    params = dataclasses.replace(base, t_start=jnp.asarray(t_start, f32), t_end=jnp.asarray(t_start + 30.0, f32),
-                                 appear_window=jnp.asarray([t_start + 5.0, t_start + 5.0], f32))
+    params = base.replace(episode=dict(t_start=jnp.asarray(t_start, f32), t_end=jnp.asarray(t_start + 30.0, f32)),
+                          intruder=dict(appear_window=jnp.asarray([t_start + 5.0, t_start + 5.0], f32)))
     n_steps = 200
     _, (ts, status, t_appear) = _late_plan_run(jax.random.key(0), params, jax.random.split(jax.random.key(1), n_steps))
     ts, status, t_appear = np.asarray(ts, np.float64), np.asarray(status), float(np.asarray(t_appear)[-1])
@@ -98,7 +97,7 @@ def test_switching_controller_keeps_the_guarantee_against_every_scripted_intrude
     final, _ = sim.rollout(jax.random.key(17), params, switching, mixture(names), N_EPISODES * len(names), n_steps)
     which = np.asarray(jax.vmap(lambda s: mixture_index(s, len(names)))(final))
     forced = np.asarray(jnp.sum(jnp.isfinite(final.avoid_start), axis=1))
-    kbar = int(params.kbar)
+    kbar = int(params.intruder.kbar)
     assert kbar == 2
     for i, name in enumerate(names):
         assert (which == i).sum() >= 0.85 * N_EPISODES, name  # about 500 episodes of each intruder
@@ -142,19 +141,19 @@ def test_wind_models_respect_their_bounds():
 
     base = _params("outside")
     for model in ("uniform", "constant", "gusts"):
-        params = dataclasses.replace(base, wind_model=model)
+        params = base.replace(wind=dict(model=model))
         state = sim.reset(jax.random.key(0), params)
         sample = jax.jit(wind_lib.sample)
         for k in range(20):
             w, _, new_wind = sample(jax.random.key(k), state, params)
             speed = np.linalg.norm(np.asarray(w), axis=1)
-            assert (speed <= float(params.vehicle_bounds[3]) * (1 + 1e-5)).all(), model
+            assert (speed <= float(params.vehicles.bounds[3]) * (1 + 1e-5)).all(), model
             state = dataclasses.replace(state, wind=new_wind)
     # The worst case (state-dependent, re-evaluated at every inner step) blows at full strength.
-    params = dataclasses.replace(base, wind_model="worst")
+    params = base.replace(wind=dict(model="worst"))
     state = sim.reset(jax.random.key(0), params)
     speed = np.linalg.norm(np.asarray(wind_lib.worst(state, params))[:-1], axis=1)
-    bound = float(params.vehicle_bounds[3])
+    bound = float(params.vehicles.bounds[3])
     assert (speed <= bound * (1 + 1e-5)).all() and speed.max() >= 0.99 * bound
 
 
@@ -183,13 +182,13 @@ def test_every_town_plan_is_tracked_within_r_e(wind_model):
     cfg = sim.EnvConfig(wind_model=wind_model, episode="full", appear_window=(last - first + 30.0,) * 2)
     params = assembly.params_for("town", cfg, progress=False)
     final, _ = sim.rollout(jax.random.key(5), params, switching, INTRUDERS["hover"], 8, sim.steps_for(params))
-    r_e = float(params.tracking_bound)
+    r_e = float(params.tables.tracking_bound)
     err = np.asarray(final.max_tracking_error)
     assert not np.asarray(final.tracking_violation).any()
     assert err.max() <= r_e, (err.max(axis=0), r_e)
     assert err.max() > 0.3 * r_e  # the wind does push: the bound is not vacuous
     assert (np.asarray(final.status) == sim.ARRIVED).all()
-    assert (np.asarray(final.arrival_time) <= np.asarray(params.sta)[None, :] + 1e-4).all()
+    assert (np.asarray(final.arrival_time) <= np.asarray(params.vehicles.sta)[None, :] + 1e-4).all()
 
 
 def test_squared_closest_approaches_give_the_distances_of_one_root_per_inner_step():
@@ -206,7 +205,7 @@ def test_squared_closest_approaches_give_the_distances_of_one_root_per_inner_ste
     pos[2:, 3] = pos[1, 3]                   # a pair whose distance repeats over the inner steps (ties)
     pos[2:, 4] = pos[1, 4]
     pos = jnp.asarray(pos, jnp.float32)
-    params = types.SimpleNamespace(n_vehicles=n)
+    params = types.SimpleNamespace(vehicles=types.SimpleNamespace(n=n))
 
     @jax.jit
     def both(pos):
@@ -235,7 +234,7 @@ def test_a_plan_without_kbar_promises_nothing_to_vehicles_that_left_it():
     from stp_env.sim.core import Closest, _events
 
     params = _params("outside")
-    n = params.n_vehicles
+    n = params.vehicles.n
     state = jax.jit(sim.reset)(jax.random.key(0), params)
     status = jnp.where(jnp.arange(n) < 2, sim.FLYING, sim.ARRIVED).astype(jnp.int32)     # two in the air
     state = dataclasses.replace(state, status=status, assumption_ok=jnp.ones(n, bool),
@@ -245,7 +244,7 @@ def test_a_plan_without_kbar_promises_nothing_to_vehicles_that_left_it():
     for mode, kbar, violation in ((sim.AVOIDING, 2, True), (sim.AVOIDING, -1, False),
                                   (sim.NOMINAL, 2, True), (sim.NOMINAL, -1, True)):
         s = dataclasses.replace(state, mode=jnp.full(n, sim.NOMINAL, jnp.int32).at[0].set(mode))
-        p = dataclasses.replace(params, kbar=jnp.asarray(kbar, jnp.int32))
+        p = params.replace(intruder=dict(kbar=jnp.asarray(kbar, jnp.int32)))
         new, _ = _events(s, s, closest, p)
         assert np.asarray(new.status)[:2].tolist() == [sim.COLLIDED] * 2
         assert np.asarray(new.guarantee_violation)[:2].tolist() == [violation] * 2, (mode, kbar)

@@ -44,7 +44,7 @@ HEADING_GAIN = 3.0  # [1/s]
 def _steer(state, params, point, speed=None):
     """Action turning the intruder toward ``point`` at ``speed`` (default ``v_max``)."""
     xi = state.intruder_x
-    b = params.intruder_bounds
+    b = params.intruder.bounds
     d = point - xi[:2]
     err = wrap_angle(jnp.arctan2(d[1], d[0]) - xi[2])
     omega = jnp.clip(HEADING_GAIN * err, -b[OMEGA_MAX], b[OMEGA_MAX])
@@ -54,7 +54,7 @@ def _steer(state, params, point, speed=None):
 
 def hover(key, state, params):
     del key, state
-    b = params.intruder_bounds
+    b = params.intruder.bounds
     return control_to_action(b[V_MIN], 0.0, b)
 
 
@@ -74,18 +74,18 @@ def bezier_intruder(degree: int):
 
     def policy(key, state, params):
         del key
-        b = params.intruder_bounds
-        reach = 0.5 * b[V_MAX] * params.t_iat
+        b = params.intruder.bounds
+        reach = 0.5 * b[V_MAX] * params.intruder.t_iat
         u = jax.random.uniform(state.intruder_key, (degree, 2))
         r = reach * jnp.sqrt(u[:, 0])
         a = 2 * jnp.pi * u[:, 1]
         p0 = state.intruder_memory[:2]
         pts = jnp.concatenate([p0[None], p0 + jnp.stack([r * jnp.cos(a), r * jnp.sin(a)], 1)], 0)
-        s = jnp.clip((state.t - state.t_appear + params.dt) / params.t_iat, 0.0, 1.0)
+        s = jnp.clip((state.t - state.t_appear + params.episode.dt) / params.intruder.t_iat, 0.0, 1.0)
         basis = binom * s ** powers * (1 - s) ** (degree - powers)
         target = basis @ pts
         dist = jnp.linalg.norm(target - state.intruder_x[:2])
-        speed = jnp.clip(dist / params.dt, b[V_MIN], b[V_MAX])
+        speed = jnp.clip(dist / params.episode.dt, b[V_MIN], b[V_MAX])
         return _steer(state, params, target, speed)
 
     policy.__name__ = f"bezier{degree}"
@@ -103,11 +103,11 @@ def greedy_pursuit(key, state, params):
 def _pursue(state, params, eligible):
     """HJ-optimal pursuit (eq. 14's minimiser) of the eligible vehicle with the smallest ``V^A``."""
     tau = state.t - state.t_appear
-    rel = relative_state(params.vehicle_model.pose(state.x), state.intruder_x[None, :])
+    rel = relative_state(params.vehicles.model.pose(state.x), state.intruder_x[None, :])
     vals = jnp.where(eligible, state.avoid_value, jnp.inf)  # V^A per vehicle, kept by the core
     j = jnp.argmin(vals)
     d = tables.pursuit_input(params, tau, rel[j])
-    hj_action = control_to_action(d[0], d[1], params.intruder_bounds)
+    hj_action = control_to_action(d[0], d[1], params.intruder.bounds)
     # Outside the table (V = FAR), the gradient is zero: close in greedily instead.
     return jnp.where(vals[j] < tables.FAR, hj_action, _steer(state, params, state.x[j, :2])), jnp.any(eligible)
 
@@ -164,10 +164,10 @@ def optimal_max_k(key, state, params):
 def _simulated_rows(params, fleet_indices):
     """The simulated rows of the fleet's vehicles ``fleet_indices`` and whether each is simulated (part of a fleet,
     :mod:`stp_env.sim.fleet`; every index is its own row otherwise)."""
-    if params.vehicle_ids is None:
-        return jnp.minimum(fleet_indices, params.n_vehicles - 1), fleet_indices < params.n_vehicles
-    ids = jnp.asarray(params.vehicle_ids, jnp.int32)
-    rows = jnp.minimum(jnp.searchsorted(ids, fleet_indices), params.n_vehicles - 1)
+    if params.vehicles.ids is None:
+        return jnp.minimum(fleet_indices, params.vehicles.n - 1), fleet_indices < params.vehicles.n
+    ids = jnp.asarray(params.vehicles.ids, jnp.int32)
+    rows = jnp.minimum(jnp.searchsorted(ids, fleet_indices), params.vehicles.n - 1)
     return rows, ids[rows] == fleet_indices
 
 
@@ -200,7 +200,7 @@ class Intruder:
 
     Attributes:
         policy: the jittable ``(key, state, params) -> (2,)`` actions in ``[-1, 1]``.
-        needs_buffer: the policy reads ``V^B`` (``params.buffer_values``): whoever runs it loads the buffer table
+        needs_buffer: the policy reads ``V^B`` (``params.tables.buffer_values``): whoever runs it loads the buffer table
             (:func:`stp_env.assembly.load_buffer`, :func:`stp_env.assembly.with_buffer`).
         spawn: where it appears when the configuration leaves it open (``SPAWN_MODES`` of
             :mod:`stp_env.sim.types`: ``"outside"``, ``"boundary"`` on a vehicle's avoid boundary, ``"mixed"``).

@@ -41,12 +41,12 @@ HEADING_GAIN = 2.0  # [1/s] fallback turn rate per radian of heading error
 
 def fallback_control(state, params):
     """Head for the target at the fastest planning speed: ``(N, 2)`` actions."""
-    pose = params.vehicle_model.pose(state.x)
-    d = params.targets - pose[:, :2]
+    pose = params.vehicles.model.pose(state.x)
+    d = params.vehicles.targets - pose[:, :2]
     err = wrap_angle(jnp.arctan2(d[:, 1], d[:, 0]) - pose[:, 2])
-    omega = jnp.clip(HEADING_GAIN * err, -params.vehicle_bounds[OMEGA_MAX], params.vehicle_bounds[OMEGA_MAX])
-    v = jnp.full_like(omega, params.planning_v_max)
-    return params.vehicle_model.command_to_action(state.x, v, omega, params.vehicle_bounds)
+    omega = jnp.clip(HEADING_GAIN * err, -params.vehicles.bounds[OMEGA_MAX], params.vehicles.bounds[OMEGA_MAX])
+    v = jnp.full_like(omega, params.vehicles.planning_v_max)
+    return params.vehicles.model.command_to_action(state.x, v, omega, params.vehicles.bounds)
 
 
 def nominal_tracking(key, state, params):
@@ -77,7 +77,7 @@ def _toward_intruder(state, params):
     """Full speed, turning toward the intruder at up to the full rate (proportional in the bearing error)."""
     d = state.intruder_x[None, :2] - state.x[:, :2]
     err = wrap_angle(jnp.arctan2(d[:, 1], d[:, 0]) - state.x[:, 2])
-    b = params.vehicle_bounds
+    b = params.vehicles.bounds
     omega = jnp.clip(HEADING_GAIN * err, -b[OMEGA_MAX], b[OMEGA_MAX])
     return control_to_action(jnp.full_like(omega, b[V_MAX]), omega, b)
 
@@ -87,7 +87,7 @@ def worst_unfiltered(key, state, params):
     :func:`nominal_tracking` (:func:`worst` adds the safety filter)."""
     rel = relative_state(state.x, state.intruder_x[None, :])
     v, phi, norm = jax.vmap(lambda r: tables.buffer_descent(params, r))(rel)
-    b = params.vehicle_bounds
+    b = params.vehicles.bounds
     # the game's speed (v_max when moving ahead lowers V^B), turning proportionally toward the descent heading
     omega = jnp.clip(HEADING_GAIN * wrap_angle(phi), -b[OMEGA_MAX], b[OMEGA_MAX])
     game = control_to_action(v, omega, b)

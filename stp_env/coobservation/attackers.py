@@ -36,9 +36,9 @@ def next_observation(state, params, threat, c, t):
     """``(time, aim point)`` of the first scheduled observation involving vehicle ``c`` after ``t``: the time and
     ``c``'s own nominal position then (``inf`` and its goal if there is none)."""
     involves = (threat.obs_agent == c) | (threat.obs_partner == c)
-    later = involves & (threat.obs_time > t + 0.5 * params.dt)
+    later = involves & (threat.obs_time > t + 0.5 * params.episode.dt)
     t_next = jnp.min(jnp.where(later, threat.obs_time, jnp.inf))
-    x_ref, _ = core.nominal_reference(params, jnp.where(jnp.isfinite(t_next), t_next, params.t_end))
+    x_ref, _ = core.nominal_reference(params, jnp.where(jnp.isfinite(t_next), t_next, params.episode.t_end))
     return t_next, x_ref[c, :2]
 
 
@@ -64,7 +64,7 @@ def _attack_action(state, params, threat, planned, go):
     sim = state.sim
     x = sim.x[c]
     t = sim.t
-    b = params.vehicle_bounds
+    b = params.vehicles.bounds
     _t_next, aim = next_observation(state, params, threat, c, t)
     entry, _ = best_entry(x[:2], aim, threat)
     to_zone = steer(x, entry, b[V_MAX], b)
@@ -95,7 +95,7 @@ def opportunistic(slack: float = 5.0):
         x = state.sim.x[c]
         t_next, aim = next_observation(state, params, threat, c, state.sim.t)
         _, detour = best_entry(x[:2], aim, threat)
-        b = params.vehicle_bounds
+        b = params.vehicles.bounds
         speed = jnp.maximum(b[V_MAX] - b[WIND], 1e-3)
         go = detour / speed <= t_next - state.sim.t - slack
         return _attack_action(state, params, threat, planned, go)
@@ -108,7 +108,7 @@ def _observer_disks(params, threat, c, t_next):
     """The observers of vehicle ``c`` at its next observation time ``t_next``: centres ``(M, 2)`` (the partner's
     nominal position then, or the fixed point) and a mask ``(M,)`` of the observations that are due then and
     involve ``c``."""
-    x_ref, _ = core.nominal_reference(params, jnp.where(jnp.isfinite(t_next), t_next, params.t_end))
+    x_ref, _ = core.nominal_reference(params, jnp.where(jnp.isfinite(t_next), t_next, params.episode.t_end))
     due = ((threat.obs_agent == c) | (threat.obs_partner == c)) & (jnp.abs(threat.obs_time - t_next) < 1e-3)
     other = jnp.where(threat.obs_agent == c, threat.obs_partner, threat.obs_agent)
     centre = jnp.where((other >= 0)[:, None], x_ref[jnp.maximum(other, 0), :2], threat.obs_point)
@@ -145,7 +145,7 @@ def optimistic(slack: float = 2.0, margin: float = 10.0):
         c = jnp.maximum(state.compromised, 0)
         sim = state.sim
         x, t = sim.x[c], sim.t
-        b = params.vehicle_bounds
+        b = params.vehicles.bounds
         t_next, own = next_observation(state, params, threat, c, t)
         centres, due = _observer_disks(params, threat, c, t_next)
         r = threat.radius - margin
@@ -211,7 +211,7 @@ def attacker_observation(state, params, threat):
     t_next, aim = next_observation(state, params, threat, c, t)
     entry, detour = best_entry(x[:2], aim, threat)
     left = jnp.where(jnp.isfinite(t_next), t_next - t, 0.0)
-    reach = params.vehicle_bounds[V_MAX] * left
+    reach = params.vehicles.bounds[V_MAX] * left
     obs = jnp.concatenate([
         rotate(-x[2], aim - x[:2]) / DISTANCE_SCALE,
         rotate(-x[2], entry - x[:2]) / DISTANCE_SCALE,

@@ -36,7 +36,6 @@ from stp_env.baselines import nominal_tracking
 from stp_env.coobservation import attackers, threat
 from stp_env.rl.ppo import PPOConfig, make_model
 from stp_env.sim import engine
-from stp_env.sim.types import replace
 
 ACTIVATIONS = {"tanh": jnp.tanh, "relu": lambda x: jnp.maximum(x, 0.0)}
 RESIDUAL_SCALE = 2.0  # a residual action of +-1 moves the command across its whole range [-1, 1]
@@ -63,7 +62,7 @@ def reset_one(key, params, tp, t_window):
     """A new attacker episode at the compromise time (see the module docstring)."""
     k_draw, k_reset = jax.random.split(key)
     c, t_c = threat.draw_attack(k_draw, params, t_window[0], t_window[1])
-    at = replace(params, t_start=t_c)
+    at = params.replace(episode=dict(t_start=t_c))
     ts = threat.reset(k_reset, at, tp, c, t_c)
     return ts, attackers.attacker_observation(ts, params, tp)
 

@@ -132,7 +132,7 @@ def _events(ts: ThreatState, sim_state: EnvState, params: EnvParams, threat: Thr
     inside = (sim_state.status == FLYING) & in_forbidden(x, threat)
     first = inside & ~ts.entered
     # scheduled observations due at this step
-    due = ~ts.checked & (jnp.abs(t - threat.obs_time) <= 0.5 * params.dt)
+    due = ~ts.checked & (jnp.abs(t - threat.obs_time) <= 0.5 * params.episode.dt)
     pa = x[threat.obs_agent]
     pb = jnp.where((threat.obs_partner >= 0)[:, None], x[jnp.maximum(threat.obs_partner, 0)], threat.obs_point)
     dist = jnp.linalg.norm(pa - pb, axis=-1)
@@ -141,7 +141,7 @@ def _events(ts: ThreatState, sim_state: EnvState, params: EnvParams, threat: Thr
     lost_pair = lost[threat.obs_agent] | ((threat.obs_partner >= 0) & lost[jnp.maximum(threat.obs_partner, 0)])
     miss = due & ((dist > threat.radius) | lost_pair)
     involves = (c >= 0) & ((threat.obs_agent == c) | (threat.obs_partner == c))
-    after = threat.obs_time >= ts.t_compromise - 0.5 * params.dt
+    after = threat.obs_time >= ts.t_compromise - 0.5 * params.episode.dt
     detect = miss & involves & after
     detect_time = jnp.where(jnp.isinf(ts.detect_time) & jnp.any(detect), t, ts.detect_time)
     # honest tracking error (every vehicle but the compromised one once it is compromised)
@@ -159,7 +159,7 @@ def _events(ts: ThreatState, sim_state: EnvState, params: EnvParams, threat: Thr
 def reset(key, params: EnvParams, threat: ThreatParams, compromised, t_compromise) -> ThreatState:
     """A new episode: the core's reset, nobody compromised yet (``compromised = -1`` for none)."""
     sim_state = core.reset(key, params)
-    n = params.n_vehicles
+    n = params.vehicles.n
     m = threat.obs_time.shape[0]
     dtype = sim_state.t.dtype
     ts = ThreatState(
@@ -184,7 +184,7 @@ def step(key, ts: ThreatState, vehicle_actions, attacker_action, params: EnvPara
     (``EnvConfig.control_dt``) instead of holding their action over the step; the attacker's action is held. The
     core's intruder slot gets the zero action (there is no intruder: it never appears). Returns the new
     :class:`ThreatState`."""
-    n = params.n_vehicles
+    n = params.vehicles.n
     att = jnp.asarray(attacker_action, vehicle_actions.dtype)
     # FLY_PLAN (NaN): the attacker lets its vehicle fly the plan this step (the tracker, at every inner step)
     mine = (jnp.arange(n) == ts.compromised) & attacker_active(ts) & ~jnp.any(jnp.isnan(att))
@@ -202,16 +202,16 @@ def step(key, ts: ThreatState, vehicle_actions, attacker_action, params: EnvPara
 
 def episode_done(ts: ThreatState, params: EnvParams):
     """The episode ends at ``t_end`` (the last scheduled observation has been checked)."""
-    return ts.sim.t >= params.t_end - 0.5 * params.dt
+    return ts.sim.t >= params.episode.t_end - 0.5 * params.episode.dt
 
 
 def draw_attack(key, params: EnvParams, t_lo: float, t_hi: float):
     """A random compromised vehicle and a compromise time uniform on the simulator's step grid in
     ``[t_lo, t_hi]``."""
     k1, k2 = jax.random.split(key)
-    c = jax.random.randint(k1, (), 0, params.n_vehicles)
-    steps = jnp.floor((t_hi - t_lo) / params.dt)
-    t = t_lo + jnp.floor(jax.random.uniform(k2, ()) * (steps + 1.0)) * params.dt
+    c = jax.random.randint(k1, (), 0, params.vehicles.n)
+    steps = jnp.floor((t_hi - t_lo) / params.episode.dt)
+    t = t_lo + jnp.floor(jax.random.uniform(k2, ()) * (steps + 1.0)) * params.episode.dt
     return c, t
 
 
@@ -246,7 +246,7 @@ def rollout(key, params: EnvParams, threat: ThreatParams, attacker, n_envs: int,
 
 def steps_for(params: EnvParams) -> int:
     """Steps from ``t_start`` to ``t_end``."""
-    return round(float((params.t_end - params.t_start) / params.dt))
+    return round(float((params.episode.t_end - params.episode.t_start) / params.episode.dt))
 
 
 def outcomes(final: ThreatState) -> dict:

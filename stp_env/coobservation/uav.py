@@ -208,7 +208,6 @@ class FormationScenario:
         window set to the flight (start at 0, end one step after the goal observation) and the intruder's
         appearance moved out of reach (it never appears)."""
         from stp_env import assembly, sim
-        from stp_env.sim.types import replace
 
         scenario = self.scenario()
         if artifacts is None:
@@ -224,8 +223,9 @@ class FormationScenario:
             warnings.filterwarnings("ignore", message=".*assumption failures", category=UserWarning)
             params = assembly.make_params(scenario, self.plan(), avoid, tracking, config)
         never = jnp.asarray([1e9, 1e9], jnp.float32)
-        return replace(params, appear_window=never, t_start=jnp.asarray(0.0, jnp.float32),
-                       t_end=jnp.asarray(self.duration + self.dt, jnp.float32))
+        return params.replace(intruder=dict(appear_window=never),
+                              episode=dict(t_start=jnp.asarray(0.0, jnp.float32),
+                                           t_end=jnp.asarray(self.duration + self.dt, jnp.float32)))
 
     def coarse_artifacts(self, *, store=None, progress: bool = False):
         """``(avoid, tracking)`` on coarse grids (first-order scheme; seconds to compute, for tests): the avoid

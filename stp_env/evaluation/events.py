@@ -122,7 +122,7 @@ def check_replay_sizes(record, params, where: str = "event") -> None:
     configurations share the longest of them); ``ValueError`` otherwise."""
     from stp_env.sim import steps_for
 
-    own_steps, own_samples = steps_for(params), int(params.nominal_states.shape[1])
+    own_steps, own_samples = steps_for(params), int(params.vehicles.nominal_states.shape[1])
     if record["n_steps"] > 2 * own_steps:
         raise ValueError(f"{where}: n_steps {record['n_steps']} is more than twice this configuration's episode "
                          f"({own_steps} steps).")

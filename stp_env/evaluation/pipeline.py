@@ -4,7 +4,6 @@ events) and the figures (:mod:`stp_env.evaluation.plots`), all or nothing (:func
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import os
 import shutil
 import tempfile
@@ -26,7 +25,7 @@ def counterpart(result, vehicle_policy: str):
     """The showcase episode replayed under another vehicle policy (``"nominal"``: ``u^PP`` with the safety filter
     off; ``"switching"``: ``u*`` with it on): the same seed, wind draws and intruder spawn (the intruder's policy
     reacts to the vehicles it sees)."""
-    params = dataclasses.replace(result.params, safety_filter=vehicle_policy != "nominal")
+    params = result.params.replace(episode=dict(safety_filter=vehicle_policy != "nominal"))
     _, intruder_policy = result.config.policies()
     return replay(result.seed, result.showcase["index"], params, resolve_vehicle_policy(vehicle_policy),
                   intruder_policy, result.n_steps, airborne_only=result.airborne_only)

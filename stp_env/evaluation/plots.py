@@ -117,8 +117,8 @@ def plot_distance_vs_time(avoid_traj, avoid_final, nominal_traj, nominal_final, 
     the intruder); ``R_c`` as a line, avoid starts as dots, collisions as crosses (intruder paper Fig. 5)."""
     plt = _plt()
     t_app = float(avoid_final["t_appear"])
-    t_iat = float(params.t_iat)
-    r_c = float(params.collision_radius)
+    t_iat = float(params.intruder.t_iat)
+    r_c = float(params.episode.collision_radius)
     forced = np.flatnonzero(np.isfinite(avoid_final["avoid_start"]) | np.isfinite(nominal_final["avoid_start"]))
     if forced.size == 0:   # nobody forced: show the vehicles that came closest
         d = np.nanmin(_intruder_distance(avoid_traj), axis=0)
@@ -148,7 +148,7 @@ def plot_distance_vs_time(avoid_traj, avoid_final, nominal_traj, nominal_final, 
     ax.plot([], [], "o", color="0.5", mec="k", label="avoid start t_i (eqs. 17-18)")
     ax.plot([], [], "x", color="0.5", mew=2.5, label="collision")
     ax.set_xlim(0, t_iat)
-    ax.set_ylim(0, min(ymax * 1.05, 4 * float(params.detection_range)) if ymax > 0 else 1.0)
+    ax.set_ylim(0, min(ymax * 1.05, 4 * float(params.tables.detection_range)) if ymax > 0 else 1.0)
     ax.set_xlabel("time since the intruder appeared, t - t_ [s]")
     ax.set_ylabel("distance to the intruder [m]")
     ax.set_title(title or "distance to the intruder: avoidance vs nominal control (cf. intruder paper Fig. 5)",
@@ -165,7 +165,7 @@ def _draw_scene(ax, scenario, params):
     for b in scenario.buildings:
         xy = np.asarray(b.vertices)
         ax.fill(xy[:, 0], xy[:, 1], color="0.3", alpha=0.8)
-    for tgt, r in zip(np.asarray(params.targets), np.asarray(params.target_radii)):
+    for tgt, r in zip(np.asarray(params.vehicles.targets), np.asarray(params.vehicles.target_radii)):
         ax.add_patch(plt.Circle(tgt, r, color="g", alpha=0.15))
 
 
@@ -199,7 +199,8 @@ def plot_episode(traj, final, params, scenario, path: str, title: str = "") -> s
             k = int(np.argmin(np.abs(traj["t"] - final["avoid_start"][i])))
             p = traj["x"][k, i, :2]
             ax.plot(*p, "o", color=vehicle_color(i), ms=8, mec="k")
-            ax.add_patch(plt.Circle(p, float(params.collision_radius), fill=False, ls=":", color=vehicle_color(i)))
+            ax.add_patch(plt.Circle(p, float(params.episode.collision_radius), fill=False, ls=":",
+                                    color=vehicle_color(i)))
             if ip.size:
                 kk = min(int(np.searchsorted(traj["t"][present], traj["t"][k])), len(ip) - 1)
                 ax.plot(*ip[kk, :2], "o", color="r", ms=6, mec="k")
@@ -207,7 +208,7 @@ def plot_episode(traj, final, params, scenario, path: str, title: str = "") -> s
         ax.grid(alpha=0.3)
         ax.set_xlabel("p_x [m]")
         ax.set_ylabel("p_y [m]")
-    lo, hi = np.asarray(params.domain_lo), np.asarray(params.domain_hi)
+    lo, hi = np.asarray(params.episode.domain_lo), np.asarray(params.episode.domain_hi)
     axes[0].set_xlim(lo[0], hi[0])
     axes[0].set_ylim(lo[1], hi[1])
     axes[0].set_title("whole domain (thick: avoiding; x: collision)", fontsize=10)
@@ -215,7 +216,7 @@ def plot_episode(traj, final, params, scenario, path: str, title: str = "") -> s
         pts = [ip[:, :2]] + [traj["x"][present, i, :2] for i in forced]
         pts = np.concatenate(pts)
         c = 0.5 * (pts.min(0) + pts.max(0))
-        half = 0.5 * max(np.ptp(pts, axis=0).max(), 4 * float(params.collision_radius)) + 150.0
+        half = 0.5 * max(np.ptp(pts, axis=0).max(), 4 * float(params.episode.collision_radius)) + 150.0
         axes[1].set_xlim(c[0] - half, c[0] + half)
         axes[1].set_ylim(c[1] - half, c[1] + half)
         axes[0].add_patch(plt.Rectangle(c - half, 2 * half, 2 * half, fill=False, ls="--", color="0.4"))

@@ -30,8 +30,8 @@ def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float 
     from stp_env.evaluation.plots import _draw_scene, vehicle_color
 
     t = traj["t"]
-    t_app, t_iat = float(final["t_appear"]), float(params.t_iat)
-    dt = float(params.dt)
+    t_app, t_iat = float(final["t_appear"]), float(params.intruder.t_iat)
+    dt = float(params.episode.dt)
     window = (t >= t_app - margin_s) & (t <= t_app + t_iat + margin_s)
     if not window.any():
         window[:] = True
@@ -44,10 +44,10 @@ def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float 
     near = np.flatnonzero(np.isfinite(final["avoid_start"]))
     pts += [traj["x"][steps][fly[steps][:, i], i, :2] for i in near]
     pts = np.concatenate(pts) if pts and sum(len(p) for p in pts) else traj["x"][steps][fly[steps]][:, :2]
-    lo, hi = np.asarray(params.domain_lo), np.asarray(params.domain_hi)
+    lo, hi = np.asarray(params.episode.domain_lo), np.asarray(params.episode.domain_hi)
     if len(pts):
         c = 0.5 * (pts.min(0) + pts.max(0))
-        half = 0.5 * max(np.ptp(pts, axis=0).max(), 6 * float(params.collision_radius)) + 200.0
+        half = 0.5 * max(np.ptp(pts, axis=0).max(), 6 * float(params.episode.collision_radius)) + 200.0
     else:
         c, half = 0.5 * (lo + hi), 0.5 * float(np.max(hi - lo))
     fig, ax = plt.subplots(figsize=(5, 5.3), constrained_layout=True)
@@ -60,7 +60,7 @@ def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float 
     ax.set_ylabel("p_y [m]")
     trails = [ax.plot([], [], color=vehicle_color(i), lw=1.2)[0] for i in range(n)]
     dots = [ax.plot([], [], "o", color=vehicle_color(i), ms=6)[0] for i in range(n)]
-    disks = [plt.Circle((0, 0), float(params.collision_radius), fill=False, ls=":", color=vehicle_color(i))
+    disks = [plt.Circle((0, 0), float(params.episode.collision_radius), fill=False, ls=":", color=vehicle_color(i))
              for i in range(n)]
     for d in disks:
         ax.add_patch(d)

@@ -48,12 +48,12 @@ def run_batch(key, indices, params, vehicle_policy, intruder_policy, n_steps: in
     :func:`stp_env.sim.fleet_expand.expand`: the same episodes (the same random numbers) at a fraction of the cost;
     ``None``: the whole fleet."""
     keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.fold_in(key, i), 0))(indices)
-    if active is None or len(active) == params.n_vehicles:
+    if active is None or len(active) == params.vehicles.n:
         return rollout_keys(keys, params, vehicle_policy, intruder_policy, n_steps, record=record)
     ids = np.asarray(active)
     final, traj = rollout_keys(keys, fleet.select(params, ids), vehicle_policy, intruder_policy, n_steps,
                                record=record)
-    parked = fleet_expand.parked_state(params, np.setdiff1d(np.arange(params.n_vehicles), ids))
+    parked = fleet_expand.parked_state(params, np.setdiff1d(np.arange(params.vehicles.n), ids))
     final = jax.vmap(lambda s: fleet_expand.expand(s, params, ids, parked))(final)
     return final, (None if traj is None else fleet_expand.expand_trajectory(traj, params, ids, parked))
 
@@ -68,14 +68,15 @@ def simulated_vehicles(params, airborne_only: bool) -> tuple[int, ...] | None:
 
 def pad_plan(params, n_samples: int):
     """``params`` with the nominal trajectories padded (repeating the last sample) to ``n_samples``."""
-    k = params.nominal_states.shape[1]
+    k = params.vehicles.nominal_states.shape[1]
     if k == n_samples:
         return params
     if k > n_samples:
         raise ValueError(f"cannot pad a plan of {k} samples to {n_samples}.")
     widths = ((0, 0), (0, n_samples - k), (0, 0))
-    return dataclasses.replace(params, nominal_states=jnp.pad(params.nominal_states, widths, mode="edge"),
-                               nominal_controls=jnp.pad(params.nominal_controls, widths, mode="edge"))
+    return params.replace(vehicles=dict(nominal_states=jnp.pad(params.vehicles.nominal_states, widths, mode="edge"),
+                                        nominal_controls=jnp.pad(params.vehicles.nominal_controls, widths,
+                                                                 mode="edge")))
 
 
 def host_state(state) -> dict[str, np.ndarray]:
@@ -176,11 +177,11 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
     hist = np.bincount(n_forced, minlength=n_veh + 1)
     collided = ep["status"] == COLLIDED
     base = forced_summary(n_forced, kbar, collided, ep["guarantee_violation"], confidence=confidence)
-    sta = np.asarray(params.sta)
+    sta = np.asarray(params.vehicles.sta)
     # vehicles already in their target at the episode start are not simulated (reset gives them arrival_time =
     # t_start, not their real arrival), so they do not count
-    done_at_start = ep["arrival_time"] <= float(params.t_start) + 1e-6
-    due = (sta[None, :] <= float(params.t_end) + 1e-6) & ~done_at_start
+    done_at_start = ep["arrival_time"] <= float(params.episode.t_start) + 1e-6
+    due = (sta[None, :] <= float(params.episode.t_end) + 1e-6) & ~done_at_start
     on_time = (ep["arrival_time"] <= sta[None, :] + 1e-6) & due
     arrived = (ep["status"] == ARRIVED) & due
     n_due = int(due.sum())
@@ -193,7 +194,7 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
         "label": config.label,
         "scenario": config.scenario, "kbar": kbar, "intruder": config.intruder,
         "wind_mps": None if config.wind is None else float(config.wind),
-        "scenario_wind_mps": round(float(params.vehicle_bounds[WIND]), 3),
+        "scenario_wind_mps": round(float(params.vehicles.bounds[WIND]), 3),
         "wind_model": config.wind_model, "spawn_mode": config.effective_spawn_mode,
         "vehicle_policy": config.vehicle_policy, "episode": config.episode,
         "episodes": n_ep, "vehicles": n_veh,
@@ -214,15 +215,15 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
         "tracking_violations": int(ep["tracking_violation"].sum()),
         "max_tracking_error_m": (round(float(np.max(np.where(flew_tracked, ep["max_tracking_error"], 0.0))), 3)
                                  if np.any(flew_tracked) else None),
-        "tracking_bound_m": round(float(params.tracking_bound), 3),
+        "tracking_bound_m": round(float(params.tables.tracking_bound), 3),
         "due": n_due,
         "on_time_rate": float(on_time.sum() / n_due) if n_due else None,
         "arrived_rate": float(arrived.sum() / n_due) if n_due else None,
-        "collision_radius_m": float(params.collision_radius),
+        "collision_radius_m": float(params.episode.collision_radius),
         "min_separation_m": round(float(finite.min()), 2) if finite.size else None,
         "min_separation_p5_m": round(float(np.percentile(finite, 5)), 2) if finite.size else None,
         "min_separation_median_m": round(float(np.median(finite)), 2) if finite.size else None,
-        "t_window_s": [round(float(params.t_start), 2), round(float(params.t_end), 2)],
+        "t_window_s": [round(float(params.episode.t_start), 2), round(float(params.episode.t_end), 2)],
     }
 
 
@@ -293,7 +294,7 @@ def evaluate(configs, *, episodes: int = 1000, seed: int = 0, batch_size: int = 
             raise ValueError(f"configurations must be Configuration objects; got {type(config).__name__}.")
     batch_size = min(batch_size, episodes)
     all_params = build_params(configs, store=store, progress=progress) if params is None else list(params)
-    plan_samples = max(p.nominal_states.shape[1] for p in all_params)
+    plan_samples = max(p.vehicles.nominal_states.shape[1] for p in all_params)
     n_steps = max(sim.steps_for(p) for p in all_params)
     key = prng_key(seed)
     results = []
@@ -338,7 +339,7 @@ def _evaluate_one(config, params, vehicle_policy, intruder_policy, key, seed, ep
     summary = summarize(config, ep, params, confidence=confidence)
     summary.update(seed=seed, n_steps=n_steps, batch_size=batch_size, seconds=round(seconds, 2),
                    episodes_per_s=round(episodes / seconds, 2),
-                   simulated_vehicles=params.n_vehicles if active is None else len(active))
+                   simulated_vehicles=params.vehicles.n if active is None else len(active))
     events = _events(config, seed, n_steps, plan_samples, batch_size, record, ep, config.kbar, airborne_only)
     summary["events_saved"] = min(len(events), max_events)
     return ConfigResult(config=config, seed=seed, n_steps=n_steps, plan_samples=plan_samples, episodes=ep,

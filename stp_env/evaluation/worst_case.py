@@ -180,8 +180,8 @@ with the same ``kbar``, ``wind_model`` and ``appear`` (they are not read again).
     params, avoid, plan = pinwheel_params(kbar, wind_model=wind_model, appear=appear, store=store) \
         if setup is None else setup
     single = plan.vehicles[0].plan
-    t = float(params.appear_window[0]) + 0.5 * float(params.dt)  # the step the intruder appears at
+    t = float(params.intruder.appear_window[0]) + 0.5 * float(params.episode.dt)  # the step the intruder appears at
     vehicle = [np.interp(t, single.times, single.states[:, i]) for i in range(2)] + [float(single.states[0, 2])]
-    spawn = boundary_spawn(avoid, float(params.avoid_margin), vehicle, bearing, heading_offset)
+    spawn = boundary_spawn(avoid, float(params.tables.avoid_margin), vehicle, bearing, heading_offset)
     return reproduce(params, worst if vehicle_policy is None else vehicle_policy,
                      optimal_max_k if intruder_policy is None else intruder_policy, seed=seed, spawn=spawn)

@@ -69,7 +69,7 @@ class AvoidanceAttack:
             raise ValueError(f"vehicle must be one of {', '.join(VEHICLE_POLICIES)}; got {self.vehicle!r}.")
         if self.wind not in ("search", "worst"):
             raise ValueError(f"wind must be 'search' or 'worst'; got {self.wind!r}.")
-        harness.check_durations(float(self.base.dt), segment=self.segment, wind_segment=self.wind_segment)
+        harness.check_durations(float(self.base.episode.dt), segment=self.segment, wind_segment=self.wind_segment)
         if not (math.isfinite(self.max_level) and self.max_level >= 0):
             raise ValueError(f"max_level must be >= 0 [m]; got {self.max_level}.")
         if self.start not in ("outside", "band"):
@@ -80,10 +80,10 @@ class AvoidanceAttack:
 
     @property
     def n_steps(self) -> int:
-        return round(float(self.base.t_iat) / float(self.base.dt))
+        return round(float(self.base.intruder.t_iat) / float(self.base.episode.dt))
 
     def _split(self):
-        dt = float(self.base.dt)
+        dt = float(self.base.episode.dt)
         rep, n_seg = harness.split(self.n_steps, dt, self.segment, self.intruder == "search")
         w_rep, n_wind = harness.split(self.n_steps, dt, self.wind_segment, self.wind == "search")
         return rep, n_seg, w_rep, n_wind
@@ -101,8 +101,8 @@ class AvoidanceAttack:
     @property
     def band_floor(self) -> float:
         """[m] the lowest avoid value at which the core's check can fire: ``margin - control_dt * fall_rate``."""
-        control_dt = float(self.base.dt) / int(self.base.control_substeps)
-        return float(self.base.avoid_margin) - control_dt * float(self.base.avoid_fall_rate)
+        control_dt = float(self.base.episode.dt) / int(self.base.episode.control_substeps)
+        return float(self.base.tables.avoid_margin) - control_dt * float(self.base.tables.avoid_fall_rate)
 
     @property
     def bound(self) -> float:
@@ -121,17 +121,17 @@ class AvoidanceAttack:
         number of steps, at most ``t_IAT`` less two steps (the core's leaving rule counts whole steps)."""
         if self.start != "band":
             return jnp.zeros((), jnp.float32)
-        dt = float(self.base.dt)
-        n = max(round(float(self.base.t_iat) / dt) - 2, 0)
+        dt = float(self.base.episode.dt)
+        n = max(round(float(self.base.intruder.t_iat) / dt) - 2, 0)
         return dt * jnp.round(zs[3] * n)
 
     def level(self, zs):
         """The start's avoid value [m]."""
         if self.start != "band":
-            return self.base.avoid_margin + 1e-3 + self.max_level * zs[2]
+            return self.base.tables.avoid_margin + 1e-3 + self.max_level * zs[2]
         frac = zs[2] if self.band_level is None else jnp.asarray(self.band_level, jnp.float32)
         floor = self.band_floor
-        return floor + frac * (self.base.avoid_margin - floor)
+        return floor + frac * (self.base.tables.avoid_margin - floor)
 
     def start_state(self, zs):
         """The intruder's start ``(3,)`` (world frame = the vehicle's frame at ``t = 0``) on ``V^A(tau_0) =``
@@ -150,29 +150,29 @@ class AvoidanceAttack:
         from stp_env.reach.avoid import AvoidGame, certify_zero_level
 
         base = self.base
-        grid = base.avoid_grid
+        grid = base.tables.avoid_grid
         before, after = PERIODIC_PAD
-        values = np.asarray(base.avoid_values)[(slice(None), slice(None), slice(None), slice(before, -after))]
-        game = AvoidGame(grid=grid, dynamics=base.avoid_dynamics, t_iat=float(base.t_iat),
-                         collision_radius=float(base.collision_radius))
-        control_dt = float(base.dt) / int(base.control_substeps)
-        cert = certify_zero_level(game, base.avoid_taus, values, n_taus=10, n_bearings=24, n_headings=24,
+        values = np.asarray(base.tables.avoid_values)[(slice(None), slice(None), slice(None), slice(before, -after))]
+        game = AvoidGame(grid=grid, dynamics=base.tables.avoid_dynamics, t_iat=float(base.intruder.t_iat),
+                         collision_radius=float(base.episode.collision_radius))
+        control_dt = float(base.episode.dt) / int(base.episode.control_substeps)
+        cert = certify_zero_level(game, base.tables.avoid_taus, values, n_taus=10, n_bearings=24, n_headings=24,
                                   n_refine=4, level=self.band_floor, control_dts=(control_dt,),
-                                  decision_dt=float(base.dt))
+                                  decision_dt=float(base.episode.dt))
         z = np.full(self.dim, 0.5)
-        n = max(round(float(base.t_iat) / float(base.dt)) - 2, 1)
+        n = max(round(float(base.intruder.t_iat) / float(base.episode.dt)) - 2, 1)
         z[0] = ((cert["bearing"] + np.pi) / (2 * np.pi)) % 1.0
         z[1] = ((cert["heading"] + np.pi) / (2 * np.pi)) % 1.0
         z[2] = 0.0 if self.band_level is None else self.band_level
-        z[3] = min(max(cert["tau0"] / (float(base.dt) * n), 0.0), 1.0)
+        z[3] = min(max(cert["tau0"] / (float(base.episode.dt) * n), 0.0), 1.0)
         return z[None, :]
 
     def simulate(self, z, record: bool = False):
         rep, n_seg, w_rep, n_wind = self._split()
         params = self._params()
-        dt = float(self.base.dt)
+        dt = float(self.base.episode.dt)
         n = self.n_steps + 2
-        v_plan = self.base.planning_v_max
+        v_plan = self.base.vehicles.planning_v_max
         controls = jnp.tile(jnp.stack([v_plan, 0.0]).astype(jnp.float32), (n, 1))
         states = harness.reference(jnp.zeros(3), controls, dt)
         params = harness.with_reference(params, states, controls)
@@ -187,7 +187,7 @@ class AvoidanceAttack:
         rest = z[ns:]
         actions = policy = None
         if self.intruder == "search":
-            b = self.base.intruder_bounds
+            b = self.base.intruder.bounds
             u = harness.segments(rest[:2 * n_seg], n_seg, rep, (b[V_MIN], -b[OMEGA_MAX]),
                                  (b[V_MAX], b[OMEGA_MAX]))[:self.n_steps]
             actions = control_to_action(u[:, 0], u[:, 1], b)
@@ -196,8 +196,8 @@ class AvoidanceAttack:
             policy = hj_pursuit
         winds = None
         if self.wind == "search":
-            wv = harness.disk(rest[:2 * n_wind], self.base.vehicle_bounds[WIND], n_wind, w_rep)[:self.n_steps]
-            wi = harness.disk(rest[2 * n_wind:4 * n_wind], self.base.intruder_bounds[WIND], n_wind,
+            wv = harness.disk(rest[:2 * n_wind], self.base.vehicles.bounds[WIND], n_wind, w_rep)[:self.n_steps]
+            wi = harness.disk(rest[2 * n_wind:4 * n_wind], self.base.intruder.bounds[WIND], n_wind,
                               w_rep)[:self.n_steps]
             winds = jnp.stack([wv, wi], axis=1)
         final, traj = harness.run(params, state, self.n_steps, vehicle_policy=VEHICLE_POLICIES[self.vehicle],
@@ -207,14 +207,14 @@ class AvoidanceAttack:
 
     def objective(self, z):
         final, _ = self.simulate(z)
-        return self.base.collision_radius - final.min_separation[0]
+        return self.base.episode.collision_radius - final.min_separation[0]
 
     def trace(self, z) -> dict:
         final, traj = self.simulate(jnp.asarray(z, jnp.float32), record=True)
         x, xi, t = traj
         return harness.to_numpy({"t": t, "vehicle": x[:, 0, :], "intruder": xi,
                                  "min_distance": final.min_separation[0], "avoid_start": final.avoid_start[0],
-                                 "collision_radius": self.base.collision_radius})
+                                 "collision_radius": self.base.episode.collision_radius})
 
     def details(self, z) -> dict:
         tr = self.trace(z)

@@ -7,7 +7,6 @@ papers' controllers, the events), so that what is attacked is what the environme
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import jax
@@ -30,20 +29,20 @@ def one_vehicle(base: EnvParams, n_samples: int, *, wind_model: str | None = Non
     :func:`without_intruder`)."""
     f32 = jnp.float32
     sdf_grid = hj.Grid.from_bounds((-FAR_DOMAIN, -FAR_DOMAIN), (FAR_DOMAIN, FAR_DOMAIN), (5, 5))
-    return dataclasses.replace(
-        base,
-        n_vehicles=1,
-        t_start=jnp.asarray(0.0, f32), t_end=jnp.asarray(1.0e9, f32),
-        domain_lo=jnp.full((2,), -FAR_DOMAIN, f32), domain_hi=jnp.full((2,), FAR_DOMAIN, f32),
-        departure=jnp.zeros((1,), f32), sta=jnp.full((1,), 1.0e9, f32), nominal_arrival=jnp.full((1,), 1.0e9, f32),
-        starts=jnp.zeros((1, 3), f32), targets=jnp.full((1, 2), FAR_DOMAIN, f32), target_radii=jnp.ones((1,), f32),
-        nominal_t0=jnp.zeros((1,), f32), nominal_dt=base.dt,
-        nominal_states=jnp.zeros((1, n_samples, 3), f32), nominal_controls=jnp.zeros((1, n_samples, 2), f32),
-        nominal_len=jnp.full((1,), n_samples, jnp.int32), certified=jnp.ones((1,), bool),
-        sdf=jnp.full((5, 5), 1.0e6, f32), sdf_grid=sdf_grid,
-        appear_window=jnp.zeros((2,), f32), spawn_boundary_probability=jnp.asarray(0.0, f32),
-        kbar=jnp.asarray(1, jnp.int32),
-        wind_model=base.wind_model if wind_model is None else wind_model,
+    return base.replace(
+        episode=dict(t_start=jnp.asarray(0.0, f32), t_end=jnp.asarray(1.0e9, f32),
+                     domain_lo=jnp.full((2,), -FAR_DOMAIN, f32), domain_hi=jnp.full((2,), FAR_DOMAIN, f32)),
+        vehicles=dict(n=1, departure=jnp.zeros((1,), f32), sta=jnp.full((1,), 1.0e9, f32),
+                      nominal_arrival=jnp.full((1,), 1.0e9, f32), starts=jnp.zeros((1, 3), f32),
+                      targets=jnp.full((1, 2), FAR_DOMAIN, f32), target_radii=jnp.ones((1,), f32),
+                      nominal_t0=jnp.zeros((1,), f32), nominal_dt=base.episode.dt,
+                      nominal_states=jnp.zeros((1, n_samples, 3), f32),
+                      nominal_controls=jnp.zeros((1, n_samples, 2), f32),
+                      nominal_len=jnp.full((1,), n_samples, jnp.int32), certified=jnp.ones((1,), bool)),
+        tables=dict(sdf=jnp.full((5, 5), 1.0e6, f32), sdf_grid=sdf_grid),
+        intruder=dict(appear_window=jnp.zeros((2,), f32), spawn_boundary_probability=jnp.asarray(0.0, f32),
+                      kbar=jnp.asarray(1, jnp.int32)),
+        wind=dict(model=base.wind.model if wind_model is None else wind_model),
     )
 
 
@@ -60,7 +59,8 @@ def reference(x0, controls, dt):
 
 def with_reference(params: EnvParams, states, controls) -> EnvParams:
     """``params`` (one vehicle) with the plan ``states`` ``(K, 3)``, ``controls`` ``(K, 2)`` from ``t = 0``."""
-    return replace(params, nominal_states=states[None], nominal_controls=controls[None], starts=states[:1])
+    return params.replace(vehicles=dict(nominal_states=states[None], nominal_controls=controls[None],
+                                        starts=states[:1]))
 
 
 def check_durations(dt: float, **durations: float) -> None:
@@ -108,7 +108,7 @@ def run(params: EnvParams, state: EnvState, n_steps: int, *, vehicle_policy, int
     environment must use the ``"constant"`` model, which applies ``state.wind``), or ``None`` for the
     environment's own wind model. Returns the final state and, with ``record``, per-step ``x``, ``intruder_x``
     and ``t``."""
-    n = params.n_vehicles
+    n = params.vehicles.n
     keys = jax.random.split(jax.random.key(0), n_steps)
 
     def body(s, k):

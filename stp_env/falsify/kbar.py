@@ -91,11 +91,11 @@ class KbarAttack:
             raise ValueError(f"vehicles must be one of {VEHICLES}; got {self.vehicles!r}.")
         if self.fleet not in FLEETS:
             raise ValueError(f"fleet must be one of {FLEETS}; got {self.fleet!r}.")
-        if self.needs_buffer and self.base.buffer_values is None:
+        if self.needs_buffer and self.base.tables.buffer_values is None:
             raise ValueError(f"vehicles={self.vehicles!r} / intruder={self.intruder!r} play the buffer game: the "
                              "params need V^B (stp_env.assembly.with_buffer).")
-        harness.check_durations(float(self.base.dt), segment=self.segment)
-        if int(self.base.kbar) < 1:
+        harness.check_durations(float(self.base.episode.dt), segment=self.segment)
+        if int(self.base.intruder.kbar) < 1:
             raise ValueError("the scenario has no k̄ (plan it intruder-aware) to attack.")
         object.__setattr__(self, "_ids", self._simulated_ids())
 
@@ -103,11 +103,11 @@ class KbarAttack:
         """The vehicles that can fly from ``t_start`` to the attack's last step (``None``: all of them, or
         ``fleet="whole"``), from the concrete ``base`` at construction."""
         base = self.base
-        if self.fleet == "whole" or base.vehicle_ids is not None:
+        if self.fleet == "whole" or base.vehicles.ids is not None:
             return None
-        last = max(float(base.t_end), float(base.t_start) + self.n_steps * float(base.dt))
-        ids = fleet.airborne(replace(base, t_end=jnp.asarray(last, base.t_end.dtype)))
-        return None if ids.size in (0, base.n_vehicles) else ids
+        last = max(float(base.episode.t_end), float(base.episode.t_start) + self.n_steps * float(base.episode.dt))
+        ids = fleet.airborne(base.replace(episode=dict(t_end=jnp.asarray(last, base.episode.t_end.dtype))))
+        return None if ids.size in (0, base.vehicles.n) else ids
 
     @property
     def params(self) -> EnvParams:
@@ -123,18 +123,19 @@ class KbarAttack:
 
     @property
     def n_present(self) -> int:
-        return round(float(self.base.t_iat) / float(self.base.dt))
+        return round(float(self.base.intruder.t_iat) / float(self.base.episode.dt))
 
     @property
     def n_steps(self) -> int:
         """Steps from the episode start to the last possible departure of the intruder."""
         # on the host: jnp arithmetic here would be staged into the caller's trace when simulate runs under jit
         base = self.base
-        span = float(np.asarray(base.appear_window)[1]) + float(base.t_iat) - float(base.t_start)
-        return round(span / float(base.dt)) + 2
+        span = (float(np.asarray(base.intruder.appear_window)[1]) + float(base.intruder.t_iat)
+                - float(base.episode.t_start))
+        return round(span / float(base.episode.dt)) + 2
 
     def _split(self):
-        rep = max(1, round(self.segment / float(self.base.dt)))
+        rep = max(1, round(self.segment / float(self.base.episode.dt)))
         n_seg = math.ceil(self.n_present / rep) if self.intruder == "search" else 0
         return rep, n_seg
 
@@ -144,7 +145,7 @@ class KbarAttack:
 
     @property
     def bound(self) -> float:
-        return float(self.base.kbar)
+        return float(self.base.intruder.kbar)
 
     def margin(self, value: float) -> float:
         """``k̄ - |N^RP|`` of the worst attack (the tie-breaker dropped): negative is a violation."""
@@ -152,19 +153,20 @@ class KbarAttack:
 
     def spawn(self, z5, params: EnvParams):
         """``(t_, intruder state at t_)`` from ``z5``: appearance time, vehicle, bearing, relative heading, level."""
-        lo, hi = params.appear_window[0], params.appear_window[1]
-        dt = params.dt
-        k = jnp.floor((lo + z5[0] * (hi - lo) - params.t_start) / dt + 0.5)
-        t_app = params.t_start + k * dt
+        lo, hi = params.intruder.appear_window[0], params.intruder.appear_window[1]
+        dt = params.episode.dt
+        k = jnp.floor((lo + z5[0] * (hi - lo) - params.episode.t_start) / dt + 0.5)
+        t_app = params.episode.t_start + k * dt
         x_app, _ = nominal_reference(params, t_app)
-        fly = (params.departure <= t_app) & (jnp.hypot(*(x_app[:, :2] - params.targets).T) > params.target_radii)
+        v = params.vehicles
+        fly = (v.departure <= t_app) & (jnp.hypot(*(x_app[:, :2] - v.targets).T) > v.target_radii)
         # the floor(z * n_fly)-th flying vehicle
         rank = jnp.cumsum(fly) - 1
         pick = jnp.minimum(jnp.floor(z5[1] * jnp.sum(fly)), jnp.sum(fly) - 1)
         j = jnp.argmax(fly & (rank == pick))
         bearing = 2 * jnp.pi * z5[2] - jnp.pi
         rel_heading = 2 * jnp.pi * z5[3] - jnp.pi
-        level = params.avoid_margin + 1e-3 + self.max_level * z5[4]
+        level = params.tables.avoid_margin + 1e-3 + self.max_level * z5[4]
         direction = jnp.stack([jnp.cos(bearing), jnp.sin(bearing)])
         r = radius_on_level(params, direction, rel_heading, level)
         p = x_app[j, :2] + rotate(x_app[j, 2], r * direction)
@@ -178,11 +180,11 @@ class KbarAttack:
         state = replace(state, t_appear=t_app, intruder_memory=jnp.concatenate([xi0, jnp.zeros(1)]))
         policy = None if self.intruder == "search" else resolve_intruder(self.intruder)
         if self.intruder == "search":
-            b = params.intruder_bounds
+            b = params.intruder.bounds
             u = harness.segments(z[5:5 + 2 * n_seg], n_seg, rep, (b[V_MIN], -b[OMEGA_MAX]),
                                  (b[V_MAX], b[OMEGA_MAX]))[:self.n_present]
             plan = control_to_action(u[:, 0], u[:, 1], b)
-        n = params.n_vehicles
+        n = params.vehicles.n
         keys = jax.random.split(jax.random.key(1), self.n_steps)
 
         def body(carry, key):
@@ -190,7 +192,7 @@ class KbarAttack:
             if policy is not None:
                 a_i = policy(jax.random.fold_in(key, 1), s, params)
             else:
-                k = jnp.clip(jnp.round((s.t - s.t_appear) / params.dt).astype(jnp.int32), 0, self.n_present - 1)
+                k = jnp.clip(jnp.round((s.t - s.t_appear) / params.episode.dt).astype(jnp.int32), 0, self.n_present - 1)
                 a_i = plan[k]
             actions = jnp.concatenate([jnp.zeros((n, 2), s.x.dtype), a_i[None, :]], axis=0)
             s2, _ = core.step(key, s, actions, params, vehicle_policy=VEHICLE_POLICIES[self.vehicles])
@@ -205,7 +207,7 @@ class KbarAttack:
         final, vmin, _ = self.simulate(z)
         forced = jnp.sum(jnp.isfinite(final.avoid_start)).astype(jnp.float32)
         valid = jnp.all(final.assumption_ok)
-        return jnp.where(valid, forced + closeness(final.avoid_start, vmin, self.base.detection_range), -1.0)
+        return jnp.where(valid, forced + closeness(final.avoid_start, vmin, self.base.tables.detection_range), -1.0)
 
     def outcome(self, z) -> dict:
         """The simulator's verdict on the attack at ``z``: forced count, guarantee violations, closest approach."""
@@ -222,7 +224,7 @@ class KbarAttack:
         x, xi, t = traj
         return harness.to_numpy({"t": t, "vehicles": x, "intruder": xi, "avoid_start": final.avoid_start,
                                  "status": final.status, "forced": jnp.sum(jnp.isfinite(final.avoid_start)),
-                                 "t_appear": final.t_appear, "collision_radius": self.base.collision_radius,
+                                 "t_appear": final.t_appear, "collision_radius": self.base.episode.collision_radius,
                                  "min_separation": jnp.min(final.min_separation)})
 
     @classmethod
@@ -240,7 +242,7 @@ class KbarAttack:
         """Every vehicle's path (red: forced) and the intruder's while present; the closest vehicle's distance."""
         tr = self.trace(z)
         veh, intr, t = tr["vehicles"], tr["intruder"], tr["t"]
-        present = (t >= float(tr["t_appear"])) & (t <= float(tr["t_appear"]) + float(self.base.t_iat))
+        present = (t >= float(tr["t_appear"])) & (t <= float(tr["t_appear"]) + float(self.base.intruder.t_iat))
         for i in range(veh.shape[1]):
             forced = np.isfinite(tr["avoid_start"][i])
             ax.plot(veh[:, i, 0], veh[:, i, 1], color="C3" if forced else "C0", lw=0.8)
@@ -251,7 +253,7 @@ class KbarAttack:
             ax2.axvline(float(s), color="C3", lw=0.8)
         ax2.axhline(float(tr["collision_radius"]), color="C3", ls="--", label="R_c")
         ax2.set_ylabel("distance [m]")
-        ax.set_title(f"|N^RP| = {int(tr['forced'])} (red: forced), k̄ = {int(self.base.kbar)}")
+        ax.set_title(f"|N^RP| = {int(tr['forced'])} (red: forced), k̄ = {int(self.base.intruder.kbar)}")
 
     def describe(self) -> dict:
         return {"attack": self.name, "intruder": self.intruder, "segment": self.segment,

@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env.sim.jit import sim_jit
+from stp_env.sim.types import EnvParams
 
 Objective = Callable[[jax.Array], jax.Array]
 
@@ -95,7 +96,8 @@ class SearchResult:
     values: np.ndarray
 
 
-TABLE_FIELDS = ("avoid_values", "tracking_grads", "sdf", "nominal_states", "nominal_controls")
+TABLE_FIELDS = {"tables": ("avoid_values", "tracking_grads", "sdf"),
+                "vehicles": ("nominal_states", "nominal_controls")}
 """The large arrays of an attack's environment (``attack.base``): :func:`compiled` passes them to the compiled
 program as arguments. Closed over, they would be baked into it as constants (the avoid table alone is tens of
 megabytes), which makes XLA's compilation very slow."""
@@ -107,14 +109,14 @@ def compiled(objective: Objective, transform=jax.vmap):
     compiled program rather than constants in it (same values, same results)."""
     attack = getattr(objective, "__self__", None)
     base = getattr(attack, "base", None)
-    if base is None or not dataclasses.is_dataclass(base) or not all(hasattr(base, k) for k in TABLE_FIELDS):
+    if not isinstance(base, EnvParams):
         return sim_jit(transform(objective))
     name = objective.__name__
-    tables = {k: getattr(base, k) for k in TABLE_FIELDS}
+    tables = {g: {k: getattr(getattr(base, g), k) for k in keys} for g, keys in TABLE_FIELDS.items()}
 
     def run(tables, x):
         traced = copy.copy(attack)  # the same attack, its environment's tables traced
-        object.__setattr__(traced, "base", dataclasses.replace(base, **tables))
+        object.__setattr__(traced, "base", base.replace(**tables))
         return transform(getattr(traced, name))(x)
 
     return functools.partial(sim_jit(run), tables)

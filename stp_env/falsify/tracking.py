@@ -48,16 +48,16 @@ class TrackingAttack:
     def __post_init__(self) -> None:
         if self.wind not in WIND_MODES:
             raise ValueError(f"wind must be one of {WIND_MODES}; got {self.wind!r}.")
-        harness.check_durations(float(self.base.dt), horizon=self.horizon, segment=self.segment,
+        harness.check_durations(float(self.base.episode.dt), horizon=self.horizon, segment=self.segment,
                                 wind_segment=self.wind_segment)
 
     # -- sizes
     @property
     def n_steps(self) -> int:
-        return round(self.horizon / float(self.base.dt))
+        return round(self.horizon / float(self.base.episode.dt))
 
     def _split(self):
-        dt = float(self.base.dt)
+        dt = float(self.base.episode.dt)
         rep, n_seg = harness.split(self.n_steps, dt, self.segment, True)
         w_rep, n_wind = harness.split(self.n_steps, dt, self.wind_segment, self.wind == "search")
         return rep, n_seg, w_rep, n_wind
@@ -70,7 +70,7 @@ class TrackingAttack:
     @property
     def bound(self) -> float:
         """``r_e`` [m]."""
-        return float(self.base.tracking_bound)
+        return float(self.base.tables.tracking_bound)
 
     def margin(self, value: float) -> float:
         """``r_e - worst error`` [m]: negative is a violation."""
@@ -82,21 +82,21 @@ class TrackingAttack:
                                      wind_model="constant" if self.wind == "search" else "worst")
         # No intruder: it would appear only after the horizon.
         far = jnp.full((2,), 1.0e9, jnp.float32)
-        return replace(params, appear_window=far)
+        return params.replace(intruder=dict(appear_window=far))
 
     def simulate(self, z, record: bool = False):
         rep, n_seg, w_rep, n_wind = self._split()
-        dyn = self.base.tracking_dynamics
+        dyn = self.base.tables.tracking_dynamics
         lo = (dyn.other_v_min, -dyn.other_omega_max)
         hi = (dyn.other_v_max, dyn.other_omega_max)
         n = self.n_steps + 2
         controls = harness.segments(z[:2 * n_seg], n_seg, rep, lo, hi)
         controls = jnp.concatenate([controls, jnp.repeat(controls[-1:], n, axis=0)])[:n]
-        states = harness.reference(jnp.zeros(3), controls, float(self.base.dt))
+        states = harness.reference(jnp.zeros(3), controls, float(self.base.episode.dt))
         params = harness.with_reference(self._params(), states, controls)
         winds = None
         if self.wind == "search":
-            w = harness.disk(z[2 * n_seg:], self.base.vehicle_bounds[WIND], n_wind, w_rep)[:self.n_steps]
+            w = harness.disk(z[2 * n_seg:], self.base.vehicles.bounds[WIND], n_wind, w_rep)[:self.n_steps]
             winds = jnp.stack([w, jnp.zeros_like(w)], axis=1)  # (steps, 2, 2): the vehicle, no intruder
         state = core.reset(jax.random.key(0), params)
         final, traj = harness.run(params, state, self.n_steps, vehicle_policy=nominal_tracking, winds=winds,
@@ -116,13 +116,13 @@ class TrackingAttack:
         lean loop reached 35.8 m where its replay in the core reached 30.0 m)."""
         rep, n_seg, w_rep, n_wind = self._split()
         base = self.base
-        dt = float(base.dt)
-        grid, dyn = base.tracking_grid, base.tracking_dynamics
+        dt = float(base.episode.dt)
+        grid, dyn = base.tables.tracking_grid, base.tables.tracking_dynamics
         lo_b, hi_b = jnp.asarray(grid.lo, jnp.float32), jnp.asarray(grid.hi, jnp.float32)
         lo = jnp.asarray([dyn.other_v_min, -dyn.other_omega_max], jnp.float32)
         hi = jnp.asarray([dyn.other_v_max, dyn.other_omega_max], jnp.float32)
         n = self.n_steps + 2
-        radius = base.vehicle_bounds[WIND]
+        radius = base.vehicles.bounds[WIND]
         searched_wind = self.wind == "search"
         params0 = harness.with_reference(self._params(), jnp.zeros((n, 3), jnp.float32),
                                          jnp.zeros((n, 2), jnp.float32))
@@ -130,7 +130,7 @@ class TrackingAttack:
         def game(x_ref, x_own):
             """The game's reference control and the vehicle's worst wind (world frame) at the core's error."""
             x_rel = relative_state(x_own, x_ref)
-            p = tables.interpolate_components(grid, base.tracking_grads, jnp.clip(x_rel, lo_b, hi_b))
+            p = tables.interpolate_components(grid, base.tables.tracking_grads, jnp.clip(x_rel, lo_b, hi_b))
             d = dyn.optimal_disturbance(tuple(x_rel[i] for i in range(3)), tuple(p[i] for i in range(3)))
             u = jnp.clip(jnp.stack([d[0], d[1]]), lo, hi)
             if dyn.wind > 0:  # the combined wind pushes the reference; the vehicle's own wind is its opposite
@@ -158,7 +158,7 @@ class TrackingAttack:
 
             state = core.reset(jax.random.key(0), params0)
             zeros2 = jnp.zeros(2, jnp.float32)
-            init = (state, params0.nominal_states[0], params0.nominal_controls[0], zeros2, zeros2)
+            init = (state, params0.vehicles.nominal_states[0], params0.vehicles.nominal_controls[0], zeros2, zeros2)
             keys = jax.random.split(jax.random.key(0), self.n_steps)
             _, (us, ws) = engine.play(body, init, (jnp.arange(self.n_steps), keys), record=lambda c, info: info)
             return us, ws
@@ -196,7 +196,7 @@ class TrackingAttack:
         ref, veh = tr["reference"], tr["vehicle"]
         ax.plot(ref[:, 0], ref[:, 1], "k--", lw=1, label="reference (legal, U^p)")
         ax.plot(veh[:, 0], veh[:, 1], "C0", lw=1.2, label="vehicle (u^PP)")
-        k = np.clip(np.round(np.asarray(tr["t"]) / float(self.base.dt)).astype(int), 0, len(ref) - 1)
+        k = np.clip(np.round(np.asarray(tr["t"]) / float(self.base.episode.dt)).astype(int), 0, len(ref) - 1)
         err = np.hypot(*(veh[:, :2] - ref[k, :2]).T)  # the plan is sampled at the step
         ax2.plot(tr["t"], err, "C0", label="distance to reference")
         ax2.axhline(self.bound, color="C3", ls="--", label=f"r_e = {self.bound:.2f} m")

@@ -7,7 +7,7 @@ Horizons (what one intruder episode is):
 
 * ``"intruder"`` (default, for training): the episode starts when the intruder appears and ends (terminated) when
   it leaves, ``t_IAT`` later (Assumption 1). The appearance time ``t_`` is drawn uniformly on the core's step grid
-  within ``params.appear_window``, and the core is reset *at* ``t_`` (:func:`stp_env.sim.reset` with
+  within ``params.intruder.appear_window``, and the core is reset *at* ``t_`` (:func:`stp_env.sim.reset` with
   ``t_start = t_``): vehicles already in the air start on their nominal trajectories. This skips the steps in
   which the intruder's actions are ignored (before it appears and after it leaves), which are 90 % of a core
   episode for ``town``. Collisions after the intruder has left are not part of its return.
@@ -32,7 +32,7 @@ from stp_env.baselines import vehicle_policy
 from stp_env.seeds import check_seed
 from stp_env.sim import core
 from stp_env.sim.jit import sim_jit
-from stp_env.sim.types import COLLIDED, GONE, EnvParams, EnvState, replace
+from stp_env.sim.types import COLLIDED, GONE, EnvParams, EnvState
 
 HORIZONS = ("intruder", "episode")
 
@@ -60,12 +60,13 @@ def reset_one(key, params: EnvParams, horizon: str) -> EnvState:
     if horizon == "episode":
         return core.reset(key, params)
     k_time, k_reset = jax.random.split(key)
-    lo, hi = params.appear_window[0], params.appear_window[1]
-    first = jnp.ceil((lo - params.t_start) / params.dt - 1e-4)
-    last = jnp.maximum(jnp.floor((hi - params.t_start) / params.dt + 1e-4), first)
+    lo, hi = params.intruder.appear_window[0], params.intruder.appear_window[1]
+    first = jnp.ceil((lo - params.episode.t_start) / params.episode.dt - 1e-4)
+    last = jnp.maximum(jnp.floor((hi - params.episode.t_start) / params.episode.dt + 1e-4), first)
     k = first + jnp.floor(jax.random.uniform(k_time, ()) * (last - first + 1.0))
-    t_appear = params.t_start + jnp.minimum(k, last) * params.dt
-    at_appear = replace(params, t_start=t_appear, appear_window=jnp.stack([t_appear, t_appear]))
+    t_appear = params.episode.t_start + jnp.minimum(k, last) * params.episode.dt
+    at_appear = params.replace(episode=dict(t_start=t_appear), intruder=dict(appear_window=jnp.stack([t_appear,
+                                                                                                      t_appear])))
     return core.reset(k_reset, at_appear)
 
 
@@ -73,7 +74,7 @@ def step_one(key, state: EnvState, action, params: EnvParams, vehicle_policy):
     """One core step: the vehicles' baseline policy as the feedback law of every inner control step, and the
     intruder's ``action`` ``(2,)``. Returns ``(state, intruder_reward)``."""
     action = jnp.asarray(action, state.x.dtype)
-    actions = jnp.concatenate([jnp.zeros((params.n_vehicles, 2), action.dtype), action[None, :]], axis=0)
+    actions = jnp.concatenate([jnp.zeros((params.vehicles.n, 2), action.dtype), action[None, :]], axis=0)
     state, rewards = core.step(key, state, actions, params, vehicle_policy=vehicle_policy)
     return state, rewards[-1]
 

@@ -73,7 +73,7 @@ class IntruderEnv(gym.Env):
         self.observation_space = gym.spaces.Box(-2.0, 2.0, (size,), np.float32)
         self.action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
         self.render_mode = None
-        self.kbar = int(self.params.kbar)
+        self.kbar = int(self.params.intruder.kbar)
         self._key = None
         self.state: sim.EnvState | None = None
 

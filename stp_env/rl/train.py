@@ -223,7 +223,7 @@ def build_params(config: TrainConfig, *, store=None, progress: bool = False) -> 
     scenario = config.scenario_object()
     params = assembly.params_for(scenario, config.env_config(), store=store, progress=progress)
     if config.vehicle_policy in BUFFER_GAME_VEHICLE_POLICIES:
-        params = assembly.with_buffer(params, assembly.load_buffer(scenario, int(params.kbar), store=store,
+        params = assembly.with_buffer(params, assembly.load_buffer(scenario, int(params.intruder.kbar), store=store,
                                                                      progress=progress))
     return params
 
@@ -250,7 +250,7 @@ def train(config: TrainConfig, *, params: sim.EnvParams | None = None):
     venv = VecMonitor(IntruderVecEnv(config.n_envs, **env_kwargs),
                       info_keywords=("n_forced", "collisions", "guarantee_violations"))
     eval_env = IntruderVecEnv(config.n_envs, **env_kwargs)
-    kbar = int(params.kbar)
+    kbar = int(params.intruder.kbar)
     model = make_model(config, venv)
     model.set_logger(configure(str(out), list(config.log_formats)))
     callbacks = _callbacks(config, eval_env, out, kbar)

@@ -53,7 +53,7 @@ class IntruderVecEnv(JaxVecEnv):
         self.vehicle_policy_name = vehicle_policy
         self._vehicle_policy = F.check_vehicle_policy(vehicle_policy)
         self.params = build_params(scenario, config, params=params, store=store)
-        self.kbar = int(self.params.kbar)
+        self.kbar = int(self.params.intruder.kbar)
         size = intruder_observation_size(self.params)
         super().__init__(n_envs, gym.spaces.Box(-2.0, 2.0, (size,), np.float32),
                          gym.spaces.Box(-1.0, 1.0, (2,), np.float32))

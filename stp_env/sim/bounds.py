@@ -1,4 +1,4 @@
-"""The bounds row of an agent (:class:`~stp_env.sim.types.EnvParams` ``vehicle_bounds`` and ``intruder_bounds``):
+"""The bounds row of an agent (:class:`~stp_env.sim.types.EnvParams` ``vehicles.bounds`` and ``intruder.bounds``):
 the HJ model's bounds as one ``(5,)`` array, so that they change without recompiling, read by name through the
 column indices below (plain ``int`` constants: indexing with them is the same program as with the literals).
 """

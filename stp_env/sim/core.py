@@ -30,7 +30,7 @@ One step of length ``dt`` (intruder paper Sections II and IV):
    of its own. Such collisions still count as collisions. A vehicle that applied ``kappa`` at every inner step of
    its nominal flight and still got farther than ``r_e`` from its nominal position breaks the robust-tracking
    guarantee (SPP eqs. 24-26): that is a guarantee violation too (``tracking_violation``), whatever the intruder
-   does. A vehicle outside what the proofs certify (``EnvParams.certified`` false: a plan that is not a flight of
+   does. A vehicle outside what the proofs certify (``EnvParams.vehicles.certified`` false: a plan that is not a flight of
    ``U^p``, or an uncertified inner period or avoid margin, accepted only with ``EnvConfig.allow_uncertified``)
    has its assumptions failed from the start: its collisions and tracking errors are not guarantee violations.
 
@@ -73,33 +73,34 @@ COMPLIANCE_TOL = 1e-3  # |a - a^A| in action units below which a vehicle counts 
 # ------------------------------------------------------------------------------------------------ plans
 def building_distance(params: EnvParams, p):
     """Signed distance to the buildings at positions ``p`` (..., 2) [m] (bilinear in the table)."""
-    grid = params.sdf_grid
+    grid = params.tables.sdf_grid
     q = jnp.clip(p, jnp.asarray(grid.lo), jnp.asarray(grid.hi))
     flat = q.reshape(-1, 2)
-    d = jax.vmap(lambda z: tables.interpolate(grid, params.sdf, z))(flat)
+    d = jax.vmap(lambda z: tables.interpolate(grid, params.tables.sdf, z))(flat)
     return d.reshape(p.shape[:-1])
 
 
 # ------------------------------------------------------------------------------------------------ reset
 def reset(key, params: EnvParams) -> EnvState:
-    """A new episode at ``params.t_start``: vehicles already departed are on their nominal trajectories (zero
+    """A new episode at ``params.episode.t_start``: vehicles already departed are on their nominal trajectories (zero
     tracking error), the others wait; the intruder appears at ``t_ ~ U(appear_window)``."""
-    n = params.n_vehicles
+    n = params.vehicles.n
     k_appear, k_wind, k_intruder, k_spawn = jax.random.split(key, 4)
-    t0 = params.t_start
-    lo, hi = params.appear_window[0], params.appear_window[1]
+    t0 = params.episode.t_start
+    lo, hi = params.intruder.appear_window[0], params.intruder.appear_window[1]
     t_appear = lo + (hi - lo) * jax.random.uniform(k_appear, (), dtype=t0.dtype)
-    model = params.vehicle_model
+    model = params.vehicles.model
     x_nom, _ = nominal_reference(params, t0)
-    departed = params.departure <= t0
+    departed = params.vehicles.departure <= t0
     arrived = fleet.arrived_at_start(params)
     status = jnp.where(arrived, ARRIVED, jnp.where(departed, FLYING, WAITING)).astype(jnp.int32)
-    x = jnp.where(departed[:, None], model.from_pose(x_nom), model.from_pose(params.starts))
+    x = jnp.where(departed[:, None], model.from_pose(x_nom), model.from_pose(params.vehicles.starts))
     # The spawn state, drawn now from the nominal states at the first step time >= t_ (see spawn.spawn).
-    t_app = t0 + jnp.ceil(jnp.maximum(t_appear - t0, 0.0) / params.dt - 1e-4) * params.dt
+    t_app = t0 + jnp.ceil(jnp.maximum(t_appear - t0, 0.0) / params.episode.dt - 1e-4) * params.episode.dt
     x_app, _ = nominal_reference(params, t_app)
-    d_app = jnp.hypot(*(x_app[:, :2] - params.targets).T)
-    fly_app = (params.departure <= t_app) & (params.nominal_arrival > t_app) & (d_app > params.target_radii)
+    d_app = jnp.hypot(*(x_app[:, :2] - params.vehicles.targets).T)
+    v = params.vehicles
+    fly_app = (v.departure <= t_app) & (v.nominal_arrival > t_app) & (d_app > v.target_radii)
     x_spawn = spawn_lib.spawn(k_spawn, x_app, fly_app, params)
     inf = jnp.full((n,), jnp.inf, t0.dtype)
     state = EnvState(
@@ -110,10 +111,11 @@ def reset(key, params: EnvParams) -> EnvState:
         mode=jnp.full((n,), NOMINAL, jnp.int32),
         avoid_start=inf,
         complied=jnp.ones((n,), bool),
-        assumption_ok=jnp.asarray(params.certified, bool),
+        assumption_ok=jnp.asarray(params.vehicles.certified, bool),
         used_filter=jnp.zeros((n,), bool),
         min_separation=inf,
-        arrival_time=jnp.where(arrived, jnp.minimum(params.nominal_arrival, t0), jnp.inf),  # before the episode
+        arrival_time=jnp.where(arrived, jnp.minimum(params.vehicles.nominal_arrival, t0),
+                               jnp.inf),  # before the episode
         collision_time=inf,
         collided_with_intruder=jnp.zeros((n,), bool),
         guarantee_violation=jnp.zeros((n,), bool),
@@ -140,7 +142,7 @@ def poses(params: EnvParams, state: EnvState):
     """Every vehicle's pose ``(x, y, heading)`` ``(N, 3)`` from its state (the vehicle model's
     :meth:`~stp_env.sim.vehicle_models.VehicleModel.pose`): what sensing, the value tables and the observations
     read."""
-    return params.vehicle_model.pose(state.x)
+    return params.vehicles.model.pose(state.x)
 
 
 def flying(state: EnvState):
@@ -164,7 +166,7 @@ def avoidance_actions(params: EnvParams, state: EnvState):
     tau = state.t - state.t_appear
     rel = relative_state(poses(params, state), state.intruder_x[None, :])
     u = jax.vmap(lambda r: tables.avoidance_control(params, tau, r))(rel)
-    return params.vehicle_model.command_to_action(state.x, u[:, 0], u[:, 1], params.vehicle_bounds)
+    return params.vehicles.model.command_to_action(state.x, u[:, 0], u[:, 1], params.vehicles.bounds)
 
 
 def tracking_actions(params: EnvParams, state: EnvState):
@@ -173,7 +175,7 @@ def tracking_actions(params: EnvParams, state: EnvState):
     x_ref, _ = nominal_reference(params, state.t)
     err = relative_state(poses(params, state), x_ref)
     u = jax.vmap(lambda e: tables.tracking_control(params, e)[0])(err)
-    return (params.vehicle_model.command_to_action(state.x, u[:, 0], u[:, 1], params.vehicle_bounds),
+    return (params.vehicles.model.command_to_action(state.x, u[:, 0], u[:, 1], params.vehicles.bounds),
             jnp.hypot(err[:, 0], err[:, 1]))
 
 
@@ -196,7 +198,7 @@ def observe_controllers(state: EnvState, params: EnvParams) -> EnvState:
 def avoid_start(state: EnvState, params: EnvParams) -> EnvState:
     """Eqs. (17)-(18): a flying vehicle in the nominal mode whose ``V^A`` reached the margin starts avoiding now."""
     start = (flying(state) & intruder_present(state) & (state.mode == NOMINAL)
-             & (state.avoid_value <= params.avoid_margin))
+             & (state.avoid_value <= params.tables.avoid_margin))
     return replace(state, mode=jnp.where(start, AVOIDING, state.mode),
                    avoid_start=jnp.where(start, state.t, state.avoid_start))
 
@@ -214,9 +216,9 @@ def episode_over(state: EnvState, params: EnvParams):
     """``(terminated, truncated)``: every vehicle done and the intruder gone; or the time limit. (Part of a fleet:
     every vehicle of the whole fleet, :mod:`stp_env.sim.fleet`.)"""
     terminated = jnp.all(done_vehicles(state)) & (state.intruder_status == GONE)
-    if params.outside_waiting is not None:
-        terminated = terminated & ~params.outside_waiting
-    truncated = (state.t >= params.t_end - 1e-6 * params.dt) & ~terminated
+    if params.vehicles.outside_waiting is not None:
+        terminated = terminated & ~params.vehicles.outside_waiting
+    truncated = (state.t >= params.episode.t_end - 1e-6 * params.episode.dt) & ~terminated
     return terminated, truncated
 
 
@@ -228,19 +230,19 @@ def lifecycle(state: EnvState, params: EnvParams) -> EnvState:
     # 1. the intruder leaves after the whole steps that fit in t_IAT (Assumption 1: present at most t_IAT). Half a
     # step of tolerance: elapsed times on the grid carry float32 rounding (one ulp, about 1e-4 s at plan times of
     # 1,000-2,000 s), far above any tolerance tied to exact arithmetic.
-    whole_steps = jnp.floor(params.t_iat / params.dt + 1e-3)
-    leaving = intruder_present(state) & (t - state.t_appear >= (whole_steps - 0.5) * params.dt)
+    whole_steps = jnp.floor(params.intruder.t_iat / params.episode.dt + 1e-3)
+    leaving = intruder_present(state) & (t - state.t_appear >= (whole_steps - 0.5) * params.episode.dt)
     mode = jnp.where(leaving & (state.mode == AVOIDING), AFTER_AVOIDANCE, state.mode)
     intruder_status = jnp.where(leaving, GONE, state.intruder_status)
     state = replace(state, mode=mode, intruder_status=intruder_status)
     # 2. departures
     # A vehicle takes off at t_LDT, between two steps: it starts on its nominal trajectory (zero tracking error).
-    depart = (state.status == WAITING) & (t >= params.departure - 1e-6 * params.dt)
+    depart = (state.status == WAITING) & (t >= params.vehicles.departure - 1e-6 * params.episode.dt)
     x_nom, _ = nominal_reference(params, t)
     state = replace(state, status=jnp.where(depart, FLYING, state.status),
-                    x=jnp.where(depart[:, None], params.vehicle_model.from_pose(x_nom), state.x))
+                    x=jnp.where(depart[:, None], params.vehicles.model.from_pose(x_nom), state.x))
     # ... or appears (after departures, so that vehicles taking off now count)
-    appear = (state.intruder_status == PENDING) & (t >= state.t_appear - 1e-6 * params.dt)
+    appear = (state.intruder_status == PENDING) & (t >= state.t_appear - 1e-6 * params.episode.dt)
     state = replace(state,
                     intruder_x=jnp.where(appear, state.intruder_memory[:3], state.intruder_x),
                     t_appear=jnp.where(appear, t, state.t_appear),
@@ -248,7 +250,7 @@ def lifecycle(state: EnvState, params: EnvParams) -> EnvState:
     state = observe_controllers(state, params)
     # Assumption 3 per vehicle: checked when the intruder appears, or when a vehicle takes off while it is here.
     check = (appear & flying(state)) | (depart & intruder_present(state))
-    assumption_ok = jnp.where(check, state.assumption_ok & (state.avoid_value > params.avoid_margin),
+    assumption_ok = jnp.where(check, state.assumption_ok & (state.avoid_value > params.tables.avoid_margin),
                               state.assumption_ok)
     d_int = jnp.where(flying(state) & intruder_present(state),
                       jnp.hypot(*(state.x[:, :2] - state.intruder_x[None, :2]).T), jnp.inf)
@@ -284,11 +286,11 @@ def _vehicle_controls(key, s: EnvState, actions, fly, present, params: EnvParams
     then the safety filter of eq. 38. Returns the actions ``(N, 2)`` and ``s`` with ``complied``, ``tracked`` and
     ``used_filter`` updated."""
     if vehicle_policy is None:
-        a_veh = actions[:params.n_vehicles, :params.vehicle_model.action_dim]
+        a_veh = actions[:params.vehicles.n, :params.vehicles.model.action_dim]
     else:
         a_veh = jnp.clip(vehicle_policy(key, s, params), -1.0, 1.0)
     avoiding = fly & present & (s.mode == AVOIDING)
-    use_filter = avoiding & params.safety_filter
+    use_filter = avoiding & params.episode.safety_filter
     a_veh = jnp.where(use_filter[:, None], s.avoid_action, a_veh)
     complied = s.complied & ~(avoiding & (jnp.max(jnp.abs(a_veh - s.avoid_action), axis=1) > COMPLIANCE_TOL))
     tracked = s.tracked & ~(on_plan(s) & (jnp.max(jnp.abs(a_veh - s.track_action), axis=1) > COMPLIANCE_TOL))
@@ -297,13 +299,13 @@ def _vehicle_controls(key, s: EnvState, actions, fly, present, params: EnvParams
 
 def _motion(s: EnvState, a_veh, control_i, fly, present, winds, head_dist, h, params: EnvParams) -> EnvState:
     """Item 5: every flying vehicle and the present intruder move over ``h`` under their controls and winds."""
-    n = params.n_vehicles
+    n = params.vehicles.n
     v_i, om_i = control_i
-    model = params.vehicle_model
-    control = model.action_to_control(a_veh, params.vehicle_bounds)
+    model = params.vehicles.model
+    control = model.action_to_control(a_veh, params.vehicles.bounds)
     x = jnp.where(fly[:, None], model.step(s.x, control, winds[:n], head_dist[:n], h), s.x)
     xi = jnp.where(present, dubins_step(s.intruder_x, v_i, om_i + head_dist[n], winds[n], h), s.intruder_x)
-    return replace(s, x=x, intruder_x=xi, t=on_grid(s.t + h, params.t_start, h))
+    return replace(s, x=x, intruder_x=xi, t=on_grid(s.t + h, params.episode.t_start, h))
 
 
 def on_grid(t, origin, spacing):
@@ -317,7 +319,7 @@ def on_grid(t, origin, spacing):
 
 def _closest_approach(closest: Closest, s: EnvState, params: EnvParams) -> Closest:
     """``closest`` updated with the distances at inner step state ``s``."""
-    n = params.n_vehicles
+    n = params.vehicles.n
     p = s.x[:, :2]
     diff = p[:, None, :] - p[None, :, :]
     return Closest(pair_sq=jnp.minimum(closest.pair_sq, jnp.sum(diff ** 2, axis=-1) + jnp.eye(n) * 1e30),
@@ -331,14 +333,14 @@ def _events(state: EnvState, sub: EnvState, closest: Closest, params: EnvParams)
     the :class:`Events`."""
     fly = flying(state)
     present = intruder_present(state)
-    x, xi, t = sub.x, sub.intruder_x, on_grid(state.t + params.dt, params.t_start, params.dt)
+    x, xi, t = sub.x, sub.intruder_x, on_grid(state.t + params.episode.dt, params.episode.t_start, params.episode.dt)
     p = x[:, :2]
-    lo, hi = params.domain_lo, params.domain_hi
+    lo, hi = params.episode.domain_lo, params.episode.domain_hi
     out = fly & jnp.any((p < lo) | (p > hi), axis=1)
     hit_building = fly & (closest.building <= 0.0)
     pair_ok = fly[:, None] & fly[None, :]
     dist = jnp.where(pair_ok, jnp.sqrt(closest.pair_sq), jnp.inf)
-    near = dist <= params.collision_radius
+    near = dist <= params.episode.collision_radius
     hit_vehicle = jnp.any(near, axis=1)
     # A vehicle flying the after-avoidance fallback (eq. 40 without replanning) has no guarantee: collisions it
     # takes part in are collisions, not guarantee violations (the paper's guarantee after t_IAT rests on Algorithm 4).
@@ -347,15 +349,15 @@ def _events(state: EnvState, sub: EnvState, closest: Closest, params: EnvParams)
     # nothing about a vehicle that leaves its plan to avoid the intruder: its collisions with other vehicles and
     # buildings are collisions, not guarantee violations. Its avoidance of the intruder itself (V^A, a game of the
     # pair) and the tracking of vehicles on their plans are guaranteed by any plan.
-    unplanned = fly & (state.mode != NOMINAL) & (params.kbar < 0)
+    unplanned = fly & (state.mode != NOMINAL) & (params.intruder.kbar < 0)
     unguarded = fallback | unplanned
     guarded_pair = ~(unguarded[:, None] | unguarded[None, :])
     hit_guarded_vehicle = jnp.any(near & guarded_pair, axis=1)
     d_int = jnp.where(fly & present, closest.intruder, jnp.inf)
-    hit_intruder = d_int <= params.collision_radius
+    hit_intruder = d_int <= params.episode.collision_radius
     collided = fly & (hit_vehicle | hit_intruder | hit_building)
-    d_target = jnp.hypot(*(p - params.targets).T)
-    arrived = fly & ~collided & ~out & (d_target <= params.target_radii)
+    d_target = jnp.hypot(*(p - params.vehicles.targets).T)
+    arrived = fly & ~collided & ~out & (d_target <= params.vehicles.target_radii)
     status = jnp.where(collided, COLLIDED, jnp.where(out, OUT_OF_BOUNDS, jnp.where(arrived, ARRIVED, state.status)))
     min_sep = jnp.minimum(state.min_separation, jnp.where(fly, jnp.minimum(jnp.min(dist, axis=1), d_int), jnp.inf))
     guarded_hit = hit_guarded_vehicle | hit_intruder | (hit_building & ~unguarded)
@@ -370,9 +372,9 @@ def _events(state: EnvState, sub: EnvState, closest: Closest, params: EnvParams)
         intruder_x=xi, intruder_distance=d_int,
     )
     new_state = lifecycle(new_state, params)
-    # a vehicle outside the proofs (EnvParams.certified false) has assumption failures, not tracking violations
-    tracking_violation = (new_state.tracked & params.certified
-                          & (new_state.max_tracking_error > params.tracking_bound))
+    # a vehicle outside the proofs (EnvParams.vehicles.certified false) has assumption failures, not tracking violations
+    tracking_violation = (new_state.tracked & params.vehicles.certified
+                          & (new_state.max_tracking_error > params.tables.tracking_bound))
     new_state = replace(new_state, tracking_violation=tracking_violation,
                         guarantee_violation=state.guarantee_violation | violation | tracking_violation)
     return new_state, Events(collided=collided, hit_vehicle=hit_vehicle, hit_intruder=hit_intruder,
@@ -381,12 +383,12 @@ def _events(state: EnvState, sub: EnvState, closest: Closest, params: EnvParams)
 
 def _rewards(state: EnvState, new_state: EnvState, ev: Events, params: EnvParams):
     """The rewards of the step ``(N + 1,)`` (:class:`~stp_env.sim.config.RewardConfig`, by name)."""
-    w = params.reward_weights
+    w = params.episode.reward_weights
     fly = flying(state)
     present = intruder_present(state)
-    d_prev = jnp.hypot(*(state.x[:, :2] - params.targets).T)
+    d_prev = jnp.hypot(*(state.x[:, :2] - params.vehicles.targets).T)
     r_veh = jnp.where(fly, w.progress * (d_prev - ev.d_target), 0.0)
-    on_time = new_state.t <= params.sta + 1e-6
+    on_time = new_state.t <= params.vehicles.sta + 1e-6
     r_veh = (r_veh + jnp.where(ev.arrived, jnp.where(on_time, w.arrival, w.late_arrival), 0.0)
              + jnp.where(ev.collided, w.collision, 0.0))
     newly_forced = jnp.isfinite(new_state.avoid_start) & ~jnp.isfinite(state.avoid_start)
@@ -410,14 +412,14 @@ def step(key, state: EnvState, actions, params: EnvParams, vehicle_policy=None):
     The parts, in order: wind (:mod:`stp_env.sim.wind`), then per inner step :func:`_vehicle_controls`,
     :func:`_motion` and :func:`_closest_approach`; then :func:`_events` and :func:`_rewards`."""
     k_wind, k_policy = jax.random.split(key)
-    n = params.n_vehicles
+    n = params.vehicles.n
     fly = flying(state)
     present = intruder_present(state)
-    m_sub = params.control_substeps
-    h = params.dt / m_sub
+    m_sub = params.episode.control_substeps
+    h = params.episode.dt / m_sub
 
     actions = jnp.clip(actions, -1.0, 1.0)
-    control_i = action_to_control(actions[n, :2], params.intruder_bounds)
+    control_i = action_to_control(actions[n, :2], params.intruder.bounds)
     winds_held, head_dist, wind_state = wind_lib.sample(k_wind, state, params)
 
     def move(carry, m):
@@ -445,13 +447,13 @@ def step(key, state: EnvState, actions, params: EnvParams, vehicle_policy=None):
 
 def _potential(state: EnvState, params: EnvParams, mask):
     """``min_i V^A_i`` over the vehicles in ``mask`` (the intruder's shaping potential), capped at ``d_sense``."""
-    return jnp.minimum(jnp.min(jnp.where(mask & flying(state), state.avoid_value, jnp.inf)), params.d_sense)
+    return jnp.minimum(jnp.min(jnp.where(mask & flying(state), state.avoid_value, jnp.inf)), params.intruder.d_sense)
 
 
 # ------------------------------------------------------------------------------------------------ observations
 def _scale(params: EnvParams):
-    center = 0.5 * (params.domain_lo + params.domain_hi)
-    half = 0.5 * jnp.max(params.domain_hi - params.domain_lo)
+    center = 0.5 * (params.episode.domain_lo + params.episode.domain_hi)
+    half = 0.5 * jnp.max(params.episode.domain_hi - params.episode.domain_lo)
     return center, half
 
 
@@ -502,10 +504,10 @@ def global_state(state: EnvState, params: EnvParams):
     center, half = _scale(params)
     xi = state.intruder_x
     present = intruder_present(state)
-    tau = jnp.where(present, (state.t - state.t_appear) / params.t_iat, 0.0)
-    length = jnp.maximum(params.t_end - params.t_start, 1.0)
+    tau = jnp.where(present, (state.t - state.t_appear) / params.intruder.t_iat, 0.0)
+    length = jnp.maximum(params.episode.t_end - params.episode.t_start, 1.0)
     intr = jnp.stack([(xi[0] - center[0]) / half, (xi[1] - center[1]) / half, jnp.cos(xi[2]), jnp.sin(xi[2]),
-                      present.astype(xi.dtype), tau, (state.t - params.t_start) / length])
+                      present.astype(xi.dtype), tau, (state.t - params.episode.t_start) / length])
     veh = _own_vehicle_features(state, params).ravel()
     return jnp.clip(jnp.concatenate([veh, intr.astype(veh.dtype)]), -2.0, 2.0).astype(jnp.float32)
 
@@ -543,17 +545,17 @@ def observe(state: EnvState, params: EnvParams):
     their heading relative to the intruder's, the avoid value ``V^A / d_sense`` of that vehicle against the
     intruder, forced flag.
     """
-    n, k = params.n_vehicles, params.n_nearest
+    n, k = params.vehicles.n, params.episode.n_nearest
     center, half = _scale(params)
-    ds = params.d_sense
-    T = jnp.maximum(params.t_end - params.t_start, 1.0)
+    ds = params.intruder.d_sense
+    T = jnp.maximum(params.episode.t_end - params.episode.t_start, 1.0)
     fly = flying(state)
     present = intruder_present(state)
     x = poses(params, state)
-    target_body = rotate(-x[:, 2], params.targets - x[:, :2]) / half
+    target_body = rotate(-x[:, 2], params.vehicles.targets - x[:, :2]) / half
     x_ref, _ = nominal_reference(params, state.t)
     err = relative_state(x, x_ref)
-    r_scale = 10.0 * jnp.maximum(params.tracking_bound, 1e-6)
+    r_scale = 10.0 * jnp.maximum(params.tables.tracking_bound, 1e-6)
     rel_i = relative_state(x, state.intruder_x[None, :])
     vals = state.avoid_value
     visible = fly & present & (jnp.hypot(rel_i[:, 0], rel_i[:, 1]) <= ds)
@@ -562,7 +564,7 @@ def observe(state: EnvState, params: EnvParams):
     intr = intr * jnp.concatenate([jnp.ones((n, 1)), jnp.repeat(visible[:, None], 2, 1), jnp.ones((n, 1))], 1)
     own = jnp.concatenate([
         _own_vehicle_features(state, params),
-        ((params.sta - state.t) / T)[:, None], target_body,
+        ((params.vehicles.sta - state.t) / T)[:, None], target_body,
         err[:, :2] / r_scale, jnp.cos(err[:, 2:3]), jnp.sin(err[:, 2:3]),
     ], axis=1).astype(x.dtype)
     parts = [own, intr]
@@ -584,7 +586,7 @@ def observe(state: EnvState, params: EnvParams):
     xi = state.intruder_x
     tau = state.t - state.t_appear
     own_i = jnp.stack([present.astype(x.dtype), (xi[0] - center[0]) / half, (xi[1] - center[1]) / half,
-                       jnp.cos(xi[2]), jnp.sin(xi[2]), jnp.where(present, tau / params.t_iat, 0.0),
+                       jnp.cos(xi[2]), jnp.sin(xi[2]), jnp.where(present, tau / params.intruder.t_iat, 0.0),
                        jnp.where(state.intruder_status == PENDING, (state.t_appear - state.t) / T, 0.0),
                        jnp.sum(jnp.isfinite(state.avoid_start)) / fleet.fleet_size(params)])
     own_i = own_i * jnp.where(present, 1.0, jnp.asarray([1, 0, 0, 0, 0, 1, 1, 1], x.dtype))

@@ -25,7 +25,7 @@ def expand(state: EnvState, params: EnvParams, ids, parked: EnvState | None) -> 
     :func:`~stp_env.sim.fleet.select`), and the ``parked`` rows of the others (:func:`parked_state`; ``None`` when
     none is left out). The parked rows get the controllers' outputs at ``state``'s time and intruder, as the full
     simulation's lifecycle computes them for vehicles on the ground."""
-    n = params.n_vehicles
+    n = params.vehicles.n
     ids = np.asarray(ids)
     rest = np.setdiff1d(np.arange(n), ids)
     if rest.size == 0:
@@ -47,7 +47,7 @@ def expand_trajectory(traj: dict, params: EnvParams, ids, parked: EnvState) -> d
     """A recorded trajectory (:func:`stp_env.sim.rollout`, batched ``(B, T, ...)``) of the vehicles ``ids`` as the
     whole fleet's: the others keep their parked pose, status and mode, and get zero rewards (the core rewards
     only flying vehicles)."""
-    n = params.n_vehicles
+    n = params.vehicles.n
     ids = np.asarray(ids)
     rest = np.setdiff1d(np.arange(n), ids)
     out = dict(traj)

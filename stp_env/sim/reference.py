@@ -18,12 +18,12 @@ from stp_env.sim.types import EnvParams
 def nominal_reference(params: EnvParams, t):
     """Every vehicle's nominal state and control at time ``t``: ``(N, 3)``, ``(N, 2)``. Before the first sample the
     reference waits at it; after the last it stays at the last sample."""
-    s = (t - params.nominal_t0) / params.nominal_dt
-    last = jnp.maximum(params.nominal_len - 1, 0)
+    s = (t - params.vehicles.nominal_t0) / params.vehicles.nominal_dt
+    last = jnp.maximum(params.vehicles.nominal_len - 1, 0)
     s = jnp.clip(s, 0.0, last.astype(s.dtype))
     k0 = jnp.minimum(jnp.floor(s).astype(jnp.int32), last)
-    tau = (s - k0) * params.nominal_dt
-    idx = jnp.arange(params.n_vehicles)
-    x0, u0 = params.nominal_states[idx, k0], params.nominal_controls[idx, k0]
+    tau = (s - k0) * params.vehicles.nominal_dt
+    idx = jnp.arange(params.vehicles.n)
+    x0, u0 = params.vehicles.nominal_states[idx, k0], params.vehicles.nominal_controls[idx, k0]
     x = dubins_step(x0, u0[:, 0], u0[:, 1], jnp.zeros_like(x0[:, :2]), tau)
     return x, u0

@@ -18,7 +18,7 @@ def episode_step(key, state, params: EnvParams, vehicle_policy, intruder_policy)
     inner control step (:func:`stp_env.sim.core.step`); returns ``(state, rewards)``."""
     k_i, k_s = jax.random.split(key)
     a_i = intruder_policy(k_i, state, params)
-    actions = jnp.concatenate([jnp.zeros((params.n_vehicles, 2), a_i.dtype), a_i[None, :]], axis=0)
+    actions = jnp.concatenate([jnp.zeros((params.vehicles.n, 2), a_i.dtype), a_i[None, :]], axis=0)
     return core.step(k_s, state, actions, params, vehicle_policy=vehicle_policy)
 
 
@@ -64,4 +64,4 @@ def record_step(state, rewards) -> dict:
 
 def steps_for(params: EnvParams) -> int:
     """Steps from ``t_start`` to ``t_end``."""
-    return round(float((params.t_end - params.t_start) / params.dt)) + 1
+    return round(float((params.episode.t_end - params.episode.t_start) / params.episode.dt)) + 1

@@ -40,7 +40,7 @@ def radius_on_level(params: EnvParams, direction, rel_heading, level, tau=0.0):
     ``rel_heading`` is on (just outside) the level ``V^A(tau, t_IAT) = level`` of the avoid region (``tau``: the time
     since the intruder appeared [s]): bisection (``N_BISECT`` halvings) between the vehicle and the table's edge on
     that bearing."""
-    grid = params.avoid_grid
+    grid = params.tables.avoid_grid
     r_hi0 = 0.999 * min(-grid.lo[0], grid.hi[0], -grid.lo[1], grid.hi[1])  # inside the table on every bearing
 
     def value(r):
@@ -52,7 +52,7 @@ def radius_on_level(params: EnvParams, direction, rel_heading, level, tau=0.0):
         inside = value(mid) <= level
         return jnp.where(inside, mid, lo), jnp.where(inside, hi, mid)
 
-    dtype = params.collision_radius.dtype  # float32, or float64 when x64 is on and params are cast
+    dtype = params.episode.collision_radius.dtype  # float32, or float64 when x64 is on and params are cast
     _, hi = jax.lax.fori_loop(0, N_BISECT, bisect, (jnp.zeros((), dtype), jnp.asarray(r_hi0, dtype)))
     return hi
 
@@ -61,10 +61,12 @@ def _candidate_outside(key, x, fly, params: EnvParams):
     k1, k2, k3, k4 = jax.random.split(key, 4)
     j, any_fly = random_vehicle(k1, fly, params)
     u = jax.random.uniform(k2, (2,))
-    r = params.collision_radius + (params.spawn_radius - params.collision_radius) * jnp.sqrt(u[0])
+    r_c = params.episode.collision_radius
+    r = r_c + (params.intruder.spawn_radius - r_c) * jnp.sqrt(u[0])
     a = 2 * jnp.pi * u[1]
     near = x[j, :2] + r * jnp.array([jnp.cos(a), jnp.sin(a)])
-    anywhere = params.domain_lo + jax.random.uniform(k3, (2,)) * (params.domain_hi - params.domain_lo)
+    lo, hi = params.episode.domain_lo, params.episode.domain_hi
+    anywhere = lo + jax.random.uniform(k3, (2,)) * (hi - lo)
     p = jnp.where(any_fly, near, anywhere)
     theta = jax.random.uniform(k4, (), minval=-jnp.pi, maxval=jnp.pi)
     return jnp.array([p[0], p[1], theta])
@@ -76,7 +78,7 @@ def _candidate_boundary(key, x, fly, params: EnvParams):
     bearing = jax.random.uniform(k2, (), minval=-jnp.pi, maxval=jnp.pi)
     rel_heading = jax.random.uniform(k3, (), minval=-jnp.pi, maxval=jnp.pi)
     direction = jnp.array([jnp.cos(bearing), jnp.sin(bearing)])
-    level = params.avoid_margin + SPAWN_CLEARANCE * params.tracking_bound + 1.0
+    level = params.tables.avoid_margin + SPAWN_CLEARANCE * params.tables.tracking_bound + 1.0
     p_rel = radius_on_level(params, direction, rel_heading, level) * direction
     xj = x[j]
     p = xj[:2] + rotate(xj[2], p_rel)
@@ -92,11 +94,11 @@ def spawn(key, x, fly, params: EnvParams):
     checks Assumption 3 again against the actual states when the intruder appears."""
     k_mode, k_cand = jax.random.split(key)
     keys = jax.random.split(k_cand, N_CANDIDATES)
-    boundary = jax.random.uniform(k_mode) < params.spawn_boundary_probability
+    boundary = jax.random.uniform(k_mode) < params.intruder.spawn_boundary_probability
     cands = jnp.where(boundary, jax.vmap(lambda k: _candidate_boundary(k, x, fly, params))(keys),
                       jax.vmap(lambda k: _candidate_outside(k, x, fly, params))(keys))
-    inside = jnp.all((cands[:, :2] >= params.domain_lo) & (cands[:, :2] <= params.domain_hi), axis=1)
+    inside = jnp.all((cands[:, :2] >= params.episode.domain_lo) & (cands[:, :2] <= params.episode.domain_hi), axis=1)
     minv = jax.vmap(lambda c: _min_value(params, x, fly, c))(cands)
-    legal = inside & (minv > params.avoid_margin + SPAWN_CLEARANCE * params.tracking_bound)
+    legal = inside & (minv > params.tables.avoid_margin + SPAWN_CLEARANCE * params.tables.tracking_bound)
     fallback = jnp.argmax(jnp.where(inside, minv, -jnp.inf))
     return cands[jnp.where(jnp.any(legal), jnp.argmax(legal), fallback)]

@@ -29,7 +29,7 @@ block never needs to wrap: ``dynamic_slice`` cannot."""
 
 def pad_periodic(values, grid, lead: int = 0) -> np.ndarray:
     """``values`` (``lead`` leading axes, then ``grid.shape``) with every periodic axis of ``grid`` wrapped by
-    :data:`PERIODIC_PAD` nodes: the layout :func:`avoid_value_and_gradient` reads (``EnvParams.avoid_values``)."""
+    :data:`PERIODIC_PAD` nodes: the layout :func:`avoid_value_and_gradient` reads (``EnvParams.tables.avoid_values``)."""
     v = np.asarray(values)
     if v.shape[lead:] != tuple(grid.shape):
         raise ValueError(f"values of shape {v.shape} do not match the grid {tuple(grid.shape)} after {lead} "
@@ -131,7 +131,7 @@ def _cell_axis(grid, d: int, pos):
 
 def pad_components(fields, grid) -> np.ndarray:
     """Arrays on ``grid`` (one per component, e.g. a gradient field) stacked on a trailing axis, periodic axes
-    padded (:func:`pad_periodic`): the layout :func:`interpolate_components` reads (``EnvParams.tracking_grads``)."""
+    padded (:func:`pad_periodic`): the layout :func:`interpolate_components` reads (``EnvParams.tables.tracking_grads``)."""
     return np.stack([pad_periodic(f, grid) for f in fields], axis=-1)
 
 
@@ -165,16 +165,16 @@ def _inside(grid, x):
 
 def avoid_value(params, tau, x_rel):
     """``V^A(tau, t_IAT)`` at the intruder's relative state ``x_rel`` (3,); ``FAR`` outside the grid."""
-    grid = params.avoid_grid
-    v, _ = _avoid_read(grid, params.avoid_taus, params.avoid_values, tau, x_rel)
+    grid = params.tables.avoid_grid
+    v, _ = _avoid_read(grid, params.tables.avoid_taus, params.tables.avoid_values, tau, x_rel)
     return jnp.where(_inside(grid, x_rel), v, FAR)
 
 
 def _avoid_input_of(params, player, tau, x_rel):
     """One player's optimal input of eq. (14) from the block-read gradient (as
     :func:`stp_env.reach.avoid.avoid_table_input`)."""
-    _, p = _avoid_read(params.avoid_grid, params.avoid_taus, params.avoid_values, tau, x_rel)
-    dyn = params.avoid_dynamics
+    _, p = _avoid_read(params.tables.avoid_grid, params.tables.avoid_taus, params.tables.avoid_values, tau, x_rel)
+    dyn = params.tables.avoid_dynamics
     optimum = dyn.optimal_control if player == "vehicle" else dyn.optimal_disturbance
     return jnp.stack(optimum((x_rel[0], x_rel[1], x_rel[2]), (p[0], p[1], p[2])))
 
@@ -193,7 +193,7 @@ def pursuit_input(params, tau, x_rel):
 def vehicle_intruder_values(params, state):
     """``V^A`` of every vehicle against the intruder, shape ``(N,)`` (``FAR`` when the intruder is absent)."""
     tau = state.t - state.t_appear
-    rel = relative_state(params.vehicle_model.pose(state.x), state.intruder_x[None, :])
+    rel = relative_state(params.vehicles.model.pose(state.x), state.intruder_x[None, :])
     vals = jax.vmap(lambda r: avoid_value(params, tau, r))(rel)
     return vals
 
@@ -212,11 +212,11 @@ def tracking_control(params, error):
     decision rate, because held for 0.1 s it chatters out of the invariant set (see ``docs/numerics.md``). Outside
     the table (the guarantee already broken) the vehicle heads for its reference at full speed, so that it
     recovers instead of flying off with a gradient read at the table's edge."""
-    dyn = params.tracking_dynamics
-    grid = params.tracking_grid
+    dyn = params.tables.tracking_dynamics
+    grid = params.tables.tracking_grid
     lo, hi = jnp.asarray(grid.lo), jnp.asarray(grid.hi)
     e = jnp.clip(error, lo, hi)
-    p = _tracking_read(grid, params.tracking_grads, e)
+    p = _tracking_read(grid, params.tables.tracking_grads, e)
     pp = tuple(p[i] for i in range(3))
     ee = tuple(e[i] for i in range(3))
     u = jnp.stack(dyn.optimal_control(ee, pp))
@@ -231,7 +231,7 @@ def tracking_control(params, error):
 
 # ------------------------------------------------------------------------------------------------ buffer game
 def _require_buffer(params):
-    if params.buffer_values is None or params.buffer_grid is None:
+    if params.tables.buffer_values is None or params.tables.buffer_grid is None:
         raise ValueError("this policy plays the buffer game and needs V^B in the params: build them with "
                          "stp_env.assembly.with_buffer (the evaluation does so for the 'worst' vehicles and the "
                          "'optimal-max-k' intruder).")
@@ -240,24 +240,24 @@ def _require_buffer(params):
 def buffer_game(params):
     """The dynamics of the buffer game (intruder paper eqs. 46-47): eq. (44) with *every* player minimising (the
     vehicle, the intruder and both winds bring the intruder toward the vehicle's avoid region)."""
-    return params.avoid_dynamics.with_modes(control_mode="min", disturbance_mode="min")
+    return params.tables.avoid_dynamics.with_modes(control_mode="min", disturbance_mode="min")
 
 
 def buffer_value(params, x_rel):
     """``V^B(0, t_BRD)`` at the intruder's relative state ``x_rel`` (3,); ``FAR`` outside its grid."""
     _require_buffer(params)
-    grid = params.buffer_grid
-    v = interpolate(grid, params.buffer_values, x_rel)
+    grid = params.tables.buffer_grid
+    v = interpolate(grid, params.tables.buffer_values, x_rel)
     return jnp.where(_inside(grid, x_rel), v, FAR)
 
 
 def buffer_gradient(params, x_rel):
     """Spatial gradient of :func:`buffer_value` by one-cell central differences, ``(3,)`` (zero outside the grid)."""
     _require_buffer(params)
-    grid = params.buffer_grid
+    grid = params.tables.buffer_grid
     steps = jnp.asarray(np.eye(3) * np.asarray(grid.spacing)[:, None], x_rel.dtype)
-    g = jnp.stack([(interpolate(grid, params.buffer_values, x_rel + steps[i])
-                    - interpolate(grid, params.buffer_values, x_rel - steps[i]))
+    g = jnp.stack([(interpolate(grid, params.tables.buffer_values, x_rel + steps[i])
+                    - interpolate(grid, params.tables.buffer_values, x_rel - steps[i]))
                    / (2 * steps[i, i]) for i in range(3)])
     return jnp.where(_inside(grid, x_rel), g, 0.0)
 

@@ -55,50 +55,29 @@ def _pytree(cls, meta=()):
 
 
 @dataclasses.dataclass(frozen=True)
-class EnvParams:
-    """Constants of an environment (see :func:`stp_env.assembly.make_params`, which fills them from a scenario,
-    a plan and the reachability artifacts). ``N`` vehicles, ``K`` plan samples, ``S`` avoid-region slices.
+class EpisodeParams:
+    """When and where an episode runs, and what it pays (``params.episode``)."""
 
-    Static (metadata, hashable):
-        n_vehicles, avoid_grid, tracking_grid, sdf_grid: sizes and grids.
-        avoid_dynamics: eq. (44) with the roles of eq. (14); tracking_dynamics: SPP eqs. (24)-(25).
-        wind_model: a :class:`stp_env.sim.winds.WindModel` (or a registered name: its default parameters).
-        vehicle_model: the vehicles' plant, a :class:`stp_env.sim.vehicle_models.VehicleModel` (the intruder flies
-            Dubins).
-        control_substeps: the vehicles' low-level controllers (the tracker ``kappa``, ``u^A``, any vehicle policy
-            passed to :func:`stp_env.sim.core.step`) and the motion run this many times per step, at the inner
-            control period ``dt / control_substeps``.
-        safety_filter: override a vehicle's action with ``u^A`` from its avoid-start time (eq. 38).
-        n_nearest: vehicles listed in each observation.
-        buffer_grid: grid of ``buffer_values`` (``None`` when no buffer table is loaded).
-
-    Optional (``None`` unless loaded with :func:`stp_env.assembly.with_buffer`; only the policies of the buffer
-    game read it: the ``worst`` vehicles and the ``optimal-max-k`` intruder):
-        buffer_values: ``V^B(0, t_BRD)`` of the plan's k̄ (intruder paper eqs. 46-47) on ``buffer_grid``.
-
-    Optional (``None`` unless made by :func:`stp_env.sim.fleet.select`: the simulation of part of a fleet, the
-    vehicles that can fly in the episode's window):
-        vehicle_ids: ``(N,)`` int32, each simulated vehicle's index in the whole fleet (ascending).
-        outside_waiting: ``()`` bool, whether a vehicle left out is still waiting to take off: the whole fleet is
-            then never all done, so the episode does not end before ``t_end`` (:func:`stp_env.sim.core.episode_over`).
-        fleet_size: (static) the whole fleet's vehicle count. Per-agent random draws are made for the whole fleet
-            and the simulated agents' rows taken (:func:`stp_env.sim.fleet.agent_rows`), and the wind state
-            (``EnvState.wind``) is the whole fleet's, so part of a fleet sees the same random numbers as all of it.
-    """
-
-    # --- time
     dt: jax.Array                 # () [s] step length (zero-order hold)
     t_start: jax.Array            # () [s] episode start time (plan time axis)
     t_end: jax.Array              # () [s] the episode is truncated here
-    # --- domain and bounds
     domain_lo: jax.Array          # (2,) [m]
     domain_hi: jax.Array          # (2,) [m]
-    vehicle_bounds: jax.Array     # (5,) v_min, v_max [m/s], omega_max [rad/s], wind [m/s], heading dist. [rad/s]
+    collision_radius: jax.Array   # () R_c [m]
+    reward_weights: RewardWeights  # by name, see stp_env.sim.config.RewardConfig
+    # --- static
+    safety_filter: bool = True    # override a vehicle's action with u^A from its avoid-start time (eq. 38)
+    n_nearest: int = 4            # vehicles listed in each observation
+    control_substeps: int = 1     # inner control steps per step (period dt / control_substeps)
+
+
+@dataclasses.dataclass(frozen=True)
+class VehicleParams:
+    """The vehicles: their plant, bounds and plans (``params.vehicles``; ``N`` vehicles, ``K`` plan samples)."""
+
+    bounds: jax.Array             # (5,) v_min, v_max [m/s], omega_max [rad/s], wind [m/s], heading dist. [rad/s]
     #                               (the HJ model's bounds, read by the names of stp_env.sim.bounds: b[V_MAX]...;
     #                               the vehicle model maps actions with them)
-    intruder_bounds: jax.Array    # (5,) the same for the intruder
-    collision_radius: jax.Array   # () R_c [m]
-    # --- plans (per vehicle)
     departure: jax.Array          # (N,) [s] departure time (t_LDT)
     sta: jax.Array                # (N,) [s]
     nominal_arrival: jax.Array    # (N,) [s] arrival time of each plan (inf if none)
@@ -114,52 +93,144 @@ class EnvParams:
     #                               flight of U^p and the simulator's inner period and margin are certified (false
     #                               only with EnvConfig.allow_uncertified); its violations are assumption failures
     planning_v_max: jax.Array     # () [m/s] fastest planning speed (fallback controller)
-    # --- static obstacles
-    sdf: jax.Array                # sdf_grid.shape [m] signed distance to buildings (negative inside)
-    # --- reachability tables
-    avoid_taus: jax.Array         # (S,) [s] ascending
-    avoid_values: jax.Array       # (S, *avoid_grid.shape) V^A(tau_k, t_IAT) [m], periodic axes padded (tables.py)
-    detection_range: jax.Array    # () d^A [m] (eq. 16)
-    tracking_grads: jax.Array     # (*tracking_grid.shape, 3) gradient of W = -V of the tracking-error game, padded
-    tracking_bound: jax.Array     # () r_e [m]
-    # --- intruder
+    # --- static
+    n: int                        # vehicles simulated
+    model: Any = dataclasses.field(default_factory=Dubins)  # the plant, a stp_env.sim.vehicle_models.VehicleModel
+    # --- optional: part of a fleet (stp_env.sim.fleet.select)
+    ids: Any = None               # (N,) int32 index of each simulated vehicle in the fleet, or None (all of it)
+    outside_waiting: Any = None   # () bool: a vehicle left out waits to take off (the fleet is never all done)
+    fleet_size: int | None = None  # (static) the whole fleet's vehicle count
+
+
+@dataclasses.dataclass(frozen=True)
+class IntruderParams:
+    """The intruder of the game and the bound it tests (``params.intruder``; Assumption 1)."""
+
+    bounds: jax.Array             # (5,) as VehicleParams.bounds, for the intruder (it flies Dubins)
     t_iat: jax.Array              # () [s]
     appear_window: jax.Array      # (2,) [s] the intruder appears at t_ ~ U[lo, hi] (lo == hi: fixed)
     spawn_radius: jax.Array       # () [m] "outside" spawns lie within this distance of a flying vehicle
     spawn_boundary_probability: jax.Array  # () the episode's spawn is "boundary" with this probability, else "outside"
+    kbar: jax.Array               # () int, the bound under test
+    d_sense: jax.Array            # () [m] sensing range (>= d^A)
+
+
+@dataclasses.dataclass(frozen=True)
+class TableParams:
+    """Every grid table the step interpolates, with the numbers derived from them (``params.tables``; ``S`` avoid
+    slices)."""
+
+    sdf: jax.Array                # sdf_grid.shape [m] signed distance to buildings (negative inside)
+    avoid_taus: jax.Array         # (S,) [s] ascending
+    avoid_values: jax.Array       # (S, *avoid_grid.shape) V^A(tau_k, t_IAT) [m], periodic axes padded (tables.py)
+    detection_range: jax.Array    # () d^A [m] (eq. 16)
     avoid_margin: jax.Array       # () [m] avoid start when V^A <= margin (one inner step of the value's fastest fall,
     #                               the table's closed-loop error and rounding: stp_env.sim.margins)
     avoid_fall_rate: jax.Array    # () [m/s] the fastest fall of the interpolated V^A near its zero level: the check
     #                               can fire as low as avoid_margin - control_dt * avoid_fall_rate
-    kbar: jax.Array               # () int, the bound under test
-    d_sense: jax.Array            # () [m] sensing range (>= d^A)
-    # --- rewards
-    reward_weights: RewardWeights  # by name, see stp_env.sim.config.RewardConfig
+    tracking_grads: jax.Array     # (*tracking_grid.shape, 3) gradient of W = -V of the tracking-error game, padded
+    tracking_bound: jax.Array     # () r_e [m]
     # --- static
-    n_vehicles: int
+    sdf_grid: Grid
     avoid_grid: Grid
     tracking_grid: Grid
-    sdf_grid: Grid
-    avoid_dynamics: RelativeDubins
-    tracking_dynamics: RelativeDubins
-    wind_model: Any = "uniform"
-    vehicle_model: Any = dataclasses.field(default_factory=Dubins)
-    safety_filter: bool = True
-    n_nearest: int = 4
-    control_substeps: int = 1
-    # --- optional: the relative buffer region of the buffer game
-    buffer_values: Any = None     # buffer_grid.shape V^B(0, t_BRD) [m], or None
+    avoid_dynamics: RelativeDubins     # eq. (44) with the roles of eq. (14)
+    tracking_dynamics: RelativeDubins  # SPP eqs. (24)-(25)
+    # --- optional: the relative buffer region of the buffer game (stp_env.assembly.with_buffer)
+    buffer_values: Any = None     # buffer_grid.shape V^B(0, t_BRD) of the plan's k̄ [m] (eqs. 46-47), or None
     buffer_grid: Grid | None = None
-    # --- optional: part of a fleet (stp_env.sim.fleet)
-    vehicle_ids: Any = None       # (N,) int32 index of each simulated vehicle in the fleet, or None (all of it)
-    outside_waiting: Any = None   # () bool: a vehicle left out waits to take off (the fleet is never all done)
-    fleet_size: int | None = None
 
 
-EnvParams = _pytree(EnvParams, meta=("n_vehicles", "avoid_grid", "tracking_grid", "sdf_grid", "avoid_dynamics",
-                                     "tracking_dynamics", "wind_model", "vehicle_model",
-                                     "safety_filter", "n_nearest", "control_substeps", "buffer_grid",
-                                     "fleet_size"))
+@dataclasses.dataclass(frozen=True)
+class WindParams:
+    """The wind (``params.wind``); its bound is ``vehicles.bounds[WIND]``."""
+
+    model: Any = "uniform"        # a stp_env.sim.winds.WindModel (or a registered name: its default parameters)
+
+
+EpisodeParams = _pytree(EpisodeParams, meta=("safety_filter", "n_nearest", "control_substeps"))
+VehicleParams = _pytree(VehicleParams, meta=("n", "model", "fleet_size"))
+IntruderParams = _pytree(IntruderParams)
+TableParams = _pytree(TableParams, meta=("sdf_grid", "avoid_grid", "tracking_grid", "avoid_dynamics",
+                                         "tracking_dynamics", "buffer_grid"))
+WindParams = _pytree(WindParams, meta=("model",))
+
+GROUPS = {"episode": EpisodeParams, "vehicles": VehicleParams, "intruder": IntruderParams, "tables": TableParams,
+          "wind": WindParams}
+
+# Where each field of the flat EnvParams of earlier releases lives now: ``old name -> (group, name)``.
+MOVED = {
+    **{f: ("episode", f) for f in ("dt", "t_start", "t_end", "domain_lo", "domain_hi", "collision_radius",
+                                   "reward_weights", "safety_filter", "n_nearest", "control_substeps")},
+    **{f: ("vehicles", f) for f in ("departure", "sta", "nominal_arrival", "starts", "targets", "target_radii",
+                                    "nominal_t0", "nominal_dt", "nominal_states", "nominal_controls", "nominal_len",
+                                    "certified", "planning_v_max", "outside_waiting", "fleet_size")},
+    "n_vehicles": ("vehicles", "n"), "vehicle_bounds": ("vehicles", "bounds"), "vehicle_model": ("vehicles", "model"),
+    "vehicle_ids": ("vehicles", "ids"),
+    **{f: ("intruder", f) for f in ("t_iat", "appear_window", "spawn_radius", "spawn_boundary_probability", "kbar",
+                                    "d_sense")},
+    "intruder_bounds": ("intruder", "bounds"),
+    **{f: ("tables", f) for f in ("sdf", "sdf_grid", "avoid_taus", "avoid_values", "avoid_grid", "avoid_dynamics",
+                                  "detection_range", "avoid_margin", "avoid_fall_rate", "tracking_grads",
+                                  "tracking_grid", "tracking_dynamics", "tracking_bound", "buffer_values",
+                                  "buffer_grid")},
+    "wind_model": ("wind", "model"),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvParams:
+    """Constants of an environment, in five groups (see :func:`stp_env.assembly.make_params`, which fills them from
+    a scenario, a plan and the reachability artifacts):
+
+    * ``episode`` (:class:`EpisodeParams`): step length, time window, domain, ``R_c``, rewards, the inner control
+      loop (``control_substeps``: the vehicles' low-level controllers — the tracker ``kappa``, ``u^A``, any vehicle
+      policy passed to :func:`stp_env.sim.core.step` — and the motion run this many times per step), the safety
+      filter switch and the observation size;
+    * ``vehicles`` (:class:`VehicleParams`): the plant, its bounds and the plans; the optional fleet fields are set
+      by :func:`stp_env.sim.fleet.select` (the simulation of the part of a fleet that can fly in the episode's
+      window: per-agent random draws are made for the whole fleet and the simulated agents' rows taken, so part of
+      a fleet sees the same random numbers as all of it);
+    * ``intruder`` (:class:`IntruderParams`): its bounds, ``t_IAT``, spawn and appearance, and the k̄ under test;
+    * ``tables`` (:class:`TableParams`): the signed distance to the buildings, ``V^A``, the tracking game's
+      gradient and ``V^B`` (optional: only the buffer game's policies read it, loaded by
+      :func:`stp_env.assembly.with_buffer`), with the numbers derived from them (``d^A``, the avoid margin, ``r_e``);
+    * ``wind`` (:class:`WindParams`): the wind model.
+
+    Static fields (sizes, grids, models, switches) are metadata: changing them recompiles. Change fields with
+    :meth:`replace`: ``params.replace(episode={"t_end": t}, vehicles=new_vehicles)``.
+    """
+
+    episode: EpisodeParams
+    vehicles: VehicleParams
+    intruder: IntruderParams
+    tables: TableParams
+    wind: WindParams
+
+    def replace(self, **groups) -> EnvParams:
+        """A copy with groups changed: each value is a whole group or a mapping of that group's fields to new
+        values."""
+        changes = {}
+        for name, value in groups.items():
+            if name not in GROUPS:
+                raise TypeError(f"EnvParams has no group {name!r} (groups: {', '.join(GROUPS)})")
+            if isinstance(value, dict):
+                value = dataclasses.replace(getattr(self, name), **value)
+            elif not isinstance(value, GROUPS[name]):
+                raise TypeError(f"EnvParams.{name} must be a {GROUPS[name].__name__} or a dict of its fields, "
+                                f"not {type(value).__name__}")
+            changes[name] = value
+        return dataclasses.replace(self, **changes)
+
+    def __getattr__(self, name: str):
+        # Only called when normal lookup fails: name the new place of a field of the flat EnvParams.
+        if name in MOVED:
+            group, field = MOVED[name]
+            raise AttributeError(f"EnvParams.{name} is now EnvParams.{group}.{field}")
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+
+EnvParams = _pytree(EnvParams)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -174,7 +245,7 @@ class EnvState:
     avoid_start: jax.Array        # (N,) [s] t_i of eqs. 17-18 (inf: never)
     complied: jax.Array           # (N,) bool: applied u^A at every step since t_i
     assumption_ok: jax.Array      # (N,) bool: the intruder appeared outside this vehicle's avoid region, and the
-    #                               vehicle is certified (EnvParams.certified)
+    #                               vehicle is certified (EnvParams.vehicles.certified)
     used_filter: jax.Array        # (N,) bool: the safety filter replaced this step's action
     min_separation: jax.Array     # (N,) [m] smallest distance to another vehicle or the intruder so far
     arrival_time: jax.Array       # (N,) [s] (inf: not arrived)

@@ -38,7 +38,7 @@ def within_bounds(params: EnvParams, wind, heading=None):
 
 def model(params: EnvParams) -> winds.WindModel:
     """The environment's wind model (a registered name is made with its default parameters)."""
-    return winds.make(params.wind_model)
+    return winds.make(params.wind.model)
 
 
 def initial_wind(key, params: EnvParams):
@@ -49,14 +49,14 @@ def initial_wind(key, params: EnvParams):
     if tuple(wind.shape) != expected:
         raise ValueError(f"wind model {model(params).name!r}: initial() must return the wind state of the whole "
                          f"fleet, shape {expected}; got {tuple(wind.shape)} (size it with "
-                         "stp_env.sim.fleet.fleet_size(params), not params.n_vehicles).")
+                         "stp_env.sim.fleet.fleet_size(params), not params.vehicles.n).")
     return wind
 
 
 def _simulated(params: EnvParams, per_agent):
     """A model's per-agent output for the simulated agents ``(N + 1, ...)``: a model may return it for the whole
     fleet ``(F + 1, ...)`` (shaped like the wind state), whose rows are then taken (:mod:`stp_env.sim.fleet`)."""
-    n, f = params.n_vehicles, fleet_size(params)
+    n, f = params.vehicles.n, fleet_size(params)
     if f != n and per_agent.shape[0] == f + 1:
         return agent_rows(params, per_agent)
     return per_agent

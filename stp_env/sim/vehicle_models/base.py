@@ -11,7 +11,7 @@ from typing import ClassVar
 class VehicleModel(abc.ABC):
     """A vehicle plant: a frozen (hashable) dataclass, its fields its parameters. Every method is pure and
     jittable and broadcasts over leading axes. ``bounds`` is the bounds row of
-    :class:`~stp_env.sim.types.EnvParams` (``vehicle_bounds``: ``v_min, v_max`` [m/s], ``omega_max`` [rad/s],
+    :class:`~stp_env.sim.types.EnvParams` (``vehicles.bounds``: ``v_min, v_max`` [m/s], ``omega_max`` [rad/s],
     wind [m/s], heading-rate disturbance [rad/s]; arrays, so they change without recompiling).
 
     The state's first two entries are the position [m] (the events and the domain checks read them). Every

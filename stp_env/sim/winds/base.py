@@ -17,8 +17,8 @@ from stp_env.sim.physics import disk_sample
 def radii(params, n: int | None = None):
     """Each agent's wind bound ``(n + 1,)`` [m/s] (``n``: the simulated vehicles by default): ``d_r`` for the
     vehicles, then ``d_I`` for the intruder."""
-    n = params.n_vehicles if n is None else n
-    return jnp.concatenate([jnp.full((n,), params.vehicle_bounds[WIND]), params.intruder_bounds[WIND:WIND + 1]])
+    n = params.vehicles.n if n is None else n
+    return jnp.concatenate([jnp.full((n,), params.vehicles.bounds[WIND]), params.intruder.bounds[WIND:WIND + 1]])
 
 
 def fleet_radii(params):
@@ -28,9 +28,9 @@ def fleet_radii(params):
 
 def heading_bounds(params):
     """Each agent's heading-rate disturbance bound ``(N + 1,)`` [rad/s]."""
-    n = params.n_vehicles
-    return jnp.concatenate([jnp.full((n,), params.vehicle_bounds[HEADING_DISTURBANCE]),
-                            params.intruder_bounds[HEADING_DISTURBANCE:HEADING_DISTURBANCE + 1]])
+    n = params.vehicles.n
+    return jnp.concatenate([jnp.full((n,), params.vehicles.bounds[HEADING_DISTURBANCE]),
+                            params.intruder.bounds[HEADING_DISTURBANCE:HEADING_DISTURBANCE + 1]])
 
 
 def uniform_in_fleet_disks(key, params):
@@ -99,12 +99,12 @@ class StateFeedbackWind(WindModel):
     def draw(self, key, state, params):
         """Zeros (held winds unused: :meth:`inner` computes the winds at every inner step); the state unchanged."""
         del key
-        return jnp.zeros((params.n_vehicles + 1, 2)), state.wind
+        return jnp.zeros((params.vehicles.n + 1, 2)), state.wind
 
     def sample(self, key, state, params):
         """No random heading disturbance either: the wind is all :meth:`inner`'s."""
         winds, new = self.draw(key, state, params)
-        return winds, jnp.zeros((params.n_vehicles + 1,)), new
+        return winds, jnp.zeros((params.vehicles.n + 1,)), new
 
     @abc.abstractmethod
     def inner(self, state, params, held):

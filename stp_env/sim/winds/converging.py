@@ -24,9 +24,9 @@ from stp_env.sim.winds.worst import worst_winds
 
 def converging_winds(state, params):
     """The line-of-sight helping winds ``(N + 1, 2)`` at ``state`` (world frame, each on its disk's boundary)."""
-    n = params.n_vehicles
+    n = params.vehicles.n
     r = radii(params)
-    pos = params.vehicle_model.pose(state.x)[:, :2]
+    pos = params.vehicles.model.pose(state.x)[:, :2]
     gap = state.intruder_x[None, :2] - pos                                  # (N, 2) vehicle -> intruder
     dist = jnp.linalg.norm(gap, axis=1)
     toward = gap / jnp.maximum(dist, 1e-9)[:, None]

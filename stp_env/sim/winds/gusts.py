@@ -42,7 +42,7 @@ class Gusts(WindModel):
         r = fleet_radii(params)
         tc = jnp.asarray(self.time_constant, jnp.float32)
         sigma = 0.5 * r[:, None] * jnp.sqrt(2.0 / tc)
-        w = state.wind - state.wind / tc * params.dt + sigma * jnp.sqrt(params.dt) * jax.random.normal(
+        w = state.wind - state.wind / tc * params.episode.dt + sigma * jnp.sqrt(params.episode.dt) * jax.random.normal(
             key, state.wind.shape)
         w = project(w, r)
         return agent_rows(params, w), w

@@ -16,7 +16,7 @@ from stp_env.sim.winds.base import StateFeedbackWind, radii
 
 def tailwinds(state, params):
     """The tailwinds ``(N + 1, 2)`` at ``state`` (world frame, each on its disk's boundary)."""
-    heading = jnp.concatenate([params.vehicle_model.pose(state.x)[:, 2], state.intruder_x[2:3]])
+    heading = jnp.concatenate([params.vehicles.model.pose(state.x)[:, 2], state.intruder_x[2:3]])
     return jnp.stack([jnp.cos(heading), jnp.sin(heading)], axis=1) * radii(params)[:, None]
 
 

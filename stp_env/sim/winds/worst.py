@@ -20,10 +20,10 @@ from stp_env.sim.winds.base import StateFeedbackWind, radii
 
 def worst_winds(state, params):
     """The worst-case winds ``(N + 1, 2)`` at ``state`` (world frame, each on its disk's boundary)."""
-    n = params.n_vehicles
+    n = params.vehicles.n
     r = radii(params)
     tau = state.t - state.t_appear
-    x = params.vehicle_model.pose(state.x)
+    x = params.vehicles.model.pose(state.x)
     rel = relative_state(x, state.intruder_x[None, :])
     game = jax.vmap(lambda x: tables.pursuit_input(params, tau, x))(rel)          # (N, 4)
     wc = game[:, 2:4]
