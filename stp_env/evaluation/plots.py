@@ -4,7 +4,7 @@
 * :func:`plot_distance_vs_time`: distance from each forced vehicle to the intruder against time, under the
   avoidance control ``u*`` (eq. 38) and under nominal tracking ``u^PP`` (intruder paper Fig. 5).
 * :func:`plot_episode`: one episode's trajectories with the intruder's path and the avoid-start markers (Figs.
-  6-7), the whole domain and a close-up of the encounter.
+  6-7), the whole domain and a close-up of the encounter, drawn by the scene renderer (:mod:`stp_env.render`).
 * :func:`plot_summary`: every configuration at a glance.
 """
 
@@ -12,20 +12,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from stp_env.sim.types import AVOIDING, COLLIDED, FLYING, PRESENT
+from stp_env.render import vehicle_color
+from stp_env.sim.types import COLLIDED, FLYING, PRESENT
 
 
 def _plt():
     import matplotlib.pyplot as plt
 
     return plt
-
-
-_VEHICLE_PALETTE = (0, 1, 2, 4, 5, 6, 7, 8, 9)   # tab10 without red: red is the intruder's
-
-
-def vehicle_color(i: int):
-    return _plt().get_cmap("tab10")(_VEHICLE_PALETTE[i % len(_VEHICLE_PALETTE)])
 
 
 def _intruder_colors(names):
@@ -160,57 +154,20 @@ def plot_distance_vs_time(avoid_traj, avoid_final, nominal_traj, nominal_final, 
     return path
 
 
-def _draw_scene(ax, scenario, params):
-    plt = _plt()
-    for b in scenario.buildings:
-        xy = np.asarray(b.vertices)
-        ax.fill(xy[:, 0], xy[:, 1], color="0.3", alpha=0.8)
-    for tgt, r in zip(np.asarray(params.vehicles.targets), np.asarray(params.vehicles.target_radii)):
-        ax.add_patch(plt.Circle(tgt, r, color="g", alpha=0.15))
-
-
 def plot_episode(traj, final, params, scenario, path: str, title: str = "") -> str:
-    """An episode (recorded trajectory and final state): each vehicle's path while flying (thick while avoiding),
-    the intruder's path, avoid-start markers with the collision disk ``R_c`` there, collisions; the whole domain
-    (left) and the encounter (right)."""
+    """An episode (recorded trajectory and final state) drawn by the scene renderer
+    (:func:`stp_env.render.draw_scene`, look :data:`~stp_env.render.FIGURE`): each vehicle's path while flying
+    (thick while avoiding), the intruder's path, avoid-start markers with the collision disk ``R_c`` there,
+    collisions; the whole domain (left) and the encounter (right)."""
     plt = _plt()
-    n = traj["x"].shape[1]
+    from stp_env.render import FIGURE, draw_scene
+
     fig, axes = plt.subplots(1, 2, figsize=(12, 6.3), constrained_layout=True)
     present = traj["intruder_status"] == PRESENT
     ip = traj["intruder_x"][present]
     forced = np.flatnonzero(np.isfinite(final["avoid_start"]))
     for ax in axes:
-        _draw_scene(ax, scenario, params)
-        for i in range(n):
-            col = vehicle_color(i)
-            fly = traj["status"][:, i] == FLYING
-            xy = np.where(fly[:, None], traj["x"][:, i, :2], np.nan)
-            ax.plot(xy[:, 0], xy[:, 1], color=col, lw=1.2, label=f"vehicle {i}" if ax is axes[0] else None)
-            avoid = fly & (traj["mode"][:, i] == AVOIDING)
-            xa = np.where(avoid[:, None], traj["x"][:, i, :2], np.nan)
-            ax.plot(xa[:, 0], xa[:, 1], color=col, lw=3.5)
-            if final["status"][i] == COLLIDED:
-                k = int(np.argmin(np.abs(traj["t"] - final["collision_time"][i])))
-                ax.plot(*traj["x"][k, i, :2], "x", color="k", ms=10, mew=2.5)
-        if ip.size:
-            ax.plot(ip[:, 0], ip[:, 1], color="r", lw=2.2, label="intruder" if ax is axes[0] else None)
-            ax.plot(*ip[0, :2], "r^", ms=9)
-        for i in forced:
-            k = int(np.argmin(np.abs(traj["t"] - final["avoid_start"][i])))
-            p = traj["x"][k, i, :2]
-            ax.plot(*p, "o", color=vehicle_color(i), ms=8, mec="k")
-            ax.add_patch(plt.Circle(p, float(params.episode.collision_radius), fill=False, ls=":",
-                                    color=vehicle_color(i)))
-            if ip.size:
-                kk = min(int(np.searchsorted(traj["t"][present], traj["t"][k])), len(ip) - 1)
-                ax.plot(*ip[kk, :2], "o", color="r", ms=6, mec="k")
-        ax.set_aspect("equal")
-        ax.grid(alpha=0.3)
-        ax.set_xlabel("p_x [m]")
-        ax.set_ylabel("p_y [m]")
-    lo, hi = np.asarray(params.episode.domain_lo), np.asarray(params.episode.domain_hi)
-    axes[0].set_xlim(lo[0], hi[0])
-    axes[0].set_ylim(lo[1], hi[1])
+        draw_scene(ax, params, scenario, history=traj, final=final, look=FIGURE, legend=ax is axes[0])
     axes[0].set_title("whole domain (thick: avoiding; x: collision)", fontsize=10)
     if ip.size:
         pts = [ip[:, :2]] + [traj["x"][present, i, :2] for i in forced]

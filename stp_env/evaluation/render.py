@@ -1,7 +1,8 @@
 """An episode as an animated GIF (matplotlib's ``PillowWriter``), or PNG frames when pillow is missing.
 
 Kept small on purpose: the encounter only (from a few seconds before the intruder appears until a few seconds
-after it leaves), a zoom on it, a frame every ``frame_dt`` seconds, a low resolution.
+after it leaves), a zoom on it, a frame every ``frame_dt`` seconds, a low resolution. Each frame is drawn by the
+scene renderer (:func:`stp_env.render.draw_scene`, look :data:`~stp_env.render.FIGURE`).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float 
     from tqdm.auto import tqdm
 
     from stp_env import progress as progress_mod
-    from stp_env.evaluation.plots import _draw_scene, vehicle_color
+    from stp_env.render import FIGURE, SCENE_FIELDS, draw_scene
 
     t = traj["t"]
     t_app, t_iat = float(final["t_appear"]), float(params.intruder.t_iat)
@@ -37,7 +38,6 @@ def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float 
         window[:] = True
     steps = np.flatnonzero(window)[:: max(1, round(frame_dt / dt))]
     present = traj["intruder_status"] == PRESENT
-    n = traj["x"].shape[1]
     fly = traj["status"] == FLYING
     # the view: around the intruder's path and the vehicles that fly near it
     pts = [traj["intruder_x"][present, :2]] if present.any() else []
@@ -51,49 +51,24 @@ def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float 
     else:
         c, half = 0.5 * (lo + hi), 0.5 * float(np.max(hi - lo))
     fig, ax = plt.subplots(figsize=(5, 5.3), constrained_layout=True)
-    _draw_scene(ax, scenario, params)
-    ax.set_xlim(c[0] - half, c[0] + half)
-    ax.set_ylim(c[1] - half, c[1] + half)
-    ax.set_aspect("equal")
-    ax.grid(alpha=0.3)
-    ax.set_xlabel("p_x [m]")
-    ax.set_ylabel("p_y [m]")
-    trails = [ax.plot([], [], color=vehicle_color(i), lw=1.2)[0] for i in range(n)]
-    dots = [ax.plot([], [], "o", color=vehicle_color(i), ms=6)[0] for i in range(n)]
-    disks = [plt.Circle((0, 0), float(params.episode.collision_radius), fill=False, ls=":", color=vehicle_color(i))
-             for i in range(n)]
-    for d in disks:
-        ax.add_patch(d)
-    intruder_trail = ax.plot([], [], "r-", lw=1.8)[0]
-    intruder_dot = ax.plot([], [], "r^", ms=9)[0]
-    text = ax.text(0.02, 0.98, "", transform=ax.transAxes, va="top", fontsize=8,
-                   bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})
-    ax.set_title(title or "episode", fontsize=9)
+    start = steps[0]
 
     def draw(k):
-        start = steps[0]
-        for i in range(n):
-            seg = fly[start:k + 1, i]
-            xy = traj["x"][start:k + 1, i, :2][seg]
-            trails[i].set_data(xy[:, 0], xy[:, 1])
-            on = fly[k, i] or traj["status"][k, i] == COLLIDED
-            p = traj["x"][k, i, :2] if on else (np.nan, np.nan)
-            dots[i].set_data([p[0]], [p[1]])
-            dots[i].set_markeredgecolor("k" if traj["mode"][k, i] == AVOIDING else vehicle_color(i))
-            dots[i].set_markersize(9 if traj["mode"][k, i] == AVOIDING else 6)
-            disks[i].set_center(p)
-            disks[i].set_visible(bool(on) and traj["mode"][k, i] == AVOIDING)
-        ip = traj["intruder_x"][start:k + 1][present[start:k + 1]]
-        intruder_trail.set_data(ip[:, 0], ip[:, 1])
-        if present[k]:
-            intruder_dot.set_data([traj["intruder_x"][k, 0]], [traj["intruder_x"][k, 1]])
-        else:
-            intruder_dot.set_data([], [])
+        # the scene up to step k, drawn afresh by the one renderer: paths since the first frame, the vehicles and
+        # the intruder at step k
+        ax.clear()
+        draw_scene(ax, params, scenario, now={key: traj[key][k] for key in SCENE_FIELDS},
+                   history={key: traj[key][start:k + 1] for key in SCENE_FIELDS}, look=FIGURE)
+        ax.set_xlim(c[0] - half, c[0] + half)
+        ax.set_ylim(c[1] - half, c[1] + half)
+        ax.set_title(title or "episode", fontsize=9)
         avoiding = int(np.sum(traj["mode"][k] == AVOIDING))
         forced = int(np.sum(final["avoid_start"] <= t[k] + 1e-6))
-        text.set_text(f"t = {t[k]:.1f} s, t - t_ = {t[k] - t_app:+.1f} s\n|N^RP| = {forced}, avoiding: {avoiding}"
-                      f"\ncollided: {int(np.sum(traj['status'][k] == COLLIDED))}")
-        return [*trails, *dots, *disks, intruder_trail, intruder_dot, text]
+        text = ax.text(0.02, 0.98, f"t = {t[k]:.1f} s, t - t_ = {t[k] - t_app:+.1f} s\n|N^RP| = {forced}, "
+                       f"avoiding: {avoiding}\ncollided: {int(np.sum(traj['status'][k] == COLLIDED))}",
+                       transform=ax.transAxes, va="top", fontsize=8,
+                       bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})
+        return [*ax.lines, *ax.patches, text]
 
     out = Path(path)
     if importlib.util.find_spec("PIL") is not None:

@@ -104,8 +104,8 @@ class EnvConfig:
         allow_uncertified: simulate settings outside what the proofs certify (an inner period outside
             :data:`CERTIFIED_CONTROL_DT`, an avoid margin below the certified one, a plan whose trajectories are not
             flights of the planning dynamics ``U^p``) instead of refusing them. The vehicles concerned (all of them
-            for a setting of the simulator) then have ``EnvParams.vehicles.certified`` false: their collisions and tracking
-            violations are booked as assumption failures, not guarantee violations.
+            for a setting of the simulator) then have ``EnvParams.vehicles.certified`` false: their collisions and
+            tracking violations are booked as assumption failures, not guarantee violations.
     """
 
     dt: float = 0.1

@@ -29,7 +29,8 @@ block never needs to wrap: ``dynamic_slice`` cannot."""
 
 def pad_periodic(values, grid, lead: int = 0) -> np.ndarray:
     """``values`` (``lead`` leading axes, then ``grid.shape``) with every periodic axis of ``grid`` wrapped by
-    :data:`PERIODIC_PAD` nodes: the layout :func:`avoid_value_and_gradient` reads (``EnvParams.tables.avoid_values``)."""
+    :data:`PERIODIC_PAD` nodes: the layout :func:`avoid_value_and_gradient` reads
+    (``EnvParams.tables.avoid_values``)."""
     v = np.asarray(values)
     if v.shape[lead:] != tuple(grid.shape):
         raise ValueError(f"values of shape {v.shape} do not match the grid {tuple(grid.shape)} after {lead} "
@@ -131,7 +132,8 @@ def _cell_axis(grid, d: int, pos):
 
 def pad_components(fields, grid) -> np.ndarray:
     """Arrays on ``grid`` (one per component, e.g. a gradient field) stacked on a trailing axis, periodic axes
-    padded (:func:`pad_periodic`): the layout :func:`interpolate_components` reads (``EnvParams.tables.tracking_grads``)."""
+    padded (:func:`pad_periodic`): the layout :func:`interpolate_components` reads
+    (``EnvParams.tables.tracking_grads``)."""
     return np.stack([pad_periodic(f, grid) for f in fields], axis=-1)
 
 
