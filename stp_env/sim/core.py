@@ -32,7 +32,8 @@ One step of length ``dt`` (intruder paper Sections II and IV):
    guarantee (SPP eqs. 24-26): that is a guarantee violation too (``tracking_violation``), whatever the intruder
    does. A vehicle outside what the proofs certify (``EnvParams.vehicles.certified`` false: a plan that is not a
    flight of ``U^p``, or an uncertified inner period or avoid margin, accepted only with
-   ``EnvConfig.allow_uncertified``) has its assumptions failed from the start: its collisions and tracking errors are not guarantee violations.
+   ``EnvConfig.allow_uncertified``) has its assumptions failed from the start: its collisions and tracking errors
+   are not guarantee violations.
 
 Waiting and finished vehicles are outside the airspace: they neither move nor collide. Actions of agents that
 cannot act (waiting, finished, an absent intruder) are ignored.
