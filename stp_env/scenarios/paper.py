@@ -27,6 +27,14 @@ def check_factory_args(*, n_vehicles: int | None = None, sta_spacing: float | No
         raise ValueError(f"seed must be an integer >= 0; got {seed!r}.")
 
 
+def check_kbar(scenario: str, kbar, allowed, note: str = "") -> int:
+    """``kbar`` as an ``int`` if it is one of the scenario's ``allowed`` bounds; ``ValueError`` naming the scenario
+    otherwise (a ``bool`` is not an integer here)."""
+    if isinstance(kbar, bool) or not isinstance(kbar, (int, np.integer)) or int(kbar) not in allowed:
+        raise ValueError(f"{scenario}: kbar must be one of {tuple(allowed)}{note}; got {kbar!r}.")
+    return int(kbar)
+
+
 def heading(frm, to) -> float:
     return math.atan2(to[1] - frm[1], to[0] - frm[0])
 

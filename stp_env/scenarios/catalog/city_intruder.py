@@ -6,10 +6,9 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import numpy as np
-
 from stp_env.scenarios.catalog.city import city
 from stp_env.scenarios.config import Scenario
+from stp_env.scenarios.paper import check_kbar
 from stp_env.scenarios.registry import register
 
 CITY_INTRUDER_KBARS = (2, 3, 4)
@@ -53,8 +52,7 @@ def city_intruder(*, kbar: int = 3, n_vehicles: int = 50, wind: float = 6.0, slo
     The BEACLS paper's Section VII plans its intruder-aware city for ``k̄ = 3`` (its Fig. 13) and reports two
     vehicles forced by its intruder.
     """
-    if isinstance(kbar, bool) or not isinstance(kbar, (int, np.integer)) or int(kbar) not in CITY_INTRUDER_KBARS:
-        raise ValueError(f"city-intruder: kbar must be one of {CITY_INTRUDER_KBARS}; got {kbar!r}.")
+    check_kbar("city-intruder", kbar, CITY_INTRUDER_KBARS)
     if isinstance(slot, bool) or not isinstance(slot, (int, float)) or not (math.isfinite(slot) and slot > 0):
         raise ValueError(f"city-intruder: slot must be a positive number of seconds; got {slot!r}.")
     base = city(n_vehicles=n_vehicles, wind=wind, kbar=int(kbar), seed=seed)

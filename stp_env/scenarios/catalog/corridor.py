@@ -3,10 +3,8 @@ tightly as the intruder-aware planner allows for the chosen ``k̄``."""
 
 from __future__ import annotations
 
-import numpy as np
-
 from stp_env.scenarios.config import Scenario, VehicleSpec
-from stp_env.scenarios.paper import check_factory_args, dense_scenario
+from stp_env.scenarios.paper import check_factory_args, check_kbar, dense_scenario
 from stp_env.scenarios.registry import register
 
 CORRIDOR_DOMAIN = ((0.0, 0.0), (3600.0, 1600.0))
@@ -42,8 +40,7 @@ def corridor(*, kbar: int = 2, n_vehicles: int = 20, wind: float = 6.0, sta_spac
 
     ``seed`` is recorded (the corridor has no random part).
     """
-    if isinstance(kbar, bool) or not isinstance(kbar, (int, np.integer)) or int(kbar) not in CORRIDOR_KBARS:
-        raise ValueError(f"corridor: kbar must be one of {CORRIDOR_KBARS}; got {kbar!r}.")
+    check_kbar("corridor", kbar, CORRIDOR_KBARS)
     if sta_spacing is None:
         sta_spacing = CORRIDOR_SPACING[int(kbar)]
     check_factory_args(n_vehicles=n_vehicles, sta_spacing=sta_spacing, seed=seed)

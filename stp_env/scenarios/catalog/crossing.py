@@ -5,10 +5,8 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from stp_env.scenarios.config import Scenario, VehicleSpec
-from stp_env.scenarios.paper import check_factory_args, dense_scenario
+from stp_env.scenarios.paper import check_factory_args, check_kbar, dense_scenario
 from stp_env.scenarios.registry import register
 
 CROSSING_DOMAIN = ((0.0, 0.0), (4000.0, 4000.0))
@@ -42,8 +40,7 @@ def crossing(*, kbar: int = 2, n_vehicles: int = 20, wind: float = 6.0, sta_spac
 
     ``seed`` is recorded (the crossing has no random part).
     """
-    if isinstance(kbar, bool) or not isinstance(kbar, (int, np.integer)) or int(kbar) not in CROSSING_KBARS:
-        raise ValueError(f"crossing: kbar must be one of {CROSSING_KBARS}; got {kbar!r}.")
+    check_kbar("crossing", kbar, CROSSING_KBARS)
     if sta_spacing is None:
         sta_spacing = CROSSING_SPACING[int(kbar)]
     check_factory_args(n_vehicles=n_vehicles, sta_spacing=sta_spacing, seed=seed)

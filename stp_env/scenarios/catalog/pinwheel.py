@@ -22,7 +22,7 @@ import math
 import numpy as np
 
 from stp_env.scenarios.config import Scenario, VehicleSpec
-from stp_env.scenarios.paper import check_factory_args, dense_scenario
+from stp_env.scenarios.paper import check_factory_args, check_kbar, dense_scenario
 from stp_env.scenarios.registry import register
 
 PINWHEEL_DOMAIN = ((0.0, 0.0), (4000.0, 4000.0))
@@ -80,8 +80,7 @@ def pinwheel(*, kbar: int = 3, n_waves: int = 7, wind: float = 6.0, radius: floa
 
     ``seed`` is recorded (the pinwheel has no random part).
     """
-    if isinstance(kbar, bool) or not isinstance(kbar, (int, np.integer)) or int(kbar) not in PINWHEEL_KBARS:
-        raise ValueError(f"pinwheel: kbar must be one of {PINWHEEL_KBARS}; got {kbar!r}.")
+    check_kbar("pinwheel", kbar, PINWHEEL_KBARS)
     if isinstance(n_waves, bool) or not isinstance(n_waves, (int, np.integer)) or n_waves < 1:
         raise ValueError(f"pinwheel: n_waves must be an integer >= 1; got {n_waves!r}.")
     radius = PINWHEEL_RADIUS[int(kbar)] if radius is None else radius

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from stp_env.scenarios.config import Building, Scenario, VehicleSpec
-from stp_env.scenarios.paper import check_factory_args, paper_fields
+from stp_env.scenarios.paper import check_factory_args, check_kbar, paper_fields
 from stp_env.scenarios.registry import register
 
 TOWN_DOMAIN = ((0.0, 0.0), (4000.0, 4000.0))
@@ -58,9 +58,7 @@ def town(*, kbar: int = 2, n_vehicles: int = 7, wind: float = 6.0, sta_spacing: 
     Shipped plans for ``k̄ = 1, 2, 3`` (default seed and vehicles) are in ``stp_env/data/plans/town-kbar{k}.npz``
     (:func:`stp_env.planning.stp.shipped_plan_for`).
     """
-    if isinstance(kbar, bool) or not isinstance(kbar, (int, np.integer)) or int(kbar) not in TOWN_KBARS:
-        raise ValueError(f"town: kbar must be one of {TOWN_KBARS} (the intruder may force at most k̄ vehicles to "
-                         f"avoid); got {kbar!r}.")
+    check_kbar("town", kbar, TOWN_KBARS, " (the intruder may force at most k̄ vehicles to avoid)")
     if sta_spacing is None:
         sta_spacing = 100.0 if kbar == 1 else 90.0
     check_factory_args(n_vehicles=n_vehicles, sta_spacing=sta_spacing, seed=seed)
