@@ -237,7 +237,7 @@ def test_a_plan_outside_the_planning_dynamics_is_refused(mutate):
     good = make_params(scenario, plan, avoid, tracking)
     with pytest.raises(ValueError, match="U\\^p"):
         with_plan(good, bad)
-    assert np.asarray(with_plan(good, bad, allow_uncertified=True).certified).tolist() == \
+    assert np.asarray(with_plan(good, bad, allow_uncertified=True).vehicles.certified).tolist() == \
         [i != 1 for i in range(len(plan.vehicles))]
 
 

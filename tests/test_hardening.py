@@ -390,8 +390,11 @@ def test_event_sizes_are_checked_against_the_configuration():
     from stp_env.evaluation.events import check_replay_sizes
 
     class Params:
-        t_start, t_end, dt = jnp.asarray(0.0), jnp.asarray(9.9), jnp.asarray(0.1)
-        nominal_states = np.zeros((2, 50, 3))
+        class episode:
+            t_start, t_end, dt = jnp.asarray(0.0), jnp.asarray(9.9), jnp.asarray(0.1)
+
+        class vehicles:
+            nominal_states = np.zeros((2, 50, 3))
 
     check_replay_sizes(_event(n_steps=100, plan_samples=50), Params)
     with pytest.raises(ValueError, match="n_steps"):
