@@ -87,7 +87,7 @@ TUBE_TOLERANCE_CELLS = 1.0
 """A nominal trajectory whose tube value ``V(t, x(t))`` exceeds this many cells (of the finest position axis) before
 its arrival or the STA has left the reach-avoid tube: it may enter an obstacle (:func:`plan_single_with_slices`
 keeps the better extraction and warns). The numerical tube is optimistic by about a cell, so a trajectory that
-keeps to it can fall up to about a cell behind its zero level near the STA (``plan_rtt``'s ``arrival_margin``
+keeps to it can fall up to about a cell behind its zero level near the STA (the problem's ``arrival_margin``
 absorbs that; measured on ``tiny-intruder``: 43 m with 50 m cells, 2 s before the aimed arrival)."""
 
 
