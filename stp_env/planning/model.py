@@ -28,11 +28,13 @@ import dataclasses
 import math
 from typing import Protocol, runtime_checkable
 
+import jax.numpy as jnp
 import numpy as np
 
 from stp_env.angles import wrap_angle
 from stp_env.dynamics import DubinsWind
 from stp_env.hj.dynamics import ControlAffineDynamics
+from stp_env.kinematics import dubins_step
 
 PLANNING_MODEL_MEMBERS = ("dynamics", "speed_bounds", "omega_max", "wind", "heading_split", "control", "step",
                           "step64", "control_between")
@@ -83,6 +85,25 @@ class PlanningModel(Protocol):
         ``dt`` (float64 NumPy), or the closest the model can say."""
 
 
+TURN_DEADBAND = 0.05
+"""The turn rate of :func:`saturated_control` is full once turning changes ``V`` at least this many times as fast as
+the best translation does."""
+
+
+def saturated_control(dynamics: ControlAffineDynamics, x, p) -> tuple:
+    """``(v, omega)`` of the planning controller for state(s) ``x`` and value gradient(s) ``p``
+    (structure-of-arrays, so one state or whole grids): ``arg min_u max_d p . f`` (eqs. 11, 37; SPP eq. 13) with
+    the turn rate saturated-linear (:func:`stp_env.planning.single.planning_control`). ``dynamics``: a
+    ``DubinsWind``, or solver dynamics with the same controls ``(v, omega)`` and attributes ``v_max``, ``omega_max``.
+    """
+    v, omega = dynamics.optimal_control(x, p)
+    if dynamics.omega_max > 0:
+        scale = TURN_DEADBAND * jnp.hypot(p[0], p[1]) * dynamics.v_max / dynamics.omega_max + 1e-12
+        sign = -1.0 if dynamics.control_mode == "min" else 1.0
+        omega = sign * dynamics.omega_max * jnp.clip(p[2] / scale, -1.0, 1.0)
+    return v, omega
+
+
 def missing_members(obj) -> list[str]:
     """The members of :class:`PlanningModel` that ``obj`` lacks (``[]``: it has them all)."""
     return [name for name in PLANNING_MODEL_MEMBERS if not hasattr(obj, name)]
@@ -131,7 +152,7 @@ def dubins_control_between(x0, x1, dt) -> tuple[float, float]:
 class DubinsPlanning:
     """The papers' planning model: a :class:`stp_env.dynamics.DubinsWind` (``U^p``, for robust trajectory tracking
     no wind) with exact Dubins motion (:func:`stp_env.kinematics.dubins_step`) and the saturated planning controller
-    (:func:`stp_env.planning.single.saturated_control`)."""
+    (:func:`saturated_control`)."""
 
     dynamics: DubinsWind
 
@@ -156,13 +177,9 @@ class DubinsPlanning:
         return not self.dynamics.heading_disturbance > 0
 
     def control(self, x, p) -> tuple:
-        from stp_env.planning.single import saturated_control
-
         return saturated_control(self.dynamics, x, p)
 
     def step(self, x, u, wind, dt):
-        from stp_env.kinematics import dubins_step
-
         return dubins_step(x, u[0], u[1], wind, dt)
 
     def step64(self, states, controls, dt) -> np.ndarray:

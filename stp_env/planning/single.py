@@ -25,10 +25,14 @@ import numpy as np
 from stp_env import hj
 from stp_env.angles import wrap_angle
 from stp_env.dynamics import DubinsWind
-from stp_env.planning.model import PlanningModel, as_planning_model
+from stp_env.planning.model import (  # noqa: F401  (TURN_DEADBAND, saturated_control: re-exported, their old place)
+    TURN_DEADBAND,
+    PlanningModel,
+    as_planning_model,
+    saturated_control,
+)
 from stp_env.planning.plan import InfeasiblePlanError, SinglePlan
 
-TURN_DEADBAND = 0.05
 SOLVERS = ("hj", "split")
 
 
@@ -47,18 +51,6 @@ def planning_control(grid: hj.Grid, dynamics: PlanningModel | DubinsWind, slice_
     xs, ps = (x[0], x[1], x[2]), (p[0], p[1], p[2])
     d = model.dynamics.optimal_disturbance(xs, ps)
     return jnp.stack(model.control(xs, ps)), jnp.stack(d) if d else jnp.zeros(2, x.dtype)
-
-
-def saturated_control(dynamics: DubinsWind, x, p) -> tuple:
-    """``(v, omega)`` of the planning controller for state(s) ``x`` and value gradient(s) ``p``
-    (structure-of-arrays, so one state or whole grids): ``arg min_u max_d p . f`` (eqs. 11, 37; SPP eq. 13) with
-    the turn rate saturated-linear (:func:`planning_control`)."""
-    v, omega = dynamics.optimal_control(x, p)
-    if dynamics.omega_max > 0:
-        scale = TURN_DEADBAND * jnp.hypot(p[0], p[1]) * dynamics.v_max / dynamics.omega_max + 1e-12
-        sign = -1.0 if dynamics.control_mode == "min" else 1.0
-        omega = sign * dynamics.omega_max * jnp.clip(p[2] / scale, -1.0, 1.0)
-    return v, omega
 
 
 MAX_TURN_PER_SAMPLE = 0.3
