@@ -18,6 +18,7 @@ from stp_env.hj.sets import Box, ProductSet
 from stp_env.kinematics import dubins_step
 from stp_env.planning.brs import check_split_dynamics
 from stp_env.planning.model import (
+    PLANNING_MODEL_MEMBERS,
     DubinsPlanning,
     PlanningModel,
     as_planning_model,
@@ -148,6 +149,10 @@ def test_a_second_planning_model_is_planned_by_the_sequential_planner(tmp_path):
 
 
 def test_a_model_is_refused_by_the_member_it_lacks():
+    # The members named in refusals are the protocol's.
+    assert {name for name in vars(PlanningModel) if not name.startswith("_")} == set(PLANNING_MODEL_MEMBERS)
+    assert not isinstance(object(), PlanningModel) and isinstance(DubinsPlanning(VEHICLE), PlanningModel)
+
     class NoStep:
         dynamics = PLANNER_DYN = DubinsWind(v_min=0.5, v_max=0.6, omega_max=0.5, wind=0.0)
         speed_bounds, omega_max, wind, heading_split = (0.5, 0.6), 0.5, 0.0, True
