@@ -57,13 +57,13 @@ goes back past the earlier ones: up to 382 s before its slot in the 1200 s plan)
 
 SLICE_DT = {"city-case3": 3.0, **{f"city-{kind}{k}": 3.0 for kind in ("kbar", "intruder-kbar") for k in (2, 3, 4)},
             "bay-area": 5.0}
-"""A cap on the BRS slice spacing [s] (``plan_rtt``'s ``max_slice_dt``): with the 1200 s horizon the default is 6 s,
+"""A cap on the BRS slice spacing [s] (``PlanningProblem.max_slice_dt``): with the 1200 s horizon the default is 6 s,
 and Case 3 then had one pair of trajectories 0.16 m beyond the planner's separation tolerance; with 3 s it passes
 (Cases 2 and 4 were planned with 6 s slices and pass; Case 1 fails either way, see :data:`HOLD_SLICES`)."""
 
 
 HOLD_SLICES = {"city-case1": 1}
-"""Plans made with ``plan_rtt``'s ``hold_slices`` (every higher-priority disk kept that many BRS slices longer before
+"""Plans made with ``PlanningProblem.hold_slices`` (every higher-priority disk kept that many BRS slices longer before
 its departure and after its arrival). City Case 1 (11 m/s, all STAs equal) had a pair 41.8 m inside the separation at
 the instant the higher-priority vehicle arrived (6 s slices; with 3 s slices three pairs up to 32 m); with one slice
 held its worst pair is 9.0 m inside, within the half-cell tolerance. Not the default: it costs a shared origin a

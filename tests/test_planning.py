@@ -10,6 +10,7 @@ import pytest
 
 from stp_env import hj
 from stp_env.dynamics import DubinsWind
+from stp_env.planning.problem import PlanningProblem
 from stp_env.planning.single import InfeasiblePlanError, TubeExcursionWarning, departure_in_tube, plan_single
 from stp_env.planning.stp import plan_rtt
 
@@ -55,9 +56,11 @@ def test_crossing_vehicles_keep_the_induced_obstacle_apart():
     # Two vehicles crossing at right angles with the same STA: the lower-priority one must leave earlier or
     # detour, and its nominal trajectory stays outside the higher-priority disk R_c + 2 r_e.
     rc, r_e = 0.2, 0.05
-    plan = plan_rtt(GRID, VEHICLE, (0.5, 0.6), 0.5, r_e, rc,
-                    starts=[(-1.2, 0.0, 0.0), (0.0, -1.2, np.pi / 2)], targets=[(1.2, 0.0), (0.0, 1.2)],
-                    target_radius=0.25, stas=[0.0, 0.0], horizon=8.0, progress=False)
+    problem = PlanningProblem.dubins(GRID, VEHICLE, (0.5, 0.6), 0.5, r_e, rc,
+                                     starts=[(-1.2, 0.0, 0.0), (0.0, -1.2, np.pi / 2)],
+                                     targets=[(1.2, 0.0), (0.0, 1.2)], target_radius=0.25, stas=[0.0, 0.0],
+                                     horizon=8.0)
+    plan = plan_rtt(problem, progress=False)
     first, second = (v.plan for v in plan.vehicles)
     dx = GRID.spacing[0]
     assert first.arrival_time <= 0.05 and second.arrival_time <= 0.05
@@ -73,14 +76,14 @@ def test_crossing_vehicles_keep_the_induced_obstacle_apart():
 
 def test_bad_inputs():
     with pytest.raises(ValueError, match="permutation"):
-        plan_rtt(GRID, VEHICLE, (0.5, 0.6), 0.5, 0.05, 0.2, [(-1, 0, 0), (0, -1, 0)], [(1, 0), (0, 1)], 0.25,
-                 [0.0, 0.0], priorities=[0, 0], horizon=5.0, progress=False)
+        PlanningProblem.dubins(GRID, VEHICLE, (0.5, 0.6), 0.5, 0.05, 0.2, [(-1, 0, 0), (0, -1, 0)], [(1, 0), (0, 1)],
+                               0.25, [0.0, 0.0], priorities=[0, 0], horizon=5.0)
     with pytest.raises(ValueError, match="not smaller than its target radius"):
-        plan_rtt(GRID, VEHICLE, (0.5, 0.6), 0.5, 0.3, 0.2, [(-1, 0, 0)], [(1, 0)], 0.25, [0.0], horizon=5.0,
-                 progress=False)
-    with pytest.raises(ValueError, match="needs buffer_radius"):
-        plan_rtt(GRID, VEHICLE, (0.5, 0.6), 0.5, 0.05, 0.2, [(-1, 0, 0)], [(1, 0)], 0.25, [0.0], horizon=5.0,
-                 kbar=2, progress=False)
+        PlanningProblem.dubins(GRID, VEHICLE, (0.5, 0.6), 0.5, 0.3, 0.2, [(-1, 0, 0)], [(1, 0)], 0.25, [0.0],
+                               horizon=5.0)
+    with pytest.raises(ValueError, match="got kbar without buffer_radius, obstacle_profiles"):
+        PlanningProblem.dubins(GRID, VEHICLE, (0.5, 0.6), 0.5, 0.05, 0.2, [(-1, 0, 0)], [(1, 0)], 0.25, [0.0],
+                               horizon=5.0, kbar=2)
 
 
 def test_plan_scenario_tiny_arrives_and_separates():

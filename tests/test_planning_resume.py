@@ -14,6 +14,7 @@ from stp_env import hj
 from stp_env.dynamics import DubinsWind
 from stp_env.planning import checkpoint
 from stp_env.planning.brs import heading_min_filter
+from stp_env.planning.problem import PlanningProblem
 from stp_env.planning.single import plan_single
 from stp_env.planning.stp import plan_rtt, plan_to_arrays
 
@@ -72,10 +73,14 @@ def test_split_step_is_set_by_the_position_axes_on_the_city_grid():
     assert split > 2.5 * unsplit
 
 
+def _problem(starts=STARTS, targets=TARGETS, stas=(0.0, 0.0, 0.0), priorities=None, **fields):
+    return PlanningProblem.dubins(GRID, VEHICLE, (0.5, 0.6), 0.5, 0.05, 0.2, starts, targets, 0.25, list(stas),
+                                  priorities, horizon=8.0, **fields)
+
+
 def _plan(tmp_path=None, on_vehicle=None, stas=(0.0, 0.0, 0.0)):
-    return plan_rtt(GRID, VEHICLE, (0.5, 0.6), 0.5, 0.05, 0.2, STARTS, TARGETS, 0.25, list(stas), [2, 0, 1],
-                    horizon=8.0, progress=False, checkpoint=None if tmp_path is None else tmp_path / "ck.npz",
-                    on_vehicle=on_vehicle)
+    return plan_rtt(_problem(stas=stas, priorities=[2, 0, 1]), progress=False,
+                    checkpoint=None if tmp_path is None else tmp_path / "ck.npz", on_vehicle=on_vehicle)
 
 
 class _Stop(Exception):
@@ -196,8 +201,7 @@ def test_a_split_trajectory_that_never_arrives_is_planned_with_the_unsplit_solve
 
     monkeypatch.setattr(stp, "plan_single", split_never_arrives)
     with pytest.warns(UserWarning, match="never reaches the target"):
-        plan = plan_rtt(GRID, VEHICLE, (0.5, 0.6), 0.5, 0.05, 0.2, STARTS[:1], TARGETS[:1], 0.25, [0.0],
-                        horizon=8.0, progress=False)
+        plan = plan_rtt(_problem(STARTS[:1], TARGETS[:1], [0.0]), progress=False)
     assert calls == ["split", "hj"]
     assert plan.vehicles[0].plan.arrival_time <= 0.0
 
@@ -205,16 +209,14 @@ def test_a_split_trajectory_that_never_arrives_is_planned_with_the_unsplit_solve
 @pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf")])
 def test_max_slice_dt_must_be_a_positive_number(bad):
     with pytest.raises(ValueError, match="max_slice_dt"):
-        plan_rtt(GRID, VEHICLE, (0.5, 0.6), 0.5, 0.05, 0.2, STARTS, TARGETS, 0.25, [0.0] * 3, horizon=8.0,
-                 progress=False, max_slice_dt=bad)
+        _problem(max_slice_dt=bad)
 
 
 def test_the_slice_spacing_is_part_of_the_checkpoint_key(tmp_path):
     def plan(cap, on_vehicle):
         # horizon / 200 = 0.04 s above the 0.02 s time step: a cap of 0.03 s changes the slices, one of 0.05 s does not
-        return plan_rtt(GRID, VEHICLE, (0.5, 0.6), 0.5, 0.05, 0.2, STARTS, TARGETS, 0.25, [0.0] * 3, horizon=8.0,
-                        time_step=0.02, progress=False, checkpoint=tmp_path / "ck.npz", on_vehicle=on_vehicle,
-                        max_slice_dt=cap)
+        return plan_rtt(_problem(time_step=0.02, max_slice_dt=cap), progress=False, checkpoint=tmp_path / "ck.npz",
+                        on_vehicle=on_vehicle)
 
     def stop(rank, index, single):
         raise _Stop

@@ -38,34 +38,40 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env import hj
-from stp_env.dynamics import DubinsWind
 from stp_env.hj.derivatives import one_sided_derivatives
+from stp_env.planning.model import PlanningModel, as_planning_model
 
 MAX_TURN_PER_STEP = 0.5
 """Largest heading window [rad] of one split step (``w_max * h``); with it the city's step is 0.42 s (7.6 s of
 turn at 1.2 rad/s would be 1.4 s)."""
 
 
-def check_split_dynamics(dynamics) -> None:
-    """The split is exact only for a Dubins vehicle whose controller minimises and whose disturbance leaves the
-    heading alone."""
-    if not isinstance(dynamics, DubinsWind):
-        raise ValueError(f"the heading-split BRS needs DubinsWind dynamics; got {type(dynamics).__name__}.")
-    if dynamics.control_mode != "min" or dynamics.heading_disturbance > 0:
+def check_split_dynamics(model) -> PlanningModel:
+    """``model`` as a planning model (:func:`stp_env.planning.model.as_planning_model`: a ``DubinsWind`` or anything
+    with the members of :class:`stp_env.planning.model.PlanningModel`), checked for the split: it is exact only for
+    dynamics whose controller minimises and whose heading turns at the control's rate alone
+    (:attr:`~stp_env.planning.model.PlanningModel.heading_split`; for ``DubinsWind``: no heading disturbance)."""
+    model = as_planning_model(model)
+    dynamics = model.dynamics
+    if dynamics.control_mode != "min" or not model.heading_split:
+        detail = (f"heading_disturbance={dynamics.heading_disturbance}" if hasattr(dynamics, "heading_disturbance")
+                  else f"heading_split={model.heading_split}")
         raise ValueError("the heading-split BRS needs control_mode='min' and no heading disturbance; got "
-                         f"control_mode={dynamics.control_mode!r}, heading_disturbance={dynamics.heading_disturbance}.")
+                         f"control_mode={dynamics.control_mode!r}, {detail}.")
+    return model
 
 
-def split_time_step(settings: hj.SolverSettings, dynamics: DubinsWind, grid: hj.Grid) -> float:
+def split_time_step(settings: hj.SolverSettings, model: PlanningModel, grid: hj.Grid) -> float:
     """The CFL step of the position axes (``cfl / max_x sum_{i in (x, y)} alpha_i(x) / dx_i``), capped so that a
-    step turns at most :data:`MAX_TURN_PER_STEP`."""
+    step turns at most :data:`MAX_TURN_PER_STEP` (``model``: a planning model or a ``DubinsWind``)."""
+    model = as_planning_model(model)
     states = grid.broadcast_states()
-    alpha = dynamics.partial_bounds(states)
+    alpha = model.dynamics.partial_bounds(states)
     denom = float(jnp.max(jnp.broadcast_to(jnp.abs(alpha[0]) / grid.spacing[0] + jnp.abs(alpha[1]) / grid.spacing[1],
                                            grid.shape)))
     dt = settings.cfl / denom if denom > 0 else math.inf
-    if dynamics.omega_max > 0:
-        dt = min(dt, MAX_TURN_PER_STEP / dynamics.omega_max)
+    if model.omega_max > 0:
+        dt = min(dt, MAX_TURN_PER_STEP / model.omega_max)
     if not math.isfinite(dt):
         raise ValueError("the dynamics neither move nor turn: no time step.")
     return dt
@@ -88,7 +94,7 @@ def heading_min_filter(values, width: float):
     return out
 
 
-def _position_rate(settings, dynamics, grid, states, values):
+def _position_rate(settings, model, grid, states, values):
     """``dV/ds`` of the position part (backward, solver time ``s = -t``), local Lax-Friedrichs."""
     lefts, rights = [], []
     for axis in (0, 1):
@@ -98,13 +104,13 @@ def _position_rate(settings, dynamics, grid, states, values):
         rights.append(right)
     zero = jnp.zeros((), values.dtype)
     p_mean = (0.5 * (lefts[0] + rights[0]), 0.5 * (lefts[1] + rights[1]), zero)
-    ham = dynamics.hamiltonian(states, p_mean)
-    alpha = dynamics.partial_bounds(states)
+    ham = model.dynamics.hamiltonian(states, p_mean)
+    alpha = model.dynamics.partial_bounds(states)
     diss = 0.5 * (alpha[0] * (rights[0] - lefts[0]) + alpha[1] * (rights[1] - lefts[1]))
     return jnp.broadcast_to(diss + ham, values.shape)
 
 
-def _split_step(settings, dynamics, grid, states, values, h: float, flag):
+def _split_step(settings, model, grid, states, values, h: float, flag):
     """One Lie step of size ``h`` backward: Runge-Kutta on the position part, then the heading window.
 
     The heading window runs inside a conditional on ``flag`` (a traced ``True``): the conditional's operand, the
@@ -113,7 +119,7 @@ def _split_step(settings, dynamics, grid, states, values, h: float, flag):
     ``optimization_barrier`` does not prevent that fusion, and a conditional around the Runge-Kutta step itself
     makes it 4x slower inside the time loop."""
     def rate(v):
-        return _position_rate(settings, dynamics, grid, states, v)
+        return _position_rate(settings, model, grid, states, v)
 
     v1 = values + h * rate(values)
     if settings.integrator == "euler":
@@ -126,14 +132,14 @@ def _split_step(settings, dynamics, grid, states, values, h: float, flag):
             v3 = 0.75 * values + 0.25 * v2
             v3 = v3 + h * rate(v3)
             v = values / 3.0 + (2.0 / 3.0) * v3
-    if dynamics.omega_max > 0:
-        width = dynamics.omega_max * h / grid.spacing[2]
+    if model.omega_max > 0:
+        width = model.omega_max * h / grid.spacing[2]
         v = jax.lax.cond(flag, lambda v: heading_min_filter(v, width), lambda v: v, v)
     return v
 
 
-@functools.partial(jax.jit, static_argnames=("settings", "dynamics", "grid", "obstacle_fn", "h", "per_slice"))
-def _solve(target, x0, times, stop_time, obstacle_params, flag, *, settings, dynamics, grid, obstacle_fn, h, per_slice):
+@functools.partial(jax.jit, static_argnames=("settings", "model", "grid", "obstacle_fn", "h", "per_slice"))
+def _solve(target, x0, times, stop_time, obstacle_params, flag, *, settings, model, grid, obstacle_fn, h, per_slice):
     """The tube over the decreasing, evenly spaced slice ``times`` (``(n,)``), ``per_slice`` steps of ``h``
     between two slices (``flag``: a traced ``True``, see :func:`_split_step`), stopped after the first slice ``k``
     at which ``x0`` has a finite time-to-reach and ``times[k] <= stop_time``. Returns ``(stack, k, ttr, n_steps)``:
@@ -175,7 +181,7 @@ def _solve(target, x0, times, stop_time, obstacle_params, flag, *, settings, dyn
         def step(i, c):
             v, ttr = c
             t_new = times[k] - (i + 1) * h
-            v_new = _split_step(settings, dynamics, grid, states, v, h, flag)
+            v_new = _split_step(settings, model, grid, states, v, h, flag)
             v_new = obstacle(t_new, jnp.minimum(v_new, target))
             frac = jnp.where(v > 0, v / jnp.maximum(v - v_new, 1e-30), 0.0)
             crossing = elapsed0 + i * h + jnp.clip(frac, 0.0, 1.0) * h
@@ -193,7 +199,7 @@ def _solve(target, x0, times, stop_time, obstacle_params, flag, *, settings, dyn
     return stack, k, ttr, steps
 
 
-def solve_until_departure(settings: hj.SolverSettings, dynamics: DubinsWind, grid: hj.Grid, times, target, x0,
+def solve_until_departure(settings: hj.SolverSettings, model: PlanningModel, grid: hj.Grid, times, target, x0,
                           obstacle_fn=None, obstacle_params=None, depart_at: float | None = None):
     """The planning tube (reach ``{target <= 0}``, avoid ``{obstacle_fn(t) <= 0}``, tube mode
     ``"min_with_target"``) over the decreasing, evenly spaced slice ``times``, heading-split, stopped at the first
@@ -204,9 +210,9 @@ def solve_until_departure(settings: hj.SolverSettings, dynamics: DubinsWind, gri
     Returns ``(time_to_reach, n_solved, n_steps, stack)``: the time-to-reach measured from ``times[0]``, how many
     slices were solved (``times[:n_solved]``), the solver steps, and the values at every slice in *ascending* time
     (``stack[-n_solved:]`` are the solved ones; the earlier entries repeat the earliest solved slice, so every
-    vehicle has one shape).
+    vehicle has one shape). ``model``: a planning model or a ``DubinsWind`` (:func:`check_split_dynamics`).
     """
-    check_split_dynamics(dynamics)
+    model = check_split_dynamics(model)
     if not grid.is_periodic[2] or grid.ndim != 3:
         raise ValueError("the heading-split BRS needs a 3-D grid (p_x, p_y, theta) with a periodic heading.")
     times = np.asarray(times, np.float64)
@@ -217,11 +223,11 @@ def solve_until_departure(settings: hj.SolverSettings, dynamics: DubinsWind, gri
         raise ValueError("the heading-split BRS needs evenly spaced slice times.")
     # Every step the same size (the heading window is compiled in): the largest that divides a slice interval.
     span = float(spans.mean())
-    per_slice = max(1, math.ceil(span / split_time_step(settings, dynamics, grid) - 1e-9))
+    per_slice = max(1, math.ceil(span / split_time_step(settings, model, grid) - 1e-9))
     h = span / per_slice
     stop = math.inf if depart_at is None else float(depart_at)
     f32 = jnp.float32
     stack, k, ttr, steps = _solve(jnp.asarray(target, f32), jnp.asarray(x0, f32), jnp.asarray(times, f32),
-                                  f32(stop), obstacle_params, jnp.bool_(True), settings=settings, dynamics=dynamics,
+                                  f32(stop), obstacle_params, jnp.bool_(True), settings=settings, model=model,
                                   grid=grid, obstacle_fn=obstacle_fn, h=h, per_slice=per_slice)
     return ttr, int(k) + 1, int(steps), stack

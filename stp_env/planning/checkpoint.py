@@ -185,13 +185,16 @@ def _read(path) -> tuple[str, list[tuple[int, SinglePlan]]]:
 
 
 def check_plans(path, plans: list[tuple[int, SinglePlan]], *, starts, targets, target_radii, stas, priorities,
-                tracking_bound: float, time_step: float, planning_v, planning_omega_max: float) -> None:
+                tracking_bound: float, time_step: float, planning_v, planning_omega_max: float,
+                model=None) -> None:
     """The checks of a finished plan (:func:`stp_env.planning.verify.trajectory_faults`), run on the plans a
     checkpoint holds before a run resumes from them: every stored time, state and control finite; samples from the
     departure ``time_step`` apart; the first at the vehicle's start; controls in ``U^p``; each sample the exact step
     of the one before; the recorded arrival the first sample in the shrunk target; and each plan's STA the
-    problem's. A checkpoint with the right key and other contents (edited, or written by a faulty planner) is a
-    one-line ``ValueError`` naming the file and the first faulty vehicle, never a resumed plan of NaN."""
+    problem's (``model``: the planning model whose motion the samples follow,
+    :class:`stp_env.planning.model.PlanningModel`; default Dubins). A checkpoint with the right key and other
+    contents (edited, or written by a faulty planner) is a one-line ``ValueError`` naming the file and the first
+    faulty vehicle, never a resumed plan of NaN."""
     from types import SimpleNamespace
 
     from stp_env.planning.plan import Plan, VehiclePlan
@@ -212,7 +215,7 @@ def check_plans(path, plans: list[tuple[int, SinglePlan]], *, starts, targets, t
         plan = Plan(vehicles=(VehiclePlan(index=i, priority=rank[i], plan=single, obstacle_lags=empty,
                                           obstacle_radii=empty),),
                     tracking_bound=float(tracking_bound), collision_radius=0.0, kbar=None)
-        why = trajectory_faults(plan, problem).get(i, [])
+        why = trajectory_faults(plan, problem, model=model).get(i, [])
         if not (single.sta == float(stas[i])):
             why.append(f"STA {single.sta:.6g} s, the problem's {float(stas[i]):.6g} s")
         if why:

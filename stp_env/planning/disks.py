@@ -64,7 +64,7 @@ def fold_contained_disks(lags: np.ndarray, radii: np.ndarray, speed: float):
 
 
 def aware_obstacles(scenario, tracking_bound: float, *, store=None, progress: bool = True) -> dict:
-    """The intruder-aware keyword arguments of :func:`stp_env.planning.stp.plan_rtt` for ``scenario`` (``{}`` when
+    """The intruder-aware fields of :class:`stp_env.planning.problem.PlanningProblem` for ``scenario`` (``{}`` when
     its ``kbar`` is ``None``): ``kbar``, the buffer radius (:func:`stp_env.reach.buffer.buffer_radii`, from the avoid
     and relative-buffer artifacts of the scenario's vehicle, cached in ``store``) and the obstacle lag profiles."""
     from stp_env.artifacts import ArtifactStore

@@ -25,35 +25,32 @@ import numpy as np
 from stp_env import hj
 from stp_env.angles import wrap_angle
 from stp_env.dynamics import DubinsWind
+from stp_env.planning.model import (  # noqa: F401  (TURN_DEADBAND, saturated_control: re-exported, their old place)
+    TURN_DEADBAND,
+    PlanningModel,
+    as_planning_model,
+    saturated_control,
+)
 from stp_env.planning.plan import InfeasiblePlanError, SinglePlan
 
-TURN_DEADBAND = 0.05
 SOLVERS = ("hj", "split")
 
 
-def planning_control(grid: hj.Grid, dynamics: DubinsWind, slice_times, stack, t, x):
+def planning_control(grid: hj.Grid, dynamics: PlanningModel | DubinsWind, slice_times, stack, t, x):
     """Optimal control and disturbance (eqs. 11, 37) at ``(t, x)`` from the BRS slices (jittable): the
-    gradient is a one-cell central difference of the interpolated value.
+    gradient is a one-cell central difference of the interpolated value; the control is the planning model's
+    (:meth:`stp_env.planning.model.PlanningModel.control`; for a ``DubinsWind``, :func:`saturated_control`), the
+    disturbance its solver dynamics' optimal one (a zero wind ``(2,)`` for dynamics without disturbance).
 
     The turn rate is bang-bang in theory; on a grid its switching function ``dV/dtheta`` is noise around zero on
     a straight optimal path, and a literal sign makes the vehicle chatter and arrive late. It is therefore
     saturated-linear: full turn once turning changes ``V`` at least ``TURN_DEADBAND`` times as fast as the best
     translation does, proportional below."""
+    model = as_planning_model(dynamics)
     p = hj.interpolation.gradient_slices(grid, slice_times, stack, t, x)
     xs, ps = (x[0], x[1], x[2]), (p[0], p[1], p[2])
-    return jnp.stack(saturated_control(dynamics, xs, ps)), jnp.stack(dynamics.optimal_disturbance(xs, ps))
-
-
-def saturated_control(dynamics: DubinsWind, x, p) -> tuple:
-    """``(v, omega)`` of the planning controller for state(s) ``x`` and value gradient(s) ``p``
-    (structure-of-arrays, so one state or whole grids): ``arg min_u max_d p . f`` (eqs. 11, 37; SPP eq. 13) with
-    the turn rate saturated-linear (:func:`planning_control`)."""
-    v, omega = dynamics.optimal_control(x, p)
-    if dynamics.omega_max > 0:
-        scale = TURN_DEADBAND * jnp.hypot(p[0], p[1]) * dynamics.v_max / dynamics.omega_max + 1e-12
-        sign = -1.0 if dynamics.control_mode == "min" else 1.0
-        omega = sign * dynamics.omega_max * jnp.clip(p[2] / scale, -1.0, 1.0)
-    return v, omega
+    d = model.dynamics.optimal_disturbance(xs, ps)
+    return jnp.stack(model.control(xs, ps)), jnp.stack(d) if d else jnp.zeros(2, x.dtype)
 
 
 MAX_TURN_PER_SAMPLE = 0.3
@@ -82,15 +79,16 @@ TUBE_TOLERANCE_CELLS = 1.0
 """A nominal trajectory whose tube value ``V(t, x(t))`` exceeds this many cells (of the finest position axis) before
 its arrival or the STA has left the reach-avoid tube: it may enter an obstacle (:func:`plan_single_with_slices`
 keeps the better extraction and warns). The numerical tube is optimistic by about a cell, so a trajectory that
-keeps to it can fall up to about a cell behind its zero level near the STA (``plan_rtt``'s ``arrival_margin``
+keeps to it can fall up to about a cell behind its zero level near the STA (the problem's ``arrival_margin``
 absorbs that; measured on ``tiny-intruder``: 43 m with 50 m cells, 2 s before the aimed arrival)."""
 
 
-@functools.partial(jax.jit, static_argnames=("grid", "dynamics", "n_steps", "wind_mode", "extraction"))
-def _rollout(key, x0, t0, dt, slice_times, stack, time_to_reach, *, grid, dynamics, n_steps, wind_mode,
+@functools.partial(jax.jit, static_argnames=("grid", "model", "n_steps", "wind_mode", "extraction"))
+def _rollout(key, x0, t0, dt, slice_times, stack, time_to_reach, *, grid, model, n_steps, wind_mode,
              extraction="goal"):
-    """The nominal trajectory: a control evaluated at every sample and held over it, with the exact Dubins motion
-    (:func:`stp_env.kinematics.dubins_step`) under a wind held over the sample. With ``wind_mode="zero"`` (robust
+    """The nominal trajectory: a control evaluated at every sample and held over it, with the planning model's
+    exact motion (:meth:`stp_env.planning.model.PlanningModel.step`; Dubins: :func:`stp_env.kinematics.dubins_step`)
+    under a wind held over the sample. With ``wind_mode="zero"`` (robust
     trajectory tracking) the samples and controls therefore *are* a trajectory of the planning dynamics at every
     instant: the simulator reconstructs the reference between samples exactly
     (:func:`stp_env.sim.reference.nominal_reference`). Returns the states at the samples and the controls held
@@ -112,33 +110,31 @@ def _rollout(key, x0, t0, dt, slice_times, stack, time_to_reach, *, grid, dynami
 
     Returns ``(states, controls, values)`` at the samples; ``values`` is the tube value ``V(t, x(t))`` (positive:
     the trajectory has left the tube)."""
-    from stp_env.kinematics import dubins_step
-
     margin = EXTRACTION_MARGIN_CELLS * float(min(grid.spacing[:2]))
     sta = slice_times[-1]
 
     def wind(key, d_opt):
-        if wind_mode == "zero" or dynamics.wind == 0:
+        if wind_mode == "zero" or model.wind == 0:
             return jnp.zeros(2)
         if wind_mode == "worst":
             return d_opt[:2]
         ang = jax.random.uniform(key, (), minval=-jnp.pi, maxval=jnp.pi)
-        r = dynamics.wind * jnp.sqrt(jax.random.uniform(jax.random.fold_in(key, 1)))
+        r = model.wind * jnp.sqrt(jax.random.uniform(jax.random.fold_in(key, 1)))
         return r * jnp.array([jnp.cos(ang), jnp.sin(ang)])
 
     def step(carry, k):
         x, key = carry
         key, sub = jax.random.split(key)
         t = t0 + k * dt
-        u_safe, d_safe = planning_control(grid, dynamics, slice_times, stack, t, x)
-        x_safe = dubins_step(x, u_safe[0], u_safe[1], wind(sub, d_safe), dt)
+        u_safe, d_safe = planning_control(grid, model, slice_times, stack, t, x)
+        x_safe = model.step(x, u_safe, wind(sub, d_safe), dt)
         value = hj.interpolation.interpolate_slices(grid, slice_times, stack, t, x)
         if extraction == "tube":
             return (x_safe, key), (x, u_safe, value)
         ttr = hj.interpolation.time_to_reach_at(grid, time_to_reach, x)
         t_goal = jnp.clip(jnp.where(jnp.isfinite(ttr), sta - ttr, t), t, sta)
-        u_goal, d_goal = planning_control(grid, dynamics, slice_times, stack, t_goal, x)
-        x_goal = dubins_step(x, u_goal[0], u_goal[1], wind(sub, d_goal), dt)
+        u_goal, d_goal = planning_control(grid, model, slice_times, stack, t_goal, x)
+        x_goal = model.step(x, u_goal, wind(sub, d_goal), dt)
         ok = hj.interpolation.interpolate_slices(grid, slice_times, stack, t + dt, x_goal) <= -margin
         return (jnp.where(ok, x_goal, x_safe), key), (x, jnp.where(ok, u_goal, u_safe), value)
 
@@ -146,15 +142,15 @@ def _rollout(key, x0, t0, dt, slice_times, stack, time_to_reach, *, grid, dynami
     return xs, us, vs
 
 
-def plan_single(grid: hj.Grid, dynamics: DubinsWind, start, target_center, target_radius: float, sta: float,
-                horizon: float, **kwargs) -> SinglePlan:
+def plan_single(grid: hj.Grid, dynamics: PlanningModel | DubinsWind, start, target_center, target_radius: float,
+                sta: float, horizon: float, **kwargs) -> SinglePlan:
     """Plans one vehicle (intruder paper eqs. 35-37); the arguments are those of :func:`plan_single_with_slices`,
     which also returns the BRS slices the trajectory controller used."""
     return plan_single_with_slices(grid, dynamics, start, target_center, target_radius, sta, horizon, **kwargs)[0]
 
 
-def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_center, target_radius: float,
-                            sta: float, horizon: float, *, obstacle_fn=None, obstacle_params=None,
+def plan_single_with_slices(grid: hj.Grid, dynamics: PlanningModel | DubinsWind, start, target_center,
+                            target_radius: float, sta: float, horizon: float, *, obstacle_fn=None, obstacle_params=None,
                             settings: hj.SolverSettings | None = None, slice_dt: float | None = None,
                             time_step: float = 0.05, wind_mode: str = "zero", seed: int = 0,
                             depart_at: float | None = None, progress: bool = False,
@@ -166,8 +162,9 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
 
     Args:
         grid: ``(p_x, p_y, theta)`` grid, heading periodic.
-        dynamics: the planning dynamics (for robust trajectory tracking: the reduced control set ``U^p`` and no
-            wind; roles: control ``"min"``, disturbance ``"max"``).
+        dynamics: the planning model (:class:`stp_env.planning.model.PlanningModel`), or a ``DubinsWind`` (planned
+            as :class:`stp_env.planning.model.DubinsPlanning`); for robust trajectory tracking the reduced control
+            set ``U^p`` and no wind; roles: control ``"min"``, disturbance ``"max"``.
         start: initial state ``(p_x, p_y, theta)``.
         target_center, target_radius: the target disk ``L`` [m].
         sta: scheduled time of arrival [s].
@@ -193,15 +190,19 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
     Raises:
         InfeasiblePlanError: if ``start`` cannot reach the target by ``sta`` within ``horizon``.
     """
+    model = as_planning_model(dynamics)
     if solver not in SOLVERS:
         raise ValueError(f"solver must be one of {SOLVERS}; got {solver!r}.")
+    if grid.ndim != model.dynamics.state_dim:
+        raise ValueError(f"the planning grid has {grid.ndim} dimensions and the planning model "
+                         f"{model.dynamics.state_dim} states; the planner plans (p_x, p_y, theta).")
     if wind_mode not in ("zero", "random", "worst"):
         raise ValueError(f"wind_mode must be 'zero', 'random' or 'worst'; got {wind_mode!r}.")
     if not (horizon > 0 and time_step > 0):
         raise ValueError(f"horizon and time_step must be positive; got {horizon}, {time_step}.")
-    if time_step * dynamics.omega_max > MAX_TURN_PER_SAMPLE + 1e-9:
-        raise ValueError(f"time_step ({time_step} s) turns up to {time_step * dynamics.omega_max:.2f} rad per sample "
-                         f"at omega_max = {dynamics.omega_max} rad/s; at most {MAX_TURN_PER_SAMPLE} rad is allowed "
+    if time_step * model.omega_max > MAX_TURN_PER_SAMPLE + 1e-9:
+        raise ValueError(f"time_step ({time_step} s) turns up to {time_step * model.omega_max:.2f} rad per sample "
+                         f"at omega_max = {model.omega_max} rad/s; at most {MAX_TURN_PER_SAMPLE} rad is allowed "
                          "(the planning controller is held over a sample).")
     start = np.asarray(start, np.float64)
     if not bool(grid.contains(jnp.asarray(start))):
@@ -219,16 +220,16 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
     if solver == "split":
         from stp_env.planning.brs import solve_until_departure
 
-        ttr, n_solved, n_steps, stack_all = solve_until_departure(settings, dynamics, grid, times, target, x0,
+        ttr, n_solved, n_steps, stack_all = solve_until_departure(settings, model, grid, times, target, x0,
                                                                   obstacle_fn, obstacle_params, depart_at)
         res = hj.ReachResult(values=stack_all[len(times) - n_solved:], times=times[:n_solved], n_steps=n_steps,
                              dt=math.nan, time_to_reach=ttr)  # values in ascending time
         times = times[:n_solved]
     elif early_stop:
-        res, times = _solve_until_departure(settings, dynamics, grid, times, target, x0, full_fn, obstacle_params,
+        res, times = _solve_until_departure(settings, model.dynamics, grid, times, target, x0, full_fn, obstacle_params,
                                             depart_at, progress)
     else:
-        res = hj.solve(settings, dynamics, grid, times, target, tube=True, obstacle=obstacle_params,
+        res = hj.solve(settings, model.dynamics, grid, times, target, tube=True, obstacle=obstacle_params,
                        obstacle_fn=full_fn, time_to_reach=True, progress=progress)
     t_ldt = float(sta - _time_to_reach_at(res.time_to_reach, x0, grid=grid))  # -inf if not reached
     if not math.isfinite(t_ldt):
@@ -273,7 +274,7 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
     for extraction in EXTRACTIONS:
         xs, us, vs = _rollout(jax.random.key(seed), jnp.asarray(start, jnp.float32), jnp.float32(t_start),
                               jnp.float32(time_step), slice_times, rollout_stack, res.time_to_reach, grid=grid,
-                              dynamics=dynamics, n_steps=n_scan, wind_mode=wind_mode, extraction=extraction)
+                              model=model, n_steps=n_scan, wind_mode=wind_mode, extraction=extraction)
         xs, us = np.asarray(xs, np.float64)[:n_steps], np.asarray(us, np.float64)[:n_steps]
         dist = np.hypot(xs[:, 0] - target_center[0], xs[:, 1] - target_center[1])
         inside = np.nonzero(dist <= target_radius)[0]
@@ -296,10 +297,10 @@ def plan_single_with_slices(grid: hj.Grid, dynamics: DubinsWind, start, target_c
     # vehicle that trails its reference by up to the error bound still has a moving reference to follow.
     plan = SinglePlan(t_ldt=t_start, sta=float(sta), times=sample_times, states=xs, controls=us,
                       arrival_time=arrival, n_steps=res.n_steps)
-    if wind_mode == "zero" or dynamics.wind == 0:  # each stored control must carry its sample to the next one
+    if wind_mode == "zero" or model.wind == 0:  # each stored control must carry its sample to the next one
         from stp_env.planning.verify import reconcile_controls
 
-        plan, _ = reconcile_controls(plan, time_step, (dynamics.v_min, dynamics.v_max), dynamics.omega_max)
+        plan, _ = reconcile_controls(plan, time_step, model.speed_bounds, model.omega_max, model=model)
     return plan, times[::-1].copy(), stack
 
 

@@ -16,7 +16,9 @@ conservative ``V^S`` of eqs. (32)-(33) (:func:`stp_env.reach.obstacles.static_in
 
 The centralized and least-restrictive induced-obstacle methods (SPP Sections IV-A, IV-B: forward reachable sets
 under the enforced feedback, or of all controls intersected with the BRS) are in :mod:`stp_env.planning.methods`;
-:func:`plan_scenario` dispatches on ``Scenario.method``. Replanning is in :mod:`stp_env.planning.replan`; plan
+:func:`plan_scenario` dispatches on ``Scenario.method``. What :func:`plan_rtt` plans is a
+:class:`stp_env.planning.problem.PlanningProblem` (:func:`problem_for_scenario` builds one for a scenario), with any
+planning model of :mod:`stp_env.planning.model`. Replanning is in :mod:`stp_env.planning.replan`; plan
 caching in :func:`cached_plan`.
 
 Each vehicle's BRS is solved by the heading-split scheme of :mod:`stp_env.planning.brs` (:data:`PLANNING_SOLVER`);
@@ -29,13 +31,11 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from collections.abc import Sequence
 
 import numpy as np
 from tqdm.auto import tqdm
 
 from stp_env import hj
-from stp_env.dynamics import DubinsWind
 from stp_env.planning import checkpoint as checkpoint_io
 from stp_env.planning.disks import (  # noqa: F401  (fold_contained_disks: re-exported, its old place)
     aware_obstacles,
@@ -52,6 +52,7 @@ from stp_env.planning.plan import (
     plan_from_arrays,
     plan_to_arrays,
 )
+from stp_env.planning.problem import PlanningProblem
 from stp_env.planning.single import TubeExcursionWarning, plan_single
 from stp_env.planning.verify import flight_clearance
 
@@ -80,89 +81,85 @@ the STA), at about half the cost per step of WENO5 + RK2; first-order upwinding 
 departs ~15 s earlier than needed (more dissipation, a smaller tube)."""
 
 
-def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float], planning_omega_max: float,
-             tracking_bound: float, collision_radius: float, starts: Sequence, targets: Sequence,
-             target_radius: float | Sequence[float], stas: Sequence[float], priorities: Sequence[int] | None = None,
-             *, horizon: float, kbar: int | None = None, buffer_radius: float | None = None,
-             obstacle_profiles: dict | None = None, static_obstacle=None,
-             settings: hj.SolverSettings | None = None, time_step: float = 0.05, arrival_margin: float | None = None,
-             progress: bool = True, solver: str | None = None, checkpoint=None, on_vehicle=None,
-             max_slice_dt: float | None = None, hold_slices: int = 0, disk_tolerance: float | None = None) -> Plan:
-    """Plans every vehicle with robust trajectory tracking (optionally intruder-aware).
+def plan_rtt(problem: PlanningProblem, *args, progress: bool = True, checkpoint=None, on_vehicle=None,
+             **kwargs) -> Plan:
+    """Plans every vehicle of ``problem`` with robust trajectory tracking (optionally intruder-aware).
+
+    ``problem`` (:class:`stp_env.planning.problem.PlanningProblem`) holds what is planned: the vehicles, the planning
+    model and ``U^p``, ``r_e`` and ``R_c``, the intruder-aware disks, the static obstacles, the horizon and the solver
+    settings. In particular:
+
+    * ``arrival_margin`` (default one cell at the slowest planning speed): the numerical tube is optimistic by about
+      a cell, so the nominal trajectory can reach the target up to ``dx / v`` late; the margin absorbs that.
+    * ``solver``: the BRS solver of :func:`stp_env.planning.single.plan_single_with_slices` (default
+      :data:`PLANNING_SOLVER`; ``"hj"`` is the unsplit solver, kept for comparisons).
+    * ``max_slice_dt``: the BRS is stored every ``horizon / 200`` s (at least ``time_step``) and trajectories are
+      extracted from those slices interpolated in time; this caps the spacing [s] (more slices, 2.2 MB each on the
+      city's grid). With 6 s slices (a 1200 s horizon) a city trajectory came 42 m inside another vehicle's disk at
+      the instant that vehicle arrived: the slice after a disk vanishes has none.
+    * ``hold_slices``: keep every higher-priority vehicle's disks this many slices (``hold_slices x`` the slice
+      spacing) longer before its departure and after its arrival, so that the slices on both sides of an
+      appearance or a disappearance hold the disk. One slice made city Case 1 hold the separation (its worst pair
+      went from 42 m to 9 m inside), but it costs a shared origin a slice per departure: city Case 0 then has no
+      departure for its 48th vehicle within the default horizon. Default 0.
+    * ``disk_tolerance``: how deep [m] a nominal trajectory may come into a higher-priority vehicle's disk (checked
+      exactly, at its samples) before the vehicle is planned again with the disks grown
+      (:func:`plan_clear_of_disks`); default :data:`DISK_TOLERANCE_CELLS` of the coarser position cell.
+    * intruder-aware (``kbar``): lag disks inside the buffer disk are folded into it (:func:`fold_contained_disks`).
 
     Args:
-        grid: planning grid ``(p_x, p_y, theta)``.
-        vehicle: the vehicles' full dynamics bounds (``U``, wind); the plan uses ``U^p`` and no wind.
-        planning_v, planning_omega_max: the planning set ``U^p``.
-        tracking_bound: ``r_e`` from :func:`stp_env.reach.tracking.compute_tracking_bound` [m].
-        collision_radius: ``R_c`` [m].
-        starts, targets, target_radius, stas: per vehicle ``(p_x, p_y, theta)``, target centre, radius, STA.
-        priorities: ``0`` = highest (default: input order).
-        horizon: planning horizon before each STA [s].
-        kbar, buffer_radius, obstacle_profiles: intruder-aware mode (all three or none); lag disks inside the
-            buffer disk are folded into it (:func:`fold_contained_disks`).
-        settings: solver settings (default :data:`PLANNING_SETTINGS`).
-        static_obstacle: signed distance to the static obstacles on the position plane (``grid.shape[:2]``),
-            already grown by whatever margin the caller needs (see :func:`plan_scenario`).
-        arrival_margin: plan to arrive this much before each STA [s]. The numerical tube is optimistic by about
-            a cell, so the nominal trajectory can reach the target up to ``dx / v`` late; the default, one cell at
-            the slowest planning speed, absorbs that.
-        solver: the BRS solver of :func:`stp_env.planning.single.plan_single_with_slices` (default
-            :data:`PLANNING_SOLVER`; ``"hj"`` is the unsplit solver, kept for comparisons).
+        problem: the planning problem.
+        progress: show a progress bar over the vehicles.
         checkpoint: path of a ``.npz`` checkpoint (:mod:`stp_env.planning.checkpoint`): the vehicles it holds are
             not planned again, and it is rewritten atomically after every vehicle, so an interrupted run resumes
             where it stopped, to the same plan bit for bit. A checkpoint of another problem is refused
             (:class:`stp_env.planning.checkpoint.CheckpointMismatchError`), and so is one whose plans fail the
             checks of a finished plan (:func:`stp_env.planning.checkpoint.check_plans`).
         on_vehicle: called as ``on_vehicle(rank, index, plan)`` after each vehicle is planned (and checkpointed).
-        max_slice_dt: the BRS is stored every ``horizon / 200`` s (at least ``time_step``) and trajectories are
-            extracted from those slices interpolated in time; this caps the spacing [s] (more slices, 2.2 MB each on
-            the city's grid). With 6 s slices (a 1200 s horizon) a city trajectory came 42 m inside another
-            vehicle's disk at the instant that vehicle arrived: the slice after a disk vanishes has none.
-        hold_slices: keep every higher-priority vehicle's disks this many slices (``hold_slices x`` the slice
-            spacing) longer before its departure and after its arrival, so that the slices on both sides of an
-            appearance or a disappearance hold the disk. One slice made city Case 1 hold the separation (its worst
-            pair went from 42 m to 9 m inside), but it costs a shared origin a slice per departure: city Case 0 then
-            has no departure for its 48th vehicle within the default horizon. Default 0.
-        disk_tolerance: how deep [m] a nominal trajectory may come into a higher-priority vehicle's disk (checked
-            exactly, at its samples) before the vehicle is planned again with the disks grown
-            (:func:`plan_clear_of_disks`); default :data:`DISK_TOLERANCE_CELLS` of the coarser position cell.
+
+    The argument list of the Dubins planner before the problem object (``plan_rtt(grid, vehicle, planning_v,
+    planning_omega_max, tracking_bound, collision_radius, starts, targets, target_radius, stas, priorities, *,
+    horizon, ...)``) is still taken, with a :class:`DeprecationWarning`: it is
+    :meth:`PlanningProblem.dubins` of the same arguments.
     """
-    if max_slice_dt is not None and not (math.isfinite(max_slice_dt) and max_slice_dt > 0):
-        raise ValueError(f"max_slice_dt must be a positive number of seconds; got {max_slice_dt}.")
-    if isinstance(hold_slices, bool) or not isinstance(hold_slices, (int, np.integer)) or hold_slices < 0:
-        raise ValueError(f"hold_slices must be a whole number of slices >= 0; got {hold_slices!r}.")
-    tolerance = DISK_TOLERANCE_CELLS * float(max(grid.spacing[:2])) if disk_tolerance is None else disk_tolerance
-    if not (isinstance(tolerance, (int, float, np.floating)) and math.isfinite(tolerance) and tolerance >= 0):
-        raise ValueError(f"disk_tolerance must be a finite number of metres >= 0; got {disk_tolerance!r}.")
-    n = len(starts)
-    solver = solver or PLANNING_SOLVER
-    radii = np.broadcast_to(np.asarray(target_radius, float), (n,))
-    if not (len(targets) == len(stas) == n):
-        raise ValueError(f"starts, targets and stas must have the same length; got {n}, {len(targets)}, "
-                         f"{len(stas)}.")
-    priorities = list(range(n)) if priorities is None else list(priorities)
-    if sorted(priorities) != list(range(n)):
-        raise ValueError(f"priorities must be a permutation of 0..{n - 1}; got {priorities}.")
-    aware = kbar is not None
-    if aware and (buffer_radius is None or obstacle_profiles is None):
-        raise ValueError("Intruder-aware planning (kbar given) needs buffer_radius and obstacle_profiles.")
+    if isinstance(problem, hj.Grid):
+        warnings.warn("plan_rtt(grid, vehicle, planning_v, ...) is deprecated; pass a PlanningProblem "
+                      "(PlanningProblem.dubins takes the same arguments).", DeprecationWarning, stacklevel=2)
+        problem = PlanningProblem.dubins(problem, *args, **kwargs)
+    elif not isinstance(problem, PlanningProblem):
+        raise TypeError(f"plan_rtt plans a stp_env.planning.problem.PlanningProblem; got {type(problem).__name__}.")
+    elif args or kwargs:
+        raise TypeError("plan_rtt(problem) takes only the keyword arguments progress, checkpoint and on_vehicle; got "
+                        f"{len(args)} more positional and {sorted(kwargs)}.")
+    return _plan_problem(problem, progress=progress, checkpoint=checkpoint, on_vehicle=on_vehicle)
+
+
+def _plan_problem(problem: PlanningProblem, *, progress: bool, checkpoint, on_vehicle) -> Plan:
+    """:func:`plan_rtt` of a checked problem."""
+    grid, planner = problem.grid, problem.model
+    starts, targets, radii, stas = problem.starts, problem.targets, problem.target_radii, problem.stas
+    priorities = list(problem.priorities)
+    tracking_bound, collision_radius = problem.tracking_bound, problem.collision_radius
+    horizon, time_step, kbar = problem.horizon, problem.time_step, problem.kbar
+    planning_v, static_obstacle = problem.planning_v, problem.static_obstacle
+    max_slice_dt, hold_slices = problem.max_slice_dt, problem.hold_slices
+    tolerance = (DISK_TOLERANCE_CELLS * float(max(grid.spacing[:2])) if problem.disk_tolerance is None
+                 else problem.disk_tolerance)
+    n = problem.n_vehicles
+    solver = problem.solver or PLANNING_SOLVER
+    aware = problem.intruder_aware
     shrunk = radii - tracking_bound
-    for i in range(n):
-        if shrunk[i] <= 0:
-            raise ValueError(f"vehicle {i}: the tracking-error bound ({tracking_bound:.3f} m) is not smaller than "
-                             f"its target radius ({radii[i]:.3f} m); no target is left to plan for.")
-    planner = DubinsWind(v_min=planning_v[0], v_max=planning_v[1], omega_max=planning_omega_max, wind=0.0)
-    settings = settings or PLANNING_SETTINGS
+    settings = problem.settings or PLANNING_SETTINGS
+    arrival_margin = problem.arrival_margin
     if arrival_margin is None:
         arrival_margin = max(grid.spacing[:2]) / max(planning_v[0], 1e-3 * planning_v[1])
     slice_dt = max(time_step, horizon / 200 if max_slice_dt is None else min(horizon / 200, float(max_slice_dt)))
     lags_arr, rads_arr, pad_before, pad_after = obstacle_disks(collision_radius, tracking_bound, planning_v[1],
-                                                               buffer_radius if aware else None,
-                                                               obstacle_profiles if aware else None)
+                                                               problem.buffer_radius if aware else None,
+                                                               problem.obstacle_profiles if aware else None)
     pad_before, pad_after = pad_before + hold_slices * slice_dt, pad_after + hold_slices * slice_dt
 
-    order = sorted(range(n), key=lambda i: priorities[i])
+    order = problem.order
     # The solves ask for the obstacles between the earliest STA's horizon and the latest STA (one span for all
     # vehicles: the obstacle arrays keep one shape).
     span = (float(np.min(stas)) - arrival_margin - horizon, float(np.max(stas)) + 1.0)
@@ -172,12 +169,11 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
     planned: list[tuple[int, SinglePlan]] = []
     if checkpoint is not None:
         key = checkpoint_io.problem_key(
-            "rtt", grid.lo, grid.hi, grid.shape, grid.is_periodic, vehicle, planning_v, planning_omega_max,
-            float(tracking_bound), float(collision_radius), np.asarray(starts, np.float64),
-            np.asarray(targets, np.float64), radii, np.asarray(stas, np.float64), priorities, float(horizon), kbar,
-            buffer_radius, lags_arr, rads_arr, pad_before, pad_after,
-            None if static_obstacle is None else np.asarray(static_obstacle), settings, float(time_step),
-            float(arrival_margin), solver, slice_dt, float(tolerance))
+            "rtt", grid.lo, grid.hi, grid.shape, grid.is_periodic, problem.vehicle, planner, planning_v,
+            problem.planning_omega_max, float(tracking_bound), float(collision_radius), starts, targets, radii,
+            stas, priorities, float(horizon), kbar, problem.buffer_radius, lags_arr, rads_arr, pad_before,
+            pad_after, None if static_obstacle is None else np.asarray(static_obstacle), settings,
+            float(time_step), float(arrival_margin), solver, slice_dt, float(tolerance))
         planned = checkpoint_io.load(checkpoint, key)
         if [i for i, _ in planned] != order[:len(planned)]:
             raise checkpoint_io.CheckpointMismatchError(f"planning checkpoint {checkpoint}: its vehicles are not a "
@@ -186,7 +182,8 @@ def plan_rtt(grid: hj.Grid, vehicle: DubinsWind, planning_v: tuple[float, float]
         # before anything is planned against them (an edited or corrupted file: a one-line ValueError).
         checkpoint_io.check_plans(checkpoint, planned, starts=starts, targets=targets, target_radii=radii, stas=stas,
                                   priorities=priorities, tracking_bound=tracking_bound, time_step=time_step,
-                                  planning_v=planning_v, planning_omega_max=planning_omega_max)
+                                  planning_v=planning_v, planning_omega_max=problem.planning_omega_max,
+                                  model=planner)
     bar = tqdm(total=n, desc="STP planning", unit="vehicle", disable=not progress, initial=len(planned))
     for rank, i in enumerate(order):
         if rank < len(planned):  # resumed from the checkpoint
@@ -315,9 +312,9 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
     ``tracking_bound`` defaults to :func:`stp_env.reach.tracking.compute_tracking_bound` for the scenario's
     vehicle and ``U^p`` (cached in ``store``); intruder-aware scenarios (``kbar`` set) take their buffer radius
     from the avoid and relative-buffer artifacts of the same vehicle (also cached). ``horizon`` defaults to twice
-    the longest straight-line flight at the planning speed. ``solver``, ``checkpoint``, ``on_vehicle``,
-    ``max_slice_dt``, ``hold_slices`` and ``disk_tolerance`` are those of :func:`plan_rtt` (robust trajectory
-    tracking only).
+    the longest straight-line flight at the planning speed. ``solver``, ``max_slice_dt``, ``hold_slices`` and
+    ``disk_tolerance`` are fields of the :class:`PlanningProblem` (:func:`problem_for_scenario` builds it),
+    ``checkpoint`` and ``on_vehicle`` options of :func:`plan_rtt` (robust trajectory tracking only).
     """
     from stp_env.artifacts import ArtifactStore
     from stp_env.reach.tracking import default_tracking_bound
@@ -353,6 +350,28 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
                             scenario.starts(), scenario.targets(), scenario.target_radii(), scenario.stas(),
                             scenario.priorities(), horizon=horizon, static_obstacle=static, settings=settings,
                             time_step=scenario.time_step, progress=progress).plan
+    problem = problem_for_scenario(scenario, tracking_bound=tracking_bound, store=store, horizon=horizon,
+                                   settings=settings, progress=progress, solver=solver, max_slice_dt=max_slice_dt,
+                                   hold_slices=hold_slices, disk_tolerance=disk_tolerance)
+    return plan_rtt(problem, progress=progress, checkpoint=checkpoint, on_vehicle=on_vehicle)
+
+
+def problem_for_scenario(scenario, *, tracking_bound: float | None = None, store=None, horizon: float | None = None,
+                         settings: hj.SolverSettings | None = None, progress: bool = True, solver: str | None = None,
+                         max_slice_dt: float | None = None, hold_slices: int = 0,
+                         disk_tolerance: float | None = None) -> PlanningProblem:
+    """The :class:`PlanningProblem` that :func:`plan_scenario` plans for a registered scenario of method ``"rtt"``:
+    its vehicles, its vehicle planned with ``U^p`` (:meth:`PlanningProblem.dubins`), the tracking bound (default
+    :func:`stp_env.reach.tracking.default_tracking_bound`, cached in ``store``), the intruder-aware disks when its
+    ``kbar`` is set (:func:`stp_env.planning.disks.aware_obstacles`), the static obstacles as the planner sees them
+    (:func:`planning_static_obstacle`) and the horizon (default twice the longest straight-line flight at the top
+    planning speed, plus 1 s). ``progress`` shows the progress of the artifacts computed on the way."""
+    from stp_env.artifacts import ArtifactStore
+    from stp_env.reach.tracking import default_tracking_bound
+
+    if scenario.method != "rtt":
+        raise ValueError(f"scenario {scenario.name!r} plans with method {scenario.method!r}; a PlanningProblem is "
+                         "for method 'rtt'.")
     store = ArtifactStore() if store is None else store
     vehicle = scenario.vehicle
     if tracking_bound is None:
@@ -365,12 +384,12 @@ def plan_scenario(scenario, *, tracking_bound: float | None = None, store=None, 
         horizon = 2.0 * float(dist.max()) / scenario.planning_v[1] + 1.0
     aware = aware_obstacles(scenario, tracking_bound, store=store, progress=progress)
     static = planning_static_obstacle(scenario, tracking_bound)
-    return plan_rtt(grid, vehicle, tuple(scenario.planning_v), scenario.planning_omega_max, tracking_bound,
-                    scenario.collision_radius, starts, targets, scenario.target_radii(), scenario.stas(),
-                    scenario.priorities(), horizon=horizon, static_obstacle=static, settings=settings,
-                    time_step=scenario.time_step, progress=progress, solver=solver, checkpoint=checkpoint,
-                    on_vehicle=on_vehicle, max_slice_dt=max_slice_dt, hold_slices=hold_slices,
-                    disk_tolerance=disk_tolerance, **aware)
+    return PlanningProblem.dubins(grid, vehicle, tuple(scenario.planning_v), scenario.planning_omega_max,
+                                  tracking_bound, scenario.collision_radius, starts, targets, scenario.target_radii(),
+                                  scenario.stas(), scenario.priorities(), horizon=horizon, static_obstacle=static,
+                                  settings=settings, time_step=scenario.time_step, solver=solver,
+                                  max_slice_dt=max_slice_dt, hold_slices=hold_slices, disk_tolerance=disk_tolerance,
+                                  **aware)
 
 
 def planning_static_obstacle(scenario, tracking_bound: float):

@@ -19,6 +19,7 @@ import numpy as np
 
 from stp_env.angles import wrap_angle
 from stp_env.planning.disks import ObstacleDisks, planner_disks
+from stp_env.planning.model import as_planning_model, dubins_control_between, dubins_step64
 from stp_env.planning.plan import InfeasiblePlanError, Plan, SinglePlan, VehiclePlan, obstacle_window
 
 
@@ -158,34 +159,35 @@ CONTROL_TOLERANCE = 1e-5
 """Relative slack on the planning set ``U^p`` for stored controls (float32 values of float64 bounds)."""
 
 
-def _dubins_step64(states, v, omega, dt):
-    """:func:`stp_env.sim.physics.dubins_step` without wind, in float64 NumPy (an independent evaluation)."""
-    half = 0.5 * omega * dt
-    chord = v * dt * np.sinc(half / np.pi)
-    mid = states[:, 2] + half
-    return np.stack([states[:, 0] + chord * np.cos(mid), states[:, 1] + chord * np.sin(mid),
-                     states[:, 2] + omega * dt], axis=1)
+def _model_step64(model):
+    """``step64(states, controls, dt)`` of a planning model (:class:`stp_env.planning.model.PlanningModel`); the
+    exact Dubins step without wind when ``model`` is ``None``."""
+    if model is None:
+        return lambda states, controls, dt: dubins_step64(states, controls[:, 0], controls[:, 1], dt)
+    return as_planning_model(model).step64
 
 
 def _angle_gap(a, b):
     return np.abs(wrap_angle(np.asarray(a, np.float64) - np.asarray(b, np.float64)))
 
 
-def _step_misses(states, controls, dt):
-    """How far [m, rad] the exact step of each sample under its control lands from the next sample: ``(n - 1,)``
-    each."""
-    pred = _dubins_step64(states[:-1], controls[:-1, 0], controls[:-1, 1], dt)
+def _step_misses(states, controls, dt, model=None):
+    """How far [m, rad] the exact step of each sample under its control (the planning ``model``'s
+    :meth:`~stp_env.planning.model.PlanningModel.step64`; ``None``: Dubins, no wind) lands from the next sample:
+    ``(n - 1,)`` each."""
+    pred = _model_step64(model)(states[:-1], controls[:-1], dt)
     return np.hypot(*(pred[:, :2] - states[1:, :2]).T), _angle_gap(pred[:, 2], states[1:, 2])
 
 
 def flight_faults(times, states, controls, t_ldt: float, *, dt: float, planning_v, planning_omega_max: float,
-                  end: int | None = None) -> list[str]:
+                  end: int | None = None, model=None) -> list[str]:
     """What makes one stored trajectory something other than a flight of the planning dynamics, from its samples
     alone (the dynamics-only checks of :func:`trajectory_faults`, for a trajectory whose start is not the
     scenario's, e.g. a vehicle replanned in the air): finite samples and departure, samples starting at ``t_ldt``
     and ``dt`` apart, controls in ``U^p = planning_v x [-planning_omega_max, planning_omega_max]`` and each sample
-    the exact step (Dubins motion, no wind) of the one before under its control, up to the sample ``end`` (the
-    flight's last; ``None``: the last stored). ``[]`` when it is a flight."""
+    the exact step (Dubins motion, no wind; or the planning ``model``'s
+    :meth:`~stp_env.planning.model.PlanningModel.step64`) of the one before under its control, up to the sample
+    ``end`` (the flight's last; ``None``: the last stored). ``[]`` when it is a flight."""
     times, states, controls = (np.asarray(a, np.float64) for a in (times, states, controls))
     if times.ndim != 1 or len(times) == 0 or states.shape != (len(times), 3) or controls.shape != (len(times), 2):
         return [f"trajectory arrays of shapes {times.shape}, {states.shape}, {controls.shape}"]
@@ -207,7 +209,7 @@ def flight_faults(times, states, controls, t_ldt: float, *, dt: float, planning_
         why.append(f"controls outside U^p: speeds {v.min():.4g}-{v.max():.4g} m/s, turn rates up to "
                    f"{np.abs(w).max():.4g} rad/s")
     if end:
-        jump, turn = _step_misses(states[:end + 1], controls[:end + 1], dt)
+        jump, turn = _step_misses(states[:end + 1], controls[:end + 1], dt, model)
         if jump.max() > POSITION_TOLERANCE or turn.max() > ANGLE_TOLERANCE:
             k = int(np.argmax(jump))
             why.append(f"samples off the planning dynamics by up to {jump.max():.3g} m / {turn.max():.3g} rad "
@@ -224,7 +226,7 @@ def flight_end(states, target, target_radius: float, tracking_bound: float) -> i
     return int(inside[0]) if inside.size else None
 
 
-def trajectory_faults(plan: Plan, scenario) -> dict[int, list[str]]:
+def trajectory_faults(plan: Plan, scenario, *, model=None) -> dict[int, list[str]]:
     """What makes each vehicle's stored trajectory something other than a flight of the planning dynamics from its
     start, checked from the samples alone; ``{vehicle index: [reasons]}`` for the vehicles with any (empty when the
     plan is sound). :func:`vehicle_clearances` and :func:`domain_margin` read a plan's samples up to its recorded
@@ -242,7 +244,8 @@ def trajectory_faults(plan: Plan, scenario) -> dict[int, list[str]]:
     - the recorded arrival time is the first sample inside the shrunk target (``inf`` if none);
     - the plan's priority order is the scenario's.
 
-    The dynamics-only checks (the first, second, fourth and fifth) are :func:`flight_faults`.
+    The dynamics-only checks (the first, second, fourth and fifth) are :func:`flight_faults`; ``model`` is the
+    planning model whose motion the samples follow (:class:`stp_env.planning.model.PlanningModel`; default Dubins).
     """
     faults: dict[int, list[str]] = {}
     dt = float(scenario.time_step)
@@ -258,7 +261,7 @@ def trajectory_faults(plan: Plan, scenario) -> dict[int, list[str]]:
         shaped = states.ndim == 2 and states.shape[1:] == (3,) and len(states) > 0 and np.all(np.isfinite(states))
         end = flight_end(states, spec.target, spec.target_radius, plan.tracking_bound) if shaped else None
         dynamics = flight_faults(p.times, p.states, p.controls, p.t_ldt, dt=dt, planning_v=scenario.planning_v,
-                                 planning_omega_max=scenario.planning_omega_max, end=end)
+                                 planning_omega_max=scenario.planning_omega_max, end=end, model=model)
         if not shaped or (dynamics and dynamics[0].startswith(("trajectory arrays", "non-finite"))):
             faults[veh.index] = [*why, *dynamics]
             continue
@@ -277,7 +280,7 @@ def trajectory_faults(plan: Plan, scenario) -> dict[int, list[str]]:
     return faults
 
 
-def reconcile_controls(single: SinglePlan, dt: float, planning_v, planning_omega_max: float):
+def reconcile_controls(single: SinglePlan, dt: float, planning_v, planning_omega_max: float, *, model=None):
     """``single`` with each stored control that does not carry its sample to the next one (exact Dubins step, no
     wind, :data:`POSITION_TOLERANCE` / :data:`ANGLE_TOLERANCE`) replaced by one of ``U^p`` that does, and the indices
     of the samples whose control was replaced.
@@ -291,7 +294,9 @@ def reconcile_controls(single: SinglePlan, dt: float, planning_v, planning_omega
     The states are what the planner checked against its tube, so they are kept and the control is recovered from
     them: the previous or the next sample's control if it carries the sample within tolerance, else the control
     solved from the two states (clipped to ``U^p``). Raises :class:`ValueError` when none carries the sample within
-    tolerance: the states themselves are then not a trajectory of the planning dynamics."""
+    tolerance: the states themselves are then not a trajectory of the planning dynamics. ``model``: the planning
+    model whose motion the samples follow (:class:`stp_env.planning.model.PlanningModel`; default Dubins, no wind),
+    its ``step64`` and ``control_between``."""
     states = np.asarray(single.states, np.float64)
     controls = np.array(single.controls, np.float64)
     if len(states) < 2:
@@ -299,16 +304,16 @@ def reconcile_controls(single: SinglePlan, dt: float, planning_v, planning_omega
     v_lo, v_hi = (float(b) for b in planning_v)
     w_hi = float(planning_omega_max)
 
+    between = dubins_control_between if model is None else as_planning_model(model).control_between
+
     def fits(k, u):
-        jump, turn = _step_misses(states[k:k + 2], np.stack([u, u]), dt)
+        jump, turn = _step_misses(states[k:k + 2], np.stack([u, u]), dt, model)
         return jump[0] <= POSITION_TOLERANCE and turn[0] <= ANGLE_TOLERANCE
 
-    jump, turn = _step_misses(states, controls, dt)
+    jump, turn = _step_misses(states, controls, dt, model)
     fixed = [int(k) for k in np.nonzero(~((jump <= POSITION_TOLERANCE) & (turn <= ANGLE_TOLERANCE)))[0]]
     for k in fixed:
-        omega = wrap_angle(float(states[k + 1, 2] - states[k, 2])) / dt
-        chord = math.hypot(states[k + 1, 0] - states[k, 0], states[k + 1, 1] - states[k, 1])
-        v = chord / (dt * float(np.sinc(0.5 * omega * dt / np.pi)))
+        v, omega = between(states[k], states[k + 1], dt)
         candidates = [controls[j] for j in (k - 1, k + 1) if 0 <= j < len(controls)]
         candidates.append(np.asarray([min(max(v, v_lo), v_hi), min(max(omega, -w_hi), w_hi)]))
         candidates = [u for u in candidates if v_lo <= u[0] <= v_hi and abs(u[1]) <= w_hi * (1 + CONTROL_TOLERANCE)]
