@@ -64,11 +64,11 @@ def test_every_field_of_the_flat_params_has_exactly_one_new_place():
 def test_a_flat_name_raises_an_error_naming_its_new_place():
     params = _params()
     with pytest.raises(AttributeError, match=r"EnvParams\.n_vehicles is now EnvParams\.vehicles\.n"):
-        params.n_vehicles
+        _ = params.n_vehicles
     with pytest.raises(AttributeError, match=r"EnvParams\.t_iat is now EnvParams\.intruder\.t_iat"):
-        params.t_iat
+        _ = params.t_iat
     with pytest.raises(AttributeError, match="no attribute 'nonsense'"):
-        params.nonsense
+        _ = params.nonsense
     assert not hasattr(params, "kbar") and hasattr(params.intruder, "kbar")
 
 
@@ -76,7 +76,8 @@ def test_replace_changes_only_the_named_fields_and_refuses_unknown_groups_and_fi
     params = _params()
     new = params.replace(episode=dict(t_end=jnp.asarray(20.0, f32)), vehicles=dict(sta=jnp.ones(2, f32)))
     assert float(new.episode.t_end) == 20.0 and float(params.episode.t_end) == 10.0    # a copy
-    assert np.array_equal(new.vehicles.sta, np.ones(2)) and new.vehicles.nominal_states is params.vehicles.nominal_states
+    assert np.array_equal(new.vehicles.sta, np.ones(2))
+    assert new.vehicles.nominal_states is params.vehicles.nominal_states
     assert new.intruder is params.intruder and new.tables is params.tables
     whole = params.replace(wind=WindParams(model="worst"))
     assert whole.wind.model == "worst"
@@ -92,7 +93,7 @@ def test_static_fields_are_metadata_and_arrays_are_leaves():
     """Changing an array reuses the compiled program; changing a static field (the vehicle count, a switch)
     compiles a new one."""
     params = _params()
-    leaves, treedef = jax.tree_util.tree_flatten(params)
+    leaves = jax.tree_util.tree_leaves(params)
     assert all(isinstance(x, jax.Array) for x in leaves)
     traces = []
 
