@@ -107,3 +107,12 @@ def write_text(text: str, path) -> str:
     with atomic_open(path) as fh:
         fh.write(text)
     return str(path)
+
+
+def save_figure(fig, path, **kwargs) -> Path:
+    """``fig.savefig(path, **kwargs)``, atomically (:func:`atomic_open`; the format from the path's suffix, PNG
+    without one): an interrupted run leaves the old figure or none, never a truncated one."""
+    path = Path(path)
+    with atomic_open(path, "wb") as fh:
+        fig.savefig(fh, format=path.suffix[1:].lower() or "png", **kwargs)
+    return path
