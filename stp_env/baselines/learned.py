@@ -26,6 +26,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
+from stp_env.files import atomic_open
 from stp_env.loaders import LoadError, parse_json, read_npz
 from stp_env.sim.core import intruder_observation_size, observe
 
@@ -84,8 +85,11 @@ def export_mlp(model, path, metadata: dict | None = None) -> Path:
     meta = {"format_version": FORMAT_VERSION, "activation": names[acts.pop()] if acts else "tanh",
             "n_layers": len(linear) + 1, **(metadata or {})}
     path = Path(path)
+    if path.suffix != ".npz":  # as np.savez names it
+        path = path.with_name(path.name + ".npz")
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path, metadata=np.asarray(json.dumps(meta, sort_keys=True)), **arrays)
+    with atomic_open(path, "wb") as fh:
+        np.savez(fh, metadata=np.asarray(json.dumps(meta, sort_keys=True)), **arrays)
     return path
 
 

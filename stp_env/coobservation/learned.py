@@ -34,6 +34,7 @@ import numpy as np
 
 from stp_env.baselines import nominal_tracking
 from stp_env.coobservation import attackers, threat
+from stp_env.files import write_text
 from stp_env.rl.ppo import PPOConfig, make_model
 from stp_env.sim import engine
 
@@ -272,7 +273,7 @@ def train(params, tp, t_window, config: AttackerTrainConfig, out_dir, progress: 
     meta = {"objective": "enter a forbidden zone without missing an observation",
             "config": dataclasses.asdict(config), "t_window": [float(t) for t in t_window],
             "residual": config.residual, "residual_scale": RESIDUAL_SCALE, "imitation": imitation}
-    (out / "config.json").write_text(json.dumps(meta, indent=1))
+    write_text(json.dumps(meta, indent=1), out / "config.json")
     return export_mlp(model, out / "attacker.npz", metadata=meta)
 
 

@@ -34,6 +34,7 @@ import numpy as np
 from stp_env import assembly, sim
 from stp_env.arguments import check_int, check_real
 from stp_env.evaluation.summary import forced_summary
+from stp_env.files import write_text
 from stp_env.rl.ppo import PPOConfig, make_model
 from stp_env.sim.types import SPAWN_MODES
 
@@ -243,7 +244,7 @@ def train(config: TrainConfig, *, params: sim.EnvParams | None = None):
     out.mkdir(parents=True, exist_ok=True)
     if (out / "evaluations.csv").exists():
         (out / "evaluations.csv").unlink()
-    (out / "config.json").write_text(json.dumps(config.to_json(), indent=2))
+    write_text(json.dumps(config.to_json(), indent=2), out / "config.json")
     if params is None:
         params = build_params(config)
     env_kwargs = {"params": params, "horizon": config.horizon, "vehicle_policy": config.vehicle_policy}

@@ -6,9 +6,9 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 from pathlib import Path
 
+from stp_env.files import atomic_open, save_figure, write_text
 from stp_env.survivability import analysis
 from stp_env.survivability.config import POLICIES
 from stp_env.survivability.study import StudyConfig, read_study
@@ -94,14 +94,11 @@ def _json_default(o):
 
 
 def _write(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    write_text(text, path)
 
 
 def _write_csv(path: Path, summary, policies) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", newline="") as f:
+    with atomic_open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["n_partial", "n_unknown", "policy", "n", "success", "success_lo", "success_hi", "survival",
                     "survival_lo", "survival_hi"])
@@ -110,7 +107,6 @@ def _write_csv(path: Path, summary, policies) -> None:
                 s, v = per[q]["success"], per[q]["survival"]
                 w.writerow([p, u, q, s["n"], f"{s['rate']:.4f}", f"{s['ci95'][0]:.4f}", f"{s['ci95'][1]:.4f}",
                             f"{v['rate']:.4f}", f"{v['ci95'][0]:.4f}", f"{v['ci95'][1]:.4f}"])
-    os.replace(tmp, path)
 
 
 def _pct(r):
@@ -297,11 +293,9 @@ def figures(config: StudyConfig, out, report: dict | None = None) -> list[Path]:
 def _save(fig, path: Path) -> Path:
     import matplotlib.pyplot as plt
 
-    tmp = path.with_name(path.stem + ".tmp.png")
     fig.tight_layout()
-    fig.savefig(tmp, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
-    os.replace(tmp, path)
     return path
 
 

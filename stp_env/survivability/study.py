@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 from stp_env.arguments import INT32_MAX
+from stp_env.files import atomic_open, write_text
 from stp_env.loaders import read_csv_rows, read_json
 from stp_env.seeds import check_seed
 from stp_env.survivability.config import (
@@ -236,17 +237,13 @@ def _same_config(old, new) -> bool:
 
 def _repair(path: Path, rows) -> None:
     """Rewrite ``missions.csv`` with its valid rows only (drops a torn last line) and the header."""
-    tmp = path.with_suffix(".csv.tmp")
-    with open(tmp, "w", newline="") as f:
+    with atomic_open(path, "w", newline="") as f:
         writer = csv.DictWriter(f, FIELDS)
         writer.writeheader()
         writer.writerows(rows)
         f.flush()
         os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    write_text(text, path)
