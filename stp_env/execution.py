@@ -259,7 +259,10 @@ class RayExecutor(Executor):
             if address is None and num_cpus is not None:
                 kwargs["num_cpus"] = num_cpus
             try:
-                self.ray.init(address=address, runtime_env=runtime_env, **kwargs)
+                with warnings.catch_warnings():
+                    # JAX warns at every fork of a process that imported it; Ray's fork is followed by exec at once
+                    warnings.filterwarnings("ignore", message=r"os\.fork\(\) was called", category=RuntimeWarning)
+                    self.ray.init(address=address, runtime_env=runtime_env, **kwargs)
             except ConnectionError as err:
                 raise ValueError(f"cannot reach the Ray cluster at {address}: {err}") from None
             self.started = True
