@@ -306,6 +306,15 @@ def _run_piece(function, context, argument):
     return check_result(function(context, argument), f"piece {argument!r}")
 
 
+def check_executor(executor) -> Executor:
+    """``executor``, or a :class:`LocalExecutor` for ``None``; a ``ValueError`` for anything else."""
+    if executor is None:
+        return LocalExecutor()
+    if not isinstance(executor, Executor):
+        raise ValueError(f"executor must be an Executor (LocalExecutor, RayExecutor); got {type(executor).__name__}.")
+    return executor
+
+
 def executor_for(use_ray: bool = False, address: str | None = None) -> Executor:
     """What the command line's ``--ray`` / ``--ray-address ADDRESS`` ask for: a :class:`RayExecutor` when either is
     given (``address`` or ``RAY_ADDRESS``, else a local cluster), else a :class:`LocalExecutor`."""

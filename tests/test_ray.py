@@ -100,6 +100,8 @@ def test_jobs_check_their_inputs():
     with pytest.raises(ValueError, match="cannot be resumed"):
         execution.LocalExecutor().run(execution.Job(name="j", function=_square, context=None, arguments=(1,)),
                                       out_dir="x")
+    with pytest.raises(ValueError, match="executor must be an Executor"):
+        runner.evaluate([TINY], executor="ray", **EVALUATION)
     with pytest.raises(ValueError, match="dtype object"):
         execution.LocalExecutor().run(execution.Job(name="j", function=_objects, context=None, arguments=(1,)))
 

@@ -286,7 +286,7 @@ def evaluate(configs, *, episodes: int = 1000, seed: int = 0, batch_size: int = 
     reuse those already written by an earlier run of the same job (a killed run resumes). A configuration's
     ``seconds`` is the sum of its batches' compute times.
     """
-    from stp_env.execution import LocalExecutor
+    from stp_env.execution import check_executor
 
     configs = list(configs)
     if not configs:
@@ -300,7 +300,7 @@ def evaluate(configs, *, episodes: int = 1000, seed: int = 0, batch_size: int = 
     for config in configs:
         if not isinstance(config, Configuration):
             raise ValueError(f"configurations must be Configuration objects; got {type(config).__name__}.")
-    executor = LocalExecutor() if executor is None else executor
+    executor = check_executor(executor)
     batch_size = min(batch_size, episodes)
     all_params = build_params(configs, store=store, progress=progress) if params is None else list(params)
     if len(all_params) != len(configs):

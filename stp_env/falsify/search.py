@@ -219,10 +219,9 @@ def _search_job(kind: str, function, context: SearchContext, units: int, resumab
 
 
 def _run(job, executor, out_dir, progress) -> list[dict]:
-    from stp_env.execution import LocalExecutor
+    from stp_env.execution import check_executor
 
-    executor = LocalExecutor() if executor is None else executor
-    return executor.run(job, out_dir=out_dir, progress=None if progress is None else progress.update)
+    return check_executor(executor).run(job, out_dir=out_dir, progress=None if progress is None else progress.update)
 
 
 def _combine(pieces: list[dict], evaluations: int, default_z) -> SearchResult:
