@@ -13,6 +13,7 @@ import os
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import jax
@@ -181,8 +182,10 @@ def ray_executor():
     # A head and two worker processes on this machine. The workers import the pieces' functions by name: the
     # package's folder and this test folder on their path (runtime_env: Ray's documented way).
     path = os.pathsep.join(filter(None, [str(ROOT), str(TESTS), os.environ.get("PYTHONPATH")]))
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
-             runtime_env={"env_vars": {"PYTHONPATH": path, "JAX_PLATFORMS": "cpu"}})
+    with warnings.catch_warnings():  # JAX's warning at Ray's fork, which execs at once
+        warnings.filterwarnings("ignore", message=r"os\.fork\(\) was called", category=RuntimeWarning)
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
+                 runtime_env={"env_vars": {"PYTHONPATH": path, "JAX_PLATFORMS": "cpu"}})
     try:
         yield execution.RayExecutor(max_retries=2)
     finally:
