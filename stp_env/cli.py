@@ -190,6 +190,7 @@ def _add_evaluate_parsers(sub) -> None:
                     help="confidence level of the one-sided upper bounds (0 < c < 1)")
     kit.add_out(ev, "evaluation")
     ev.add_argument("--no-figures", action="store_true", help="write the results only")
+    kit.add_ray(ev, "the batches of episodes")
     ev.add_argument("--whole-fleet", action="store_true",
                     help="simulate every vehicle of the plan, not only those that can fly in the episode window "
                          "(the same episodes up to float rounding, 2-4x slower; for comparison)")
@@ -335,10 +336,11 @@ def _evaluate(args) -> int:
     configs = _evaluation_configs(args)
     for config in configs:
         config.make_scenario()               # a k̄ the scenario does not allow fails here
+    executor = kit.executor(args)            # --ray without ray installed, or a cluster not reached, fails here
     result = pipeline.run(configs, args.out, episodes=args.episodes, seed=args.seed, batch_size=args.batch_size,
                           confidence=args.confidence, store=ArtifactStore(args.cache_dir),
                           progress=not args.no_progress, figures=not args.no_figures,
-                          airborne_only=not args.whole_fleet)
+                          airborne_only=not args.whole_fleet, executor=executor)
     print(result["markdown"])
     print(f"\n{len(configs)} configuration(s) x {args.episodes} episodes in {result['seconds']} s; wrote "
           f"{', '.join(result['files'])}")

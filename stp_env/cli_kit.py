@@ -121,6 +121,24 @@ def add_out(parser, default: str, what: str = "output directory") -> None:
                                                        "computed)")
 
 
+def add_ray(parser, what: str) -> None:
+    """``--ray`` / ``--ray-address ADDRESS``: run the job's pieces on Ray (:mod:`stp_env.execution`)."""
+    parser.add_argument("--ray", action="store_true",
+                        help=f"run {what} as Ray tasks: on the cluster at $RAY_ADDRESS if set, else on a new local "
+                             "cluster (the same results as in-process; needs pip install 'stp-env[ray]'; "
+                             "docs/ray.md)")
+    parser.add_argument("--ray-address", default=None, metavar="ADDRESS",
+                        help="run on the Ray cluster at ADDRESS (what `ray start --head` prints; 'auto': the one on "
+                             "this machine); implies --ray")
+
+
+def executor(args):
+    """The executor that ``--ray`` / ``--ray-address`` ask for (in-process without them)."""
+    from stp_env.execution import executor_for
+
+    return executor_for(args.ray, args.ray_address)
+
+
 def add_cache_dir(parser) -> None:
     """``--cache-dir``: the artifact cache."""
     parser.add_argument("--cache-dir", default=None,

@@ -63,6 +63,7 @@ LOADERS: dict[str, Loader] = {
     "plan-checkpoint": Loader("planning checkpoint", 16 * GiB, 16 * GiB),
     "study-metadata": Loader("survivability study file", 16 * MiB),
     "study-missions": Loader("survivability missions file", 1 * GiB),
+    "job-piece": Loader("job piece file", 16 * GiB, 16 * GiB),
 }
 """Every kind of file the package reads from outside, by the name the threat model's table gives it."""
 

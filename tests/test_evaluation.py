@@ -195,6 +195,7 @@ def test_evaluate_writes_results(tiny_run):
 
     assert prov["source_hash"] == source_hash() and prov["numerics_code_version"] == CODE_VERSION
     assert prov["git_commit"] is None or re.fullmatch(r"[0-9a-f]{40}(-dirty)?", prov["git_commit"])
+    assert not (out / "pieces").exists()  # the finished batches wait there only until the results are written
     assert (out / "results.csv").read_text().count("\n") == 2
     assert (out / "results.md").read_text().startswith("| scenario | intruder |")
     for name in ("forced_histogram.png", "summary.png", "episode.png", "distance_vs_time.png"):

@@ -133,6 +133,10 @@ def _write_valid(kind: str, path: Path) -> None:
                                     "n_instances": 2}))
     elif kind == "study-missions":
         path.write_text(_missions_text())
+    elif kind == "job-piece":
+        from stp_env.execution import write_piece
+
+        assert write_piece(path.parent, 3, {"ep/x": np.arange(4.0), "seconds": np.float64(1.5)}) == path
     else:  # pragma: no cover
         raise AssertionError(kind)
 
@@ -144,7 +148,7 @@ def _target(kind: str, directory: Path) -> Path:
         return meta if kind == "artifact-metadata" else npz
     return directory / {"events": "events.json", "event-states": "events.npz", "counterexample": "cx.json",
                         "learned-policy": "policy.npz", "plan-checkpoint": "ck.npz", "study-metadata": "study.json",
-                        "study-missions": "missions.csv"}[kind]
+                        "study-missions": "missions.csv", "job-piece": "piece-000003.npz"}[kind]
 
 
 def _load(kind: str, path: Path):
@@ -187,6 +191,10 @@ def _load(kind: str, path: Path):
         from stp_env.survivability.study import read_missions
 
         return read_missions(path)
+    if kind == "job-piece":
+        from stp_env.execution import read_piece
+
+        return read_piece(path)
     raise AssertionError(kind)  # pragma: no cover
 
 
@@ -201,7 +209,7 @@ def _check_contract(kind: str, path: Path) -> None:
 
 KINDS = sorted(loaders.LOADERS)
 JSON_KINDS = {"artifact-metadata", "events", "counterexample", "study-metadata"}
-NPZ_KINDS = {"artifact-arrays", "event-states", "learned-policy", "plan-checkpoint"}
+NPZ_KINDS = {"artifact-arrays", "event-states", "learned-policy", "plan-checkpoint", "job-piece"}
 
 
 def test_valid_files_load():

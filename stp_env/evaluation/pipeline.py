@@ -35,6 +35,8 @@ OUTPUT_NAMES = ("results.json", "results.csv", "results.md", "events.json", "eve
                 "forced_histogram.png", "summary.png", "episode.png", "distance_vs_time.png")
 """Every file :func:`run` writes (``results.json`` first: it is removed first and published last)."""
 STAGING_PREFIX = ".stp-env-staging-"
+PIECES = "pieces"
+"""The folder of ``out_dir`` that holds the finished batches of a run until its results are written."""
 
 
 def check_output_dir(out_dir, option: str = "--out") -> Path:
@@ -71,9 +73,14 @@ def _publish(staging: Path, out: Path) -> list[str]:
 
 
 def run(configs, out_dir, *, episodes: int = 1000, seed: int = 0, batch_size: int = 250, confidence: float = 0.95,
-        store=None, progress: bool = True, figures: bool = True, airborne_only: bool = True) -> dict:
+        store=None, progress: bool = True, figures: bool = True, airborne_only: bool = True,
+        executor=None) -> dict:
     """Evaluate ``configs`` and write everything to ``out_dir``; returns ``{"summaries", "markdown", "files",
-    "seconds"}``. ``airborne_only``: as in :func:`stp_env.evaluation.evaluate`.
+    "seconds"}``. ``airborne_only``, ``executor``: as in :func:`stp_env.evaluation.evaluate`.
+
+    Every finished batch is written to ``out_dir/pieces`` (:data:`PIECES`) as it ends: a run that was killed and is
+    started again with the same arguments computes only the batches it had not finished. The folder is removed
+    once the results are written.
 
     ``out_dir`` is checked to be writable before anything is computed (:func:`check_output_dir`). The files are
     written into a staging directory inside it and then replace the outputs of an earlier run (see
@@ -85,7 +92,8 @@ def run(configs, out_dir, *, episodes: int = 1000, seed: int = 0, batch_size: in
     out = check_output_dir(out_dir)
     remove_stale_temporaries(out, STAGING_PREFIX)
     results = evaluate(configs, episodes=episodes, seed=seed, batch_size=batch_size, confidence=confidence,
-                       store=store, progress=progress, airborne_only=airborne_only)
+                       store=store, progress=progress, airborne_only=airborne_only, executor=executor,
+                       pieces_dir=out / PIECES)
     staging = Path(tempfile.mkdtemp(dir=out, prefix=STAGING_PREFIX + writer_tag()))
     try:
         summaries, markdown = _write_all(results, staging, seed=seed, episodes=episodes, batch_size=batch_size,
@@ -93,6 +101,7 @@ def run(configs, out_dir, *, episodes: int = 1000, seed: int = 0, batch_size: in
         files = _publish(staging, out)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+    shutil.rmtree(out / PIECES, ignore_errors=True)  # published: nothing left to resume
     return {"summaries": summaries, "markdown": markdown, "files": files,
             "seconds": round(time.perf_counter() - start, 1)}
 

@@ -17,7 +17,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import numbers
-import time
 
 import jax
 import jax.numpy as jnp
@@ -269,7 +268,7 @@ def build_params(configs, *, store=None, progress: bool = True) -> list:
 
 def evaluate(configs, *, episodes: int = 1000, seed: int = 0, batch_size: int = 250, confidence: float = 0.95,
              max_events: int = 50, store=None, progress: bool = True, params=None,
-             showcase: bool = True, airborne_only: bool = True) -> list[ConfigResult]:
+             showcase: bool = True, airborne_only: bool = True, executor=None, pieces_dir=None) -> list[ConfigResult]:
     """Evaluate each :class:`Configuration` on ``episodes`` episodes (the same seeds for each).
 
     Episodes run ``batch_size`` at a time (the last batch padded with extra episodes whose results are dropped),
@@ -279,7 +278,16 @@ def evaluate(configs, *, episodes: int = 1000, seed: int = 0, batch_size: int = 
     per batch of 250 town episodes; off: ``ConfigResult.showcase`` is ``None``). ``airborne_only``: simulate only
     the vehicles that can fly in the episode window (:func:`run_batch`; the same episodes, 2-5x faster on the
     shipped scenarios); off: the whole fleet, for comparison.
+
+    The batches are the pieces of one job (:mod:`stp_env.execution`, :func:`evaluation_job`): ``executor`` runs
+    them (default :class:`~stp_env.execution.LocalExecutor`, in this process and in order; a
+    :class:`~stp_env.execution.RayExecutor` on a cluster), with the same results whatever runs them. Each batch's
+    episodes are keyed by ``(seed, episode index)`` alone. ``pieces_dir``: write every finished batch there and
+    reuse those already written by an earlier run of the same job (a killed run resumes). A configuration's
+    ``seconds`` is the sum of its batches' compute times.
     """
+    from stp_env.execution import check_executor
+
     configs = list(configs)
     if not configs:
         raise ValueError("no configuration to evaluate.")
@@ -292,49 +300,121 @@ def evaluate(configs, *, episodes: int = 1000, seed: int = 0, batch_size: int = 
     for config in configs:
         if not isinstance(config, Configuration):
             raise ValueError(f"configurations must be Configuration objects; got {type(config).__name__}.")
+    executor = check_executor(executor)
     batch_size = min(batch_size, episodes)
     all_params = build_params(configs, store=store, progress=progress) if params is None else list(params)
+    if len(all_params) != len(configs):
+        raise ValueError(f"params: one per configuration ({len(configs)}); got {len(all_params)}.")
     plan_samples = max(p.vehicles.nominal_states.shape[1] for p in all_params)
     n_steps = max(sim.steps_for(p) for p in all_params)
-    key = prng_key(seed)
+    all_params = [pad_plan(p, plan_samples) for p in all_params]
+    job = evaluation_job(configs, all_params, seed=seed, episodes=episodes, batch_size=batch_size, n_steps=n_steps,
+                         record=showcase, airborne_only=airborne_only, resumable=pieces_dir is not None)
+    pieces = _run_job(executor, job, configs, episodes, pieces_dir, progress)
     results = []
-    for config, params_i in zip(configs, all_params):
-        params_i = pad_plan(params_i, plan_samples)
-        vehicle_policy, intruder_policy = config.policies()
-        results.append(_evaluate_one(config, params_i, vehicle_policy, intruder_policy, key, seed, episodes,
-                                     batch_size, n_steps, plan_samples, confidence, max_events, progress,
-                                     showcase, airborne_only))
+    for c, (config, params_i) in enumerate(zip(configs, all_params)):
+        mine = [r for (i, _), r in zip(job.arguments, pieces) if i == c]
+        results.append(_combine_batches(config, params_i, mine, seed, episodes, batch_size, n_steps, plan_samples,
+                                        confidence, max_events, showcase, airborne_only, job.context.active[c]))
     return results
 
 
-def _evaluate_one(config, params, vehicle_policy, intruder_policy, key, seed, episodes, batch_size, n_steps,
-                  plan_samples, confidence, max_events, progress, record, airborne_only) -> ConfigResult:
+@dataclasses.dataclass(frozen=True)
+class EvaluationContext:
+    """What every batch of an evaluation shares (the context of :func:`evaluation_job`): the configurations, their
+    padded ``EnvParams`` as host arrays (:func:`stp_env.execution.to_host`), the simulated vehicles of each, and
+    the run's numbers."""
+
+    token: str
+    seed: int
+    configs: tuple
+    params: tuple
+    active: tuple
+    episodes: int
+    batch_size: int
+    n_steps: int
+    record: bool
+
+
+def evaluation_job(configs, params, *, seed: int, episodes: int, batch_size: int, n_steps: int, record: bool,
+                   airborne_only: bool, resumable: bool = False):
+    """The batches of an evaluation as a :class:`stp_env.execution.Job`: piece ``(c, first)`` runs episodes
+    ``first .. first + batch_size - 1`` of configuration ``c`` (:func:`evaluation_piece`); ``params`` already
+    padded to one plan length. ``resumable``: give the job its fingerprint (the configurations, the numbers, every
+    array of the params and the package's source), which names the folder its pieces are written to."""
+    from stp_env import execution
+
+    host = tuple(execution.to_host(p) for p in params)
+    active = tuple(simulated_vehicles(p, airborne_only) for p in params)
+    context = EvaluationContext(token=execution.new_token(), seed=seed, configs=tuple(configs), params=host,
+                                active=active, episodes=episodes, batch_size=batch_size, n_steps=n_steps,
+                                record=record)
+    arguments = tuple((c, first) for c in range(len(configs)) for first in range(0, episodes, batch_size))
+    fingerprint = None
+    if resumable:
+        from stp_env.evaluation.report import source_hash
+
+        fingerprint = execution.digest("evaluate", [dataclasses.asdict(c) for c in configs], seed, episodes,
+                                       batch_size, n_steps, record, active, list(host), source_hash())
+    return execution.Job(name="evaluate", function=evaluation_piece, context=context, arguments=arguments,
+                         fingerprint=fingerprint, units=tuple(min(batch_size, episodes - f) for _, f in arguments))
+
+
+def evaluation_piece(context: EvaluationContext, argument) -> dict:
+    """One batch of an evaluation (a piece of :func:`evaluation_job`): its kept episodes' final states
+    (``ep/<field>``, with ``n_forced`` and ``index``), with ``record`` the trajectory of its episode with the most
+    forced vehicles (``show/<field>``), and its compute time (``seconds``). Episode ``i``'s key is
+    ``fold_in(fold_in(key(seed), i), 0)``, as in every evaluation."""
+    from stp_env import execution
+
+    timer = execution.Timer()
+    c, first = (int(a) for a in argument)
+    if not 0 <= c < len(context.configs) or not 0 <= first < context.episodes:
+        raise ValueError(f"no batch {argument!r} in this evaluation.")
+    params, vehicle_policy, intruder_policy = execution.memo(
+        context.token, ("configuration", c),
+        lambda: (execution.to_device(context.params[c]), *context.configs[c].policies()))
+    batch_size = context.batch_size
+    indices = np.arange(first, first + batch_size, dtype=np.int32)
+    final, traj = run_batch(prng_key(context.seed), jnp.asarray(indices), params, vehicle_policy, intruder_policy,
+                            context.n_steps, record=context.record, active=context.active[c])
+    keep = min(batch_size, context.episodes - first)
+    ep = {k: v[:keep] for k, v in host_state(final).items()}
+    ep["n_forced"] = np.sum(np.isfinite(ep["avoid_start"]), axis=1)
+    ep["index"] = indices[:keep]
+    out = {f"ep/{k}": v for k, v in ep.items()}
+    if context.record:
+        j = int(np.argmax(ep["n_forced"]))
+        out.update({f"show/{k}": np.asarray(v[j]) for k, v in traj.items()})
+    out["seconds"] = np.float64(timer.seconds())
+    return out
+
+
+def _run_job(executor, job, configs, episodes, pieces_dir, progress):
     from tqdm.auto import tqdm
 
     from stp_env.progress import compiling_until_first_update
 
-    active = simulated_vehicles(params, airborne_only)
+    desc = configs[0].label if len(configs) == 1 else f"{len(configs)} configurations"
+    with tqdm(total=episodes * len(configs), desc=desc, unit="ep", disable=not progress, leave=True) as bar:
+        compiling_until_first_update(bar, "compiling the simulator's batch (once per machine)...")
+        return executor.run(job, out_dir=pieces_dir, progress=bar.update)
+
+
+def _combine_batches(config, params, pieces, seed, episodes, batch_size, n_steps, plan_samples, confidence,
+                     max_events, record, airborne_only, active) -> ConfigResult:
+    """A configuration's result from its batches, in batch order (what the loop over batches computed)."""
     chunks: list[dict] = []
     showcase, best = None, -1
-    start = time.perf_counter()
-    with tqdm(total=episodes, desc=config.label, unit="ep", disable=not progress, leave=True) as bar:
-        compiling_until_first_update(bar, "compiling the simulator's batch (once per machine)...")
-        for first in range(0, episodes, batch_size):
-            indices = np.arange(first, first + batch_size, dtype=np.int32)
-            final, traj = run_batch(key, jnp.asarray(indices), params, vehicle_policy, intruder_policy, n_steps,
-                                    record=record, active=active)
-            keep = min(batch_size, episodes - first)
-            ep = {k: v[:keep] for k, v in host_state(final).items()}
-            ep["n_forced"] = np.sum(np.isfinite(ep["avoid_start"]), axis=1)
-            ep["index"] = indices[:keep]
-            j = int(np.argmax(ep["n_forced"]))
-            if record and ep["n_forced"][j] > best:
-                best = int(ep["n_forced"][j])
-                showcase = {k: np.asarray(v[j]) for k, v in traj.items()}
-                showcase.update(index=int(indices[j]), final={k: v[j] for k, v in ep.items()})
-            chunks.append(ep)
-            bar.update(keep)
-    seconds = time.perf_counter() - start
+    for piece in pieces:
+        ep = {k[3:]: v for k, v in piece.items() if k.startswith("ep/")}
+        j = int(np.argmax(ep["n_forced"]))
+        if record and ep["n_forced"][j] > best:
+            best = int(ep["n_forced"][j])
+            showcase = {k[5:]: v for k, v in piece.items() if k.startswith("show/")}
+            showcase.update(index=int(ep["index"][j]), final={k: v[j] for k, v in ep.items()})
+        chunks.append(ep)
+    seconds = max(float(sum(float(p["seconds"]) for p in pieces)), 1e-9)
     ep = {k: np.concatenate([c[k] for c in chunks]) for k in chunks[0]}
     summary = summarize(config, ep, params, confidence=confidence)
     summary.update(seed=seed, n_steps=n_steps, batch_size=batch_size, seconds=round(seconds, 2),

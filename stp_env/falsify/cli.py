@@ -64,11 +64,15 @@ def add_parser(sub) -> None:
     fa.add_argument("--replay", default=None, metavar="FILE",
                     help="recompute the value of a saved counterexample.json instead of searching")
     fa.add_argument("--no-figures", action="store_true", help="write no figure")
+    kit.add_ray(fa, "the search's restarts")
     kit.add_progress(fa)
 
 
 def run_cli(args) -> int:
-    from stp_env.evaluation.pipeline import check_output_dir
+    import shutil
+
+    from stp_env import cli_kit as kit
+    from stp_env.evaluation.pipeline import PIECES, check_output_dir
     from stp_env.falsify.counterexample import AttackSpec, replay, run, save
     from stp_env.falsify.search import SearchConfig
 
@@ -82,8 +86,12 @@ def run_cli(args) -> int:
     config = SearchConfig(method=args.method, budget=args.attacks, population=args.population,
                           restarts=args.restarts, batch=args.batch_size)
     out = check_output_dir(args.out)  # before the search, so that its result is not lost at the end
-    outcome = run(spec, config, args.seed, progress=not args.no_progress, seeded=not args.no_game_seed)
+    executor = kit.executor(args)     # --ray without ray installed, or a cluster not reached, fails here
+    # finished restarts wait in OUT/pieces until the counterexample is written: a killed search resumes
+    outcome = run(spec, config, args.seed, progress=not args.no_progress, seeded=not args.no_game_seed,
+                  executor=executor, pieces_dir=out / PIECES)
     path = save(outcome, out, plot=not args.no_figures)
+    shutil.rmtree(out / PIECES, ignore_errors=True)
     summary = outcome.summary()
     summary["counterexample"] = str(path)
     print(json.dumps(summary))

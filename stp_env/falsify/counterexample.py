@@ -209,10 +209,12 @@ class Outcome:
 
 
 def run(spec: AttackSpec, config: SearchConfig | None = None, seed: int = 0, *, params=None,
-        progress: bool = True, seeded: bool = True) -> Outcome:
+        progress: bool = True, seeded: bool = True, executor=None, pieces_dir=None) -> Outcome:
     """Search ``config.budget`` attacks of ``spec`` and return the worst. ``seed``: an integer in ``[0, 2**63 - 1]``,
     each its own search (:func:`stp_env.seeds.prng_key`; checked before anything is built). ``seeded``: start the
-    search from the attack's game strategies (its ``seeds()``, when it has them), as well as from the whole box."""
+    search from the attack's game strategies (its ``seeds()``, when it has them), as well as from the whole box.
+    ``executor`` runs the search's restarts (:mod:`stp_env.execution`; default in this process, the same result
+    either way); ``pieces_dir`` keeps the finished restarts, so that a killed search resumes."""
     from stp_env import progress as progress_mod
 
     config = SearchConfig() if config is None else config
@@ -231,7 +233,8 @@ def run(spec: AttackSpec, config: SearchConfig | None = None, seed: int = 0, *, 
         bar = tqdm(total=config.budget, unit="attack", desc=f"falsify {spec.target}")
         progress_mod.compiling_until_first_update(bar, "compiling the attack's batch (once per machine)...")
     try:
-        result = search(attack.objective, attack.dim, key, config, progress=bar, seeds=seeds)
+        jobs = {k: v for k, v in (("executor", executor), ("out_dir", pieces_dir)) if v is not None}
+        result = search(attack.objective, attack.dim, key, config, progress=bar, seeds=seeds, **jobs)
     finally:
         if bar is not None:
             bar.close()

@@ -23,6 +23,7 @@ import dataclasses
 import functools
 import math
 from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -151,106 +152,235 @@ def _check_seeds(seeds, dim: int) -> np.ndarray:
     return seeds
 
 
+@dataclasses.dataclass(frozen=True)
+class SearchContext:
+    """What every restart of a search shares (the context of its job): the objective (an attack shipped with its
+    environment as host arrays, :func:`ship`, or a module-level function), the search's key data and settings, and
+    the starting points (cross-entropy seeds; the gradient's starts)."""
+
+    token: str
+    objective: Any
+    dim: int
+    key_data: np.ndarray
+    config: SearchConfig
+    steps: int
+    seeds: np.ndarray | None = None
+    starts: np.ndarray | None = None
+
+
+def ship(objective: Objective):
+    """``objective`` as it travels to a worker: an attack's method as ``(attack with its environment as host
+    arrays, method name)`` (:func:`stp_env.execution.to_host`), anything else as it is."""
+    from stp_env import execution
+
+    attack = getattr(objective, "__self__", None)
+    if not isinstance(getattr(attack, "base", None), EnvParams):
+        return objective
+    shipped = copy.copy(attack)
+    object.__setattr__(shipped, "base", execution.to_host(attack.base))
+    return shipped, objective.__name__
+
+
+def landed(shipped) -> Objective:
+    """The inverse of :func:`ship` (the environment's arrays back on the device, exactly)."""
+    from stp_env import execution
+
+    if not isinstance(shipped, tuple):
+        return shipped
+    attack, name = shipped
+    attack = copy.copy(attack)
+    object.__setattr__(attack, "base", execution.to_device(attack.base))
+    return getattr(attack, name)
+
+
+def _fingerprint(kind: str, context: SearchContext) -> str:
+    from stp_env import execution
+    from stp_env.evaluation.report import source_hash
+
+    shipped = context.objective
+    if isinstance(shipped, tuple):
+        attack, name = shipped
+        what = [type(attack).__qualname__, name, {f.name: repr(getattr(attack, f.name))
+                                                  for f in dataclasses.fields(attack) if f.name != "base"},
+                attack.base]
+    else:
+        what = [getattr(shipped, "__module__", ""), getattr(shipped, "__qualname__", repr(shipped))]
+    return execution.digest(kind, what, context.dim, context.key_data, dataclasses.asdict(context.config),
+                            context.steps, context.seeds, context.starts, source_hash())
+
+
+def _search_job(kind: str, function, context: SearchContext, units: int, resumable: bool):
+    from stp_env import execution
+
+    restarts = context.config.restarts
+    return execution.Job(name=f"falsify-{kind}", function=function, context=context, arguments=tuple(range(restarts)),
+                         fingerprint=_fingerprint(kind, context) if resumable else None,
+                         units=(units,) * restarts)
+
+
+def _run(job, executor, out_dir, progress) -> list[dict]:
+    from stp_env.execution import check_executor
+
+    return check_executor(executor).run(job, out_dir=out_dir, progress=None if progress is None else progress.update)
+
+
+def _combine(pieces: list[dict], evaluations: int, default_z) -> SearchResult:
+    """A search's result from its restarts' (in restart order), as the one batched loop over every restart found
+    it: per iteration, the first restart with the best value of the iteration is kept when it beats the best so
+    far; the values iteration by iteration, restarts in order within each."""
+    best_v, best_z, history = -math.inf, None, []
+    for t in range(pieces[0]["best_values"].shape[0]):
+        for piece in pieces:
+            if piece["best_values"][t] > best_v:
+                best_v, best_z = float(piece["best_values"][t]), piece["best_z"][t].copy()
+        history.append(best_v)
+    values = np.concatenate([p["values"] for p in pieces], axis=1).ravel()
+    return SearchResult(best_z=default_z if best_z is None else best_z, best_value=best_v, history=tuple(history),
+                        evaluations=evaluations, values=values)
+
+
 def cross_entropy(objective: Objective, dim: int, key, config: SearchConfig, *, budget: int | None = None,
-                  progress=None, seeds=None) -> SearchResult:
+                  progress=None, seeds=None, executor=None, out_dir=None) -> SearchResult:
     """The cross-entropy method on ``[0, 1]^dim`` (see the module docstring). ``seeds`` ``(S, dim)``: the first
     ``min(S, restarts - 1)`` restarts start from them (mean at the seed, deviation :data:`SEED_STD`; the seed itself
-    is the first sample of its restart), the others from the whole box, so that a seeded search also explores."""
+    is the first sample of its restart), the others from the whole box, so that a seeded search also explores.
+
+    The restarts are the pieces of one job (:mod:`stp_env.execution`; :func:`cem_restart`): ``executor`` runs them
+    (default: in this process, in order), ``out_dir`` keeps the finished ones for a resumed run. Restart ``r``
+    draws row ``r`` of the search's one stream of normal samples (every iteration draws ``(restarts, population,
+    dim)`` from the key), so the samples are those of the search whatever runs it."""
     budget = config.budget if budget is None else budget
-    pop, restarts = config.population, config.restarts
-    per_iter = pop * restarts
-    iters = max(1, budget // per_iter)
-    n_elite = max(2, math.ceil(config.elite_fraction * pop))
-    mean = np.full((restarts, dim), 0.5)
-    std = np.full((restarts, dim), 0.3)
-    n_seeded = 0
+    iters = max(1, budget // (config.population * config.restarts))
     if seeds is not None:
         seeds = _check_seeds(seeds, dim)
-        n_seeded = min(len(seeds), max(restarts - 1, 1))
-        mean[:n_seeded] = seeds[:n_seeded]
-        std[:n_seeded] = SEED_STD
-    rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel().astype(np.uint32))
-    program = compiled(objective)  # once for the whole search
-    best_z, best_v, history, values = None, -math.inf, [], []
-    for it in range(iters):
-        zs = np.clip(mean[:, None, :] + std[:, None, :] * rng.standard_normal((restarts, pop, dim)), 0.0, 1.0)
-        if it == 0 and n_seeded:
-            zs[:n_seeded, 0] = seeds[:n_seeded]
-        vals = evaluate(objective, zs.reshape(-1, dim), config.batch, program=program).reshape(restarts, pop)
-        values.append(vals.ravel())
+        seeds = seeds[:min(len(seeds), max(config.restarts - 1, 1))]
+    from stp_env import execution
+
+    context = SearchContext(token=execution.new_token(), objective=ship(objective), dim=dim,
+                            key_data=np.asarray(jax.random.key_data(key)), config=config, steps=iters, seeds=seeds)
+    job = _search_job("cem", cem_restart, context, iters * config.population, out_dir is not None)
+    pieces = _run(job, executor, out_dir, progress)
+    return _combine(pieces, iters * config.population * config.restarts, np.full(dim, 0.5))
+
+
+def _objective_and_program(context: SearchContext, what: str, transform=jax.vmap):
+    from stp_env import execution
+
+    return execution.memo(context.token, what, lambda: (lambda f: (f, compiled(f, transform)))(
+        landed(context.objective)))
+
+
+def cem_restart(context: SearchContext, restart) -> dict:
+    """Restart ``restart`` of a cross-entropy search (a piece of its job): per iteration its best value and the
+    first sample that reached it (``best_values``, ``best_z``) and every value (``values``, iteration by row)."""
+    config, dim, r = context.config, context.dim, int(restart)
+    if not 0 <= r < config.restarts:
+        raise ValueError(f"no restart {restart!r} in a search of {config.restarts}.")
+    objective, program = _objective_and_program(context, "cem")
+    pop, n_elite = config.population, max(2, math.ceil(config.elite_fraction * config.population))
+    seeded = context.seeds is not None and r < len(context.seeds)
+    mean = context.seeds[r].copy() if seeded else np.full(dim, 0.5)
+    std = np.full(dim, SEED_STD if seeded else 0.3)
+    rng = np.random.default_rng(np.asarray(context.key_data).ravel().astype(np.uint32))
+    best_values, best_z, values = [], [], []
+    for it in range(context.steps):
+        draw = rng.standard_normal((config.restarts, pop, dim))[r]  # the search's whole draw; this restart's row
+        zs = np.clip(mean[None, :] + std[None, :] * draw, 0.0, 1.0)
+        if it == 0 and seeded:
+            zs[0] = context.seeds[r]
+        vals = evaluate(objective, zs, config.batch, program=program)
+        values.append(vals)
         finite = np.where(np.isfinite(vals), vals, -np.inf)
-        i, j = np.unravel_index(np.argmax(finite), finite.shape)
-        if finite[i, j] > best_v:
-            best_v, best_z = float(finite[i, j]), zs[i, j].copy()
-        order = np.argsort(-finite, axis=1)[:, :n_elite]
-        elite = np.take_along_axis(zs, order[:, :, None], axis=1)
+        j = int(np.argmax(finite))
+        best_values.append(finite[j])
+        best_z.append(zs[j].copy())
+        elite = zs[np.argsort(-finite)[:n_elite]]
         a = config.smoothing
-        mean = a * mean + (1 - a) * elite.mean(axis=1)
-        std = np.maximum(a * std + (1 - a) * elite.std(axis=1), config.min_std)
-        history.append(best_v)
-        if progress is not None:
-            progress.update(per_iter)
-    if best_z is None:  # every evaluation was -inf or NaN
-        best_z = np.full(dim, 0.5)
-    return SearchResult(best_z=best_z, best_value=best_v, history=tuple(history), evaluations=iters * per_iter,
-                        values=np.concatenate(values))
+        mean = a * mean + (1 - a) * elite.mean(axis=0)
+        std = np.maximum(a * std + (1 - a) * elite.std(axis=0), config.min_std)
+    return {"best_values": np.asarray(best_values, np.float64), "best_z": np.asarray(best_z),
+            "values": np.asarray(values, np.float64)}
+
+
+GRADIENT_STARTS = 8
+"""Random starts of the gradient ascent per restart."""
 
 
 def gradient_ascent(objective: Objective, dim: int, key, config: SearchConfig, *, budget: int | None = None,
-                    starts=None, progress=None) -> SearchResult:
+                    starts=None, progress=None, executor=None, out_dir=None) -> SearchResult:
     """Adam ascent of ``objective(sigmoid(y))`` from ``config.restarts * 8`` starts (plus ``starts``, points of
-    ``[0, 1]^dim`` such as a cross-entropy result), all starts in one batch; each step costs one value-and-gradient
-    evaluation per start (counted as one evaluation of the budget)."""
+    ``[0, 1]^dim`` such as a cross-entropy result, in place of the last random ones), all drawn from ``key`` at
+    once; each step costs one value-and-gradient evaluation per start (counted as one evaluation of the budget).
+
+    Restart ``r`` ascends from starts ``8 r .. 8 r + 7`` (a piece of one job, :func:`gradient_restart`, run by
+    ``executor``; ``out_dir`` as in :func:`cross_entropy`); every start's ascent is independent of the others."""
     budget = config.budget if budget is None else budget
-    n_random = config.restarts * 8
+    n_random = config.restarts * GRADIENT_STARTS
     z0 = np.asarray(jax.random.uniform(key, (n_random, dim)), np.float64)
     if starts is not None:
         z0 = np.concatenate([np.atleast_2d(np.asarray(starts, np.float64)), z0])[:max(n_random, 1)]
     z0 = np.clip(z0, 1e-3, 1 - 1e-3)
     n = z0.shape[0]
     steps = max(1, budget // n)
+    from stp_env import execution
+
+    context = SearchContext(token=execution.new_token(), objective=ship(objective), dim=dim,
+                            key_data=np.asarray(jax.random.key_data(key)), config=config, steps=steps, starts=z0)
+    job = _search_job("gradient", gradient_restart, context, steps * GRADIENT_STARTS, out_dir is not None)
+    pieces = _run(job, executor, out_dir, progress)
+    return _combine(pieces, steps * n, np.asarray(z0[0]))
+
+
+def _value_and_grad(g):
+    return jax.vmap(jax.value_and_grad(lambda yy: g(jax.nn.sigmoid(yy))))
+
+
+def gradient_restart(context: SearchContext, restart) -> dict:
+    """Restart ``restart`` of a gradient ascent (a piece of its job): Adam from its starts; per step the best value
+    and the point that reached it first (``best_values``, ``best_z``), and every value (``values``)."""
+    config, r = context.config, int(restart)
+    if not 0 <= r < config.restarts:
+        raise ValueError(f"no restart {restart!r} in a search of {config.restarts}.")
+    _, value_and_grad = _objective_and_program(context, "gradient", _value_and_grad)
+    z0 = context.starts[r * GRADIENT_STARTS:(r + 1) * GRADIENT_STARTS]
     y = jnp.asarray(np.log(z0 / (1 - z0)), jnp.float32)
-
-    def transform(g):
-        return jax.vmap(jax.value_and_grad(lambda yy: g(jax.nn.sigmoid(yy))))
-
-    value_and_grad = compiled(objective, transform)
     m = jnp.zeros_like(y)
     v = jnp.zeros_like(y)
     b1, b2, eps, lr = 0.9, 0.999, 1e-8, config.learning_rate
-    best_v, best_z, history, values = -math.inf, np.asarray(z0[0]), [], []
-    for k in range(1, steps + 1):
+    best_values, best_z, values = [], [], []
+    for k in range(1, context.steps + 1):
         vals, g = value_and_grad(y)
         vals = np.asarray(vals, np.float64)
         values.append(vals)
         finite = np.where(np.isfinite(vals), vals, -np.inf)
         i = int(np.argmax(finite))
-        if finite[i] > best_v:
-            best_v, best_z = float(finite[i]), np.asarray(jax.nn.sigmoid(y[i]), np.float64)
+        best_values.append(finite[i])
+        best_z.append(np.asarray(jax.nn.sigmoid(y[i]), np.float64))
         g = jnp.where(jnp.isfinite(g), g, 0.0)
         m = b1 * m + (1 - b1) * g
         v = b2 * v + (1 - b2) * g * g
         y = y + lr * (m / (1 - b1 ** k)) / (jnp.sqrt(v / (1 - b2 ** k)) + eps)
-        history.append(best_v)
-        if progress is not None:
-            progress.update(n)
-    return SearchResult(best_z=best_z, best_value=best_v, history=tuple(history), evaluations=steps * n,
-                        values=np.concatenate(values))
+    return {"best_values": np.asarray(best_values, np.float64), "best_z": np.asarray(best_z),
+            "values": np.asarray(values, np.float64)}
 
 
-def search(objective: Objective, dim: int, key, config: SearchConfig, *, progress=None, seeds=None) -> SearchResult:
+def search(objective: Objective, dim: int, key, config: SearchConfig, *, progress=None, seeds=None, executor=None,
+           out_dir=None) -> SearchResult:
     """Run ``config.method`` within ``config.budget`` evaluations; ``"both"`` runs the cross-entropy method on
     half the budget and starts the gradient ascent from its result (among random starts). ``seeds`` (points of
-    ``[0, 1]^dim``, e.g. an attack's game strategies): where the searches start (see :func:`cross_entropy`)."""
+    ``[0, 1]^dim``, e.g. an attack's game strategies): where the searches start (see :func:`cross_entropy`).
+    ``executor`` runs the restarts (:mod:`stp_env.execution`; default in this process), ``out_dir`` keeps the
+    finished ones so that a killed search resumes."""
+    run = {"executor": executor, "out_dir": out_dir, "progress": progress}
     if config.method == "cem":
-        return cross_entropy(objective, dim, key, config, progress=progress, seeds=seeds)
+        return cross_entropy(objective, dim, key, config, seeds=seeds, **run)
     if config.method == "gradient":
-        return gradient_ascent(objective, dim, key, config, progress=progress,
-                               starts=None if seeds is None else _check_seeds(seeds, dim))
+        return gradient_ascent(objective, dim, key, config, starts=None if seeds is None else _check_seeds(seeds, dim),
+                               **run)
     k1, k2 = jax.random.split(key)
-    first = cross_entropy(objective, dim, k1, config, budget=config.budget // 2, progress=progress, seeds=seeds)
+    first = cross_entropy(objective, dim, k1, config, budget=config.budget // 2, seeds=seeds, **run)
     second = gradient_ascent(objective, dim, k2, config, budget=config.budget - first.evaluations,
-                             starts=first.best_z[None, :], progress=progress)
+                             starts=first.best_z[None, :], **run)
     best = first if first.best_value >= second.best_value else second
     return SearchResult(best_z=best.best_z, best_value=best.best_value, history=first.history + second.history,
                         evaluations=first.evaluations + second.evaluations,

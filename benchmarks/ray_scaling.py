@@ -1,0 +1,107 @@
+"""One evaluation in this process against the same evaluation on Ray with 1 and 2 workers on this machine
+(:mod:`stp_env.execution`), and what that projects to a 32-core machine.
+
+    python benchmarks/ray_scaling.py [--scenario town] [--kbar 2] [--episodes 1000] [--batch-size 125]
+                                     [--cores 32]
+
+Prints one JSON line. Every case first runs one batch per worker to compile (or load from the persistent
+compilation cache) the batch's program and to start the workers (``warmup_s``), then times the whole evaluation
+(``seconds``; the same ``episodes`` and batches, the same results bit for bit, which the benchmark checks), and
+reports the time spent inside the pieces (``pieces_compute_s``, measured where they ran) and, per piece, the wall
+time outside them (``outside_pieces_per_piece_s``: workers x wall time less the pieces' time). The batches are the
+pieces: ``piece_s`` is the in-process time of one batch, ``overhead_per_piece_s`` what Ray with one worker adds
+per batch outside the pieces over what the in-process run spends there (task dispatch, the params shipped once per
+job, the results' transfer). The in-process run is timed again at the end (``in_process_again``): this machine is
+shared, and the two in-process times show how much its speed drifted during the run.
+
+The projection for ``cores`` cores assumes ``cores`` workers that each run a batch as fast as one process does here
+(one worker per core; this machine's 2 cores are shared with other work, and one process uses both of them when it
+runs alone, so a worker per core is slower per batch than the in-process run) and no cost but the measured overhead
+per piece: it is a projection from the measured per-piece numbers, not a measurement.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import time
+
+import numpy as np
+
+from stp_env import execution
+from stp_env.evaluation import Configuration, build_params, evaluate
+
+
+def timed(config, params, episodes: int, batch_size: int, executor, workers: int) -> tuple[dict, object]:
+    kwargs = {"batch_size": batch_size, "params": [params], "progress": False, "executor": executor}
+    start = time.perf_counter()
+    evaluate([config], episodes=batch_size * workers, **kwargs)   # compile / start every worker
+    warmup = time.perf_counter() - start
+    start = time.perf_counter()
+    result = evaluate([config], episodes=episodes, **kwargs)[0]
+    seconds = time.perf_counter() - start
+    pieces = math.ceil(episodes / batch_size)
+    busy = result.summary["seconds"]  # the sum of the batches' own compute times, measured where they ran
+    return ({"warmup_s": round(warmup, 2), "seconds": round(seconds, 2),
+             "episodes_per_s": round(episodes / seconds, 1), "pieces_compute_s": round(busy, 2),
+             "outside_pieces_per_piece_s": round((seconds * workers - busy) / pieces, 3)}, result)
+
+
+def same(a, b) -> bool:
+    return all(np.asarray(a.episodes[k]).tobytes() == np.asarray(b.episodes[k]).tobytes() for k in a.episodes)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--scenario", default="town")
+    parser.add_argument("--kbar", type=int, default=2)
+    parser.add_argument("--intruder", default="max-k")
+    parser.add_argument("--episodes", type=int, default=1000)
+    parser.add_argument("--batch-size", type=int, default=125)
+    parser.add_argument("--cores", type=int, default=32, help="the machine the projection is for")
+    parser.add_argument("--projected-episodes", type=int, default=10_000)
+    args = parser.parse_args()
+    config = Configuration(scenario=args.scenario, kbar=args.kbar, intruder=args.intruder)
+    params = build_params([config], progress=False)[0]
+    pieces = math.ceil(args.episodes / args.batch_size)
+    out = {"case": "ray_scaling", "scenario": args.scenario, "kbar": args.kbar, "intruder": args.intruder,
+           "episodes": args.episodes, "batch_size": args.batch_size, "pieces": pieces,
+           "cpus": os.cpu_count(), "loadavg_1min_before": round(os.getloadavg()[0], 2)}
+    out["in_process"], local = timed(config, params, args.episodes, args.batch_size, execution.LocalExecutor(), 1)
+    identical = True
+    for workers in (1, 2):
+        executor = execution.RayExecutor(num_cpus=workers)
+        try:
+            out[f"ray_{workers}_workers"], result = timed(config, params, args.episodes, args.batch_size, executor,
+                                                         workers)
+        finally:
+            executor.shutdown()
+        identical = identical and same(local, result)
+    # the machine is shared: the in-process run again, after the Ray runs, shows how much its speed drifted
+    out["in_process_again"], _ = timed(config, params, args.episodes, args.batch_size, execution.LocalExecutor(), 1)
+    t_local, t1, t2 = (out[k]["seconds"] for k in ("in_process", "ray_1_workers", "ray_2_workers"))
+    piece_s = t_local / pieces
+    # what Ray adds per piece (dispatch, the params shipped once per job, the results' transfer and writing):
+    # with one worker, the wall time not spent inside a piece, less the same measure in this process
+    overhead = max(out["ray_1_workers"]["outside_pieces_per_piece_s"]
+                   - out["in_process"]["outside_pieces_per_piece_s"], 0.0)
+    out.update(identical_results=identical, ratio_ray1_over_in_process=round(t1 / t_local, 3),
+               ratio_ray2_over_in_process=round(t2 / t_local, 3), speedup_ray2_over_ray1=round(t1 / t2, 3),
+               piece_s=round(piece_s, 3), overhead_per_piece_s=round(overhead, 3))
+    projected_pieces = math.ceil(args.projected_episodes / args.batch_size)
+    rounds = math.ceil(projected_pieces / args.cores)
+    projected = rounds * (piece_s + overhead)
+    out["projection"] = {
+        "label": "projection from the measured per-piece numbers, not a measurement",
+        "cores": args.cores, "episodes": args.projected_episodes, "pieces": projected_pieces,
+        "in_process_s": round(projected_pieces * piece_s, 1), "ray_s": round(projected, 1),
+        "speedup": round(projected_pieces * piece_s / projected, 1),
+        "ideal_speedup": min(args.cores, projected_pieces)}
+    out["loadavg_1min_after"] = round(os.getloadavg()[0], 2)
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,260 @@
+"""The execution seam (``stp_env/execution.py``): jobs of independent pieces run in-process or on Ray with the same
+results bit for bit; a dead worker's piece runs again; a killed job resumes from the pieces it wrote; and the
+package never imports Ray unless asked.
+
+The Ray tests start a cluster of their own (a head and two worker processes on this machine) and need the ``ray``
+extra, which CI installs (``pip install -e '.[dev]'``)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+from _cli import run_cli
+
+from stp_env import execution
+from stp_env.evaluation import Configuration, runner
+
+TESTS = Path(__file__).resolve().parent
+ROOT = TESTS.parent
+TINY = Configuration(scenario="tiny-intruder", kbar=2, intruder="greedy", vehicle_policy="nominal")
+EVALUATION = {"episodes": 5, "seed": 1, "batch_size": 2, "progress": False}  # 3 batches: 2 + 2 + 1 episodes
+TIMING = ("seconds", "episodes_per_s")
+
+
+def _same(a, b, where: str = "") -> None:
+    """``a`` and ``b`` equal bit for bit: every array (dtype, shape, bits, NaN where NaN), every number."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and set(a) == set(b), (where, sorted(set(a) ^ set(b)))
+        for k in a:
+            _same(a[k], b[k], f"{where}/{k}")
+    elif isinstance(a, (list, tuple)):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            _same(x, y, f"{where}[{i}]")
+    elif isinstance(a, (np.ndarray, np.generic, jax.Array)):
+        x, y = np.asarray(a), np.asarray(b)
+        assert x.dtype == y.dtype and x.shape == y.shape, (where, x.dtype, y.dtype, x.shape, y.shape)
+        assert x.tobytes() == y.tobytes(), where
+    else:
+        assert a == b or (a != a and b != b), (where, a, b)
+
+
+def _same_results(local, other) -> None:
+    assert len(local) == len(other)
+    for r, s in zip(local, other):
+        _same(r.episodes, s.episodes, "episodes")
+        _same(r.showcase, s.showcase, "showcase")
+        _same(r.events, s.events, "events")
+        _same({k: v for k, v in r.summary.items() if k not in TIMING},
+              {k: v for k, v in s.summary.items() if k not in TIMING}, "summary")
+
+
+@pytest.fixture(scope="module")
+def local_evaluation():
+    return runner.evaluate([TINY], **EVALUATION)
+
+
+# ------------------------------------------------------------------------------------------------ without Ray
+def test_the_package_does_not_import_ray_unless_asked():
+    code = ("import sys, stp_env, stp_env.cli, stp_env.execution, stp_env.evaluation, stp_env.falsify.cli, "
+            "stp_env.falsify.search\n"
+            "stp_env.cli._build_parser()\n"
+            "from stp_env import execution\n"
+            "execution.executor_for(False, None)\n"
+            "assert 'ray' not in sys.modules, sorted(m for m in sys.modules if m.startswith('ray'))\n"
+            "print('no ray')")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0 and "no ray" in out.stdout, out.stderr
+
+
+def test_without_ray_the_options_fail_in_one_line_naming_the_extra(monkeypatch, tmp_path):
+    monkeypatch.setitem(sys.modules, "ray", None)  # what an environment without the extra gives
+    with pytest.raises(ValueError, match=r"pip install 'stp-env\[ray\]'"):
+        execution.RayExecutor()
+    for argv in (["evaluate", "--scenario", "tiny-intruder", "--kbar", "2", "--ray", "--no-progress"],
+                 ["falsify", "--scenario", "tiny", "--ray-address", "127.0.0.1:6379", "--no-progress"]):
+        code, stdout, stderr = run_cli([*argv, "--out", str(tmp_path / argv[0])])
+        assert code == 2 and stdout == "", (argv, stderr)
+        assert stderr.count("\n") == 1 and "pip install 'stp-env[ray]'" in stderr, stderr
+
+
+def test_jobs_check_their_inputs():
+    with pytest.raises(ValueError, match="name"):
+        execution.Job(name="a/b", function=_square, context=None, arguments=(1,))
+    with pytest.raises(ValueError, match="no piece"):
+        execution.Job(name="j", function=_square, context=None, arguments=())
+    with pytest.raises(ValueError, match="fingerprint"):
+        execution.Job(name="j", function=_square, context=None, arguments=(1,), fingerprint="not hex")
+    with pytest.raises(ValueError, match="units"):
+        execution.Job(name="j", function=_square, context=None, arguments=(1, 2), units=(1,))
+    with pytest.raises(ValueError, match="cannot be resumed"):
+        execution.LocalExecutor().run(execution.Job(name="j", function=_square, context=None, arguments=(1,)),
+                                      out_dir="x")
+    with pytest.raises(ValueError, match="executor must be an Executor"):
+        runner.evaluate([TINY], executor="ray", **EVALUATION)
+    with pytest.raises(ValueError, match="dtype object"):
+        execution.LocalExecutor().run(execution.Job(name="j", function=_objects, context=None, arguments=(1,)))
+
+
+def _square(context, i):
+    return {"x": np.asarray([i * i]), "pid": np.asarray(os.getpid())}
+
+
+def _objects(context, i):
+    return {"x": np.asarray([None])}
+
+
+def test_params_travel_to_workers_exactly():
+    """``EnvParams`` as host arrays (what the object store holds) and back: the same tree, dtypes, shapes, weak
+    types and bits; a weakly typed leaf stays weak (a program would otherwise compile again)."""
+    params = runner.build_params([TINY], progress=False)[0]
+    import pickle
+
+    host = pickle.loads(pickle.dumps(execution.to_host(params)))
+    leaves = jax.tree.leaves(host)
+    assert leaves and all(isinstance(x, execution.HostLeaf) and isinstance(x.array, np.ndarray) for x in leaves)
+    back = execution.to_device(host)
+    (a, ta), (b, tb) = jax.tree.flatten(params), jax.tree.flatten(back)
+    assert ta == tb and len(a) == len(b) > 10
+    for x, y in zip(a, b):
+        assert x.dtype == y.dtype and x.shape == y.shape and x.weak_type == y.weak_type
+        assert np.asarray(x).tobytes() == np.asarray(y).tobytes()
+    weak = execution.to_device(execution.to_host({"w": jax.numpy.asarray(1.5)}))["w"]
+    assert weak.weak_type and float(weak) == 1.5
+
+
+def test_a_killed_job_resumes_from_the_pieces_it_wrote(tmp_path, monkeypatch, local_evaluation):
+    """An evaluation interrupted in its third batch wrote the first two; run again, it computes only the third and
+    gives what an uninterrupted run gives. Another seed is another job: nothing is reused."""
+    calls = []
+    piece = runner.evaluation_piece
+
+    def interrupted_at_the_third(context, argument):
+        calls.append(argument)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return piece(context, argument)
+
+    monkeypatch.setattr(runner, "evaluation_piece", interrupted_at_the_third)
+    with pytest.raises(KeyboardInterrupt):
+        runner.evaluate([TINY], pieces_dir=tmp_path, **EVALUATION)
+    folders = list(tmp_path.iterdir())
+    assert len(folders) == 1 and sorted(p.name for p in folders[0].iterdir()) == ["piece-000000.npz",
+                                                                                  "piece-000001.npz"]
+    calls.clear()
+    monkeypatch.setattr(runner, "evaluation_piece", lambda c, a: (calls.append(a), piece(c, a))[1])
+    resumed = runner.evaluate([TINY], pieces_dir=tmp_path, **EVALUATION)
+    assert calls == [(0, 4)]                                   # only the batch that had not finished
+    _same_results(local_evaluation, resumed)
+    calls.clear()
+    runner.evaluate([TINY], pieces_dir=tmp_path, **{**EVALUATION, "seed": 2})
+    assert len(calls) == 3 and len(list(tmp_path.iterdir())) == 2
+
+
+def test_an_unreadable_piece_runs_again(tmp_path):
+    job = execution.Job(name="squares", function=_square, context=None, arguments=(0, 1, 2), fingerprint="ab" * 16)
+    first = execution.LocalExecutor().run(job, out_dir=tmp_path)
+    path = execution.piece_path(job.folder(tmp_path), 1)
+    path.write_bytes(b"not an archive")
+    with pytest.warns(RuntimeWarning, match=str(path.name)):
+        again = execution.LocalExecutor().run(job, out_dir=tmp_path)
+    assert [int(p["x"][0]) for p in again] == [0, 1, 4] and execution.read_piece(path)["x"][0] == 1
+    assert [p["x"].tobytes() for p in first] == [p["x"].tobytes() for p in again]
+
+
+# ------------------------------------------------------------------------------------------------ on Ray
+@pytest.fixture(scope="module")
+def ray_executor():
+    ray = pytest.importorskip("ray", reason="the ray extra is not installed (pip install 'stp-env[ray]'); CI "
+                                            "installs it with the dev extra")
+    assert not ray.is_initialized()
+    # A head and two worker processes on this machine. The workers import the pieces' functions by name: the
+    # package's folder and this test folder on their path (runtime_env: Ray's documented way).
+    path = os.pathsep.join(filter(None, [str(ROOT), str(TESTS), os.environ.get("PYTHONPATH")]))
+    with warnings.catch_warnings():  # JAX's warning at Ray's fork, which execs at once
+        warnings.filterwarnings("ignore", message=r"os\.fork\(\) was called", category=RuntimeWarning)
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
+                 runtime_env={"env_vars": {"PYTHONPATH": path, "JAX_PLATFORMS": "cpu"}})
+    try:
+        yield execution.RayExecutor(max_retries=2)
+    finally:
+        ray.shutdown()
+
+
+def test_pieces_run_on_two_worker_processes(ray_executor):
+    job = execution.Job(name="squares", function=_slow_square, context=None, arguments=tuple(range(6)))
+    results = ray_executor.run(job)
+    assert [int(r["x"][0]) for r in results] == [i * i for i in range(6)]      # in piece order
+    assert len({int(r["pid"]) for r in results}) >= 2 and os.getpid() not in {int(r["pid"]) for r in results}
+    assert ray_executor.workers() == 2
+
+
+def _slow_square(context, i):
+    time.sleep(0.3)
+    return _square(context, i)
+
+
+def test_an_evaluation_on_ray_is_the_in_process_one_bit_for_bit(ray_executor, local_evaluation):
+    on_ray = runner.evaluate([TINY], executor=ray_executor, **EVALUATION)
+    _same_results(local_evaluation, on_ray)
+    assert on_ray[0].summary["episodes"] == EVALUATION["episodes"]
+
+
+def test_a_search_on_ray_is_the_in_process_one_bit_for_bit(ray_executor):
+    from stp_env import assembly, sim
+    from stp_env.falsify.search import SearchConfig, search
+    from stp_env.falsify.tracking import TrackingAttack
+    from stp_env.scenarios import make
+
+    params = assembly.params_for(make("town", kbar=2), sim.EnvConfig(wind_model="worst"), progress=False)
+    attack = TrackingAttack(base=params, horizon=5.0, segment=1.0, wind="search", wind_segment=1.0)
+    config = SearchConfig(budget=60, population=10, restarts=3, batch=10)        # 3 restarts of 2 iterations
+    local = search(attack.objective, attack.dim, jax.random.key(3), config)
+    on_ray = search(attack.objective, attack.dim, jax.random.key(3), config, executor=ray_executor)
+    _same(dataclasses.asdict(local), dataclasses.asdict(on_ray), "search")
+    assert local.evaluations == 60 and len(local.values) == 60
+
+
+def _dies_once(context, argument):
+    """The evaluation's piece, except that the first worker to run batch 1 dies (a marker file says it did)."""
+    marker, inner = context
+    if argument[1] == 2 and not os.path.exists(marker):
+        Path(marker).write_text("died")
+        os._exit(1)
+    return runner.evaluation_piece(inner, argument)
+
+
+def test_a_dead_workers_piece_runs_again_with_the_same_result(ray_executor, tmp_path):
+    params = runner.build_params([TINY], progress=False)
+    n_steps = max(runner.sim.steps_for(p) for p in params)
+    job = runner.evaluation_job([TINY], params, seed=1, episodes=5, batch_size=2, n_steps=n_steps, record=True,
+                                airborne_only=True)
+    marker = tmp_path / "died"
+    dying = dataclasses.replace(job, function=_dies_once, context=(str(marker), job.context))
+    on_ray = ray_executor.run(dying)
+    assert marker.read_text() == "died"                         # a worker did die in the job
+    local = execution.LocalExecutor().run(job)
+    _same([{k: v for k, v in p.items() if k != "seconds"} for p in local],
+          [{k: v for k, v in p.items() if k != "seconds"} for p in on_ray], "pieces")
+
+
+def test_the_command_line_options_choose_the_executor(ray_executor):
+    from stp_env import cli, cli_kit
+
+    parser = cli._build_parser()
+    for argv in (["evaluate", "--ray"], ["falsify", "--ray-address", "auto"]):
+        assert isinstance(cli_kit.executor(parser.parse_args(argv)), execution.RayExecutor), argv
+    assert isinstance(cli_kit.executor(parser.parse_args(["evaluate"])), execution.LocalExecutor)
+    text = json.dumps(vars(parser.parse_args(["falsify", "--ray-address", "10.0.0.1:6379"])))
+    assert '"ray_address": "10.0.0.1:6379"' in text
