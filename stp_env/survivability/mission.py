@@ -112,7 +112,7 @@ def _known_key(traffic: Traffic, config: TrafficConfig, planner: PlannerConfig, 
 class MissionResult:
     outcome: str                  # "G" (goal), "A" (alternative site) or "L" (no way left: emergency landing)
     path: tuple[int, ...]         # graph state indices flown, from the origin
-    revealed: tuple[int, ...]     # intruders revealed by conflicts, in order
+    revealed: tuple[int, ...]     # intruders revealed (by conflicts, or sensed), in order
     omega_switch: int | None      # window at which Omega was widened to the alternative sites (None: never)
     n_dp: int                     # DP sweeps computed
     reveal_minutes: tuple[int, ...] = ()   # minute (since departure) at which each of ``revealed`` was revealed
