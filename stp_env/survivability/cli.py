@@ -26,6 +26,7 @@ def add_parser(sub) -> None:
     policies = kit.source_constant("survivability/config.py", "POLICIES")
     traffic_models = kit.source_constant("survivability/config.py", "TRAFFIC_MODELS")
     nf_counts = kit.source_constant("survivability/config.py", "NF_COUNTS")
+    reveals = kit.source_constant("survivability/config.py", "REVEAL_MODELS")
     levels = list(kit.source_constant("survivability/study.py", "LEVELS"))
 
     sp = sub.add_parser(
@@ -62,6 +63,13 @@ def add_parser(sub) -> None:
                     help="what pi_Nf counts: landing (default; trajectories from the successor state to any "
                          "landing site) or goal (the paper's Algorithm 1: trajectories to the terminal set Omega, "
                          "summed over the successor's cell)")
+    sp.add_argument("--reveal", choices=reveals, default=reveals[0],
+                    help="when an intruder's actual path becomes known: segment (default; a conflict anywhere on the "
+                         "segment chosen at a decision point), step (a conflict in the next time step; one found "
+                         "after the decision point ends the mission as an emergency landing) or radius (as step, "
+                         "and any intruder within --sense-km of the ownship)")
+    sp.add_argument("--sense-km", type=kit.positive, default=None,
+                    help="with --reveal radius: the sensing radius [km] (required there)")
     sp.add_argument("--max-hours", type=kit.real(0.0, 1e6, lo_open=True), default=None,
                     help="stop after this much wall time [h] (rerun the same command to resume; default: no limit)")
     sp.add_argument("--worker", type=_worker, default=(0, 1), metavar="I/N",
@@ -81,7 +89,8 @@ def config_from_args(args):
     return StudyConfig(n_partial=tuple(args.partial), n_unknown=tuple(args.unknown), n_instances=args.instances,
                        seed=args.seed, policies=tuple(args.policies),
                        traffic=TrafficConfig(model=args.traffic, hover_share=args.hover_share),
-                       planner=PlannerConfig(beta=args.beta, n_mc=args.n_mc, nf_count=args.nf_count))
+                       planner=PlannerConfig(beta=args.beta, n_mc=args.n_mc, nf_count=args.nf_count,
+                                             reveal=args.reveal, sense_km=args.sense_km))
 
 
 def run(args) -> int:

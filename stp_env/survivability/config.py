@@ -32,6 +32,15 @@ successor *state* to any landing site (the default until the study is re-run), o
 ``c.N_f`` of Algorithm 1: the trajectories to the current terminal set ``Omega`` summed over every state of the
 successor's *cell*."""
 
+REVEAL_MODELS = ("segment", "step", "radius")
+"""When an intruder whose actual path the ownship does not know (an unknown one, or a partially known one's actual
+path) becomes known (:mod:`stp_env.survivability.mission`; the survivability paper, Section III-B: "the ownship is
+unaware of the intruder's existence until the ownship encounters a conflict with the intruder"): ``segment``, when
+its actual path blocks the segment chosen at a decision point (a look-ahead of one decision window; the default
+until the study is re-run); ``step``, when it blocks a cell the ownship occupies in the next time step (a conflict
+one step ahead, the sentence read literally); ``radius``, also when it comes within ``sense_km`` of the ownship.
+In every model a revealed intruder's whole actual path becomes known."""
+
 PAPER_HOVER_SHARE = 0.1
 """Share of hovering (degree-1) intruders in the ``paper`` traffic model when ``hover_share`` is not given. The
 paper models hovering intruders but states no share: 0.1 is this project's choice."""
@@ -339,12 +348,21 @@ class PlannerConfig(_Overrides):
         nf_count: what ``pi_Nf``'s ``N_f`` counts (:data:`NF_COUNTS`): ``landing`` (default), the trajectories
             from the successor state to any landing site; ``goal``, the paper's ``c.N_f`` (Section III-A,
             Algorithm 1), the trajectories to the current terminal set ``Omega`` summed over the successor's cell.
+        reveal: when an intruder's actual path becomes known (:data:`REVEAL_MODELS`, Section III-B's "until the
+            ownship encounters a conflict"): ``segment`` (default), a conflict anywhere on the segment chosen at a
+            decision point; ``step``, a conflict in the next time step (one cell time, ``cell_min``), so that a
+            conflict found after the decision point cannot be avoided (the primitive holds until the next decision
+            point, Section II) and ends the mission as an emergency landing; ``radius``, as ``step`` and also an
+            intruder within ``sense_km`` of the ownship at a whole time step.
+        sense_km: the sensing radius [km] of ``reveal="radius"`` (required there; must be ``None`` otherwise).
     """
 
     beta: float = 0.5
     n_mc: int = 2500
     n_survival: int = 256
     nf_count: str = "landing"
+    reveal: str = "segment"
+    sense_km: float | None = None
 
     def __post_init__(self) -> None:
         beta = _number("beta", self.beta)
@@ -354,6 +372,15 @@ class PlannerConfig(_Overrides):
         _integer("n_survival", self.n_survival)
         if self.nf_count not in NF_COUNTS:
             raise ValueError(f"nf_count must be one of {', '.join(NF_COUNTS)}; got {self.nf_count!r}.")
+        if self.reveal not in REVEAL_MODELS:
+            raise ValueError(f"reveal must be one of {', '.join(REVEAL_MODELS)}; got {self.reveal!r}.")
+        if self.reveal == "radius":
+            if self.sense_km is None:
+                raise ValueError("reveal='radius' needs a sensing radius sense_km [km] > 0.")
+            object.__setattr__(self, "sense_km", float(_number("sense_km", self.sense_km, positive=True)))
+        elif self.sense_km is not None:
+            raise ValueError(f"sense_km applies to reveal='radius' only (reveal={self.reveal!r} senses nothing); got "
+                             f"sense_km={self.sense_km!r}.")
         if self.n_survival % 64 or self.n_survival > self.n_mc:
             raise ValueError(f"n_survival must be a multiple of 64 and at most n_mc = {self.n_mc}; got "
                              f"{self.n_survival}.")

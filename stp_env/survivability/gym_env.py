@@ -21,7 +21,9 @@ reward          on landing: ``reward_goal`` at the goal, ``reward_alternate`` at
                 0 otherwise.
 episode         one mission through a fresh traffic instance; a decision whose segment conflicts with the
                 actual traffic reveals the intruders and is asked again (same window). Truncated after
-                ``max_steps`` decisions.
+                ``max_steps`` decisions. With ``PlannerConfig(reveal="step")`` or ``"radius"`` only the segment's
+                first time step is checked at the decision; a conflict found later in the segment ends the
+                episode as an emergency landing (the reveal models of :mod:`stp_env.survivability.mission`).
 info            ``outcome`` (``G``, ``A``, ``L`` or ``None``), ``window``, ``revealed`` (count), ``omega``,
                 ``scenario`` ``(N_p, N_u)``, ``valid`` (the action mask, numpy bool)
 ==============  ===================================================================================================
@@ -52,7 +54,7 @@ from stp_env.seeds import check_seed
 from stp_env.survivability import dp
 from stp_env.survivability.config import MissionConfig, PlannerConfig, TrafficConfig
 from stp_env.survivability.graph import Graph, build_graph
-from stp_env.survivability.mission import Instance, Knowledge, make_instance
+from stp_env.survivability.mission import Instance, Knowledge, check_before, fly, make_instance, sense_here
 from stp_env.survivability.network import build_network
 
 COUNT_SCALE = 13.0       # log10 of the largest count on the paper's mission is about 8.5
@@ -113,6 +115,7 @@ class SurvivabilityEnv(gym.Env):
         if scenario is None:
             scenario = (instance.traffic.n_partial, instance.traffic.n - instance.traffic.n_partial)
         know = Knowledge(self.graph, instance)
+        sense_here(self.graph, know, self.graph.origin, self.planner)
         self._np_random, self._np_random_seed = rng, rng_seed
         self.instance, self.scenario, self.know = instance, tuple(scenario), know
         self.g, self.omega, self.steps, self.outcome = self.graph.origin, "goal", 0, None
@@ -156,15 +159,20 @@ class SurvivabilityEnv(gym.Env):
         g = self.graph
         if not self.valid[a]:
             return self._end("L")
-        hit = self.know.conflicts(g.seg[self.g, a])
+        hit, minute = check_before(g, self.know, self.g, a, self.planner)
         if hit.size:
-            self.know.reveal(hit)
+            self.know.reveal(hit, minute)
             self.tables = None
             self._refresh()
         else:
+            conflict, changed = fly(g, self.know, self.g, a, self.planner)
+            if conflict is not None:
+                return self._end("L")
             self.g = int(g.succ[self.g, a])
             if g.term_goal[self.g] or (self.omega == "all" and g.term_alt[self.g]):
                 return self._end("G" if g.term_goal[self.g] else "A")
+            if sense_here(g, self.know, self.g, self.planner) or changed:
+                self.tables = None
             self._refresh()
         if not self.valid.any():
             return self._end("L")

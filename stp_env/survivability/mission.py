@@ -18,6 +18,22 @@ far (their cells are blocked for the counts). It
 It lands as soon as it reaches a terminal state of ``Omega``: the goal (outcome ``G``, success) or an alternative
 site (``A``, survival). A mission never flies into a blocked cell, so the outcome is decided by whether some
 known-feasible way to ``Omega`` remains at every decision.
+
+Step 5 is the default reveal model, ``PlannerConfig(reveal="segment")``: a conflict anywhere on the next segment,
+up to ``window_min`` ahead, reveals the intruder at the decision point. The other models
+(:data:`stp_env.survivability.config.REVEAL_MODELS`) look less far ahead:
+
+- ``reveal="step"`` reads "until the ownship encounters a conflict" literally: at each whole time step ``t`` (the
+  decision point and every minute of the segment after it) the ownship checks only the cells it occupies in the next
+  time cell ``[t, t + cell_min)``; an intruder whose actual path blocks one of them is revealed at ``t``. Found at the
+  decision point, the decision is made again (step 5). Found later, it cannot be avoided: "the vehicle maintains
+  constant heading and speed until it reaches the next decision point" (Section II), so the mission ends there as an
+  emergency landing (``L``, :attr:`MissionResult.conflict_minute`).
+- ``reveal="radius"`` adds sensing: at each whole time step the intruders whose actual position lies closer than
+  ``sense_km`` to the ownship's are revealed too (their whole actual path: the paper knows an intruder either by
+  its nominal path and tube or, "if r = 0", by its exact path, Section III-B, so a sensed intruder becomes a known
+  one). Sensed at the decision point, the decision uses it; sensed mid-segment on a cell of the rest of the
+  segment, it is an unavoidable conflict as above; otherwise the next decision uses it.
 """
 
 from __future__ import annotations
@@ -31,7 +47,7 @@ from stp_env.survivability import dp
 from stp_env.survivability.config import POLICIES, MissionConfig, PlannerConfig, TrafficConfig
 from stp_env.survivability.graph import Graph, segments_through
 from stp_env.survivability.robustness import segment_robustness
-from stp_env.survivability.traffic import Traffic, occupancy, sample_traffic
+from stp_env.survivability.traffic import Traffic, curve_points, occupancy, sample_traffic
 
 OUTCOMES = ("G", "A", "L")
 SWEEP_FROM_CURRENT_ABOVE = 20_000   # graph states
@@ -96,9 +112,11 @@ def _known_key(traffic: Traffic, config: TrafficConfig, planner: PlannerConfig, 
 class MissionResult:
     outcome: str                  # "G" (goal), "A" (alternative site) or "L" (no way left: emergency landing)
     path: tuple[int, ...]         # graph state indices flown, from the origin
-    revealed: tuple[int, ...]     # intruders revealed by conflicts, in order
+    revealed: tuple[int, ...]     # intruders revealed (by conflicts, or sensed), in order
     omega_switch: int | None      # window at which Omega was widened to the alternative sites (None: never)
     n_dp: int                     # DP sweeps computed
+    reveal_minutes: tuple[int, ...] = ()   # minute (since departure) at which each of ``revealed`` was revealed
+    conflict_minute: int | None = None     # time cell of an unavoidable conflict that ended the mission (``L``)
 
     @property
     def success(self) -> bool:
@@ -116,11 +134,14 @@ class Knowledge:
         self.graph, self.instance = graph, instance
         self.blocked = np.zeros(graph.n_cells + 1, bool)      # last entry: the padding cell, never blocked
         self.revealed: list[int] = []
+        self.minutes: list[int] = []                         # when each of ``revealed`` was revealed
         self.feasible = np.ones(graph.n_segments, bool)
 
-    def reveal(self, intruders) -> None:
+    def reveal(self, intruders, minute: int = -1) -> None:
+        """Make the whole actual paths of ``intruders`` known (``minute``: when, since departure)."""
         for i in intruders:
             self.revealed.append(int(i))
+            self.minutes.append(int(minute))
         new = self.instance.occupancy[:, list(intruders)].any(axis=1) & ~self.blocked[:-1]
         self.blocked[:-1] |= new
         # Only the segments through a newly blocked cell change (a new array: earlier ones may be held elsewhere).
@@ -128,11 +149,28 @@ class Knowledge:
         feasible[segments_through(self.graph, np.flatnonzero(new))] = False
         self.feasible = feasible
 
-    def conflicts(self, segment: int) -> np.ndarray:
-        """Intruders whose actual path blocks a cell of ``segment``."""
+    def conflicts(self, segment: int, minute: int | None = None) -> np.ndarray:
+        """Intruders whose actual path blocks a cell of ``segment`` (only its cells of time cell ``minute``, since
+        departure, if given)."""
         cells = self.graph.seg_cells[segment]
         cells = cells[cells >= 0]
+        if minute is not None:
+            cells = cells[self.graph.cells[cells, 2] == minute]
         return np.nonzero(self.instance.occupancy[cells].any(axis=0))[0]
+
+    def sense(self, minute: int, position_km, radius_km: float) -> np.ndarray:
+        """Intruders not yet revealed whose actual position at ``minute`` (since departure; an intruder is present
+        from ``t_in`` to ``t_in + duration``) lies closer than ``radius_km`` to ``position_km``."""
+        traffic = self.instance.traffic
+        t = float(minute) * self.graph.net.mission.cell_min
+        unseen = np.ones(traffic.n, bool)
+        unseen[self.revealed] = False
+        who = np.flatnonzero(unseen & (traffic.t_in <= t) & (t <= traffic.t_in + traffic.duration))
+        if not who.size:
+            return who
+        s = np.clip((t - traffic.t_in[who]) / traffic.duration[who], 0.0, 1.0)
+        pts, _ = curve_points(traffic.actual, who, s)
+        return who[np.linalg.norm(pts - np.asarray(position_km, float), axis=1) < radius_km]
 
 
 def choose(graph: Graph, g: int, policy: str, beta: float, tables, feasible, robustness, omega: str,
@@ -183,11 +221,17 @@ def run_mission(graph: Graph, instance: Instance, policy: str, planner: PlannerC
         return _numpy(dp.tables(graph, know.feasible, instance.robustness, policy, omega, start,
                                 instance.blocked_bits, planner.nf_count))
 
-    tables = compute() if initial_tables is None else initial_tables
+    tables, stale = initial_tables, initial_tables is None
+    sensed, conflict = -1, None
     while True:
         if graph.term_goal[g] or (omega == "all" and graph.term_alt[g]):
             outcome = "G" if graph.term_goal[g] else "A"
             break
+        if g != sensed:                     # reveal="radius": what is within sense_km on arrival at g
+            sensed = g
+            stale |= sense_here(graph, know, g, planner)
+        if stale:
+            tables, stale = compute(), False
         if omega == "goal" and tables.n_goal[g] == 0:
             omega, switch = "all", graph.window_of(g)
             tables = compute()
@@ -195,14 +239,86 @@ def run_mission(graph: Graph, instance: Instance, policy: str, planner: PlannerC
         if a is None:
             outcome = "L"
             break
-        hit = know.conflicts(graph.seg[g, a])
+        hit, minute = check_before(graph, know, g, a, planner)
         if hit.size:
-            know.reveal(hit)
+            know.reveal(hit, minute)
             tables = compute()
             continue
+        conflict, stale = fly(graph, know, g, a, planner)
+        if conflict is not None:
+            outcome = "L"
+            break
         g = int(graph.succ[g, a])
         path.append(g)
-    return MissionResult(outcome, tuple(path), tuple(know.revealed), switch, n_dp)
+    return MissionResult(outcome, tuple(path), tuple(know.revealed), switch, n_dp, tuple(know.minutes), conflict)
+
+
+def decision_minute(graph: Graph, g: int) -> int:
+    """The time step (minute since departure, in ``cell_min`` cells) of decision point ``g``."""
+    return graph.net.window_start_minute(graph.window_of(g))
+
+
+def position_km(graph: Graph, g: int, a: int | None = None, j: int = 0) -> np.ndarray:
+    """The ownship's position [km] ``j`` time steps after decision point ``g`` along primitive ``a``'s segment: on
+    the straight line between the two cell centres (Assumption II.2), ``j / minutes_per_window`` of the way."""
+    xy = graph.states[g, :2].astype(np.float64)
+    p = xy + 0.5
+    if a is not None and j:
+        p = p + (graph.states[graph.succ[g, a], :2] - xy) * (j / graph.net.minutes_per_window)
+    return p * graph.net.mission.cell_km
+
+
+def sense_here(graph: Graph, know: Knowledge, g: int, planner: PlannerConfig) -> bool:
+    """With ``planner.reveal == "radius"``, reveal the intruders within ``planner.sense_km`` of the ownship at
+    decision point ``g``; whether any was (always ``False`` with the other reveal models)."""
+    if planner.reveal != "radius":
+        return False
+    minute = decision_minute(graph, g)
+    near = know.sense(minute, position_km(graph, g), planner.sense_km)
+    if near.size:
+        know.reveal(near, minute)
+    return bool(near.size)
+
+
+def check_before(graph: Graph, know: Knowledge, g: int, a: int, planner: PlannerConfig) -> tuple[np.ndarray, int]:
+    """The intruders a conflict reveals at decision point ``g`` before primitive ``a`` is flown, and the minute:
+    those blocking any cell of its segment (``reveal="segment"``) or only its cells of the first time step
+    (``step``, ``radius``)."""
+    minute = decision_minute(graph, g)
+    seg = graph.seg[g, a]
+    return (know.conflicts(seg) if planner.reveal == "segment" else know.conflicts(seg, minute)), minute
+
+
+def fly(graph: Graph, know: Knowledge, g: int, a: int, planner: PlannerConfig) -> tuple[int | None, bool]:
+    """Fly primitive ``a``'s segment from decision point ``g`` after its first time step, one time step at a time
+    (``reveal="step"`` or ``"radius"``; nothing happens with ``"segment"``, whose decision point saw the whole
+    segment). At each whole time step ``t`` inside the segment the intruders whose actual path blocks the segment's
+    cells of time cell ``t`` are revealed, and with ``radius`` those within ``sense_km``. If a revealed path blocks
+    a cell of the segment at ``t`` or later, the ownship cannot avoid it (its primitive holds until the next
+    decision point, Section II). Returns ``(minute of that cell or None, whether anything was revealed)``."""
+    if planner.reveal == "segment":
+        return None, False
+    seg = graph.seg[g, a]
+    cells = graph.seg_cells[seg]
+    cells = cells[cells >= 0]
+    minutes = graph.cells[cells, 2]
+    t0 = decision_minute(graph, g)
+    changed = False
+    for j in range(1, graph.net.minutes_per_window):
+        t = t0 + j
+        new = know.conflicts(seg, t)
+        if planner.reveal == "radius":
+            new = np.union1d(new, know.sense(t, position_km(graph, g, a, j), planner.sense_km))
+        new = new[~np.isin(new, know.revealed)]
+        if not new.size:
+            continue
+        know.reveal(new, t)
+        changed = True
+        ahead = minutes >= t
+        hit = know.blocked[cells[ahead]]
+        if hit.any():
+            return int(minutes[ahead][hit].min()), True
+    return None, changed
 
 
 def _numpy(t: dp.Tables) -> dp.Tables:

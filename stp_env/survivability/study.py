@@ -40,7 +40,8 @@ LEVELS = (50, 100, 150, 200, 250, 300)
 FIELDS = ("n_partial", "n_unknown", "instance", "policy", "outcome", "reveals", "omega_switch", "n_dp", "windows",
           "instance_s", "mission_s")
 
-_ADDED_OPTIONS = (("traffic", "model", "local"), ("traffic", "hover_share", None), ("planner", "nf_count", "landing"))
+_ADDED_OPTIONS = (("traffic", "model", "local"), ("traffic", "hover_share", None), ("planner", "nf_count", "landing"),
+                  ("planner", "reveal", "segment"), ("planner", "sense_km", None))
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
