@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from stp_env.assembly import SHIPPED_PLANS
-from stp_env.evaluation.report import atomic_open
+from stp_env.files import atomic_open
 from stp_env.planning.plan import pack_trajectories, plan_from_arrays, plan_to_arrays
 from stp_env.planning.verify import reconcile_controls
 from stp_env.scenarios import make

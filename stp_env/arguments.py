@@ -26,7 +26,7 @@ MAX_KBAR = 1000
 largest scenario has 200), and the buffer horizon ``t_BRD = t_IAT / k̄`` it sets stays at least a thousandth of
 ``t_IAT`` (10 ms at the papers' 10 s), which the solver resolves."""
 
-__all__ = ["INT32_MAX", "MAX_KBAR", "check_int", "check_kbar", "check_real", "show"]
+__all__ = ["INT32_MAX", "MAX_KBAR", "check_int", "check_kbar", "check_real", "parse_spec", "show"]
 
 
 def show(value) -> str:
@@ -84,3 +84,32 @@ def check_real(value, name: str, lo: float | None = None, hi: float | None = Non
 def check_kbar(value, name: str = "kbar") -> int:
     """``k̄``: an integer in ``[1, MAX_KBAR]`` (:data:`MAX_KBAR`)."""
     return check_int(value, name, 1, MAX_KBAR)
+
+
+def parse_spec(spec, what: str, names, fields) -> tuple[str, dict[str, float]]:
+    """``(name, {param: value})`` of a component spec ``"name"`` or ``"name:param=value,..."`` (wind models, plant
+    backends): ``name`` one of ``names``, each ``param`` one of ``fields(name)`` (called only when the spec has
+    parameters), each value a finite number. A one-line ``ValueError`` naming ``what`` and the spec otherwise; the
+    component checks its parameters' ranges itself."""
+    if not isinstance(spec, str):
+        raise ValueError(f"{what} must be a string 'name' or 'name:param=value,...'; got {show(spec)}.")
+    names = list(names)
+    name, _, rest = spec.partition(":")
+    if name not in names:
+        raise ValueError(f"unknown {what} {name!r}; allowed: {', '.join(names)}.")
+    values: dict[str, float] = {}
+    items = [item.strip() for item in rest.split(",") if item.strip()]
+    allowed = sorted(fields(name)) if items else []
+    for item in items:
+        key, eq, text = (part.strip() for part in item.partition("="))
+        if not eq or key not in allowed:
+            raise ValueError(f"{what} {spec!r}: {item!r} is not param=value with a parameter of {name!r} "
+                             f"(parameters: {', '.join(allowed) or 'none'}).")
+        try:
+            number = float(text)
+        except ValueError:
+            number = None
+        if number is None or not math.isfinite(number):
+            raise ValueError(f"{what} {spec!r}: {key} must be a finite number; got {text!r}.")
+        values[key] = number
+    return name, values

@@ -28,8 +28,6 @@ import dataclasses
 import hashlib
 import json
 import os
-import shutil
-import socket
 import stat
 import sys
 import tempfile
@@ -43,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from stp_env import loaders
+from stp_env.files import TEMP_PREFIX, remove_stale_temporaries, writer_tag
 
 try:  # POSIX advisory locks; elsewhere concurrent processes may compute the same artifact twice (still atomic)
     import fcntl
@@ -106,65 +105,6 @@ class StaleArtifactWarning(UserWarning):
 
 class CacheNotWritableError(OSError):
     """The artifact cache directory cannot be written, and an artifact that is not cached must be computed."""
-
-
-TEMP_PREFIX = ".stp-tmp-"
-LEGACY_TEMP_SUFFIXES = (".npz.tmp", ".json.tmp")  # temporary files of earlier versions (no writer recorded)
-LEGACY_TEMP_AGE_S = 3600.0
-
-
-def _host() -> str:
-    return "".join(c if c.isalnum() else "_" for c in socket.gethostname())[:40] or "host"
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OSError):
-        return True
-    return True
-
-
-def writer_tag() -> str:
-    """``"<pid>-<host>-"``: what a temporary file's name records about its writer (see
-    :func:`remove_stale_temporaries`)."""
-    return f"{os.getpid()}-{_host()}-"
-
-
-def remove_stale_temporaries(root: Path, prefix: str = TEMP_PREFIX) -> list[Path]:
-    """Remove the temporary files (or directories) that writers which are no longer running (killed mid-write)
-    left in ``root``: ``<prefix><pid>-<host>-*`` of this host whose process is gone and, for the cache's own
-    prefix, unnamed ``*.npz.tmp`` / ``*.json.tmp`` of earlier versions older than an hour. Returns the removed
-    paths (errors are ignored: a read-only directory keeps them)."""
-    removed = []
-    try:
-        entries = list(Path(root).iterdir())
-    except OSError:
-        return removed
-    host, now = _host(), time.time()
-    for path in entries:
-        name = path.name
-        stale = False
-        if name.startswith(prefix):
-            pid, _, rest = name[len(prefix):].partition("-")
-            stale = pid.isdigit() and rest.startswith(host + "-") and not _pid_alive(int(pid))
-        elif prefix == TEMP_PREFIX and name.endswith(LEGACY_TEMP_SUFFIXES):
-            try:
-                stale = now - path.stat().st_mtime > LEGACY_TEMP_AGE_S
-            except OSError:
-                stale = False
-        if stale:
-            try:
-                if path.is_dir() and not path.is_symlink():
-                    shutil.rmtree(path)
-                else:
-                    path.unlink()
-                removed.append(path)
-            except OSError:
-                pass
-    return removed
 
 
 def _temp_file(root: Path, suffix: str) -> tuple[int, str]:

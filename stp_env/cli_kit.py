@@ -16,7 +16,7 @@ import ast
 import functools
 from pathlib import Path
 
-from stp_env.arguments import INT32_MAX, MAX_KBAR, check_int, check_kbar, check_real
+from stp_env.arguments import INT32_MAX, MAX_KBAR, check_int, check_kbar, check_real, parse_spec
 from stp_env.seeds import MAX_SEED, MAX_SEED_32, check_seed
 
 PACKAGE = Path(__file__).resolve().parent
@@ -82,19 +82,10 @@ def wind_model(text: str) -> str:
     """A wind model spec ``name`` or ``name:param=value,...`` of a registered model (checked against the models'
     source, :func:`wind_model_catalog`; the model checks its parameters' ranges before anything is computed)."""
     catalog = wind_model_catalog()
-    name, _, rest = text.partition(":")
-    if name not in catalog:
-        raise argparse.ArgumentTypeError(f"unknown wind model {name!r}; allowed: {', '.join(catalog)}")
-    fields = catalog[name]["params"]
-    for item in filter(None, rest.split(",")):
-        key, eq, value = item.partition("=")
-        if not eq or key.strip() not in fields:
-            raise argparse.ArgumentTypeError(f"{item!r} is not param=value with a parameter of {name!r} "
-                                             f"(parameters: {', '.join(fields) or 'none'})")
-        try:
-            check_real(float(value), key.strip())
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{key.strip()} must be a finite number, got {value!r}") from None
+    try:
+        parse_spec(text, "wind model", catalog, lambda name: catalog[name]["params"])
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e).rstrip(".")) from None
     return text
 
 

@@ -23,7 +23,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     # Lowest first. A module may import modules of its own layer and of the layers before it; within a layer the
     # packages import each other without a cycle. A module is in the layer of the longest prefix that names it.
     ("foundation", ("stp_env.angles", "stp_env.kinematics", "stp_env.version", "stp_env.arguments", "stp_env.seeds",
-                    "stp_env.loaders", "stp_env.progress", "stp_env.compilation_cache", "stp_env.cli_kit")),
+                    "stp_env.loaders", "stp_env.files", "stp_env.progress", "stp_env.compilation_cache",
+                    "stp_env.cli_kit")),
     ("solver", ("stp_env.hj",)),
     ("models", ("stp_env.dynamics",)),
     ("store", ("stp_env.artifacts",)),

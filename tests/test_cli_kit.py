@@ -140,3 +140,23 @@ def test_every_seed_is_range_checked(command):
 def test_numbers_are_range_checked_where_they_enter(argv):
     args, err = _parse(argv)
     assert args is None and argv[-2] in err, err
+
+
+def test_one_spec_parser_reads_names_and_parameters_and_names_what_is_wrong():
+    from stp_env.arguments import parse_spec
+
+    fields = {"a": ("x", "y"), "b": ()}
+    asked = []
+
+    def of(name):
+        asked.append(name)
+        return fields[name]
+
+    assert parse_spec("a: x = 1.5 ,y=-2", "thing", fields, of) == ("a", {"x": 1.5, "y": -2.0})
+    assert parse_spec("b", "thing", fields, of) == ("b", {}) and asked == ["a"]   # fields read only when needed
+    for bad, needle in (("c", "unknown thing 'c'; allowed: a, b"), ("a:z=1", "(parameters: x, y)"),
+                        ("b:x=1", "(parameters: none)"), ("a:x", "'x' is not param=value"),
+                        ("a:x=inf", "x must be a finite number; got 'inf'"), ("a:x=", "got ''"),
+                        (3, "thing must be a string")):
+        with pytest.raises(ValueError, match=re.escape(needle)):
+            parse_spec(bad, "thing", fields, of)

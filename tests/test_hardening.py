@@ -639,7 +639,7 @@ def test_a_killed_cache_writer_leaves_no_temporary_file(tmp_path):
 
 
 def test_temporary_files_of_live_writers_are_kept(tmp_path):
-    from stp_env.artifacts import TEMP_PREFIX, remove_stale_temporaries, writer_tag
+    from stp_env.files import TEMP_PREFIX, remove_stale_temporaries, writer_tag
 
     mine = tmp_path / f"{TEMP_PREFIX}{writer_tag()}abc.npz"
     mine.write_text("in progress")
@@ -666,7 +666,7 @@ def test_cli_seeds_are_checked(no_work, seed):
 def test_results_written_atomically_are_as_readable_as_plainly_written_files(tmp_path):
     """The temporary file behind an atomic write is private (0o600); the result moved into place gets the
     permissions a plain ``open`` would give (here 0o644 under umask 022), not the temporary's."""
-    from stp_env.evaluation.report import atomic_open, write_text
+    from stp_env.files import atomic_open, write_text
 
     old = os.umask(0o022)
     try:

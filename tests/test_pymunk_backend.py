@@ -74,7 +74,8 @@ def test_backend_names():
     model = vehicle_model("pymunk-dynamic:mass=2,speed_time_constant=0.3")
     assert model == PymunkRigidBody(RigidBodyConfig(mass=2.0, speed_time_constant=0.3))
     for bad, match in (("bullet", "backend 'bullet'"), ("pymunk-dynamic:size=3", "size=3"),
-                       ("pymunk-dynamic:mass=heavy", "mass"), ("pymunk:mass=1", "only pymunk-dynamic")):
+                       ("pymunk-dynamic:mass=heavy", "mass"),
+                       ("pymunk:mass=1", r"parameter of .pymunk. \(parameters: none\)")):
         with pytest.raises(ValueError, match=match):
             vehicle_model(bad)
     with pytest.raises(ValueError, match="both choose the plant"):

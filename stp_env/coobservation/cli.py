@@ -94,7 +94,7 @@ def run(args) -> int:
     from stp_env.coobservation import evaluation, threat
     from stp_env.coobservation.uav import FormationScenario
     from stp_env.evaluation.pipeline import check_output_dir
-    from stp_env.evaluation.report import atomic_open
+    from stp_env.files import atomic_open
 
     attackers = resolve_attackers(args.attackers)  # bad names fail before any computation
     out = check_output_dir(args.out)  # so that the results are not lost at the end

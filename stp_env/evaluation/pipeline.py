@@ -79,7 +79,7 @@ def run(configs, out_dir, *, episodes: int = 1000, seed: int = 0, batch_size: in
     written into a staging directory inside it and then replace the outputs of an earlier run (see
     :func:`_publish`): a run that fails or is interrupted leaves the earlier outputs as they were. Staging
     directories of runs that were killed are removed on the next run."""
-    from stp_env.artifacts import remove_stale_temporaries, writer_tag
+    from stp_env.files import remove_stale_temporaries, writer_tag
 
     start = time.perf_counter()
     out = check_output_dir(out_dir)

@@ -72,8 +72,7 @@ def render_episode(traj, final, params, scenario, path: str, *, frame_dt: float 
 
     out = Path(path)
     if importlib.util.find_spec("PIL") is not None:
-        from stp_env.artifacts import TEMP_PREFIX, writer_tag
-        from stp_env.evaluation.report import plain_file_mode
+        from stp_env.files import TEMP_PREFIX, plain_file_mode, writer_tag
 
         anim = animation.FuncAnimation(fig, draw, frames=list(steps), blit=False)
         bar = tqdm(total=len(steps), unit="frame", desc=f"rendering {out.name}",

@@ -1,22 +1,20 @@
 """Results as JSON, CSV and a markdown table; bad episodes as replayable records (``events.json`` +
 ``events.npz``); every episode's final state (``episodes.npz``). Every file is written atomically
-(:func:`atomic_open`)."""
+(:func:`stp_env.files.atomic_open`)."""
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import hashlib
 import json
-import os
 import platform
 import subprocess
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from stp_env.evaluation.events import load_event_state  # noqa: F401  (re-exported)
+from stp_env.files import atomic_open, write_text
 
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 """The ``stp_env`` package's directory (the one this module was imported from)."""
@@ -72,41 +70,6 @@ def _kth_times(s: dict) -> str:
     """``t_1, t_2, ...`` of the summary's k-th avoid starts: ``median (earliest)``, ``-`` where none."""
     meds, lows = s.get("avoid_start_kth_median_s") or [], s.get("avoid_start_kth_min_s") or []
     return ", ".join("-" if m is None else f"{m:g} ({lo:g})" for m, lo in zip(meds, lows)) or "-"
-
-
-def plain_file_mode() -> int:
-    """The permissions ``open(path, "w")`` gives a new file (``0o666`` less the process's umask). A temporary file
-    from ``tempfile.mkstemp`` is private (``0o600``); results moved into place from one get these instead, so that
-    they are as readable as any other file the user writes."""
-    umask = os.umask(0)
-    os.umask(umask)
-    return 0o666 & ~umask
-
-
-@contextlib.contextmanager
-def atomic_open(path, mode: str = "w", **kwargs):
-    """Open a temporary file beside ``path`` for writing and move it onto ``path`` (``os.replace``) when the block
-    ends without an error: ``path`` is either its old content or the complete new one, never half written. The
-    file gets the permissions of a plainly written one (:func:`plain_file_mode`)."""
-    from stp_env.artifacts import TEMP_PREFIX, writer_tag
-
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=TEMP_PREFIX + writer_tag(), suffix=path.suffix)
-    try:
-        with os.fdopen(fd, mode, **kwargs) as fh:
-            yield fh
-        os.chmod(tmp, plain_file_mode())
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-
-
-def write_text(text: str, path) -> str:
-    """``text`` to ``path``, atomically (:func:`atomic_open`)."""
-    with atomic_open(path) as fh:
-        fh.write(text)
-    return str(path)
 
 
 def write_csv(summaries: list[dict], path) -> str:

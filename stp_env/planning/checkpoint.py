@@ -22,12 +22,12 @@ from __future__ import annotations
 
 import hashlib
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from stp_env.arguments import INT32_MAX
+from stp_env.files import atomic_open
 from stp_env.loaders import LoadError, loader, read_npz
 from stp_env.planning.plan import SinglePlan, pack_trajectories, unpack_trajectories
 
@@ -102,16 +102,10 @@ def save(path, key: str, plans: list[tuple[int, SinglePlan]], *, file_format: in
     path = Path(path)
     arrays = _arrays(key, plans, file_format)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            (np.savez_compressed if file_format == 2 else np.savez)(f, **arrays)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_open(path, "wb") as f:
+        (np.savez_compressed if file_format == 2 else np.savez)(f, **arrays)
+        f.flush()
+        os.fsync(f.fileno())
 
 
 _INTEGER_FIELDS = ("index", "lengths", "n_steps")

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from stp_env.arguments import parse_spec
 from stp_env.sim.config import EnvConfig
 from stp_env.sim.vehicle_models import Dubins, VehicleModel
 
@@ -26,27 +27,21 @@ def vehicle_model(spec: str) -> VehicleModel:
     ``ValueError`` naming ``backend`` otherwise."""
     if not isinstance(spec, str):
         raise ValueError(f"backend must be one of {', '.join(BACKENDS)}; got {spec!r}.")
-    name, colon, rest = spec.partition(":")
-    if name not in BACKENDS:
-        raise ValueError(f"backend {name!r} is not known; allowed: {', '.join(BACKENDS)}.")
-    if colon and name != "pymunk-dynamic":
-        raise ValueError(f"backend {spec!r}: only pymunk-dynamic takes parameters.")
+
+    def fields(name):
+        if name != "pymunk-dynamic":
+            return ()
+        from stp_env.sim.vehicle_models.rigid_body import RigidBodyConfig
+
+        return [f.name for f in dataclasses.fields(RigidBodyConfig)]
+
+    name, values = parse_spec(spec, "backend", BACKENDS, fields)
     if name == "jax":
         return Dubins()
     from stp_env.sim.vehicle_models.rigid_body import PymunkKinematic, PymunkRigidBody, RigidBodyConfig
 
     if name == "pymunk":
         return PymunkKinematic()
-    allowed = [f.name for f in dataclasses.fields(RigidBodyConfig)]
-    values = {}
-    for item in filter(None, (part.strip() for part in rest.split(","))):
-        key, _, text = (s.strip() for s in item.partition("="))
-        if key not in allowed or not text:
-            raise ValueError(f"backend {spec!r}: {item!r} is not param=value with param one of {', '.join(allowed)}.")
-        try:
-            values[key] = float(text)
-        except ValueError:
-            raise ValueError(f"backend {spec!r}: {key} must be a number; got {text!r}.") from None
     return PymunkRigidBody(RigidBodyConfig(**values))
 
 

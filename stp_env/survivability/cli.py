@@ -24,6 +24,8 @@ def add_parser(sub) -> None:
     from stp_env import cli_kit as kit
 
     policies = kit.source_constant("survivability/config.py", "POLICIES")
+    traffic_models = kit.source_constant("survivability/config.py", "TRAFFIC_MODELS")
+    nf_counts = kit.source_constant("survivability/config.py", "NF_COUNTS")
     levels = list(kit.source_constant("survivability/study.py", "LEVELS"))
 
     sp = sub.add_parser(
@@ -48,6 +50,18 @@ def add_parser(sub) -> None:
                     help="discount of the objective's future term (eq. 5), in [0, 1]")
     sp.add_argument("--n-mc", type=kit.positive_int, default=2500,
                     help="Monte Carlo realisations per segment robustness")
+    sp.add_argument("--traffic", choices=traffic_models, default=traffic_models[0],
+                    help="intruder traffic model: local (default; short hops around a uniform entry point, entry "
+                         "times over the endurance) or paper (Section III-B: control points anywhere in the area, "
+                         "times in (t_0, t_fu), hovering degree-1 intruders, realisations over the whole "
+                         "uncertainty tube); see docs/survivability.md")
+    sp.add_argument("--hover-share", type=kit.real(0.0, 1.0), default=None,
+                    help="with --traffic paper: probability that an intruder hovers (default 0.1, the project's "
+                         "choice: the paper gives none)")
+    sp.add_argument("--nf-count", choices=nf_counts, default=nf_counts[0],
+                    help="what pi_Nf counts: landing (default; trajectories from the successor state to any "
+                         "landing site) or goal (the paper's Algorithm 1: trajectories to the terminal set Omega, "
+                         "summed over the successor's cell)")
     sp.add_argument("--max-hours", type=kit.real(0.0, 1e6, lo_open=True), default=None,
                     help="stop after this much wall time [h] (rerun the same command to resume; default: no limit)")
     sp.add_argument("--worker", type=_worker, default=(0, 1), metavar="I/N",
@@ -61,12 +75,13 @@ def add_parser(sub) -> None:
 
 
 def config_from_args(args):
-    from stp_env.survivability.config import PlannerConfig
+    from stp_env.survivability.config import PlannerConfig, TrafficConfig
     from stp_env.survivability.study import StudyConfig
 
     return StudyConfig(n_partial=tuple(args.partial), n_unknown=tuple(args.unknown), n_instances=args.instances,
                        seed=args.seed, policies=tuple(args.policies),
-                       planner=PlannerConfig(beta=args.beta, n_mc=args.n_mc))
+                       traffic=TrafficConfig(model=args.traffic, hover_share=args.hover_share),
+                       planner=PlannerConfig(beta=args.beta, n_mc=args.n_mc, nf_count=args.nf_count))
 
 
 def run(args) -> int:

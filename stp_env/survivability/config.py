@@ -20,6 +20,22 @@ POLICIES = ("R", "Nf", "S", "AvgR")
 
 EARTH_RADIUS_KM = 6371.0
 
+TRAFFIC_MODELS = ("local", "paper")
+"""Intruder traffic models (:mod:`stp_env.survivability.traffic`): ``local``, this project's short hops around a
+uniform entry point with entry times spread over the endurance (the default until the study is re-run), and
+``paper``, the survivability paper's Section III-B model (control points anywhere in the area, control times in
+the mission window ``(t_0, t_fu)``, a share of hovering degree-1 intruders, realisations using the whole tube)."""
+
+NF_COUNTS = ("landing", "goal")
+"""What ``pi_Nf``'s ``N_f`` counts (:mod:`stp_env.survivability.dp`): ``landing``, the trajectories from the
+successor *state* to any landing site (the default until the study is re-run), or ``goal``, the paper's
+``c.N_f`` of Algorithm 1: the trajectories to the current terminal set ``Omega`` summed over every state of the
+successor's *cell*."""
+
+PAPER_HOVER_SHARE = 0.1
+"""Share of hovering (degree-1) intruders in the ``paper`` traffic model when ``hover_share`` is not given. The
+paper models hovering intruders but states no share: 0.1 is this project's choice."""
+
 
 def _integer(name: str, value, *, minimum: int = 0) -> int:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < minimum:
@@ -261,6 +277,12 @@ class TrafficConfig(_Overrides):
         speed_range: [m/s] an intruder's mean ground speed is uniform in this range (its flight time is its path
             length over that speed).
         samples_per_min: points per minute at which a path is rasterised into cells.
+        model: ``local`` (default) or ``paper`` (:data:`TRAFFIC_MODELS`). ``reach_km`` and ``speed_range`` apply
+            to ``local`` only: the paper's control points lie anywhere in the area and its times in ``(t_0, t_fu)``.
+        hover_share: with ``model="paper"``, the probability that an intruder hovers (drawn independently for
+            each intruder, so a larger scenario keeps a smaller one's intruders): a degree-1 curve at a fixed
+            location (``None``: :data:`PAPER_HOVER_SHARE`, the project's choice; the
+            paper gives none). Must be ``None`` with ``model="local"``, which has no hovering intruders.
     """
 
     n_partial: int = 100
@@ -270,8 +292,20 @@ class TrafficConfig(_Overrides):
     reach_km: float = 10.0
     speed_range: tuple[float, float] = (20.0, 40.0)
     samples_per_min: int = 6
+    model: str = "local"
+    hover_share: float | None = None
 
     def __post_init__(self) -> None:
+        if self.model not in TRAFFIC_MODELS:
+            raise ValueError(f"traffic model must be one of {', '.join(TRAFFIC_MODELS)}; got {self.model!r}.")
+        if self.hover_share is not None:
+            if self.model != "paper":
+                raise ValueError(f"hover_share applies to the 'paper' traffic model only (model={self.model!r} has "
+                                 f"no hovering intruders); got hover_share={self.hover_share!r}.")
+            share = _number("hover_share", self.hover_share, nonneg=True)
+            if share > 1.0:
+                raise ValueError(f"hover_share must be in [0, 1]; got {share}.")
+            object.__setattr__(self, "hover_share", float(share))
         _integer("n_partial", self.n_partial)
         _integer("n_unknown", self.n_unknown)
         _integer("degree", self.degree, minimum=1)
@@ -282,6 +316,14 @@ class TrafficConfig(_Overrides):
             raise ValueError(f"speed_range must be > 0; got {self.speed_range!r}.")
         object.__setattr__(self, "speed_range", (lo, hi))
         _integer("samples_per_min", self.samples_per_min, minimum=1)
+
+    @property
+    def hover_fraction(self) -> float:
+        """The share of hovering intruders actually drawn: 0 for ``local``, ``hover_share`` (or
+        :data:`PAPER_HOVER_SHARE`) for ``paper``."""
+        if self.model != "paper":
+            return 0.0
+        return PAPER_HOVER_SHARE if self.hover_share is None else self.hover_share
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -294,11 +336,15 @@ class PlannerConfig(_Overrides):
         n_survival: how many of the ``n_mc`` realisations give ``pi_S``'s survivability ``R`` (the fraction of
             them in which some trajectory stays feasible, :mod:`stp_env.survivability.dp`); a multiple of 64, at
             most ``n_mc``; 0: the tree recursion ``R = 1 - prod (1 - p R')`` instead.
+        nf_count: what ``pi_Nf``'s ``N_f`` counts (:data:`NF_COUNTS`): ``landing`` (default), the trajectories
+            from the successor state to any landing site; ``goal``, the paper's ``c.N_f`` (Section III-A,
+            Algorithm 1), the trajectories to the current terminal set ``Omega`` summed over the successor's cell.
     """
 
     beta: float = 0.5
     n_mc: int = 2500
     n_survival: int = 256
+    nf_count: str = "landing"
 
     def __post_init__(self) -> None:
         beta = _number("beta", self.beta)
@@ -306,6 +352,8 @@ class PlannerConfig(_Overrides):
             raise ValueError(f"beta must be in [0, 1]; got {beta}.")
         _integer("n_mc", self.n_mc, minimum=1)
         _integer("n_survival", self.n_survival)
+        if self.nf_count not in NF_COUNTS:
+            raise ValueError(f"nf_count must be one of {', '.join(NF_COUNTS)}; got {self.nf_count!r}.")
         if self.n_survival % 64 or self.n_survival > self.n_mc:
             raise ValueError(f"n_survival must be a multiple of 64 and at most n_mc = {self.n_mc}; got "
                              f"{self.n_survival}.")

@@ -29,8 +29,15 @@ The same sweep gives what the policies of Section IV-B need, with ``p(s, a)`` th
 
 ``N``, ``W``, ``R`` and the values ``v`` count trajectories to *any* landing site (the set ``c.L`` of Section
 IV-B); ``Omega`` (the goal only, then the goal and the alternative sites once the goal is out of reach) restricts
-which trajectory the policy may pick (constraint 10). All functions are pure and jittable, on the compact graph of
-:mod:`stp_env.survivability.graph` (a few milliseconds per sweep), and ``vmap`` over instances.
+which trajectory the policy may pick (constraint 10). That is ``nf_count="landing"`` (the default). With
+``nf_count="goal"`` ``pi_Nf``'s value is the paper's ``c.N_f`` instead: Algorithm 1 initialises the count to 1 at
+"any valid terminal state ... in Omega(t_0)" and "the total number of feasible trajectories in a cell equals the
+number of promising states in that cell", so ``v(s)`` is the sum, over every graph state ``s''`` of the same window
+in the same (x, y) cell as ``s``, of ``N^Omega(s'')``, the trajectories from ``s''`` to the current terminal set
+``Omega`` (``n_goal`` while ``Omega`` is the goal, ``n_all`` once it includes the alternative sites). The cell
+sum is a segment sum over precomputed cell ids per window, in the same sweep. All functions are pure and jittable,
+on the compact graph of :mod:`stp_env.survivability.graph` (a few milliseconds per sweep), and ``vmap`` over
+instances.
 """
 
 from __future__ import annotations
@@ -42,7 +49,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env.survivability.config import POLICIES
+from stp_env.survivability.config import NF_COUNTS, POLICIES
 from stp_env.survivability.graph import Graph
 
 NEG = -jnp.inf
@@ -63,27 +70,53 @@ class _Meta(NamedTuple):
 
     n_windows: int
     window_start: tuple
+    n_cell_groups: tuple     # per window: distinct (x, y) cells of its states
 
 
 @functools.lru_cache(maxsize=4)
 def _consts(graph: Graph):
     """``(meta, arrays)``: the graph's per-window tables as device arrays, passed to the sweeps as arguments (as
     constants, XLA would spend seconds folding them at every compilation). ``succ[k]``: ``(n_k, A)`` local index
-    of the successor in window ``k + 1`` (sentinel ``n_{k+1}``); ``seg[k]``: segment id (sentinel ``n_seg``)."""
+    of the successor in window ``k + 1`` (sentinel ``n_{k+1}``); ``seg[k]``: segment id (sentinel ``n_seg``);
+    ``cell_group[k]``: ``(n_k,)`` id of the state's (x, y) cell among the window's cells."""
     ws = graph.window_start
     K = graph.net.n_windows
-    succ, seg, tg, ta = [], [], [], []
+    succ, seg, tg, ta, groups, n_groups = [], [], [], [], [], []
     for k in range(K + 1):
         sl = slice(ws[k], ws[k + 1])
         tg.append(jnp.asarray(graph.term_goal[sl]))
         ta.append(jnp.asarray(graph.term_alt[sl]))
+        grp, n_grp = cell_groups(graph, k)
+        groups.append(jnp.asarray(grp, jnp.int32))
+        n_groups.append(n_grp)
         if k < K:
             s = graph.succ[sl]
             n_next = ws[k + 2] - ws[k + 1]
             succ.append(jnp.asarray(np.where(s >= 0, s - ws[k + 1], n_next), jnp.int32))
             seg.append(jnp.asarray(np.where(s >= 0, graph.seg[sl], graph.n_segments), jnp.int32))
-    arrays = {"succ": tuple(succ), "seg": tuple(seg), "term_goal": tuple(tg), "term_alt": tuple(ta)}
-    return _Meta(K, tuple(int(v) for v in ws)), arrays
+    arrays = {"succ": tuple(succ), "seg": tuple(seg), "term_goal": tuple(tg), "term_alt": tuple(ta),
+              "cell_group": tuple(groups)}
+    return _Meta(K, tuple(int(v) for v in ws), tuple(n_groups)), arrays
+
+
+def cell_groups(graph: Graph, k: int) -> tuple[np.ndarray, int]:
+    """``(n_k,)`` id of each state of window ``k`` among the distinct (x, y) cells of the window's states, and
+    the number of those cells (the grouping of the paper's per-cell count ``c.N_f``)."""
+    xy = graph.states[graph.window_start[k]:graph.window_start[k + 1], :2].astype(np.int64)
+    _, inv = np.unique(xy[:, 0] * graph.net.n + xy[:, 1], return_inverse=True)
+    return inv.reshape(-1), int(inv.max()) + 1 if len(inv) else 0
+
+
+def cell_sums(graph: Graph, x) -> np.ndarray:
+    """(numpy) ``(S,)``: for each state, the sum of ``x`` over the states of its window and (x, y) cell (the
+    paper's per-cell count ``c.N_f`` when ``x`` counts trajectories per state)."""
+    x = np.asarray(x)
+    out = np.zeros_like(x)
+    for k in range(graph.net.n_windows + 1):
+        sl = slice(graph.window_start[k], graph.window_start[k + 1])
+        grp, n_grp = cell_groups(graph, k)
+        out[sl] = np.bincount(grp, weights=x[sl], minlength=n_grp)[grp]
+    return out
 
 
 def _pad(x, fill):
@@ -119,18 +152,20 @@ def _counts(meta: _Meta, c, feasible, kind):
 
 
 def tables(graph: Graph, feasible, robustness, policy: str, omega: str, start: int = 0,
-           blocked_bits=None) -> Tables:
+           blocked_bits=None, nf_count: str = "landing") -> Tables:
     """The DP tables of ``policy`` (``R``, ``Nf``, ``S`` or ``AvgR``) for terminal set ``omega`` (``goal`` or
     ``all``), given ``feasible`` ``(n_seg,)`` bool and ``robustness`` ``(n_seg,)`` segment robustness ``p``.
     Windows before ``start`` are not computed (their entries are 0, and ``-inf`` for ``future``).
     ``blocked_bits``: ``(n_seg, W)`` uint32 bit sets of the Monte Carlo realisations blocking each segment; given,
     ``pi_S``'s survivability ``R`` is the fraction of those ``32 W`` realisations in which some trajectory stays
-    feasible (exact up to Monte Carlo error); ``None``: the tree recursion ``R = 1 - prod_a (1 - F p R')``."""
-    return tables_many(graph, feasible, robustness, (policy,), omega, start, blocked_bits)[policy]
+    feasible (exact up to Monte Carlo error); ``None``: the tree recursion ``R = 1 - prod_a (1 - F p R')``.
+    ``nf_count``: ``pi_Nf``'s value, ``landing`` (trajectories from the state to any landing site) or ``goal``
+    (the paper's per-cell ``c.N_f`` to ``Omega``, see the module docstring)."""
+    return tables_many(graph, feasible, robustness, (policy,), omega, start, blocked_bits, nf_count)[policy]
 
 
 def tables_many(graph: Graph, feasible, robustness, policies, omega: str, start: int = 0,
-                blocked_bits=None) -> dict[str, Tables]:
+                blocked_bits=None, nf_count: str = "landing") -> dict[str, Tables]:
     """:func:`tables` of several policies in one sweep (the counts and values they share are computed once)."""
     policies = tuple(policies)
     for policy in policies:
@@ -138,18 +173,20 @@ def tables_many(graph: Graph, feasible, robustness, policies, omega: str, start:
             raise ValueError(f"unknown policy {policy!r}; allowed: {', '.join(POLICIES)}.")
     if omega not in OMEGAS:
         raise ValueError(f"omega must be 'goal' or 'all'; got {omega!r}.")
+    if nf_count not in NF_COUNTS:
+        raise ValueError(f"nf_count must be one of {', '.join(NF_COUNTS)}; got {nf_count!r}.")
     if not 0 <= start <= graph.net.n_windows:
         raise ValueError(f"start must be a window in [0, {graph.net.n_windows}]; got {start}.")
     meta, arrays = _consts(graph)
     exact = blocked_bits is not None and "S" in policies
     bits = jnp.asarray(blocked_bits if exact else np.zeros((1, 1), np.uint32), jnp.uint32)
     out = tables_jit(meta, arrays, jnp.asarray(feasible, bool), jnp.asarray(robustness, jnp.float32),
-                     jnp.int32(start), bits, policies, omega, exact)
+                     jnp.int32(start), bits, policies, omega, exact, nf_count)
     return dict(zip(policies, out))
 
 
-@functools.partial(jax.jit, static_argnums=(0, 6, 7, 8))
-def tables_jit(meta: _Meta, c, feasible, robustness, start, bits, policies, omega, exact):
+@functools.partial(jax.jit, static_argnums=(0, 6, 7, 8, 9))
+def tables_jit(meta: _Meta, c, feasible, robustness, start, bits, policies, omega, exact, nf_count="landing"):
     """The sweep; windows before ``start`` (a traced integer: one compiled program for every start) are skipped
     by ``lax.cond``."""
     K = meta.n_windows
@@ -161,8 +198,11 @@ def tables_jit(meta: _Meta, c, feasible, robustness, start, bits, policies, omeg
     # Free realisations of each segment (the padding segment is never free).
     free_bits = jnp.concatenate([~bits, jnp.zeros((1, n_words), jnp.uint32)]) if exact else None
 
-    def value(policy, n_all, w, r):
+    def value(policy, n_all, w, r, k, n_om):
         if policy == "Nf":
+            if nf_count == "goal":
+                grp = c["cell_group"][k]
+                return jax.ops.segment_sum(n_om, grp, num_segments=meta.n_cell_groups[k])[grp]
             return n_all
         if policy == "S":
             return r
@@ -199,7 +239,7 @@ def tables_jit(meta: _Meta, c, feasible, robustness, start, bits, policies, omeg
         n_om, t_om = (n_goal, tg) if omega == "goal" else (n_all, ta)
         vs, js = {}, {}
         for q in policies:
-            vs[q] = value(q, n_all, w, r)
+            vs[q] = value(q, n_all, w, r, k, n_om)
             reward = p if q == "R" else 0.0
             cand = jnp.where(f, reward + at(vs1[q]) + at(js1[q], NEG), NEG)
             js[q] = jnp.where(n_om > 0, jnp.where(t_om, 0.0, jnp.max(cand, axis=1)), NEG)
@@ -219,7 +259,8 @@ def tables_jit(meta: _Meta, c, feasible, robustness, start, bits, policies, omeg
 
     tg, ta = c["term_goal"][K], c["term_goal"][K] | c["term_alt"][K]
     n_goal, n_all = tg.astype(jnp.float32), ta.astype(jnp.float32)
-    carry = (n_goal, n_all, n_all, n_all, {q: value(q, n_all, n_all, n_all) for q in policies},
+    n_om = n_goal if omega == "goal" else n_all
+    carry = (n_goal, n_all, n_all, n_all, {q: value(q, n_all, n_all, n_all, K, n_om) for q in policies},
              {q: jnp.where(tg if omega == "goal" else ta, 0.0, NEG) for q in policies}, words(len(n_all), ta))
     outs = [carry]
     for k in range(K - 1, -1, -1):
@@ -276,19 +317,22 @@ def cone(graph: Graph, root: int) -> list[np.ndarray]:
 
 
 def cone_tables(graph: Graph, feasible, robustness, policy: str, omega: str, root: int,
-                blocked_bits=None, layers=None) -> Tables | None:
+                blocked_bits=None, layers=None, nf_count: str = "landing") -> Tables | None:
     """(numpy) :func:`tables` on the states reachable from ``root`` only (:func:`cone`), equal to it there
     entry for entry (the same float32 operations in the same order: sums run over the primitives left to right in
     both, see :func:`_total`); other entries are 0 (``-inf`` for ``future``). A mission deciding at ``root`` and
     after it reads no other entry. From the third window on the cone holds a few percent of the remaining states
     (:mod:`stp_env.survivability.mission` uses it there). ``None`` when it does not apply: ``pi_S`` without
-    ``blocked_bits`` (its tree recursion's logarithms are not reproduced bit for bit in numpy). ``layers``:
-    :func:`cone` of ``root``, if already computed."""
+    ``blocked_bits`` (its tree recursion's logarithms are not reproduced bit for bit in numpy), and ``pi_Nf`` with
+    ``nf_count="goal"`` (a cell's count sums states outside the cone). ``layers``: :func:`cone` of ``root``, if
+    already computed."""
     if policy not in POLICIES:
         raise ValueError(f"unknown policy {policy!r}; allowed: {', '.join(POLICIES)}.")
     if omega not in OMEGAS:
         raise ValueError(f"omega must be 'goal' or 'all'; got {omega!r}.")
-    if policy == "S" and blocked_bits is None:
+    if nf_count not in NF_COUNTS:
+        raise ValueError(f"nf_count must be one of {', '.join(NF_COUNTS)}; got {nf_count!r}.")
+    if (policy == "S" and blocked_bits is None) or (policy == "Nf" and nf_count == "goal"):
         return None
     feasible = np.asarray(feasible, bool)
     robustness = np.asarray(robustness, np.float32)

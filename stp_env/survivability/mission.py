@@ -70,7 +70,8 @@ def make_instance(graph: Graph, traffic_config: TrafficConfig, planner: PlannerC
     else:
         out = segment_robustness(np.random.default_rng(mc_seq), graph, traffic,
                                  uncertainty_km=traffic_config.uncertainty_km, n_mc=planner.n_mc,
-                                 samples_per_min=traffic_config.samples_per_min, keep=planner.n_survival)
+                                 samples_per_min=traffic_config.samples_per_min, keep=planner.n_survival,
+                                 model=traffic_config.model)
         p, bits = out if planner.n_survival else (out, None)
     occ = occupancy(traffic, mission, traffic_config.samples_per_min, graph.cell_id, graph.n_cells)
     return Instance(traffic, p, occ, bits, key)
@@ -78,14 +79,15 @@ def make_instance(graph: Graph, traffic_config: TrafficConfig, planner: PlannerC
 
 def _known_key(traffic: Traffic, config: TrafficConfig, planner: PlannerConfig, mc_seq) -> bytes:
     """Digest of what :func:`segment_robustness` reads: the partially known intruders' nominal curves and times,
-    the uncertainty and rasterisation settings, the Monte Carlo settings and the Monte Carlo stream's seed."""
+    the uncertainty, realisation model and rasterisation settings, the Monte Carlo settings and the Monte Carlo
+    stream's seed."""
     n = traffic.n_partial
     h = hashlib.sha256()
     for a in (traffic.nominal[:n], traffic.t_in[:n], traffic.duration[:n]):
         a = np.ascontiguousarray(a)
         h.update(repr((a.dtype.str, a.shape)).encode())
         h.update(a.tobytes())
-    h.update(repr((n, config.uncertainty_km, config.samples_per_min, planner.n_mc, planner.n_survival,
+    h.update(repr((n, config.uncertainty_km, config.samples_per_min, config.model, planner.n_mc, planner.n_survival,
                    mc_seq.entropy, mc_seq.spawn_key)).encode())
     return h.digest()
 
@@ -155,7 +157,7 @@ def run_mission(graph: Graph, instance: Instance, policy: str, planner: PlannerC
                 initial_tables: dp.Tables | None = None) -> MissionResult:
     """Fly one mission of ``policy`` through ``instance``'s traffic (see the module docstring); ``seed`` drives
     the tie-breaking. ``initial_tables``: the policy's tables with nothing revealed and ``Omega`` = goal (numpy),
-    if already computed (:func:`initial_tables`)."""
+    if already computed (:func:`initial_tables`, with the same ``planner.nf_count``)."""
     if policy not in POLICIES:
         raise ValueError(f"unknown policy {policy!r}; allowed: {', '.join(POLICIES)}.")
     rng = np.random.default_rng(seed)
@@ -172,14 +174,14 @@ def run_mission(graph: Graph, instance: Instance, policy: str, planner: PlannerC
             layers = dp.cone(graph, g)
             if sum(len(x) for x in layers) <= CONE_STATES_MAX:
                 out = dp.cone_tables(graph, know.feasible, instance.robustness, policy, omega, g,
-                                     instance.blocked_bits, layers)
+                                     instance.blocked_bits, layers, planner.nf_count)
                 if out is not None:
                     return out
         # Windows before the current one do not matter; on small graphs a full sweep is cheaper than compiling
         # one program per starting window.
         start = graph.window_of(g) if graph.n_states > SWEEP_FROM_CURRENT_ABOVE else 0
         return _numpy(dp.tables(graph, know.feasible, instance.robustness, policy, omega, start,
-                                instance.blocked_bits))
+                                instance.blocked_bits, planner.nf_count))
 
     tables = compute() if initial_tables is None else initial_tables
     while True:
@@ -207,10 +209,11 @@ def _numpy(t: dp.Tables) -> dp.Tables:
     return dp.Tables(*(np.asarray(x) for x in t))
 
 
-def initial_tables(graph: Graph, instance: Instance, policies) -> dict[str, dp.Tables]:
-    """Every policy's tables before any conflict (``Omega`` = goal), in one sweep."""
+def initial_tables(graph: Graph, instance: Instance, policies, nf_count: str = "landing") -> dict[str, dp.Tables]:
+    """Every policy's tables before any conflict (``Omega`` = goal), in one sweep (``nf_count``: what ``pi_Nf``
+    counts, :attr:`stp_env.survivability.config.PlannerConfig.nf_count`)."""
     out = dp.tables_many(graph, np.ones(graph.n_segments, bool), instance.robustness, tuple(policies), "goal",
-                         blocked_bits=instance.blocked_bits)
+                         blocked_bits=instance.blocked_bits, nf_count=nf_count)
     return {q: _numpy(t) for q, t in out.items()}
 
 

@@ -11,6 +11,11 @@ OR of its cells' bit sets (over the cells blocked in some realisation only), cou
 intruder points whose nominal position lies within reach of a tracked cell are sampled (an actual path stays within
 ``max_s sum_{0<i<k} B_i(s) r`` of the nominal one, 0.75 r for cubic curves); the rest cannot block any segment.
 
+With ``model="paper"`` (:func:`stp_env.survivability.traffic.tube_offsets`) every interior control point of an
+intruder moves by the same offset over ``tube_peak(k)``: the deviation is one uniform offset in the disk of radius
+``r`` times ``w(s) / tube_peak(k)``, ``w(s)`` the summed interior Bernstein weights, so one offset per intruder
+and realisation is drawn and the points can reach ``r`` from their nominal position.
+
 Segment robustness is computed once per instance from the traffic known at departure. A partially known intruder
 later revealed by a conflict becomes a known obstacle for the counts (:mod:`stp_env.survivability.mission`), while
 its tube still enters ``p`` (slightly pessimistic near its path).
@@ -26,7 +31,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env.survivability.graph import Graph
-from stp_env.survivability.traffic import Traffic, bernstein, curve_points, present_samples, sample_times
+from stp_env.survivability.traffic import (
+    Traffic,
+    bernstein,
+    curve_points,
+    present_samples,
+    sample_times,
+    tube_peak,
+)
 
 CHUNK = 64   # realisations per block of the Monte Carlo program (a multiple of 8)
 
@@ -58,10 +70,12 @@ def _near_mask(graph: Graph, reach_cells: int) -> np.ndarray:
 
 
 def candidate_points(graph: Graph, traffic: Traffic, uncertainty_km: float, samples_per_min: int,
-                     include=None):
+                     include=None, model: str = "local"):
     """The partially known intruders' sampling instants that can block a tracked cell: their nominal positions
     ``(P, 2)`` [km], interior Bernstein weights ``(P, k - 1)``, intruder index ``(P,)`` and minute ``(P,)``.
-    ``include``: optional ``(n_partial,)`` bool of the intruders to sample (default: all partially known)."""
+    ``include``: optional ``(n_partial,)`` bool of the intruders to sample (default: all partially known).
+    ``model="paper"``: the weights are one column, ``w(s) / tube_peak(k)`` (the paper's realisations,
+    :func:`stp_env.survivability.traffic.tube_offsets`), and points up to ``r`` from a tracked cell are kept."""
     mission = graph.net.mission
     k = traffic.nominal.shape[1] - 1
     n_p = traffic.n_partial
@@ -69,19 +83,25 @@ def candidate_points(graph: Graph, traffic: Traffic, uncertainty_km: float, samp
     who, t, s = present_samples(traffic.t_in[idx], traffic.duration[idx], mission, samples_per_min)
     nominal, basis = curve_points(traffic.nominal[idx], who, s)
     _, minute = sample_times(mission, samples_per_min)
-    reach = interior_reach(k) * uncertainty_km / mission.cell_km
+    paper = model == "paper" and k >= 2
+    reach = (1.0 if paper else interior_reach(k)) * uncertainty_km / mission.cell_km
     near = _near_mask(graph, math.ceil(reach) + 1)
     n = mission.n_cells
     c = np.clip(np.floor(nominal / mission.cell_km).astype(np.int64), 0, n - 1)
     keep = near[minute[t], c[:, 0], c[:, 1]]
-    return (nominal[keep].astype(np.float32), basis[keep, 1:k].astype(np.float32), idx[who[keep]].astype(np.int32),
+    weights = basis[keep, 1:k]
+    if paper:
+        weights = weights.sum(-1, keepdims=True) / tube_peak(k)
+    return (nominal[keep].astype(np.float32), weights.astype(np.float32), idx[who[keep]].astype(np.int32),
             minute[t[keep]].astype(np.int32))
 
 
 def segment_robustness(rng: np.random.Generator, graph: Graph, traffic: Traffic, *, uncertainty_km: float,
-                       n_mc: int, samples_per_min: int, include=None, keep: int = 0):
+                       n_mc: int, samples_per_min: int, include=None, keep: int = 0, model: str = "local"):
     """``(n_seg,)`` Monte Carlo robustness of every segment of ``graph`` under the partially known intruders of
-    ``traffic`` (``include``: which of them, default all), from ``n_mc`` realisations drawn with ``rng``.
+    ``traffic`` (``include``: which of them, default all), from ``n_mc`` realisations drawn with ``rng``, each
+    realisation as in the traffic ``model`` (``local``: independent offsets of the interior control points;
+    ``paper``: one offset uniform in the whole tube, :func:`stp_env.survivability.traffic.tube_offsets`).
 
     ``keep > 0`` (a multiple of 64, at most ``n_mc``): also return ``(n_seg, keep / 32)`` uint32, the bit set of
     the first ``keep`` realisations that block each segment (the same bit of every segment is the same
@@ -91,7 +111,7 @@ def segment_robustness(rng: np.random.Generator, graph: Graph, traffic: Traffic,
     k = traffic.nominal.shape[1] - 1
     if k < 2 or uncertainty_km == 0:
         n_mc = 1        # no uncertainty: the one realisation is the nominal traffic
-    pts, weights, who, minute = candidate_points(graph, traffic, uncertainty_km, samples_per_min, include)
+    pts, weights, who, minute = candidate_points(graph, traffic, uncertainty_km, samples_per_min, include, model)
     if len(pts) == 0:
         p = np.ones(graph.n_segments, np.float32)
         return (p, np.zeros((graph.n_segments, keep // 32), np.uint32)) if keep else p
@@ -102,7 +122,7 @@ def segment_robustness(rng: np.random.Generator, graph: Graph, traffic: Traffic,
     n_chunks = -(-n_mc // CHUNK)
     # Host draws (numpy's generator is several times faster than JAX's on CPU): the uniforms behind each used
     # intruder's interior control-point offsets, per realisation; realisations beyond n_mc are masked.
-    u = rng.random((n_chunks, CHUNK, n_used, max(k - 1, 1), 2), dtype=np.float32)
+    u = rng.random((n_chunks, CHUNK, n_used, weights.shape[1], 2), dtype=np.float32)
     size = _bucket(len(pts))
     pad = size - len(pts)
     pts = np.pad(pts, ((0, pad), (0, 0)), constant_values=-1e6)           # far outside: never a cell

@@ -39,6 +39,8 @@ LEVELS = (50, 100, 150, 200, 250, 300)
 FIELDS = ("n_partial", "n_unknown", "instance", "policy", "outcome", "reveals", "omega_switch", "n_dp", "windows",
           "instance_s", "mission_s")
 
+_ADDED_OPTIONS = (("traffic", "model", "local"), ("traffic", "hover_share", None), ("planner", "nf_count", "landing"))
+
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class StudyConfig(_Overrides):
@@ -82,6 +84,11 @@ class StudyConfig(_Overrides):
         """What must match for a study directory to be resumed (everything but ``n_instances``)."""
         d = dataclasses.asdict(self)
         d.pop("n_instances")
+        # Options added after studies were written are left out at their earlier behaviour, so that those studies
+        # resume with the default configuration (and a study with another option never resumes one without).
+        for group, name, earlier in _ADDED_OPTIONS:
+            if d[group].get(name) == earlier:
+                d[group].pop(name)
         return json.loads(json.dumps(d))
 
 
@@ -145,11 +152,12 @@ def run_instance(graph, config: StudyConfig, n_partial: int, n_unknown: int, i: 
     shared = {} if shared is None else shared
     prev = shared.get("instance")
     inst = make_instance(graph, traffic, config.planner, (config.seed, i), reuse=prev)
-    if prev is not None and inst.robustness is prev.robustness and shared.get("policies") == config.policies:
+    key = (config.policies, config.planner.nf_count)
+    if prev is not None and inst.robustness is prev.robustness and shared.get("policies") == key:
         first = shared["first"]
     else:
-        first = initial_tables(graph, inst, config.policies)
-    shared.update(instance=inst, first=first, policies=config.policies)
+        first = initial_tables(graph, inst, config.policies, config.planner.nf_count)
+    shared.update(instance=inst, first=first, policies=key)
     t_inst = time.perf_counter() - t0
     rows = []
     for policy in config.policies:

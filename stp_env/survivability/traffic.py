@@ -17,6 +17,17 @@ same way and is never shown to the ownship until a conflict reveals it.
 
 A curve blocks the cell it is in at each of ``samples_per_min`` instants per minute (Assumption II.1); the
 separation radius is applied on the ownship's side (:mod:`stp_env.survivability.network`).
+
+The above is the ``local`` model (``TrafficConfig(model="local")``, the default). ``model="paper"`` follows the
+survivability paper's Section III-B instead (:func:`sample_traffic`): "Given k random control points
+{(x_i^B, y_i^B, t_i^B) | x_i^B in [X_l, X_u], y_i^B in [Y_l, Y_u], t_i^B in (t_0, t_fu), for all i = 0, ..., k}"
+-- every control point uniform over the whole area, the entry and exit times (those of the 0-th and k-th control
+points, "adjusting the 0-th and k-th control points, one can specify the entrance and exit location of the
+intruder as well as its flight duration") uniform in the mission window ``(t_0, t_fu)`` (``t_fu`` = the upper end
+of the RTA), time still linear in the curve parameter between them; a share of the intruders hovers, "a Bezier
+curve with degree number 1 - a straight line that occupies a fixed location for a time interval"; and a partially
+known intruder's realisation may use the whole tube: "the intruder may fly a trajectory that deviates at most r
+from the planned trajectory" (:func:`tube_offsets`).
 """
 
 from __future__ import annotations
@@ -39,6 +50,7 @@ class Traffic(NamedTuple):
     t_in: np.ndarray       # (N,) entry time [min since departure]
     duration: np.ndarray   # (N,) [min]
     n_partial: int
+    hovering: np.ndarray | None = None   # (N,) bool: degree-1 hovering intruders (paper model); None: none
 
     @property
     def n(self) -> int:
@@ -72,6 +84,27 @@ def disk_offsets(rng: np.random.Generator, shape, radius: float) -> np.ndarray:
     return np.stack([r * np.cos(a), r * np.sin(a)], -1)
 
 
+def tube_peak(degree: int) -> float:
+    """``max_s`` of the summed interior Bernstein weights ``1 - (1 - s)^k - s^k``, reached at ``s = 1/2``:
+    ``1 - 2^(1 - k)`` (0 for degree 1, 0.5 for 2, 0.75 for 3)."""
+    return 0.0 if degree < 2 else 1.0 - 2.0 ** (1 - degree)
+
+
+def tube_offsets(rng: np.random.Generator, n: int, degree: int, radius: float) -> np.ndarray:
+    """``(n, degree - 1, 2)`` displacements of the interior control points of ``n`` partially known intruders'
+    realisations in the ``paper`` model: one offset ``d`` per intruder, uniform in the disk of ``radius``, added to
+    every interior control point scaled by ``1 / tube_peak(degree)``. The path then deviates from the nominal one by
+    ``d (1 - (1 - s)^k - s^k) / tube_peak(k)``: zero at both ends (it "start[s] at cell c(x_0^B, y_0^B, t_0^B) and
+    end[s] at cell c(x_k^B, y_k^B, t_k^B)", Section III-B), at most ``|d| <= r`` everywhere (inside ``V(l^B, r)``)
+    and exactly ``d`` at mid-flight, so the realisations cover the whole tube of radius ``r``: "the intruder may fly
+    a trajectory that deviates at most r from the planned trajectory". (The ``local`` model's independent offsets
+    per control point reach at most ``0.75 r`` for cubic curves and about 2 km of 5 on average.)"""
+    if degree < 2:
+        return np.zeros((n, 0, 2))
+    d = disk_offsets(rng, (n,), radius) / tube_peak(degree)
+    return np.repeat(d[:, None, :], degree - 1, axis=1)
+
+
 def sample_traffic(seed, mission: MissionConfig, config: TrafficConfig) -> Traffic:
     """A traffic instance of ``config`` in ``mission``'s area, from ``seed`` (an int, a sequence of ints or a
     ``numpy.random.SeedSequence``).
@@ -80,6 +113,8 @@ def sample_traffic(seed, mission: MissionConfig, config: TrafficConfig) -> Traff
     depend on how many are drawn: instance ``i`` of scenario ``(N_p, N_u)`` contains the intruders of instance
     ``i`` of every smaller scenario (common random numbers across scenarios)."""
     seq = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    if config.model == "paper":
+        return _sample_paper(seq, mission, config)
     k = config.degree
     parts = []
     for cls, (n, child) in enumerate(zip((config.n_partial, config.n_unknown), seq.spawn(2))):
@@ -95,6 +130,43 @@ def sample_traffic(seed, mission: MissionConfig, config: TrafficConfig) -> Traff
         parts.append((nominal, actual, t_in, duration))
     nominal, actual, t_in, duration = (np.concatenate([a[i] for a in parts]) for i in range(4))
     return Traffic(nominal, actual, t_in, duration, config.n_partial)
+
+
+def _sample_paper(seq: np.random.SeedSequence, mission: MissionConfig, config: TrafficConfig) -> Traffic:
+    """The survivability paper's traffic (Section III-B; see the module docstring): for each intruder, ``k + 1``
+    control points uniform in ``[0, area]^2``; entry and exit times the smaller and larger of two uniforms in
+    ``(t_0, t_fu) = (0, rta_min[1])``; with probability ``config.hover_fraction`` a hovering intruder instead, a
+    degree-1 curve whose two control points share one uniform location (stored degree-elevated: all ``k + 1``
+    control points equal); a partially known intruder's actual path from :func:`tube_offsets`. The streams are
+    per class and per quantity, as in the ``local`` model, so a larger scenario keeps a smaller one's intruders."""
+    k = config.degree
+    t_fu = mission.rta_min[1]
+    parts = []
+    for cls, (n, child) in enumerate(zip((config.n_partial, config.n_unknown), seq.spawn(2))):
+        ctrl_rng, hover_rng, time_rng, actual_rng = (np.random.default_rng(s) for s in child.spawn(4))
+        nominal = ctrl_rng.uniform(0.0, mission.area_km, size=(n, k + 1, 2))
+        hovering = hover_rng.uniform(size=n) < config.hover_fraction
+        nominal[hovering] = nominal[hovering, :1]
+        t = time_rng.uniform(0.0, t_fu, size=(n, 2))
+        t_in = t.min(axis=1)
+        duration = np.maximum(t.max(axis=1) - t_in, 1e-6)
+        actual = nominal.copy()
+        if cls == 0 and k >= 2:
+            actual[:, 1:k] += tube_offsets(actual_rng, n, k, config.uncertainty_km)
+        parts.append((nominal, actual, t_in, duration, hovering))
+    nominal, actual, t_in, duration, hovering = (np.concatenate([a[i] for a in parts]) for i in range(5))
+    return Traffic(nominal, actual, t_in, duration, config.n_partial, hovering)
+
+
+def airborne_fraction(traffic: Traffic, mission: MissionConfig) -> float:
+    """The mean share of ``traffic``'s intruders in flight at a minute of the mission: the fraction of (intruder,
+    minute) pairs, over the ``n_minutes`` minutes from departure to the endurance, in which the intruder is flying
+    at the middle of the minute (about 0.1 in the ``local`` model, about ``(t_fu / 3) / endurance`` = 0.31 in the
+    ``paper`` model on the paper's mission)."""
+    if traffic.n == 0:
+        return 0.0
+    who, _, _ = present_samples(traffic.t_in, traffic.duration, mission, 1)
+    return float(len(who) / (traffic.n * mission.n_minutes))
 
 
 def sample_times(mission: MissionConfig, samples_per_min: int) -> tuple[np.ndarray, np.ndarray]:

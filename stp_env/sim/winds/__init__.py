@@ -18,6 +18,7 @@ import dataclasses
 import importlib
 import pkgutil
 
+from stp_env.arguments import parse_spec
 from stp_env.sim.winds.base import WindModel
 
 WIND_MODELS: dict[str, type[WindModel]] = {}
@@ -69,23 +70,9 @@ def make(spec) -> WindModel:
     if not isinstance(spec, str):
         raise ValueError(f"wind_model must be a name ({', '.join(names())}) or a WindModel; got {spec!r}.")
     _load()
-    name, _, rest = spec.partition(":")
-    if name not in WIND_MODELS:
-        raise ValueError(f"wind_model {name!r} is not known; allowed: {', '.join(names())}.")
-    cls = WIND_MODELS[name]
-    fields = {f.name for f in dataclasses.fields(cls)}
-    kwargs = {}
-    for item in filter(None, rest.split(",")):
-        key, eq, value = item.partition("=")
-        key = key.strip()
-        if not eq or key not in fields:
-            raise ValueError(f"wind_model {spec!r}: {item!r} is not 'param=value' with a parameter of {name!r} "
-                             f"(parameters: {', '.join(sorted(fields)) or 'none'}).")
-        try:
-            kwargs[key] = float(value)
-        except ValueError:
-            raise ValueError(f"wind_model {spec!r}: {key} must be a number; got {value!r}.") from None
-    return cls(**kwargs)
+    name, kwargs = parse_spec(spec, "wind_model", names(),
+                              lambda n: [f.name for f in dataclasses.fields(WIND_MODELS[n])])
+    return WIND_MODELS[name](**kwargs)
 
 
 __all__ = ["WIND_MODELS", "WindModel", "describe", "make", "names", "register"]
