@@ -53,8 +53,21 @@ def _check_nonneg(name: str, value: float) -> None:
         raise ValueError(f"{name} must be a finite number >= 0; got {value}.")
 
 
+class _DubinsControl:
+    """The state and control of a Dubins vehicle ``(p_x, p_y, theta)``, ``(v, omega)`` in
+    ``[v_min, v_max] x [-omega_max, omega_max]``, shared by the absolute and the relative models."""
+
+    @property
+    def state_dim(self) -> int:
+        return 3
+
+    @property
+    def control_space(self) -> ProductSet:
+        return ProductSet((Box((self.v_min, -self.omega_max), (self.v_max, self.omega_max)),))
+
+
 @dataclasses.dataclass(frozen=True, kw_only=True)
-class DubinsWind(ControlAffineDynamics):
+class DubinsWind(_DubinsControl, ControlAffineDynamics):
     """Dubins vehicle under bounded wind (intruder paper eq. 43; SPP paper eq. 28).
 
     Default roles: the control minimises (reaching a target), the wind maximises (hinders it).
@@ -74,14 +87,6 @@ class DubinsWind(ControlAffineDynamics):
         _check_nonneg("omega_max", self.omega_max)
         _check_nonneg("wind", self.wind)
         _check_nonneg("heading_disturbance", self.heading_disturbance)
-
-    @property
-    def state_dim(self) -> int:
-        return 3
-
-    @property
-    def control_space(self) -> ProductSet:
-        return ProductSet((Box((self.v_min, -self.omega_max), (self.v_max, self.omega_max)),))
 
     @property
     def disturbance_space(self) -> ProductSet:
@@ -104,7 +109,7 @@ class DubinsWind(ControlAffineDynamics):
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
-class RelativeDubins(ControlAffineDynamics):
+class RelativeDubins(_DubinsControl, ControlAffineDynamics):
     """Relative dynamics of another Dubins vehicle in vehicle ``i``'s body frame (intruder paper eq. 44).
 
     Attributes:
@@ -136,14 +141,6 @@ class RelativeDubins(ControlAffineDynamics):
         _check_nonneg("wind", self.wind)
         _check_nonneg("own_heading_disturbance", self.own_heading_disturbance)
         _check_nonneg("other_heading_disturbance", self.other_heading_disturbance)
-
-    @property
-    def state_dim(self) -> int:
-        return 3
-
-    @property
-    def control_space(self) -> ProductSet:
-        return ProductSet((Box((self.v_min, -self.omega_max), (self.v_max, self.omega_max)),))
 
     @property
     def disturbance_space(self) -> ProductSet:

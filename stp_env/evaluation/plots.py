@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from stp_env.files import save_figure
 from stp_env.render import vehicle_color
 from stp_env.sim.types import COLLIDED, FLYING, PRESENT
 
@@ -88,7 +89,7 @@ def plot_forced_histograms(summaries: list[dict], path: str) -> str:
                ncol=min(len(handles), 3))
     fig.suptitle(f"{_scenarios(summaries)}: vehicles forced to avoid\n(dashed horizontal: {100 * conf:g}% "
                  "upper bound on P(|N^RP| > k̄))", fontsize=10)
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
     return path
 
@@ -149,7 +150,7 @@ def plot_distance_vs_time(avoid_traj, avoid_final, nominal_traj, nominal_final, 
                  fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="best", framealpha=0.9)
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
     return path
 
@@ -181,7 +182,7 @@ def plot_episode(traj, final, params, scenario, path: str, title: str = "") -> s
                       "red ●: the intruder then", fontsize=10)
     axes[0].legend(fontsize=8, loc="lower left", ncol=2)
     fig.suptitle(title or "episode", fontsize=11)
-    fig.savefig(path, dpi=90)
+    save_figure(fig, path, dpi=90)
     plt.close(fig)
     return path
 
@@ -260,6 +261,6 @@ def plot_summary(summaries: list[dict], path: str) -> str:
         a.grid(alpha=0.3)
     fig.suptitle(f"{_scenarios(summaries)}: evaluation summary ({summaries[0]['episodes']} episodes per "
                  "configuration)", fontsize=12)
-    fig.savefig(path, dpi=90)
+    save_figure(fig, path, dpi=90)
     plt.close(fig)
     return path

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from stp_env.files import save_figure
+
 
 def plot_attack(attack, z, path, *, title: str = "") -> Path:
     """Draw the attack at ``z`` into ``path`` (PNG): paths, and the attacked quantity over time (the attack's
@@ -23,6 +25,6 @@ def plot_attack(attack, z, path, *, title: str = "") -> Path:
         fig.suptitle(title)
     fig.tight_layout()
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     return path
 

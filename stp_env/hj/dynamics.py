@@ -159,28 +159,33 @@ class ControlAffineDynamics(abc.ABC):
         Tight for products of boxes and balls: ``|f_i(x, c_u, c_d)| + sum_blocks max |G_i,block e|`` where
         ``c`` are the set centres and ``e`` ranges over the centred block.
         """
-        f0 = self.open_loop(x)
-        gu = self.control_jacobian(x)
-        gd = self.disturbance_jacobian(x) if self.disturbance_space.dim else None
-        cu = self.control_space.center()
-        cd = self.disturbance_space.center()
-        out = []
-        for i in range(self.state_dim):
-            centre = f0[i] + _dot(cu, gu[i])
-            if gd is not None:
-                centre = centre + _dot(cd, gd[i])
-            a = jnp.abs(centre) if not _is_zero(centre) else 0.0
+        return _rate_bounds(self, x, self.control_space.center(), self.control_space.blocks)
+
+
+def _rate_bounds(dyn: ControlAffineDynamics, x: Sequence, u, control_blocks) -> tuple:
+    """``|f_i(x) + G_u,i(x) u + G_d,i(x) c_d|`` plus ``max |G_i,block e|`` over each block of ``control_blocks``
+    (the control's spread about ``u``; none for a feedback law) and of the disturbance set, per state ``i``."""
+    f0 = dyn.open_loop(x)
+    gu = dyn.control_jacobian(x)
+    gd = dyn.disturbance_jacobian(x) if dyn.disturbance_space.dim else None
+    cd = dyn.disturbance_space.center()
+    out = []
+    for i in range(dyn.state_dim):
+        centre = f0[i] + _dot(u, gu[i])
+        if gd is not None:
+            centre = centre + _dot(cd, gd[i])
+        a = jnp.abs(centre) if not _is_zero(centre) else 0.0
+        k = 0
+        for b in control_blocks:
+            a = a + b.max_abs_linear(gu[i][k:k + b.dim])
+            k += b.dim
+        if gd is not None:
             k = 0
-            for b in self.control_space.blocks:
-                a = a + b.max_abs_linear(gu[i][k:k + b.dim])
+            for b in dyn.disturbance_space.blocks:
+                a = a + b.max_abs_linear(gd[i][k:k + b.dim])
                 k += b.dim
-            if gd is not None:
-                k = 0
-                for b in self.disturbance_space.blocks:
-                    a = a + b.max_abs_linear(gd[i][k:k + b.dim])
-                    k += b.dim
-            out.append(a)
-        return tuple(out)
+        out.append(a)
+    return tuple(out)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -270,24 +275,7 @@ class FeedbackDynamics(ControlAffineDynamics):
         open-loop bounds where the feedback holds a state still (a heading held by a turn-rate feedback gets
         ``|d_theta|`` instead of ``omega_max + |d_theta|``), so thin closed-loop sets are not dissipated away. The
         CFL step keeps the open-loop :meth:`partial_bounds`, an upper bound for all times."""
-        u = self.feedback(t, x, params)
-        f0 = self.open_loop(x)
-        gu = self.control_jacobian(x)
-        gd = self.disturbance_jacobian(x) if self.disturbance_space.dim else None
-        cd = self.disturbance_space.center()
-        out = []
-        for i in range(self.state_dim):
-            centre = f0[i] + _dot(u, gu[i])
-            if gd is not None:
-                centre = centre + _dot(cd, gd[i])
-            a = jnp.abs(centre) if not _is_zero(centre) else 0.0
-            if gd is not None:
-                k = 0
-                for b in self.disturbance_space.blocks:
-                    a = a + b.max_abs_linear(gd[i][k:k + b.dim])
-                    k += b.dim
-            out.append(a)
-        return tuple(out)
+        return _rate_bounds(self, x, self.feedback(t, x, params), ())
 
     def optimal_control(self, x: Sequence, p: Sequence) -> tuple:
         raise TypeError("FeedbackDynamics have no control input; the control is feedback(t, x, params).")

@@ -110,30 +110,15 @@ def _rate(settings: SolverSettings, dynamics: ControlAffineDynamics, grid: Grid,
     return jnp.broadcast_to(rate, values.shape)
 
 
-def _rk_step(settings, dynamics, grid, direction, global_alpha, coords, values, dt_abs, t=None, dyn_params=None):
+def _rk_step(settings, dynamics, grid, direction, global_alpha, coords, values, dt_abs, t=None, dyn_params=None,
+             freeze=False):
     """One TVD Runge-Kutta step from time ``t``; the stages are evaluated at ``t``, ``t + h`` and (RK3)
-    ``t + h/2`` (``h = direction * dt_abs``), which only time-varying dynamics read."""
+    ``t + h/2`` (``h = direction * dt_abs``), which only time-varying dynamics read. ``freeze``: the monotone
+    ("freeze") tube, every stage rate clipped to ``<= 0``."""
     def rate(v, c):
         tc = None if t is None else t + direction * c * dt_abs
-        return _rate(settings, dynamics, grid, direction, global_alpha, coords, v, tc, dyn_params)
-    v1 = values + dt_abs * rate(values, 0.0)
-    if settings.integrator == "euler":
-        return v1
-    v2 = v1 + dt_abs * rate(v1, 1.0)
-    if settings.integrator == "rk2":
-        return 0.5 * (values + v2)
-    v_half = 0.75 * values + 0.25 * v2
-    v3 = v_half + dt_abs * rate(v_half, 0.5)
-    return values / 3.0 + (2.0 / 3.0) * v3
-
-
-def _freeze_step(settings, dynamics, grid, direction, global_alpha, coords, values, dt_abs, t=None,
-                 dyn_params=None):
-    """RK step with the monotone ("freeze") tube: every stage rate is clipped to ``<= 0``."""
-    def rate(v, c):
-        tc = None if t is None else t + direction * c * dt_abs
-        return jnp.minimum(_rate(settings, dynamics, grid, direction, global_alpha, coords, v, tc, dyn_params),
-                           0.0)
+        r = _rate(settings, dynamics, grid, direction, global_alpha, coords, v, tc, dyn_params)
+        return jnp.minimum(r, 0.0) if freeze else r
     v1 = values + dt_abs * rate(values, 0.0)
     if settings.integrator == "euler":
         return v1
@@ -152,13 +137,12 @@ def _advance(values, target, ttr, global_alpha, coords, t_start, dt, n_steps, la
     """``n_steps`` steps from time ``t_start``: all of (signed) size ``direction * dt`` but the last, of size
     ``direction * last_dt`` (the remainder that lands exactly on a requested time; ``last_dt = dt`` if none)."""
     freeze = tube and settings.tube_mode == "freeze"
-    stepper = _freeze_step if freeze else _rk_step
 
     def body(i, carry):
         v, ttr = carry
         h = jnp.where(i == n_steps - 1, last_dt, dt)
         t_old = t_start + direction * i * dt
-        v_new = stepper(settings, dynamics, grid, direction, global_alpha, coords, v, h, t_old, dyn_params)
+        v_new = _rk_step(settings, dynamics, grid, direction, global_alpha, coords, v, h, t_old, dyn_params, freeze)
         t_new = t_start + direction * (i * dt + h)
         if tube and not freeze:
             v_new = jnp.minimum(v_new, target)

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from stp_env.files import save_figure
+
 
 def plot_plan(plan, scenario, path: str, snapshot_time: float | None = None) -> str:
     """Writes a PNG of ``plan`` (from :func:`stp_env.planning.stp.plan_scenario`) for ``scenario``.
@@ -48,5 +50,5 @@ def plot_plan(plan, scenario, path: str, snapshot_time: float | None = None) -> 
     ax.set_title(f"{scenario.name}: nominal trajectories ({mode})\nnumbers = priority (1 = highest); dashed = "
                  f"induced obstacle at t = {snapshot_time:.1f} s", fontsize=10)
     ax.grid(alpha=0.3)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     return path

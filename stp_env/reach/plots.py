@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from stp_env.files import save_figure
 from stp_env.reach.avoid import AvoidRegion
 from stp_env.reach.buffer import BufferRadii, RelativeBuffer
 
@@ -101,7 +102,7 @@ def plot_sets(avoid: AvoidRegion, tracking_bound: float, buffer: RelativeBuffer,
     cfg = avoid.config
     fig.suptitle(f"Sets around one vehicle (grey: danger zone R_c = {cfg.collision_radius:g} m); wind "
                  f"{cfg.vehicle.wind:g} m/s, t_IAT = {cfg.t_iat:g} s")
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -131,7 +132,7 @@ def plot_buffer_regions(avoid: AvoidRegion, tracking_bound: float, buffers: dict
     ax.annotate("", xy=(0.15 * extent, 0), xytext=(0, 0), arrowprops={"arrowstyle": "->", "lw": 2})
     _setup(ax, extent, "Buffer regions for several k̄ (filled: grid sets; dashed: planner disks)")
     ax.legend(loc="upper right", fontsize=8)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -192,7 +193,7 @@ def plot_avoid_region(region: AvoidRegion, path: str, headings_deg=(0, 90, 180, 
         f"Intruder avoid region: v in [{cfg.vehicle.v_min:g}, {cfg.vehicle.v_max:g}] m/s, "
         f"|omega| <= {cfg.vehicle.omega_max:g} rad/s, wind {cfg.vehicle.wind:g} + {cfg.intruder.wind:g} m/s, "
         f"t_IAT = {cfg.t_iat:g} s, R_c = {cfg.collision_radius:g} m, grid {grid.shape}")
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
     return path
 
