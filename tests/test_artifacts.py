@@ -131,7 +131,8 @@ def test_reachability_tables_keep_their_key_when_only_the_planner_changes(tmp_pa
 
 def test_the_reachability_code_version_covers_what_the_reachability_code_imports():
     """Every ``stp_env`` module that ``stp_env.reach`` (or the solver and dynamics it uses) imports is hashed into
-    :data:`REACHABILITY_CODE_VERSION` but ``artifacts`` itself (the store, not the numerics)."""
+    :data:`REACHABILITY_CODE_VERSION` but ``artifacts`` itself (the store, not the numerics) and ``files`` where a
+    figure module imports it (it writes the figure atomically and computes nothing)."""
     import ast
     from pathlib import Path
 
@@ -143,7 +144,7 @@ def test_the_reachability_code_version_covers_what_the_reachability_code_imports
             if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("stp_env"):
                 parts = node.module.split(".")[1:] or [a.name for a in node.names]
                 top = parts[0]
-                if top == "artifacts":
+                if top == "artifacts" or (top == "files" and file.name == "plots.py"):
                     continue
                 assert top in hashed or f"{top}.py" in hashed, (file.name, node.module)
 
