@@ -91,8 +91,9 @@ def test_avoidance_control_matches_the_reference_input():
     """``u^A`` (eq. 15) and the intruder's input from the block-read gradient: the reference's, except where a
     switching function is within rounding of zero."""
     table = _table(3)
-    params = types.SimpleNamespace(avoid_grid=GRID, avoid_taus=TAUS, avoid_dynamics=RelativeDubins(),
-                                   avoid_values=jnp.asarray(tables.pad_periodic(table, GRID, lead=1)))
+    params = types.SimpleNamespace(tables=types.SimpleNamespace(
+        avoid_grid=GRID, avoid_taus=TAUS, avoid_dynamics=RelativeDubins(),
+        avoid_values=jnp.asarray(tables.pad_periodic(table, GRID, lead=1))))
     x, t = _queries(seed=4)
     raw = jnp.asarray(table)
     for player, ours in (("vehicle", tables.avoidance_control), ("intruder", tables.pursuit_input)):

@@ -26,8 +26,8 @@ def _synthetic_params():
         return np.hypot(s[..., 0] - 150.0, s[..., 1]) - 50.0 + 20.0 * np.cos(s[..., 2])
 
     dyn = RelativeDubins(wind=0.0)
-    params = types.SimpleNamespace(avoid_dynamics=dyn, buffer_grid=grid,
-                                   buffer_values=jnp.asarray(value(x), jnp.float32))
+    params = types.SimpleNamespace(tables=types.SimpleNamespace(avoid_dynamics=dyn, buffer_grid=grid,
+                                                                buffer_values=jnp.asarray(value(x), jnp.float32)))
     return params, value, dyn
 
 
@@ -72,7 +72,8 @@ def test_descent_heading_by_brute_force(state):
 
 
 def test_worst_control_needs_the_buffer_table():
-    params = types.SimpleNamespace(avoid_dynamics=RelativeDubins(), buffer_grid=None, buffer_values=None)
+    params = types.SimpleNamespace(tables=types.SimpleNamespace(avoid_dynamics=RelativeDubins(), buffer_grid=None,
+                                                                buffer_values=None))
     with pytest.raises(ValueError, match="with_buffer"):
         tables.worst_control(params, jnp.zeros(3))
 
