@@ -87,6 +87,7 @@ class SearchResult:
         history: the best value after each iteration (cross-entropy) or step (gradient).
         evaluations: objective evaluations used.
         values: every evaluated objective value (for the distribution of attacks).
+        samples: the evaluated points, ``(len(values), dim)`` in the order of ``values`` (to replay any of them).
     """
 
     best_z: np.ndarray
@@ -94,6 +95,7 @@ class SearchResult:
     history: tuple[float, ...]
     evaluations: int
     values: np.ndarray
+    samples: np.ndarray | None = None
 
 
 TABLE_FIELDS = {"tables": ("avoid_values", "tracking_grads", "sdf"),
@@ -171,13 +173,14 @@ def cross_entropy(objective: Objective, dim: int, key, config: SearchConfig, *, 
         std[:n_seeded] = SEED_STD
     rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel().astype(np.uint32))
     program = compiled(objective)  # once for the whole search
-    best_z, best_v, history, values = None, -math.inf, [], []
+    best_z, best_v, history, values, samples = None, -math.inf, [], [], []
     for it in range(iters):
         zs = np.clip(mean[:, None, :] + std[:, None, :] * rng.standard_normal((restarts, pop, dim)), 0.0, 1.0)
         if it == 0 and n_seeded:
             zs[:n_seeded, 0] = seeds[:n_seeded]
         vals = evaluate(objective, zs.reshape(-1, dim), config.batch, program=program).reshape(restarts, pop)
         values.append(vals.ravel())
+        samples.append(zs.reshape(-1, dim))
         finite = np.where(np.isfinite(vals), vals, -np.inf)
         i, j = np.unravel_index(np.argmax(finite), finite.shape)
         if finite[i, j] > best_v:
@@ -193,7 +196,7 @@ def cross_entropy(objective: Objective, dim: int, key, config: SearchConfig, *, 
     if best_z is None:  # every evaluation was -inf or NaN
         best_z = np.full(dim, 0.5)
     return SearchResult(best_z=best_z, best_value=best_v, history=tuple(history), evaluations=iters * per_iter,
-                        values=np.concatenate(values))
+                        values=np.concatenate(values), samples=np.concatenate(samples))
 
 
 def gradient_ascent(objective: Objective, dim: int, key, config: SearchConfig, *, budget: int | None = None,
