@@ -67,10 +67,11 @@ def draw_variance(ax, cost, q, lo, hi, vmax=None):
                      zorder=0)
 
 
-def margin_histograms(rows, path, bins: int = 40):
+def margin_histograms(rows, path, bins: int = 40) -> None:
     """One panel per schedule: the histogram of the attempts' time margins [s] per attacker
-    (:attr:`stp_env.coobservation.evaluation.Row.margins`, finite margins only; >= 0 is an undetected entry), a line
-    at 0. Saves the figure to ``path`` and returns it."""
+    (:attr:`stp_env.coobservation.evaluation.Row.margins`, finite margins only: lost attempts are counted in the
+    legend; >= 0 is an undetected entry), a line at 0; attackers without attempts appear in the legend only. Saves
+    the figure to ``path``."""
     import matplotlib.pyplot as plt
 
     schedules = list(dict.fromkeys(r.schedule for r in rows))
@@ -79,10 +80,12 @@ def margin_histograms(rows, path, bins: int = 40):
     edges = np.histogram_bin_edges(everything, bins=bins)
     for ax, name in zip(axes[0], schedules):
         for k, r in enumerate(x for x in rows if x.schedule == name):
-            if r.margins is None or not len(r.margins):
+            label = (f"{r.attacker}: {r.attempts} attempts in {r.episodes}, {r.undetected_entries} undetected, "
+                     f"{r.lost_attempts} lost")
+            if r.margins is None or not len(r.margins):  # no line, but in the legend: 0 attempts is a finding
+                ax.plot([], [], color=COLORS[k % len(COLORS)], lw=1.4, ls=":", label=label)
                 continue
-            ax.hist(r.margins, bins=edges, histtype="step", color=COLORS[k % len(COLORS)], lw=1.4,
-                    label=f"{r.attacker} ({r.attempts} attempts, {r.undetected_entries} undetected)")
+            ax.hist(r.margins, bins=edges, histtype="step", color=COLORS[k % len(COLORS)], lw=1.4, label=label)
         ax.axvline(0.0, color="k", lw=0.8)
         ax.set_yscale("log")
         ax.set_title(f"{name} schedule")
@@ -95,4 +98,3 @@ def margin_histograms(rows, path, bins: int = 40):
     with atomic_open(path, "wb") as fh:
         fig.savefig(fh, format="png", dpi=120)
     plt.close(fig)
-    return fig
