@@ -104,7 +104,7 @@ def opportunistic(slack: float = 5.0):
     return policy
 
 
-def _observer_disks(params, threat, c, t_next):
+def observer_disks(params, threat, c, t_next):
     """The observers of vehicle ``c`` at its next observation time ``t_next``: centres ``(M, 2)`` (the partner's
     nominal position then, or the fixed point) and a mask ``(M,)`` of the observations that are due then and
     involve ``c``."""
@@ -147,7 +147,7 @@ def optimistic(slack: float = 2.0, margin: float = 10.0):
         x, t = sim.x[c], sim.t
         b = params.vehicles.bounds
         t_next, own = next_observation(state, params, threat, c, t)
-        centres, due = _observer_disks(params, threat, c, t_next)
+        centres, due = observer_disks(params, threat, c, t_next)
         r = threat.radius - margin
         # before the entry: the entry point with the shortest detour through the nearest visible point
         e = threat.entry_points

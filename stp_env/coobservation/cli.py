@@ -5,8 +5,11 @@ times whose reachability ellipses miss the zones), an unsecured one (every --per
 secured with the exact reachable sets of the Dubins vehicle in wind (--schedules exact) and one secured as if there
 were no wind (--schedules windless, a control that must fail), against scripted
 attackers (reckless, opportunistic, optimistic: the ellipses' own worst case, best with --wind-model tailwind), an
-honest control (honest: nobody deviates) and learned ones (learned:<path to attacker.npz>). Prints a markdown table
-and writes results.json and results.md to --out.
+honest control (honest: nobody deviates), learned ones (learned:<path to attacker.npz>) and the searched attacker
+(searched: a cross-entropy search over the departure time, entry point, return point and speed of a vehicle
+compromised from the start, --search-budget attacks per schedule, whether or not the ellipse inequality says the
+attack can succeed). Prints markdown tables (outcomes; entry attempts, undetected entries with exact bounds and
+the attempts' time margins) and writes results.json, results.md and margins.png to --out.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import time
 from pathlib import Path
 
 SCHEDULES = ("secured", "unsecured", "exact", "windless")
+SEARCHED = "searched"
 
 
 def add_parser(sub) -> None:
@@ -28,7 +32,10 @@ def add_parser(sub) -> None:
     p.add_argument("--episodes", type=kit.positive_int, default=10_000, help="episodes per (schedule, attacker)")
     kit.add_batch_size(p, "episodes simulated in one batched rollout", default=1000, aliases=("--batch",))
     p.add_argument("--attackers", nargs="+", default=["honest", "reckless", "opportunistic", "optimistic"],
-                   help="honest, reckless, opportunistic, optimistic, or learned:<attacker.npz>")
+                   help="honest, reckless, opportunistic, optimistic, learned:<attacker.npz>, or searched (the "
+                        "cross-entropy search of stp_env.falsify.search, --search-budget attacks per schedule)")
+    p.add_argument("--search-budget", type=kit.positive_int, default=2000,
+                   help="attacks the searched attacker evaluates per schedule")
     p.add_argument("--schedules", nargs="+", choices=SCHEDULES, default=["secured", "unsecured"],
                    help="which schedules to attack (exact: secured with the exact regions, a level-set solve on "
                         "first use, about 10 minutes on 2 cores; windless: secured with ellipses that leave the "
@@ -49,6 +56,8 @@ def resolve_attackers(names):
 
     out = {}
     for name in names:
+        if name == SEARCHED:
+            continue  # not a policy: the search runs per schedule (evaluation.run_searched)
         if name.startswith("learned:"):
             path = Path(name.split(":", 1)[1])  # read under the loader contract (stp_env.baselines.learned.load_mlp)
             from stp_env.coobservation.learned import mlp_attacker
@@ -57,8 +66,8 @@ def resolve_attackers(names):
         elif name in ATTACKERS:
             out[name] = ATTACKERS[name]
         else:
-            raise ValueError(f"--attackers: unknown attacker {name!r}; allowed: {', '.join(ATTACKERS)} or "
-                             "learned:<path to attacker.npz>.")
+            raise ValueError(f"--attackers: unknown attacker {name!r}; allowed: {', '.join(ATTACKERS)}, {SEARCHED} "
+                             "or learned:<path to attacker.npz>.")
     return out
 
 
@@ -108,13 +117,25 @@ def run(args) -> int:
                for k, s in schedules.items()}
     window = (0.0, scenario.duration - 10.0)
     rows = evaluation.run(params, threats, attackers, args.episodes, t_window=window, batch=args.batch_size,
-                          seed=args.seed, progress=not args.no_progress)
-    table = evaluation.markdown(rows)
+                          seed=args.seed, progress=not args.no_progress) if attackers else []
+    searches = {}
+    if SEARCHED in args.attackers:
+        found, searches = evaluation.run_searched(params, threats, args.search_budget, seed=args.seed,
+                                                  progress=not args.no_progress)
+        rows += found
+    table = evaluation.markdown(rows) + "\n\nEntry attempts:\n\n" + evaluation.attempts_markdown(rows)
     print(table)
     result = {"scenario": repr(scenario), "schedules": times, "compromise_window_s": list(window),
               "episodes": args.episodes, "seed": args.seed, "rows": [r.as_dict() for r in rows],
+              "searched": searches, "search_budget": args.search_budget if searches else None,
               "seconds": round(time.time() - start, 1), "jax": jax.__version__, "numpy": np.__version__}
     for name, text in (("results.json", json.dumps(result, indent=1, default=float)), ("results.md", table)):
         with atomic_open(out / name) as fh:
             fh.write(text + "\n")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from stp_env.coobservation.plots import margin_histograms
+
+    margin_histograms(rows, out / "margins.png")
     return 0

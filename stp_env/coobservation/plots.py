@@ -65,3 +65,36 @@ def draw_variance(ax, cost, q, lo, hi, vmax=None):
     return ax.imshow(img, origin="lower", extent=(xs[0] - dx / 2, xs[-1] + dx / 2, ys[0] - dy / 2, ys[-1] + dy / 2),
                      cmap="Greys", vmin=0.0, vmax=vmax if vmax is not None else float(np.nanmax(p)), alpha=0.5,
                      zorder=0)
+
+
+def margin_histograms(rows, path, bins: int = 40) -> None:
+    """One panel per schedule: the histogram of the attempts' time margins [s] per attacker
+    (:attr:`stp_env.coobservation.evaluation.Row.margins`, finite margins only: lost attempts are counted in the
+    legend; >= 0 is an undetected entry), a line at 0; attackers without attempts appear in the legend only. Saves
+    the figure to ``path``."""
+    import matplotlib.pyplot as plt
+
+    schedules = list(dict.fromkeys(r.schedule for r in rows))
+    fig, axes = plt.subplots(1, len(schedules), figsize=(4.5 * len(schedules), 3.4), squeeze=False)
+    everything = np.concatenate([r.margins for r in rows if r.margins is not None and len(r.margins)] or [np.zeros(1)])
+    edges = np.histogram_bin_edges(everything, bins=bins)
+    for ax, name in zip(axes[0], schedules):
+        for k, r in enumerate(x for x in rows if x.schedule == name):
+            label = (f"{r.attacker}: {r.attempts} attempts in {r.episodes}, {r.undetected_entries} undetected, "
+                     f"{r.lost_attempts} lost")
+            if r.margins is None or not len(r.margins):  # no line, but in the legend: 0 attempts is a finding
+                ax.plot([], [], color=COLORS[k % len(COLORS)], lw=1.4, ls=":", label=label)
+                continue
+            ax.hist(r.margins, bins=edges, histtype="step", color=COLORS[k % len(COLORS)], lw=1.4, label=label)
+        ax.axvline(0.0, color="k", lw=0.8)
+        ax.set_yscale("log")
+        ax.set_title(f"{name} schedule")
+        ax.set_xlabel("time margin to the detecting observation [s]")
+        ax.set_ylabel("attempts")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    from stp_env.files import atomic_open
+
+    with atomic_open(path, "wb") as fh:
+        fig.savefig(fh, format="png", dpi=120)
+    plt.close(fig)

@@ -9,7 +9,13 @@ paper's defence sees:
   its observer (the partner vehicle's actual position, or a fixed point); a miss is reported (``missed``);
 * **detections**: the first missed observation that involves the compromised vehicle at or after the compromise
   (``detect_time``); misses that do not (an honest vehicle off its plan) are false alarms;
-* **forbidden-region entries** of every flying vehicle (``entered``, ``entry_time``).
+* **forbidden-region entries** of every flying vehicle (``entered``, ``entry_time``);
+* the compromised vehicle's **departure** from its plan (``departure_time``: the first step at or after the
+  compromise at which it is more than ``depart_distance`` from its nominal position, the deviation the schedule's
+  ellipses allow an honest observer, Section II-F's growth of the observation radius, or is lost: collided, e.g.
+  with the teammate it flew into, or left the domain; a vehicle that flies its plan does neither) and its
+  **closest approach** to a zone after the compromise (``closest_zone``, the largest edge distance of
+  :func:`zone_depth`: <= 0 inside), from which :func:`attempts` counts entry attempts and their time margins.
 
 An attack *succeeds* when the compromised vehicle entered a forbidden zone and was never detected
 (:func:`outcomes`). Everything is jittable and batched with ``vmap`` (:func:`rollout`); attackers are jittable
@@ -52,6 +58,7 @@ class ThreatParams:
     obs_point: jax.Array      # (M, 2) [m]: the fixed observer (when obs_partner < 0)
     radius: jax.Array         # () [m] observation radius
     entry_points: jax.Array   # (B, 2) [m]: points just inside the zones, along their boundaries (attackers' aims)
+    depart_distance: jax.Array  # () [m]: the compromised vehicle has left its plan farther than this from it
 
 
 @jax.tree_util.register_dataclass
@@ -71,12 +78,17 @@ class ThreatState:
     detect_time: jax.Array    # () [s] first missed observation of the compromised vehicle after t_compromise
     false_alarms: jax.Array   # () int: missed observations not involving it (or before t_compromise)
     max_track_error: jax.Array  # (N,) [m] largest distance from the nominal position while honest
+    departure_time: jax.Array  # () [s] first time the compromised vehicle was off its plan (inf: never)
+    closest_zone: jax.Array   # () [m] the compromised vehicle's smallest zone depth since the compromise (inf: none)
 
 
 def threat_params(observations, forbidden, radius: float, entry_depth: float = 20.0,
-                  points_per_edge: int = 16, pad_to: int | None = None) -> ThreatParams:
+                  points_per_edge: int = 16, pad_to: int | None = None,
+                  depart_distance: float = 20.0) -> ThreatParams:
     """Arrays of a schedule (:class:`stp_env.coobservation.schedule.Observation`, times in seconds) and forbidden
-    convex polygons. ``entry_depth`` [m]: how far inside a zone the attackers' entry points lie. ``pad_to``: add
+    convex polygons. ``entry_depth`` [m]: how far inside a zone the attackers' entry points lie.
+    ``depart_distance`` [m]: how far from its nominal position the compromised vehicle counts as having left its
+    plan (default: the scenario's tracking margin, 20 m). ``pad_to``: add
     placeholder observations (at :data:`NEVER`, never due, counted as checked) up to this many, so that schedules
     of different lengths share one compiled rollout."""
     if not observations:
@@ -85,6 +97,8 @@ def threat_params(observations, forbidden, radius: float, entry_depth: float = 2
         raise ValueError("no forbidden zones given.")
     if not (math.isfinite(radius) and radius > 0):
         raise ValueError(f"radius must be a finite number > 0; got {radius!r}.")
+    if not (math.isfinite(depart_distance) and depart_distance > 0):
+        raise ValueError(f"depart_distance must be a finite number > 0; got {depart_distance!r}.")
     hp = [polygon_halfplanes(p) for p in forbidden]
     k = max(len(m) for _, m in hp)
     normals = np.stack([np.concatenate([n, np.repeat(n[:1], k - len(n), 0)]) for n, _ in hp])
@@ -109,7 +123,8 @@ def threat_params(observations, forbidden, radius: float, entry_depth: float = 2
         obs_partner=jnp.asarray([-1 if o.partner is None else o.partner for o in obs], jnp.int32),
         obs_point=jnp.asarray([o.point if o.point is not None else (0.0, 0.0) for o in obs], jnp.float32),
         radius=jnp.asarray(radius, jnp.float32),
-        entry_points=jnp.asarray(np.concatenate(entry), jnp.float32))
+        entry_points=jnp.asarray(np.concatenate(entry), jnp.float32),
+        depart_distance=jnp.asarray(depart_distance, jnp.float32))
 
 
 def zone_depth(p, threat: ThreatParams):
@@ -148,12 +163,21 @@ def _events(ts: ThreatState, sim_state: EnvState, params: EnvParams, threat: Thr
     x_ref, _ = core.nominal_reference(params, t)
     err = jnp.linalg.norm(x - x_ref[:, :2], axis=-1)
     honest = ~((jnp.arange(n) == c) & (t >= ts.t_compromise)) & (sim_state.status == FLYING)
+    # the compromised vehicle's departure from its plan and closest approach to a zone (since the compromise)
+    ci = jnp.maximum(c, 0)
+    active = (c >= 0) & (t >= ts.t_compromise - 1e-6)
+    lost_c = (sim_state.status[ci] == COLLIDED) | (sim_state.status[ci] == OUT_OF_BOUNDS)
+    off = active & (((sim_state.status[ci] == FLYING) & (err[ci] > threat.depart_distance)) | lost_c)
+    departure_time = jnp.where(jnp.isinf(ts.departure_time) & off, t, ts.departure_time)
+    depth = jnp.min(zone_depth(x[ci], threat))
+    closest_zone = jnp.where(active, jnp.minimum(ts.closest_zone, depth), ts.closest_zone)
     return replace(
         ts, sim=sim_state, inside=inside, entered=ts.entered | inside,
         entry_time=jnp.where(first, t, ts.entry_time),
         checked=ts.checked | due, missed=ts.missed | miss, obs_distance=jnp.where(due, dist, ts.obs_distance),
         detect_time=detect_time, false_alarms=ts.false_alarms + jnp.sum(miss & ~(involves & after)),
-        max_track_error=jnp.where(honest, jnp.maximum(ts.max_track_error, err), ts.max_track_error))
+        max_track_error=jnp.where(honest, jnp.maximum(ts.max_track_error, err), ts.max_track_error),
+        departure_time=departure_time, closest_zone=closest_zone)
 
 
 def reset(key, params: EnvParams, threat: ThreatParams, compromised, t_compromise) -> ThreatState:
@@ -167,7 +191,8 @@ def reset(key, params: EnvParams, threat: ThreatParams, compromised, t_compromis
         t_compromise=jnp.asarray(t_compromise, dtype), entered=jnp.zeros((n,), bool),
         entry_time=jnp.full((n,), INF, dtype), inside=jnp.zeros((n,), bool), checked=threat.obs_time >= NEVER,
         missed=jnp.zeros((m,), bool), obs_distance=jnp.full((m,), INF, dtype), detect_time=jnp.asarray(INF, dtype),
-        false_alarms=jnp.asarray(0, jnp.int32), max_track_error=jnp.zeros((n,), dtype))
+        false_alarms=jnp.asarray(0, jnp.int32), max_track_error=jnp.zeros((n,), dtype),
+        departure_time=jnp.asarray(INF, dtype), closest_zone=jnp.asarray(INF, dtype))
     return _events(ts, sim_state, params, threat)
 
 
@@ -276,3 +301,56 @@ def outcomes(final: ThreatState) -> dict:
         "all_checked": np.asarray(final.checked).all(axis=1),
         "collisions": (np.asarray(final.sim.status) == COLLIDED).sum(axis=1),
     }
+
+
+def attempt_margin(final: ThreatState, threat: ThreatParams, speed, dt):
+    """The time margin [s] of one episode's attack (unbatched ``final``): the smallest, over the scheduled
+    observations of the compromised vehicle from its departure on (due at or after ``departure_time - dt / 2``),
+    of ``(radius - distance) / speed``, the distance between the vehicle and its observer at the observation and
+    ``speed`` the fastest ground speed ``v_max + wind`` (the ellipse's, Def. 3): how many seconds longer the
+    vehicle could have flown away and still been seen. It is >= 0 exactly when no observation of it was missed
+    since it left its plan, so an entry with a margin >= 0 is undetected; ``-inf`` where an observation was
+    missed because a vehicle of the pair was lost (collided or left the domain); ``+inf`` where it never departed.
+    """
+    return _margin(final.compromised, final.departure_time, final.checked, final.missed, final.obs_distance,
+                   threat, speed, dt)
+
+
+def _margin(compromised, departure_time, checked, missed, obs_distance, threat: ThreatParams, speed, dt):
+    c = jnp.maximum(compromised, 0)
+    involves = (threat.obs_agent == c) | (threat.obs_partner == c)
+    scheduled = threat.obs_time < NEVER
+    relevant = involves & scheduled & checked & (threat.obs_time >= departure_time - 0.5 * dt)
+    lost = missed & (obs_distance <= threat.radius)
+    slack = jnp.where(lost, -INF, (threat.radius - obs_distance) / speed)
+    return jnp.min(jnp.where(relevant, slack, INF))
+
+
+def attempts(final: ThreatState, params: EnvParams, threat: ThreatParams) -> dict:
+    """Entry attempts of a batch of episodes (numpy arrays, one entry per episode).
+
+    The compromised vehicle *departs* at the first step after the compromise at which it flies more than
+    ``threat.depart_distance`` from its nominal position or is lost (``departure_time``). An episode holds an
+    *attempt* when its vehicle departed and then entered a zone or was detected (missed an observation): it left
+    its plan and reached a zone or was caught trying; an excursion that came back without entering a zone or
+    missing an observation is no attempt. One compromise per episode, so at most one attempt.
+
+    Returns ``departed``, ``attempt``, ``undetected`` (an attempt that entered a zone and was never detected),
+    ``margin`` (:func:`attempt_margin`, NaN where no attempt), ``lost`` (an attempt whose margin is ``-inf``: a
+    vehicle of an observation pair was lost) and ``closest_zone`` [m] (the vehicle's smallest zone depth after
+    the compromise, <= 0 inside)."""
+    from stp_env.sim.bounds import V_MAX, WIND
+
+    bounds = np.asarray(params.vehicles.bounds)
+    speed = float(bounds[V_MAX] + bounds[WIND])
+    dt = float(params.episode.dt)
+    o = outcomes(final)
+    departed = o["attacked"] & np.isfinite(np.asarray(final.departure_time))
+    attempt = departed & (o["entered"] | o["detected"])
+    fields = [np.asarray(getattr(final, k)) for k in
+              ("compromised", "departure_time", "checked", "missed", "obs_distance")]
+    margin = np.asarray(jax.vmap(lambda *f: _margin(*f, threat, speed, dt))(*fields), np.float64)
+    margin = np.where(attempt, margin, np.nan)
+    return {"departed": departed, "attempt": attempt, "undetected": attempt & o["entered"] & ~o["detected"],
+            "margin": margin, "lost": attempt & np.isneginf(margin),
+            "closest_zone": np.asarray(final.closest_zone, np.float64)}

@@ -88,6 +88,7 @@ class SearchResult:
         history: the best value after each iteration (cross-entropy) or step (gradient).
         evaluations: objective evaluations used.
         values: every evaluated objective value (for the distribution of attacks).
+        samples: the evaluated points, ``(len(values), dim)`` in the order of ``values`` (to replay any of them).
     """
 
     best_z: np.ndarray
@@ -95,6 +96,7 @@ class SearchResult:
     history: tuple[float, ...]
     evaluations: int
     values: np.ndarray
+    samples: np.ndarray | None = None
 
 
 TABLE_FIELDS = {"tables": ("avoid_values", "tracking_grads", "sdf"),
@@ -235,8 +237,9 @@ def _combine(pieces: list[dict], evaluations: int, default_z) -> SearchResult:
                 best_v, best_z = float(piece["best_values"][t]), piece["best_z"][t].copy()
         history.append(best_v)
     values = np.concatenate([p["values"] for p in pieces], axis=1).ravel()
+    samples = np.concatenate([p["samples"] for p in pieces], axis=1)
     return SearchResult(best_z=default_z if best_z is None else best_z, best_value=best_v, history=tuple(history),
-                        evaluations=evaluations, values=values)
+                        evaluations=evaluations, values=values, samples=samples.reshape(-1, samples.shape[-1]))
 
 
 def cross_entropy(objective: Objective, dim: int, key, config: SearchConfig, *, budget: int | None = None,
@@ -272,7 +275,8 @@ def _objective_and_program(context: SearchContext, what: str, transform=jax.vmap
 
 def cem_restart(context: SearchContext, restart) -> dict:
     """Restart ``restart`` of a cross-entropy search (a piece of its job): per iteration its best value and the
-    first sample that reached it (``best_values``, ``best_z``) and every value (``values``, iteration by row)."""
+    first sample that reached it (``best_values``, ``best_z``), every value (``values``, iteration by row) and the
+    points evaluated (``samples``)."""
     config, dim, r = context.config, context.dim, int(restart)
     if not 0 <= r < config.restarts:
         raise ValueError(f"no restart {restart!r} in a search of {config.restarts}.")
@@ -282,7 +286,7 @@ def cem_restart(context: SearchContext, restart) -> dict:
     mean = context.seeds[r].copy() if seeded else np.full(dim, 0.5)
     std = np.full(dim, SEED_STD if seeded else 0.3)
     rng = np.random.default_rng(np.asarray(context.key_data).ravel().astype(np.uint32))
-    best_values, best_z, values = [], [], []
+    best_values, best_z, values, samples = [], [], [], []
     for it in range(context.steps):
         draw = rng.standard_normal((config.restarts, pop, dim))[r]  # the search's whole draw; this restart's row
         zs = np.clip(mean[None, :] + std[None, :] * draw, 0.0, 1.0)
@@ -290,6 +294,7 @@ def cem_restart(context: SearchContext, restart) -> dict:
             zs[0] = context.seeds[r]
         vals = evaluate(objective, zs, config.batch, program=program)
         values.append(vals)
+        samples.append(zs)
         finite = np.where(np.isfinite(vals), vals, -np.inf)
         j = int(np.argmax(finite))
         best_values.append(finite[j])
@@ -299,7 +304,7 @@ def cem_restart(context: SearchContext, restart) -> dict:
         mean = a * mean + (1 - a) * elite.mean(axis=0)
         std = np.maximum(a * std + (1 - a) * elite.std(axis=0), config.min_std)
     return {"best_values": np.asarray(best_values, np.float64), "best_z": np.asarray(best_z),
-            "values": np.asarray(values, np.float64)}
+            "values": np.asarray(values, np.float64), "samples": np.asarray(samples, np.float64)}
 
 
 GRADIENT_STARTS = 8
@@ -337,7 +342,8 @@ def _value_and_grad(g):
 
 def gradient_restart(context: SearchContext, restart) -> dict:
     """Restart ``restart`` of a gradient ascent (a piece of its job): Adam from its starts; per step the best value
-    and the point that reached it first (``best_values``, ``best_z``), and every value (``values``)."""
+    and the point that reached it first (``best_values``, ``best_z``), every value (``values``) and the points
+    evaluated (``samples``)."""
     config, r = context.config, int(restart)
     if not 0 <= r < config.restarts:
         raise ValueError(f"no restart {restart!r} in a search of {config.restarts}.")
@@ -347,11 +353,12 @@ def gradient_restart(context: SearchContext, restart) -> dict:
     m = jnp.zeros_like(y)
     v = jnp.zeros_like(y)
     b1, b2, eps, lr = 0.9, 0.999, 1e-8, config.learning_rate
-    best_values, best_z, values = [], [], []
+    best_values, best_z, values, samples = [], [], [], []
     for k in range(1, context.steps + 1):
         vals, g = value_and_grad(y)
         vals = np.asarray(vals, np.float64)
         values.append(vals)
+        samples.append(np.asarray(jax.nn.sigmoid(y), np.float64))
         finite = np.where(np.isfinite(vals), vals, -np.inf)
         i = int(np.argmax(finite))
         best_values.append(finite[i])
@@ -361,7 +368,7 @@ def gradient_restart(context: SearchContext, restart) -> dict:
         v = b2 * v + (1 - b2) * g * g
         y = y + lr * (m / (1 - b1 ** k)) / (jnp.sqrt(v / (1 - b2 ** k)) + eps)
     return {"best_values": np.asarray(best_values, np.float64), "best_z": np.asarray(best_z),
-            "values": np.asarray(values, np.float64)}
+            "values": np.asarray(values, np.float64), "samples": np.asarray(samples, np.float64)}
 
 
 def search(objective: Objective, dim: int, key, config: SearchConfig, *, progress=None, seeds=None, executor=None,
@@ -384,4 +391,5 @@ def search(objective: Objective, dim: int, key, config: SearchConfig, *, progres
     best = first if first.best_value >= second.best_value else second
     return SearchResult(best_z=best.best_z, best_value=best.best_value, history=first.history + second.history,
                         evaluations=first.evaluations + second.evaluations,
-                        values=np.concatenate([first.values, second.values]))
+                        values=np.concatenate([first.values, second.values]),
+                        samples=np.concatenate([first.samples, second.samples]))
