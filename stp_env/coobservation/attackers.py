@@ -129,6 +129,27 @@ def toward_within(o, p, centres, mask, radius):
     return o + s * d
 
 
+def after_entry(state, params, threat, c, own, centres, due, radius):
+    """The compromised vehicle ``c``'s action once inside a zone: until the first observation of it after the entry,
+    toward the nearest point from which the observers ``centres`` (``due``) see it (``radius`` inside their reach,
+    :func:`toward_within`), arriving in about ``ARRIVE_TIME``; after that observation, back to its own slot ``own``
+    and, once within ``REJOIN_DISTANCE`` of its plan, the plan."""
+    sim = state.sim
+    x, t = sim.x[c], sim.t
+    b = params.vehicles.bounds
+    aim = toward_within(own, x[:2], centres, due, radius)
+    dist_aim = jnp.linalg.norm(aim - x[:2])
+    back = steer(x, aim, jnp.clip(dist_aim / ARRIVE_TIME, b[V_MIN], b[V_MAX]), b)
+    involves = (threat.obs_agent == c) | (threat.obs_partner == c)
+    seen_since = jnp.any(involves & (threat.obs_time > state.entry_time[c]) & (threat.obs_time <= t))
+    x_ref, _ = core.nominal_reference(params, t)
+    rejoined = jnp.linalg.norm(x_ref[c, :2] - x[:2]) < REJOIN_DISTANCE
+    dist_own = jnp.linalg.norm(own - x[:2])
+    rejoin = jnp.where(rejoined, threat_lib.FLY_PLAN,
+                       steer(x, own, jnp.clip(dist_own / ARRIVE_TIME, b[V_MIN], b[V_MAX]), b))
+    return jnp.where(seen_since, rejoin, back)
+
+
 def optimistic(slack: float = 2.0, margin: float = 10.0):
     """The attacker the reachability ellipses are built against (their worst case, up to turns): it counts on the
     fastest ground speed, ``v_max + wind`` (which the ``tailwind`` wind model gives it), and it returns not to its
@@ -156,20 +177,8 @@ def optimistic(slack: float = 2.0, margin: float = 10.0):
         k = jnp.argmin(detour)
         go = detour[k] / (b[V_MAX] + b[WIND]) <= t_next - t - slack
         to_zone = steer(x, e[k], b[V_MAX], b)
-        # after the entry, until the first observation after it: the nearest visible point toward here
-        aim = toward_within(own, x[:2], centres, due, r)
-        dist_aim = jnp.linalg.norm(aim - x[:2])
-        back = steer(x, aim, jnp.clip(dist_aim / ARRIVE_TIME, b[V_MIN], b[V_MAX]), b)
-        entered = state.entered[c]
-        involves = (threat.obs_agent == c) | (threat.obs_partner == c)
-        seen_since = jnp.any(involves & (threat.obs_time > state.entry_time[c]) & (threat.obs_time <= t))
-        x_ref, _ = core.nominal_reference(params, t)
-        rejoined = jnp.linalg.norm(x_ref[c, :2] - x[:2]) < REJOIN_DISTANCE
-        dist_own = jnp.linalg.norm(own - x[:2])
-        rejoin = jnp.where(rejoined, threat_lib.FLY_PLAN,
-                           steer(x, own, jnp.clip(dist_own / ARRIVE_TIME, b[V_MIN], b[V_MAX]), b))
         before = jnp.where(go, to_zone, threat_lib.FLY_PLAN)
-        return jnp.where(entered, jnp.where(seen_since, rejoin, back), before)
+        return jnp.where(state.entered[c], after_entry(state, params, threat, c, own, centres, due, r), before)
 
     policy.__name__ = "optimistic"
     return policy

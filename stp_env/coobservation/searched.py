@@ -42,17 +42,10 @@ import numpy as np
 
 from stp_env.baselines import nominal_tracking
 from stp_env.coobservation import threat as threat_lib
-from stp_env.coobservation.attackers import (
-    ARRIVE_TIME,
-    REJOIN_DISTANCE,
-    next_observation,
-    observer_disks,
-    steer,
-    toward_within,
-)
+from stp_env.coobservation.attackers import after_entry, next_observation, observer_disks, steer
 from stp_env.falsify import search as search_lib
-from stp_env.sim import core, engine
-from stp_env.sim.bounds import V_MAX, V_MIN, WIND
+from stp_env.sim import engine
+from stp_env.sim.bounds import V_MAX, WIND
 from stp_env.sim.types import EnvParams
 
 DIM = 5
@@ -115,18 +108,9 @@ class SearchedAttack:
             t_next, own = next_observation(state, params, threat, c, t)
             centres, due = observer_disks(params, threat, c, t_next)
             to_zone = steer(x, threat.entry_points[k], v_out, b)
-            aim = toward_within(own, x[:2], centres, due, return_radius)
-            dist_aim = jnp.linalg.norm(aim - x[:2])
-            back = steer(x, aim, jnp.clip(dist_aim / ARRIVE_TIME, b[V_MIN], b[V_MAX]), b)
-            involves = (threat.obs_agent == c) | (threat.obs_partner == c)
-            seen_since = jnp.any(involves & (threat.obs_time > state.entry_time[c]) & (threat.obs_time <= t))
-            x_ref, _ = core.nominal_reference(params, t)
-            rejoined = jnp.linalg.norm(x_ref[c, :2] - x[:2]) < REJOIN_DISTANCE
-            dist_own = jnp.linalg.norm(own - x[:2])
-            rejoin = jnp.where(rejoined, threat_lib.FLY_PLAN,
-                               steer(x, own, jnp.clip(dist_own / ARRIVE_TIME, b[V_MIN], b[V_MAX]), b))
             before = jnp.where(t >= t_dep - 1e-6, to_zone, threat_lib.FLY_PLAN)
-            return jnp.where(state.entered[c], jnp.where(seen_since, rejoin, back), before)
+            return jnp.where(state.entered[c],
+                             after_entry(state, params, threat, c, own, centres, due, return_radius), before)
 
         return act
 
