@@ -25,6 +25,7 @@ made. ``docs/ray.md`` says how to run on a cluster.
 
 from __future__ import annotations
 
+import abc
 import collections
 import dataclasses
 import hashlib
@@ -159,7 +160,7 @@ def _done_pieces(job: Job, folder: Path) -> dict[int, dict]:
 
 
 # ------------------------------------------------------------------------------------------------ executors
-class Executor:
+class Executor(abc.ABC):
     """Runs a :class:`Job`'s pieces and returns their results in piece order (:meth:`run`). Subclasses say how the
     missing pieces are computed (:meth:`compute`)."""
 
@@ -193,8 +194,9 @@ class Executor:
             raise RuntimeError(f"job {job.name}: pieces {missing[:5]} did not finish.")
         return [results[i] for i in range(len(job))]
 
+    @abc.abstractmethod
     def compute(self, job: Job, indices: Sequence[int], finished: Callable[[int, dict], None]) -> None:
-        raise NotImplementedError
+        """Compute the pieces ``indices`` of ``job``, calling ``finished(index, result)`` as each one ends."""
 
     def describe(self) -> str:
         return type(self).__name__
