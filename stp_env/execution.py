@@ -32,7 +32,6 @@ import hashlib
 import json
 import os
 import re
-import tempfile
 import time
 import uuid
 import warnings
@@ -41,6 +40,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from stp_env.files import atomic_open, remove_stale_temporaries
 
 RAY_HINT = "pip install 'stp-env[ray]'"
 """What installs Ray (named in the error when it is missing)."""
@@ -126,14 +127,9 @@ def write_piece(folder, index: int, result: dict) -> Path:
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     path = piece_path(folder, index)
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{path.stem}-", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, **check_result(result, str(path)))
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    arrays = check_result(result, str(path))
+    with atomic_open(path, "wb") as fh:
+        np.savez(fh, **arrays)
     return path
 
 
@@ -174,6 +170,7 @@ class Executor(abc.ABC):
         folder = None if out_dir is None else job.folder(out_dir)
         results: dict[int, dict] = {}
         if folder is not None:
+            remove_stale_temporaries(folder)  # a killed writer's half-written piece
             results.update(_done_pieces(job, folder))
             if progress is not None and results:
                 progress(sum(job.units[i] for i in results))
