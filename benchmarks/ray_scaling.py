@@ -2,7 +2,7 @@
 (:mod:`stp_env.execution`), and what that projects to a 32-core machine.
 
     python benchmarks/ray_scaling.py [--scenario town] [--kbar 2] [--episodes 1000] [--batch-size 125]
-                                     [--cores 32]
+                                     [--cores 32] [--study-instances 4] [--study-levels 50 100]
 
 Prints one JSON line. Every case first runs one batch per worker to compile (or load from the persistent
 compilation cache) the batch's program and to start the workers (``warmup_s``), then times the whole evaluation
@@ -18,6 +18,11 @@ The projection for ``cores`` cores assumes ``cores`` workers that each run a bat
 (one worker per core; this machine's 2 cores are shared with other work, and one process uses both of them when it
 runs alone, so a worker per core is slower per batch than the in-process run) and no cost but the measured overhead
 per piece: it is a projection from the measured per-piece numbers, not a measurement.
+
+The survivability slice (``survivability``) runs ``--study-instances`` instances of the ``--study-levels`` scenarios
+of the paper's mission (512 Monte Carlo realisations per robustness, to keep it short) in this process and on Ray
+with 1 and 2 workers, checks the missions are the same, and projects the paper's 2,401 instances of 36 scenarios
+(6 x 2,401 groups) from the in-process time per group the same way.
 """
 
 from __future__ import annotations
@@ -53,6 +58,42 @@ def same(a, b) -> bool:
     return all(np.asarray(a.episodes[k]).tobytes() == np.asarray(b.episodes[k]).tobytes() for k in a.episodes)
 
 
+def study_slice(instances: int, levels, cores: int, factories) -> dict:
+    """A slice of the survivability study (the paper's mission, ``levels`` x ``levels`` scenarios, ``instances``
+    instances) in this process and with the executor each factory makes: the seconds, the same missions (checked), and the same
+    projection from the measured time per group (a group: one instance of the scenarios with one N_p)."""
+    import tempfile
+
+    from stp_env.survivability.config import PlannerConfig
+    from stp_env.survivability.study import StudyConfig, read_study, run_study, study_groups
+
+    config = StudyConfig(n_partial=levels, n_unknown=levels, n_instances=instances, planner=PlannerConfig(n_mc=512))
+    groups = len(study_groups(config))
+    keys = ("n_partial", "n_unknown", "instance", "policy", "outcome", "reveals", "omega_switch", "n_dp", "windows")
+    out = {"levels": list(levels), "instances": instances, "groups": groups, "n_mc": 512}
+    missions = {}
+    for name, factory in factories:
+        executor = factory()
+        try:
+            with tempfile.TemporaryDirectory() as tmp:
+                start = time.perf_counter()
+                run_study(config, tmp, progress=False, executor=executor)
+                out[name] = {"seconds": round(time.perf_counter() - start, 2)}
+                missions[name] = sorted(tuple(r[k] for k in keys) for r in read_study(tmp))
+        finally:
+            if isinstance(executor, execution.RayExecutor):
+                executor.shutdown()
+    first = next(iter(missions.values()))
+    out["identical_missions"] = all(m == first for m in missions.values())
+    group_s = out["in_process"]["seconds"] / groups
+    out["group_s"] = round(group_s, 2)
+    paper_groups = 6 * 2401
+    out["projection"] = {"label": "projection from the measured per-group time, not a measurement", "cores": cores,
+                         "groups": paper_groups, "in_process_h": round(paper_groups * group_s / 3600, 2),
+                         "ray_h": round(math.ceil(paper_groups / cores) * group_s / 3600, 2)}
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--scenario", default="town")
@@ -62,6 +103,9 @@ def main() -> None:
     parser.add_argument("--batch-size", type=int, default=125)
     parser.add_argument("--cores", type=int, default=32, help="the machine the projection is for")
     parser.add_argument("--projected-episodes", type=int, default=10_000)
+    parser.add_argument("--study-instances", type=int, default=4,
+                        help="instances of the survivability slice (0: no slice)")
+    parser.add_argument("--study-levels", type=int, nargs="+", default=[50, 100])
     args = parser.parse_args()
     config = Configuration(scenario=args.scenario, kbar=args.kbar, intruder=args.intruder)
     params = build_params([config], progress=False)[0]
@@ -99,6 +143,10 @@ def main() -> None:
         "in_process_s": round(projected_pieces * piece_s, 1), "ray_s": round(projected, 1),
         "speedup": round(projected_pieces * piece_s / projected, 1),
         "ideal_speedup": min(args.cores, projected_pieces)}
+    if args.study_instances:
+        factories = [("in_process", execution.LocalExecutor),
+                     *((f"ray_{w}_workers", lambda w=w: execution.RayExecutor(num_cpus=w)) for w in (1, 2))]
+        out["survivability"] = study_slice(args.study_instances, tuple(args.study_levels), args.cores, factories)
     out["loadavg_1min_after"] = round(os.getloadavg()[0], 2)
     print(json.dumps(out))
 

@@ -466,6 +466,10 @@ def _add_train_intruder_parser(sub) -> None:
     tr.add_argument("--checkpoint-every", type=kit.count, default=500_000,
                     help="environment steps between checkpoints [steps] (0: none)")
     tr.add_argument("--tensorboard", action="store_true", help="also write TensorBoard logs")
+    tr.add_argument("--seeds", type=kit.integer(0, MAX_SEED_32), nargs="+", default=None, metavar="SEED",
+                    help="a sweep: one run per seed, into OUT/seed-SEED/, gathered in OUT/sweep.json (with --ray "
+                         "the runs are Ray tasks; a killed sweep resumes); replaces --seed")
+    kit.add_ray(tr, "the sweep's runs (with --seeds)")
     kit.add_out(tr, "runs/intruder")
 
 
@@ -478,6 +482,9 @@ def _train_intruder(args) -> int:
     from stp_env.evaluation.pipeline import check_output_dir
 
     check_output_dir(args.out)
+    if (args.ray or args.ray_address) and args.seeds is None:
+        raise ValueError("--ray runs a sweep's runs: give the seeds with --seeds SEED [SEED ...].")
+    executor = kit.executor(args) if args.seeds is not None else None  # --ray without ray installed fails here
     formats = ("stdout", "csv", "tensorboard") if args.tensorboard else ("stdout", "csv")
     config = TrainConfig(scenario=args.scenario, kbar=args.kbar, algo=args.algo, total_timesteps=args.timesteps,
                          n_envs=args.n_envs, n_steps=args.n_steps, batch_size=args.batch_size, seed=args.seed,
@@ -486,6 +493,13 @@ def _train_intruder(args) -> int:
                          collision_reward=args.collision_reward, shaping_reward=args.shaping_reward,
                          eval_every=args.eval_every, eval_episodes=args.eval_episodes,
                          checkpoint_every=args.checkpoint_every, out_dir=args.out, log_formats=formats)
+    if args.seeds is not None:
+        from stp_env.rl.sweep import sweep
+
+        histories = sweep(config, args.seeds, executor=executor)
+        print(json.dumps({"final": {str(s): h[-1] for s, h in histories.items()},
+                          "out": f"{args.out}/sweep.json"}))
+        return 0
     _, history = train(config)
     print(json.dumps({**history[-1], "out": args.out}))
     return 0

@@ -45,7 +45,7 @@ from stp_env.files import atomic_open, remove_stale_temporaries
 
 RAY_HINT = "pip install 'stp-env[ray]'"
 """What installs Ray (named in the error when it is missing)."""
-MEMO_SIZE = 8
+MEMO_SIZE = 32
 """How many derived objects (device arrays, policies, programs) a process keeps for the jobs it ran last."""
 PIECE_PREFIX = "piece-"
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
@@ -160,11 +160,15 @@ class Executor(abc.ABC):
     """Runs a :class:`Job`'s pieces and returns their results in piece order (:meth:`run`). Subclasses say how the
     missing pieces are computed (:meth:`compute`)."""
 
-    def run(self, job: Job, *, out_dir=None, progress: Callable[[int], None] | None = None) -> list[dict]:
+    def run(self, job: Job, *, out_dir=None, progress: Callable[[int], None] | None = None,
+            on_piece: Callable[[int, dict], None] | None = None) -> list[dict]:
         """Every piece's result (a dict of arrays), in piece order.
 
         ``out_dir``: write each finished piece there and read back those already written (a job that was killed
-        resumes; the job needs a fingerprint). ``progress``: called with each finished piece's units."""
+        resumes; the job needs a fingerprint). ``progress``: called with each finished piece's units.
+        ``on_piece(index, result)``: called as each piece computed in this run finishes (in the order they finish;
+        a job that keeps its own record, such as the survivability study's missions file, appends there). An
+        exception it raises stops the job: pieces not yet finished are cancelled and the exception propagates."""
         if not isinstance(job, Job):
             raise ValueError(f"expected a Job; got {type(job).__name__}.")
         folder = None if out_dir is None else job.folder(out_dir)
@@ -183,6 +187,8 @@ class Executor(abc.ABC):
             results[index] = result
             if progress is not None:
                 progress(job.units[index])
+            if on_piece is not None:
+                on_piece(index, result)
 
         if todo:
             self.compute(job, todo, finished)

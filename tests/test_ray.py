@@ -67,7 +67,8 @@ def local_evaluation():
 # ------------------------------------------------------------------------------------------------ without Ray
 def test_the_package_does_not_import_ray_unless_asked():
     code = ("import sys, stp_env, stp_env.cli, stp_env.execution, stp_env.evaluation, stp_env.falsify.cli, "
-            "stp_env.falsify.search\n"
+            "stp_env.falsify.search, stp_env.survivability.study, stp_env.coobservation.evaluation, "
+            "stp_env.rl.sweep\n"
             "stp_env.cli._build_parser()\n"
             "from stp_env import execution\n"
             "execution.executor_for(False, None)\n"
@@ -253,8 +254,141 @@ def test_the_command_line_options_choose_the_executor(ray_executor):
     from stp_env import cli, cli_kit
 
     parser = cli._build_parser()
-    for argv in (["evaluate", "--ray"], ["falsify", "--ray-address", "auto"]):
+    for argv in (["evaluate", "--ray"], ["falsify", "--ray-address", "auto"], ["survivability", "--ray"],
+                 ["coobservation", "--ray"], ["train-intruder", "--seeds", "1", "2", "--ray"]):
         assert isinstance(cli_kit.executor(parser.parse_args(argv)), execution.RayExecutor), argv
     assert isinstance(cli_kit.executor(parser.parse_args(["evaluate"])), execution.LocalExecutor)
     text = json.dumps(vars(parser.parse_args(["falsify", "--ray-address", "10.0.0.1:6379"])))
     assert '"ray_address": "10.0.0.1:6379"' in text
+
+
+def _tiny_study():
+    from test_survivability import small
+
+    from stp_env.survivability.config import PlannerConfig, TrafficConfig
+    from stp_env.survivability.study import StudyConfig
+
+    return StudyConfig(n_partial=(3, 6), n_unknown=(4, 20), n_instances=2, mission=small(),
+                       traffic=TrafficConfig(reach_km=4), planner=PlannerConfig(n_mc=64, n_survival=64))
+
+
+def _missions(out):
+    from stp_env.survivability.study import read_study
+
+    keys = ("outcome", "reveals", "omega_switch", "n_dp", "windows")
+    return {(r["n_partial"], r["n_unknown"], r["instance"], r["policy"]): tuple(r[k] for k in keys)
+            for r in read_study(out)}
+
+
+def test_a_survivability_study_on_ray_is_the_in_process_one(ray_executor, tmp_path):
+    """The study's groups (instance i of the scenarios with the same N_p) as Ray tasks: the same missions as in
+    this process, and the same report (but for its timing)."""
+    from stp_env.survivability.report import build_report
+    from stp_env.survivability.study import run_study
+
+    config = _tiny_study()
+    run_study(config, tmp_path / "local", progress=False)
+    run_study(config, tmp_path / "ray", progress=False, executor=ray_executor)
+    local, on_ray = _missions(tmp_path / "local"), _missions(tmp_path / "ray")
+    assert len(local) == 2 * 2 * 2 * len(config.policies) and local == on_ray
+    reports = [build_report(config, tmp_path / w, n_boot=50) for w in ("local", "ray")]
+    for r in reports:
+        r.pop("timing")
+    _same(json.loads(json.dumps(reports[0], default=str)), json.loads(json.dumps(reports[1], default=str)), "report")
+
+
+def test_a_killed_study_resumes_from_the_groups_it_wrote(tmp_path, monkeypatch):
+    """A study interrupted in its third group wrote the first two groups' missions; run again, it flies only the
+    groups that had not finished, and its missions are those of an uninterrupted study."""
+    from stp_env.survivability import study
+
+    config = _tiny_study()
+    study.run_study(config, tmp_path / "whole", progress=False)
+    calls = []
+    piece = study.study_piece
+
+    def interrupted_at_the_third(context, argument):
+        calls.append(argument)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return piece(context, argument)
+
+    monkeypatch.setattr(study, "study_piece", interrupted_at_the_third)
+    with pytest.raises(KeyboardInterrupt):
+        study.run_study(config, tmp_path / "killed", progress=False)
+    assert len(_missions(tmp_path / "killed")) == 2 * 2 * len(config.policies)     # two groups of two scenarios
+    calls.clear()
+    monkeypatch.setattr(study, "study_piece", lambda c, a: (calls.append(a), piece(c, a))[1])
+    study.run_study(config, tmp_path / "killed", progress=False)
+    assert calls == [(1, 3, (4, 20)), (1, 6, (4, 20))]
+    assert _missions(tmp_path / "killed") == _missions(tmp_path / "whole")
+    study.run_study(config, tmp_path / "killed", progress=False)                     # nothing left to fly
+    assert len(calls) == 2
+
+
+def test_the_study_s_worker_option_still_works_and_names_its_replacement(tmp_path):
+    code, _, err = run_cli(["survivability", "--out", str(tmp_path), "--worker", "0/2", "--partial", "0",
+                            "--unknown", "0", "--instances", "1", "--n-mc", "256", "--no-progress", "--no-figures"])
+    assert code == 0 and "--worker I/N is deprecated" in err and "--ray" in err, err
+    assert (tmp_path / "missions-0of2.csv").exists() and not (tmp_path / "missions.csv").exists()
+
+
+def _coobservation_inputs():
+    from stp_env.coobservation import threat
+    from stp_env.coobservation.cli import resolve_attackers, schedules_for
+    from stp_env.coobservation.uav import FormationScenario
+
+    scenario = FormationScenario()
+    params = scenario.params(progress=False)
+    schedules = {k: scenario.schedule(v) for k, v in schedules_for(scenario, ["secured", "unsecured"], 90.0,
+                                                                     progress=False).items()}
+    m = max(len(s) for s in schedules.values())
+    threats = {k: threat.threat_params(s, scenario.forbidden, scenario.observation_radius, pad_to=m)
+               for k, s in schedules.items()}
+    return params, threats, resolve_attackers(["reckless"]), (0.0, scenario.duration - 10.0)
+
+
+def test_a_coobservation_evaluation_on_ray_is_the_in_process_one(ray_executor, tmp_path):
+    """Two schedules x one attacker x two batches as Ray tasks: the same rows, margins included; a killed local run
+    resumes from the batches it wrote."""
+    from stp_env.coobservation import evaluation
+
+    params, threats, attackers, window = _coobservation_inputs()
+    run = dict(t_window=window, batch=4, seed=3, progress=False)
+    local = evaluation.run(params, threats, attackers, 6, **run)
+    on_ray = evaluation.run(params, threats, attackers, 6, executor=ray_executor, **run)
+    assert [r.episodes for r in local] == [6, 6] and sum(r.attempts for r in local) > 0
+    _same([r.as_dict() for r in local], [r.as_dict() for r in on_ray], "rows")
+    _same([r.margins for r in local], [r.margins for r in on_ray], "margins")
+    fingerprint = evaluation.attackers_digest(["reckless"])
+    resumed = evaluation.run(params, threats, attackers, 6, pieces_dir=tmp_path, fingerprint=fingerprint, **run)
+    _same([r.as_dict() for r in local], [r.as_dict() for r in resumed], "resumed rows")
+    (folder,) = tmp_path.iterdir()
+    assert len(list(folder.glob("piece-*.npz"))) == 4
+    with pytest.raises(ValueError, match="fingerprint"):
+        evaluation.run(params, threats, attackers, 6, pieces_dir=tmp_path, **run)
+
+
+def test_a_training_sweep_on_ray_is_the_in_process_one(ray_executor, tmp_path):
+    """Two seeds of a tiny PPO run as Ray tasks: each run's evaluations equal the in-process run's, and each run wrote
+    its own folder; the environment's params are built once, by the driver."""
+    pytest.importorskip("stable_baselines3", reason="the rl extra is not installed")
+    from stp_env.rl.sweep import run_dir, sweep
+    from stp_env.rl.train import TrainConfig, build_params
+
+    def config(out):
+        return TrainConfig(scenario="tiny-intruder", total_timesteps=64, n_envs=4, n_steps=16, batch_size=64,
+                           net_arch=(8,), eval_every=0, eval_episodes=4, checkpoint_every=0, out_dir=str(out),
+                           log_formats=("csv",))
+
+    params = build_params(config(tmp_path))
+    local = sweep(config(tmp_path / "local"), (1, 2), params=params, progress=False)
+    on_ray = sweep(config(tmp_path / "ray"), (1, 2), params=params, executor=ray_executor, progress=False)
+    drop = ("seconds", "train_seconds")
+    assert set(local) == {1, 2}
+    for s in (1, 2):
+        assert [{k: v for k, v in r.items() if k not in drop} for r in local[s]] == \
+            [{k: v for k, v in r.items() if k not in drop} for r in on_ray[s]], s
+        assert (run_dir(tmp_path / "ray", s) / "intruder.npz").exists()
+    written = json.loads((tmp_path / "ray" / "sweep.json").read_text())
+    assert written["seeds"] == [1, 2] and set(written["final"]) == {"1", "2"}

@@ -15,6 +15,7 @@ the attempts' time margins) and writes results.json, results.md and margins.png 
 from __future__ import annotations
 
 import json
+import shutil
 import time
 from pathlib import Path
 
@@ -46,6 +47,7 @@ def add_parser(sub) -> None:
     kit.add_wind_model(p, "uniform", "how each vehicle's wind (6 m/s disk) is drawn")
     kit.add_seed(p, "the episodes (the same for every pair)")
     kit.add_out(p, "coobservation-eval")
+    kit.add_ray(p, "the batches of episodes of every (schedule, attacker) pair")
     kit.add_progress(p)
     p.set_defaults(run=run)
 
@@ -98,15 +100,18 @@ def schedules_for(scenario, names, period: float, progress: bool = True) -> dict
 
 def run(args) -> int:
     import jax
+
+    from stp_env import cli_kit as kit
     import numpy as np
 
     from stp_env.coobservation import evaluation, threat
     from stp_env.coobservation.uav import FormationScenario
-    from stp_env.evaluation.pipeline import check_output_dir
+    from stp_env.evaluation.pipeline import PIECES, check_output_dir
     from stp_env.files import atomic_open
 
     attackers = resolve_attackers(args.attackers)  # bad names fail before any computation
     out = check_output_dir(args.out)  # so that the results are not lost at the end
+    executor = kit.executor(args)     # --ray without ray installed, or a cluster not reached, fails here
     scenario = FormationScenario(wind_model=args.wind_model)
     start = time.time()
     params = scenario.params(progress=not args.no_progress)
@@ -116,8 +121,11 @@ def run(args) -> int:
     threats = {k: threat.threat_params(s, scenario.forbidden, scenario.observation_radius, pad_to=m)
                for k, s in schedules.items()}
     window = (0.0, scenario.duration - 10.0)
+    # finished batches wait in OUT/pieces until the results are written: a killed evaluation resumes
     rows = evaluation.run(params, threats, attackers, args.episodes, t_window=window, batch=args.batch_size,
-                          seed=args.seed, progress=not args.no_progress) if attackers else []
+                          seed=args.seed, progress=not args.no_progress, executor=executor,
+                          pieces_dir=out / PIECES,
+                          fingerprint=evaluation.attackers_digest(list(attackers))) if attackers else []
     searches = {}
     if SEARCHED in args.attackers:
         found, searches = evaluation.run_searched(params, threats, args.search_budget, seed=args.seed,
@@ -138,4 +146,5 @@ def run(args) -> int:
     from stp_env.coobservation.plots import margin_histograms
 
     margin_histograms(rows, out / "margins.png")
+    shutil.rmtree(out / PIECES, ignore_errors=True)
     return 0

@@ -76,39 +76,116 @@ class Row:
 
 
 def run(params, threats: dict, attackers: dict, n_episodes: int, *, t_window, batch: int = 1000, seed: int = 0,
-        progress: bool = True) -> list[Row]:
+        progress: bool = True, executor=None, pieces_dir=None, fingerprint: str | None = None) -> list[Row]:
     """Every (schedule, attacker) pair: ``threats`` maps schedule names to :class:`ThreatParams` (padded to one
     length, so that each attacker compiles once), ``attackers`` names to jittable attackers. Episode ``i`` of a
-    pair uses the same key for every pair (common random numbers: the same compromises and winds)."""
+    pair uses the same key for every pair (common random numbers: the same compromises and winds).
+
+    The batches of every pair are the pieces of one job (:mod:`stp_env.execution`, :func:`coobservation_job`):
+    ``executor`` runs them (default in this process, in order; a :class:`~stp_env.execution.RayExecutor` on a
+    cluster) with the same rows whatever runs them: batch ``b`` of a pair is keyed by ``(seed, b)`` alone.
+    ``pieces_dir`` with ``fingerprint`` (a hex digest of what the attackers are, :func:`attackers_digest`): write
+    every finished batch there and reuse those an earlier run of the same job wrote (a killed run resumes)."""
+    from stp_env import execution
+
     check_int(n_episodes, "n_episodes", 1)
     check_int(batch, "batch", 1)
-    base = prng_key(seed)  # [0, 2**63 - 1], every seed its own episodes
+    prng_key(seed)  # [0, 2**63 - 1], every seed its own episodes
+    executor = execution.check_executor(executor)
+    if pieces_dir is not None and fingerprint is None:
+        raise ValueError("pieces_dir needs the attackers' fingerprint (attackers_digest) to resume a job safely.")
     n_steps = threat.steps_for(params)
+    pairs = tuple((s, a) for a in attackers for s in threats)
+    job = coobservation_job(params, threats, attackers, pairs, n_episodes, batch=batch, seed=seed,
+                            n_steps=n_steps, t_window=t_window, fingerprint=fingerprint)
+    with tqdm(total=len(pairs) * n_episodes, desc="co-observation evaluation", unit="episode",
+              disable=not progress) as bar:
+        pieces = executor.run(job, out_dir=pieces_dir, progress=bar.update)
     rows = []
-    jobs = [(s, a) for a in attackers for s in threats]
-    bar = tqdm(total=len(jobs) * n_episodes, desc="co-observation evaluation", unit="episode", disable=not progress)
-    try:
-        for s_name, a_name in jobs:
-            outs = []
-            done = 0
-            b = 0
-            while done < n_episodes:
-                size = min(batch, n_episodes - done)
-                key = jax.random.fold_in(base, b)
-                final, _ = threat.rollout(key, params, threats[s_name], attackers[a_name], batch, n_steps,
-                                          tuple(float(t) for t in t_window))
-                final = jax.device_get(final)
-                o = threat.outcomes(final)
-                o.update({f"attempt_{k}": v for k, v in threat.attempts(final, params, threats[s_name]).items()})
-                outs.append({k: v[:size] for k, v in o.items()})
-                done += size
-                b += 1
-                bar.update(size)
-            o = {k: np.concatenate([x[k] for x in outs]) for k in outs[0]}
-            rows.append(summarize(s_name, a_name, o))
-    finally:
-        bar.close()
+    for j, (s_name, a_name) in enumerate(pairs):
+        mine = [piece for (k, _), piece in zip(job.arguments, pieces) if k == j]
+        rows.append(summarize(s_name, a_name, {k: np.concatenate([p[k] for p in mine]) for k in mine[0]}))
     return rows
+
+
+@dataclasses.dataclass(frozen=True)
+class CoobservationContext:
+    """What every batch of a co-observation evaluation shares (:func:`coobservation_job`): the simulator's
+    ``EnvParams`` and the schedules' ``ThreatParams`` as host arrays (:func:`stp_env.execution.to_host`), the
+    attackers (jittable functions; a worker keeps the first copy it receives, so that each compiles once there),
+    the (schedule, attacker) pairs and the run's numbers."""
+
+    token: str
+    params: object
+    threats: dict
+    attackers: dict
+    pairs: tuple
+    episodes: int
+    batch: int
+    seed: int
+    n_steps: int
+    t_window: tuple
+
+
+def coobservation_job(params, threats: dict, attackers: dict, pairs, n_episodes: int, *, batch: int, seed: int,
+                      n_steps: int, t_window, fingerprint: str | None = None):
+    """The batches of every (schedule, attacker) pair as a :class:`stp_env.execution.Job`: piece ``(j, b)`` runs
+    batch ``b`` of pair ``j`` (:func:`coobservation_piece`). With ``fingerprint`` the job can resume; its folder is
+    named by it, the simulator's and schedules' arrays, the numbers and the package's source."""
+    from stp_env import execution
+
+    host_params = execution.to_host(params)
+    host_threats = {k: execution.to_host(v) for k, v in threats.items()}
+    t_window = tuple(float(t) for t in t_window)
+    context = CoobservationContext(token=execution.new_token(), params=host_params, threats=host_threats,
+                                   attackers=dict(attackers), pairs=tuple(pairs), episodes=n_episodes, batch=batch,
+                                   seed=seed, n_steps=n_steps, t_window=t_window)
+    n_batches = -(-n_episodes // batch)
+    arguments = tuple((j, b) for j in range(len(pairs)) for b in range(n_batches))
+    if fingerprint is not None:
+        from stp_env.evaluation.report import source_hash
+
+        fingerprint = execution.digest("coobservation", fingerprint, [list(p) for p in pairs], n_episodes, batch,
+                                       seed, n_steps, list(t_window), host_params,
+                                       [[k, host_threats[k]] for k in sorted(host_threats)], source_hash())
+    return execution.Job(name="coobservation", function=coobservation_piece, context=context, arguments=arguments,
+                         fingerprint=fingerprint,
+                         units=tuple(min(batch, n_episodes - b * batch) for _, b in arguments))
+
+
+def coobservation_piece(context: CoobservationContext, argument) -> dict:
+    """Batch ``b`` of pair ``j`` (``argument = (j, b)``): every episode's outcomes
+    (:func:`stp_env.coobservation.threat.outcomes`) and entry attempts (keys prefixed ``attempt_``), the batch's
+    key ``fold_in(key(seed), b)``."""
+    from stp_env import execution
+
+    j, b = (int(a) for a in argument)
+    s_name, a_name = context.pairs[j]
+    token = context.token
+    params = execution.memo(token, "params", lambda: execution.to_device(context.params))
+    tp = execution.memo(token, ("threat", s_name), lambda: execution.to_device(context.threats[s_name]))
+    attacker = execution.memo(token, ("attacker", a_name), lambda: context.attackers[a_name])
+    size = min(context.batch, context.episodes - b * context.batch)
+    key = jax.random.fold_in(prng_key(context.seed), b)
+    final, _ = threat.rollout(key, params, tp, attacker, context.batch, context.n_steps, context.t_window)
+    final = jax.device_get(final)
+    o = threat.outcomes(final)
+    o.update({f"attempt_{k}": v for k, v in threat.attempts(final, params, tp).items()})
+    return {k: np.asarray(v)[:size] for k, v in o.items()}
+
+
+def attackers_digest(specs) -> str:
+    """A hex digest of the attackers named by ``specs`` (the command line's names; a ``learned:<path>`` one by its
+    file's bytes), what a resumable job's pieces are named by."""
+    import hashlib
+    from pathlib import Path
+
+    h = hashlib.sha256()
+    for spec in specs:
+        h.update(spec.encode() + b"\0")
+        if spec.startswith("learned:"):
+            h.update(hashlib.sha256(Path(spec.split(":", 1)[1]).read_bytes()).digest())
+    return h.hexdigest()
 
 
 MARGIN_QUANTILES = {"min": 0.0, "5%": 0.05, "25%": 0.25, "50%": 0.5, "75%": 0.75, "95%": 0.95, "max": 1.0}

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 
@@ -72,10 +73,10 @@ def add_parser(sub) -> None:
                     help="with --reveal radius: the sensing radius [km] (required there)")
     sp.add_argument("--max-hours", type=kit.real(0.0, 1e6, lo_open=True), default=None,
                     help="stop after this much wall time [h] (rerun the same command to resume; default: no limit)")
-    sp.add_argument("--worker", type=_worker, default=(0, 1), metavar="I/N",
-                    help="run every N-th group of instances (one instance of the scenarios with the same N_p) "
-                         "starting at the I-th (I = 0 .. N-1), so that N processes with the same options share the "
-                         "study")
+    kit.add_ray(sp, "the groups of instances (one instance of the scenarios with the same N_p)")
+    sp.add_argument("--worker", type=_worker, default=None, metavar="I/N",
+                    help="deprecated (use --ray): run every N-th group of instances starting at the I-th "
+                         "(I = 0 .. N-1), so that N processes with the same options share the study")
     sp.add_argument("--bootstrap", type=kit.positive_int, default=2000, help="bootstrap resamples for thresholds")
     sp.add_argument("--report-only", action="store_true", help="only (re)write results and figures from OUT")
     sp.add_argument("--no-figures", action="store_true", help="skip the figures")
@@ -95,10 +96,15 @@ def config_from_args(args):
 
 def run(args) -> int:
     """Run the subcommand (``ValueError`` for bad input: the caller prints it and exits with 2)."""
+    from stp_env import cli_kit as kit
     from stp_env.survivability.report import build_report, figures
     from stp_env.survivability.study import run_study
 
     config = config_from_args(args)
+    if args.worker is not None:
+        print("stp-env survivability: --worker I/N is deprecated and will be removed; run one study with --ray "
+              "(or --ray-address ADDRESS) instead: its groups then run on every CPU of the cluster (docs/ray.md).",
+              file=sys.stderr)
     if not args.report_only:
         import jax
 
@@ -107,8 +113,10 @@ def run(args) -> int:
         cache.mkdir(parents=True, exist_ok=True)
         jax.config.update("jax_compilation_cache_dir", str(cache))
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+        executor = kit.executor(args)  # --ray without ray installed, or a cluster not reached, fails here
         run_study(config, args.out, progress=not args.no_progress,
-                  max_seconds=None if args.max_hours is None else 3600.0 * args.max_hours, worker=args.worker)
+                  max_seconds=None if args.max_hours is None else 3600.0 * args.max_hours,
+                  worker=args.worker or (0, 1), executor=executor)
     report = build_report(config, args.out, n_boot=args.bootstrap)
     if not args.no_figures:
         import matplotlib

@@ -1,7 +1,7 @@
 """The traffic-scenario study of the survivability paper (Sections V-VI): every policy flies the mission through the
 same traffic instances of every scenario ``(N_p, N_u)``; outcomes are appended to ``missions.csv`` as they finish,
-so an interrupted study resumes where it stopped (several worker processes may share a study, each with its own
-``missions-{i}of{n}.csv``).
+so an interrupted study resumes where it stopped. Its groups of instances are the pieces of one job of the execution
+seam (:mod:`stp_env.execution`): in this process, or as Ray tasks on a cluster, with the same missions.
 
 Instances are visited round-robin (instance 0 of every scenario, then instance 1, ...), so a study stopped early
 has the same number of instances in every scenario. Instance ``i`` uses the same random streams in every scenario
@@ -19,6 +19,8 @@ import math
 import os
 import time
 from pathlib import Path
+
+import numpy as np
 
 from stp_env.arguments import INT32_MAX
 from stp_env.files import atomic_open, write_text
@@ -174,15 +176,25 @@ def run_instance(graph, config: StudyConfig, n_partial: int, n_unknown: int, i: 
 
 
 def run_study(config: StudyConfig, out: str | os.PathLike, *, progress: bool = True, max_seconds=None,
-              worker: tuple[int, int] = (0, 1)) -> Path:
+              worker: tuple[int, int] = (0, 1), executor=None) -> Path:
     """Run (or resume) the study into directory ``out``; returns the path of the missions file written.
-    ``max_seconds``: stop cleanly after this much wall time (the study can be resumed). ``worker = (i, n)``: run
-    every ``n``-th group of instances (instance ``j`` of the scenarios with the same ``N_p``), starting at the
-    ``i``-th, into ``missions-{i}of{n}.csv`` (``n`` processes with ``i = 0 .. n - 1`` share a study; run them with
-    the same options)."""
+
+    The study is one job of the execution seam (:mod:`stp_env.execution`, :func:`study_job`): a piece is a group of
+    instances that share their segment robustness (instance ``i`` of every scenario with the same ``N_p``), and
+    ``executor`` runs the pieces (default in this process, in order; a
+    :class:`~stp_env.execution.RayExecutor` on a cluster). Each finished group is appended to ``missions.csv`` at
+    once, whatever ran it, so a study that was stopped resumes from the groups it wrote; the missions do not depend
+    on where or in what order the groups ran (only the rows' order in the file and their timing columns do).
+
+    ``max_seconds``: stop cleanly after this much wall time (the study can be resumed). ``worker = (i, n)``
+    (deprecated: run one study with a Ray executor instead): run every ``n``-th group, starting at the ``i``-th,
+    into ``missions-{i}of{n}.csv`` (``n`` processes with ``i = 0 .. n - 1`` and the same options share a study)."""
+    from stp_env import execution
+
     i_worker, n_workers = worker
     if not (isinstance(n_workers, int) and n_workers >= 1 and isinstance(i_worker, int) and 0 <= i_worker < n_workers):
         raise ValueError(f"worker must be (i, n) with 0 <= i < n; got {worker!r}.")
+    executor = execution.check_executor(executor)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     meta_path = out / "study.json"
@@ -196,35 +208,93 @@ def run_study(config: StudyConfig, out: str | os.PathLike, *, progress: bool = T
     done = completed(read_study(out), config.policies)
     _atomic_write(meta_path, json.dumps({"fingerprint": config.fingerprint(),
                                          "n_instances": config.n_instances}, indent=1))
-    todo = [(p, u, i) for i in range(config.n_instances) for (p, u) in config.scenarios if (p, u, i) not in done]
-    # Workers split whole groups (instance i, N_p), whose scenarios share the segment robustness, by a fixed rule
-    # (not by what is left), so that a worker restarted alone takes the same groups.
-    rank = {p: j for j, p in enumerate(config.n_partial)}
-    todo = [(p, u, i) for p, u, i in todo if (i * len(rank) + rank[p]) % n_workers == i_worker]
-    if not todo:
+    groups = [g for g in study_groups(config, done) if (g[0] * len(config.n_partial)
+                                                         + config.n_partial.index(g[1])) % n_workers == i_worker]
+    if not groups:
         return path
-    graph = build_graph(build_network(config.mission))
+    job = study_job(config, groups)
     _repair(path, rows)
     from tqdm.auto import tqdm
 
     start = time.perf_counter()
     with open(path, "a", newline="") as f:
         writer = csv.DictWriter(f, FIELDS)
-        bar = tqdm(total=len(todo), disable=not progress, unit="instance",
-                   desc="survivability" if n_workers == 1 else f"survivability {i_worker}/{n_workers}",
-                   smoothing=0.05)
-        shared: dict = {}
-        for p, u, i in todo:
-            if max_seconds is not None and time.perf_counter() - start > max_seconds:
-                break
-            for row in run_instance(graph, config, p, u, i, shared):
-                writer.writerow(row)
+        bar = tqdm(total=sum(job.units), disable=not progress, unit="instance", smoothing=0.05,
+                   desc=("survivability" if n_workers == 1 else f"survivability {i_worker}/{n_workers}")
+                   + ("" if isinstance(executor, execution.LocalExecutor) else f" on {executor.describe()}"))
+
+        def append(index: int, result: dict) -> None:
+            i, p, unknowns = job.arguments[index]
+            writer.writerows(piece_rows(result))
             f.flush()
             os.fsync(f.fileno())
-            bar.update(1)
-            bar.set_postfix_str(f"instance {i}, (N_p, N_u) = ({p}, {u})", refresh=False)
-        bar.close()
+            bar.set_postfix_str(f"instance {i}, N_p = {p}", refresh=False)
+            if max_seconds is not None and time.perf_counter() - start > max_seconds:
+                raise _Deadline
+
+        try:
+            executor.run(job, progress=bar.update, on_piece=append)
+        except _Deadline:
+            pass
+        finally:
+            bar.close()
     return path
+
+
+class _Deadline(Exception):
+    """``max_seconds`` has passed: the study stops after the group that just finished."""
+
+
+def study_groups(config: StudyConfig, done=frozenset()) -> list[tuple[int, int, tuple[int, ...]]]:
+    """The groups of the study still to fly, as ``(instance, N_p, (N_u, ...))``: instance ``i`` of the scenarios with
+    the same ``N_p`` (they share the segment robustness), round-robin over the instances (instance 0 of every
+    ``N_p``, then instance 1, ...), leaving out the scenarios in ``done``."""
+    groups = []
+    for i in range(config.n_instances):
+        for p in config.n_partial:
+            unknowns = tuple(u for u in config.n_unknown if (p, u, i) not in done)
+            if unknowns:
+                groups.append((i, p, unknowns))
+    return groups
+
+
+@dataclasses.dataclass(frozen=True)
+class StudyContext:
+    """What every piece of a study shares: its configuration, and the token its workers key the graph by (each
+    worker builds the graph once, about 1.5 s for the paper's mission: cheaper than shipping its 19 MB)."""
+
+    token: str
+    config: StudyConfig
+
+
+def study_job(config: StudyConfig, groups):
+    """The groups ``(instance, N_p, (N_u, ...))`` of a study as a :class:`stp_env.execution.Job` (one piece a
+    group; :func:`study_piece`)."""
+    from stp_env import execution
+
+    return execution.Job(name="survivability", function=study_piece,
+                         context=StudyContext(token=execution.new_token(), config=config),
+                         arguments=tuple((int(i), int(p), tuple(int(u) for u in us)) for i, p, us in groups),
+                         units=tuple(len(us) for _, _, us in groups))
+
+
+def study_piece(context: StudyContext, argument) -> dict:
+    """Every policy's missions through one group: instance ``i`` of the scenarios ``(N_p, N_u)`` for the ``N_u``
+    given (one array per column of :data:`FIELDS`, a row per mission, in the order the study writes them)."""
+    from stp_env import execution
+
+    i, p, unknowns = argument
+    config = context.config
+    graph = execution.memo(context.token, "graph", lambda: build_graph(build_network(config.mission)))
+    shared: dict = {}
+    rows = [row for u in unknowns for row in run_instance(graph, config, p, u, i, shared)]
+    return {name: np.asarray([row[name] for row in rows]) for name in FIELDS}
+
+
+def piece_rows(result: dict) -> list[dict]:
+    """The rows of a piece's result (:func:`study_piece`) as the missions file holds them."""
+    columns = [np.asarray(result[name]).tolist() for name in FIELDS]
+    return [dict(zip(FIELDS, values)) for values in zip(*columns)]
 
 
 def _same_config(old, new) -> bool:
