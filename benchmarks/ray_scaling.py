@@ -2,7 +2,8 @@
 (:mod:`stp_env.execution`), and what that projects to a 32-core machine.
 
     python benchmarks/ray_scaling.py [--scenario town] [--kbar 2] [--episodes 1000] [--batch-size 125]
-                                     [--cores 32] [--study-instances 4] [--study-levels 50 100]
+                                     [--cores 32] [--study-instances 16] [--study-levels 50 300]
+                                     [--study-n-mc N]
 
 Prints one JSON line. Every case first runs one batch per worker to compile (or load from the persistent
 compilation cache) the batch's program and to start the workers (``warmup_s``), then times the whole evaluation
@@ -20,8 +21,9 @@ runs alone, so a worker per core is slower per batch than the in-process run) an
 per piece: it is a projection from the measured per-piece numbers, not a measurement.
 
 The survivability slice (``survivability``) runs ``--study-instances`` instances of the ``--study-levels`` scenarios
-of the paper's mission (512 Monte Carlo realisations per robustness, to keep it short) in this process and on Ray
-with 1 and 2 workers, checks the missions are the same, and projects the paper's 2,401 instances of 36 scenarios
+of the paper's mission (the study's defaults: 2,500 Monte Carlo realisations per robustness) in this process and on Ray
+with 1 and 2 workers, each after a warm-up study of 2 instances of another seed (workers started, programs
+compiled), checks the missions are the same, and projects the paper's 2,401 instances of 36 scenarios
 (6 x 2,401 groups) from the in-process time per group the same way.
 """
 
@@ -58,27 +60,34 @@ def same(a, b) -> bool:
     return all(np.asarray(a.episodes[k]).tobytes() == np.asarray(b.episodes[k]).tobytes() for k in a.episodes)
 
 
-def study_slice(instances: int, levels, cores: int, factories) -> dict:
+def study_slice(instances: int, levels, cores: int, factories, n_mc: int | None = None) -> dict:
     """A slice of the survivability study (the paper's mission, ``levels`` x ``levels`` scenarios, ``instances``
     instances) in this process and with the executor each factory makes: the seconds, the same missions (checked), and the same
     projection from the measured time per group (a group: one instance of the scenarios with one N_p)."""
     import tempfile
 
-    from stp_env.survivability.config import PlannerConfig
     from stp_env.survivability.study import StudyConfig, read_study, run_study, study_groups
 
-    config = StudyConfig(n_partial=levels, n_unknown=levels, n_instances=instances, planner=PlannerConfig(n_mc=512))
+    config = StudyConfig(n_partial=levels, n_unknown=levels, n_instances=instances)
+    if n_mc is not None:
+        config = config.with_overrides(planner=config.planner.with_overrides(n_mc=n_mc, n_survival=min(
+            config.planner.n_survival, n_mc // 64 * 64)))
     groups = len(study_groups(config))
     keys = ("n_partial", "n_unknown", "instance", "policy", "outcome", "reveals", "omega_switch", "n_dp", "windows")
-    out = {"levels": list(levels), "instances": instances, "groups": groups, "n_mc": 512}
+    out = {"levels": list(levels), "instances": instances, "groups": groups, "n_mc": config.planner.n_mc}
     missions = {}
     for name, factory in factories:
         executor = factory()
         try:
-            with tempfile.TemporaryDirectory() as tmp:
+            with tempfile.TemporaryDirectory() as warm, tempfile.TemporaryDirectory() as tmp:
+                # start every worker and compile its programs on other instances (another seed) first
+                start = time.perf_counter()
+                run_study(config.with_overrides(n_instances=2, seed=config.seed + 1), warm, progress=False,
+                          executor=executor)
+                warmup = time.perf_counter() - start
                 start = time.perf_counter()
                 run_study(config, tmp, progress=False, executor=executor)
-                out[name] = {"seconds": round(time.perf_counter() - start, 2)}
+                out[name] = {"warmup_s": round(warmup, 2), "seconds": round(time.perf_counter() - start, 2)}
                 missions[name] = sorted(tuple(r[k] for k in keys) for r in read_study(tmp))
         finally:
             if isinstance(executor, execution.RayExecutor):
@@ -103,9 +112,12 @@ def main() -> None:
     parser.add_argument("--batch-size", type=int, default=125)
     parser.add_argument("--cores", type=int, default=32, help="the machine the projection is for")
     parser.add_argument("--projected-episodes", type=int, default=10_000)
-    parser.add_argument("--study-instances", type=int, default=4,
+    parser.add_argument("--study-instances", type=int, default=16,
                         help="instances of the survivability slice (0: no slice)")
-    parser.add_argument("--study-levels", type=int, nargs="+", default=[50, 100])
+    parser.add_argument("--study-levels", type=int, nargs="+", default=[50, 300],
+                        help="N_p and N_u of the slice (the grid's ends: its mean cost is near the study's)")
+    parser.add_argument("--study-n-mc", type=int, default=None,
+                        help="Monte Carlo realisations per robustness in the slice (default: the study's)")
     args = parser.parse_args()
     config = Configuration(scenario=args.scenario, kbar=args.kbar, intruder=args.intruder)
     params = build_params([config], progress=False)[0]
@@ -146,7 +158,8 @@ def main() -> None:
     if args.study_instances:
         factories = [("in_process", execution.LocalExecutor),
                      *((f"ray_{w}_workers", lambda w=w: execution.RayExecutor(num_cpus=w)) for w in (1, 2))]
-        out["survivability"] = study_slice(args.study_instances, tuple(args.study_levels), args.cores, factories)
+        out["survivability"] = study_slice(args.study_instances, tuple(args.study_levels), args.cores, factories,
+                                           args.study_n_mc)
     out["loadavg_1min_after"] = round(os.getloadavg()[0], 2)
     print(json.dumps(out))
 
