@@ -469,6 +469,9 @@ def _add_train_intruder_parser(sub) -> None:
     tr.add_argument("--seeds", type=kit.integer(0, MAX_SEED_32), nargs="+", default=None, metavar="SEED",
                     help="a sweep: one run per seed, into OUT/seed-SEED/, gathered in OUT/sweep.json (with --ray "
                          "the runs are Ray tasks; a killed sweep resumes); replaces --seed")
+    tr.add_argument("--grid", action="append", default=None, metavar="FIELD=V1,V2",
+                    help="with --seeds: also sweep a training setting (a TrainConfig field, e.g. "
+                         "learning_rate=1e-4,3e-4; repeat for a product), runs in OUT/FIELD=V/seed-SEED/")
     kit.add_ray(tr, "the sweep's runs (with --seeds)")
     kit.add_out(tr, "runs/intruder")
 
@@ -482,8 +485,9 @@ def _train_intruder(args) -> int:
     from stp_env.evaluation.pipeline import check_output_dir
 
     check_output_dir(args.out)
-    if (args.ray or args.ray_address) and args.seeds is None:
-        raise ValueError("--ray runs a sweep's runs: give the seeds with --seeds SEED [SEED ...].")
+    if (args.ray or args.ray_address or args.grid) and args.seeds is None:
+        raise ValueError("--ray and --grid belong to a sweep: give the seeds with --seeds SEED [SEED ...].")
+    grid = _parse_grid(args.grid or [])
     executor = kit.executor(args) if args.seeds is not None else None  # --ray without ray installed fails here
     formats = ("stdout", "csv", "tensorboard") if args.tensorboard else ("stdout", "csv")
     config = TrainConfig(scenario=args.scenario, kbar=args.kbar, algo=args.algo, total_timesteps=args.timesteps,
@@ -496,13 +500,33 @@ def _train_intruder(args) -> int:
     if args.seeds is not None:
         from stp_env.rl.sweep import sweep
 
-        histories = sweep(config, args.seeds, executor=executor)
-        print(json.dumps({"final": {str(s): h[-1] for s, h in histories.items()},
-                          "out": f"{args.out}/sweep.json"}))
+        histories = sweep(config, args.seeds, grid=grid, executor=executor)
+        print(json.dumps({"final": {(k if isinstance(k, int) else f"{k[0]} seed {k[1]}"): h[-1]
+                                    for k, h in histories.items()}, "out": f"{args.out}/sweep.json"}, default=str))
         return 0
     _, history = train(config)
     print(json.dumps({**history[-1], "out": args.out}))
     return 0
+
+
+def _parse_grid(items) -> dict:
+    """``["learning_rate=1e-4,3e-4", ...]`` as ``{"learning_rate": [0.0001, 0.0003]}`` (each value a JSON number,
+    boolean or list when it reads as one, else a string; the configuration checks them)."""
+    grid = {}
+    for item in items:
+        name, sep, values = item.partition("=")
+        if not sep or not name.strip() or not values.strip():
+            raise ValueError(f"--grid takes FIELD=V1,V2,...; got {item!r}.")
+        if name in grid:
+            raise ValueError(f"--grid: {name} given twice.")
+        parsed = []
+        for text in values.split(","):
+            try:
+                parsed.append(json.loads(text))
+            except ValueError:
+                parsed.append(text)
+        grid[name.strip()] = parsed
+    return grid
 
 
 def _select_figure_backend() -> None:

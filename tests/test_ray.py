@@ -391,4 +391,44 @@ def test_a_training_sweep_on_ray_is_the_in_process_one(ray_executor, tmp_path):
             [{k: v for k, v in r.items() if k not in drop} for r in on_ray[s]], s
         assert (run_dir(tmp_path / "ray", s) / "intruder.npz").exists()
     written = json.loads((tmp_path / "ray" / "sweep.json").read_text())
-    assert written["seeds"] == [1, 2] and set(written["final"]) == {"1", "2"}
+    assert written["seeds"] == [1, 2] and [r["seed"] for r in written["runs"]] == [1, 2]
+    assert written["runs"][0]["final"] == on_ray[1][-1]
+
+
+def test_a_sweep_grid_runs_every_point_and_refuses_what_it_cannot_vary(tmp_path):
+    pytest.importorskip("stable_baselines3", reason="the rl extra is not installed")
+    from stp_env.rl.sweep import grid_points, run_dir, sweep
+    from stp_env.rl.train import TrainConfig, build_params
+
+    config = TrainConfig(scenario="tiny-intruder", total_timesteps=64, n_envs=4, n_steps=16, batch_size=64,
+                         net_arch=(8,), eval_every=0, eval_episodes=4, checkpoint_every=0, out_dir=str(tmp_path),
+                         log_formats=("csv",))
+    assert grid_points({"n_epochs": [1, 2], "gamma": [0.9]}) == ((("n_epochs", 1), ("gamma", 0.9)),
+                                                                  (("n_epochs", 2), ("gamma", 0.9)))
+    params = build_params(config)
+    with pytest.raises(ValueError, match="cannot vary kbar"):
+        sweep(config, (1,), grid={"kbar": [1, 2]}, params=params, progress=False)
+    with pytest.raises(ValueError, match="no_such_field"):
+        sweep(config, (1,), grid={"no_such_field": [1]}, params=params, progress=False)
+    with pytest.raises(ValueError, match="n_epochs"):
+        sweep(config, (1,), grid={"n_epochs": [0]}, params=params, progress=False)
+    assert not any(tmp_path.iterdir())                                     # refused before anything ran
+    runs = sweep(config, (1,), grid={"n_epochs": [1, 2]}, params=params, progress=False)
+    assert sorted(runs) == [("n_epochs=1", 1), ("n_epochs=2", 1)]
+    for n in (1, 2):
+        written = json.loads((run_dir(tmp_path, 1, (("n_epochs", n),)) / "config.json").read_text())
+        assert written["n_epochs"] == n and written["seed"] == 1
+
+
+def test_the_sweep_options_are_checked_before_anything_runs(tmp_path):
+    from stp_env.cli import _parse_grid
+
+    assert _parse_grid(["learning_rate=1e-4,3e-4", "policy=a,b"]) == {"learning_rate": [1e-4, 3e-4],
+                                                                        "policy": ["a", "b"]}
+    for bad in (["n_epochs"], ["=1"], ["n_epochs="], ["n_epochs=1", "n_epochs=2"]):
+        with pytest.raises(ValueError, match="--grid"):
+            _parse_grid(bad)
+    for argv in (["--grid", "n_epochs=1,2"], ["--ray"]):
+        code, stdout, stderr = run_cli(["train-intruder", *argv, "--out", str(tmp_path / "sweep")])
+        assert code == 2 and "--seeds" in stderr and stderr.count("\n") == 1, stderr
+    assert not (tmp_path / "sweep").exists() or not any((tmp_path / "sweep").iterdir())
