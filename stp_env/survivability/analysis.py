@@ -149,6 +149,19 @@ def comparisons(rows, policies) -> dict:
     return out
 
 
+def conflicts(rows, policies) -> dict:
+    """Conflicts per mission (intruders revealed by a conflict, the ``reveals`` column), per scenario and policy:
+    ``{(n_p, n_u): {policy: {"mean": m, "max": k, "n": n}}}`` over the instances flown by every policy."""
+    flown = {key: {p: set(per[p]) for p in policies} for key, per in outcome_table(rows, policies).items()}
+    counts: dict = {}
+    for r in rows:
+        key, p = (r["n_partial"], r["n_unknown"]), r["policy"]
+        if p in policies and r["instance"] in flown.get(key, {}).get(p, ()):
+            counts.setdefault(key, {}).setdefault(p, []).append(int(r["reveals"]))
+    return {key: {p: {"mean": float(np.mean(v)), "max": int(np.max(v)), "n": len(v)} for p, v in sorted(per.items())}
+            for key, per in sorted(counts.items())}
+
+
 def goal_loss(rows, policies) -> dict:
     """When the goal was lost, and what followed, per scenario and policy: the missions whose terminal set was
     widened to the alternative sites (``omega_switch >= 0``: no known-feasible trajectory reached the goal any

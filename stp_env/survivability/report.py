@@ -51,18 +51,71 @@ def build_report(config: StudyConfig, out, n_boot: int = 2000) -> dict:
                        "eta": {str(k): v for k, v in thr["eta"].items()}},
         "comparisons": {f"{k[0]},{k[1]}": v for k, v in comp.items()},
         "goal_loss": {f"{k[0]},{k[1]}": v for k, v in analysis.goal_loss(rows, policies).items()},
+        "conflicts_per_mission": {f"{k[0]},{k[1]}": v for k, v in analysis.conflicts(rows, policies).items()},
+        "airborne_fraction": airborne(config),
         "paper": PAPER,
     }
-    report["findings"] = findings(summary, thr, comp, config)
+    report["findings"] = findings(summary, thr, comp, config, analysis.outcome_table(rows, policies))
     _write(out / "results.json", json.dumps(report, indent=1, default=_json_default))
     _write_csv(out / "results.csv", summary, policies)
     _write(out / "results.md", markdown(report, summary, policies))
     return report
 
 
-def findings(summary, thr, comp, config) -> dict:
-    """The paper's findings, ours next to them."""
-    f = {}
+AIRBORNE_INSTANCES = 20
+"""Traffic instances per scenario that :func:`airborne` draws (the share of intruders in flight is an average over
+intruders and minutes: 20 instances of the smallest scenario hold 1,000 intruders)."""
+
+
+def airborne(config: StudyConfig) -> dict:
+    """The mean share of intruders in flight at a minute of the mission, per diagonal scenario, over the first
+    :data:`AIRBORNE_INSTANCES` traffic instances of the study (drawn as the study draws them)."""
+    import numpy as np
+
+    from stp_env.survivability.traffic import airborne_fraction, sample_traffic
+
+    out = {}
+    for p, u in config.scenarios:
+        if p != u:
+            continue
+        traffic = config.traffic.with_overrides(n_partial=p, n_unknown=u)
+        shares = []
+        for i in range(min(AIRBORNE_INSTANCES, config.n_instances)):
+            traffic_seq, _ = np.random.SeedSequence((config.seed, i)).spawn(2)  # as make_instance draws it
+            shares.append(airborne_fraction(sample_traffic(traffic_seq, config.mission, traffic), config.mission))
+        out[f"{p},{u}"] = float(np.mean(shares))
+    return out
+
+
+def diagonal_findings(table, summary, config) -> dict:
+    """Fig. 7 of the paper along the diagonal ``N_p = N_u``: per total, the policy with the best success and the
+    one with the best survival, each with its lead over the runner-up (paired difference over the same instances,
+    :func:`stp_env.survivability.analysis.paired`, with a 95 % interval: ``resolved`` when it excludes 0).
+    ``table``: :func:`stp_env.survivability.analysis.outcome_table`. The paper's findings: (A) at low traffic pi_R
+    has the best success at the cost of survival; (B) at 300 intruders pi_S is best on both; (C) at 400 pi_Nf has
+    the best success and at 500 the best survival."""
+    out = {}
+    for (p, u), per in summary.items():
+        if p != u:
+            continue
+        row = {}
+        for what in ("success", "survival"):
+            order = sorted(config.policies, key=lambda q: -per[q][what]["rate"])
+            entry = {"best": order[0], "rates": {q: per[q][what]["rate"] for q in config.policies}}
+            if len(order) > 1:
+                _, a = analysis.indicators(table[(p, u)][order[0]], what)
+                _, b = analysis.indicators(table[(p, u)][order[1]], what)
+                lead = analysis.paired(a, b)
+                entry.update(runner_up=order[1], lead=lead,
+                             resolved=bool(math.isfinite(lead["ci95"][0]) and lead["ci95"][0] > 0))
+            row[what] = entry
+        out[p + u] = row
+    return out
+
+
+def findings(summary, thr, comp, config, table=None) -> dict:
+    """The paper's findings, ours next to them (``table``: the outcome table, for Fig. 7's paired leads)."""
+    f = {"fig7_diagonal": diagonal_findings(table, summary, config)} if table is not None else {}
     nu_fixed = 100 if 100 in config.n_unknown else config.n_unknown[0]
     fig8 = {}
     for p in config.n_partial:
@@ -79,11 +132,16 @@ def findings(summary, thr, comp, config) -> dict:
             fig9[u] = {"best": best, "survival[Nf]-survival[S]": comp[(np_fixed, u)].get("survival[Nf]-survival[S]")}
     f[f"pi_Nf_best_unknown (N_p = {np_fixed})"] = fig9
     f["phi(N_p = 100)"] = {"ours": thr["phi"].get(100), "paper": PAPER["phi_np100"]}
+    f["phi(N_p = 50)"] = {"ours": thr["phi"].get(50), "paper": None}
     f["eta(N_total)"] = {"ours": {k: v["value"] for k, v in thr["eta"].items()}, "paper": "64 % falling to 38 %"}
     key = (50, 50)
     if key in comp and "S" in config.policies:
         f["survival-success[S] at 100 intruders"] = {"ours": comp[key]["survival-success[S]"],
                                                      "paper": PAPER["survival_gain_S_100"]}
+        # the paper's "28.24" read as a relative gain instead: (survival - success) / success
+        s_rate, v_rate = summary[key]["S"]["success"]["rate"], summary[key]["S"]["survival"]["rate"]
+        f["survival/success[S] - 1 at 100 intruders"] = {"ours": (v_rate - s_rate) / s_rate if s_rate else None,
+                                                         "paper": PAPER["survival_gain_S_100"]}
     return f
 
 
@@ -129,7 +187,50 @@ def markdown(report, summary, policies) -> str:
             lo, hi = v["ci95"]
             lines.append(f"- {name}({k}) = {_fmt(val)} (95 % bootstrap {_fmt(lo)}-{_fmt(hi)}; no crossing in "
                          f"{100 * v['no_crossing_fraction']:.0f} % of resamples; n = {v['n']}){unit}")
+    lines += _findings_markdown(report, policies)
     return "\n".join(lines) + "\n"
+
+
+def _lead(entry) -> str:
+    lead = entry.get("lead")
+    if lead is None:
+        return LABEL[entry["best"]]
+    lo, hi = lead["ci95"]
+    return (f"{LABEL[entry['best']]} (+{100 * lead['diff']:.1f} over {LABEL[entry['runner_up']]}, "
+            f"{100 * lo:.1f} to {100 * hi:.1f}{'' if entry['resolved'] else ', not resolved'})")
+
+
+def _findings_markdown(report, policies) -> list[str]:
+    """Fig. 7 along the diagonal, the survival gain at 100 intruders, the airborne share and the conflicts."""
+    f = report.get("findings", {})
+    lines = []
+    diag = f.get("fig7_diagonal", {})
+    if diag:
+        lines += ["", "Fig. 7 along the diagonal (N_p = N_u): the best policy and its paired lead over the runner-up "
+                  "(points, 95 % interval):", "", "| N_total | best success | best survival |", "|---|---|---|"]
+        lines += [f"| {k} | {_lead(v['success'])} | {_lead(v['survival'])} |" for k, v in sorted(diag.items())]
+    points = f.get("survival-success[S] at 100 intruders")
+    relative = f.get("survival/success[S] - 1 at 100 intruders")
+    if points:
+        lo, hi = points["ours"]["ci95"]
+        lines += ["", f"- pi_S's survival over success at 100 intruders (50, 50): {100 * points['ours']['diff']:.2f} "
+                      f"points ({100 * lo:.2f} to {100 * hi:.2f}); relative {_pct_or_none(relative['ours'])}; "
+                      f"paper: 28.24"]
+    air, conf = report.get("airborne_fraction", {}), report.get("conflicts_per_mission", {})
+    if air:
+        lines += ["", "Intruders in flight at a minute of the mission (share, over the first instances' traffic) and "
+                  "conflicts per mission (intruders revealed), on the diagonal:", "",
+                  "| N_p, N_u | airborne | " + " | ".join(f"conflicts {LABEL[q]}" for q in policies) + " |",
+                  "|---|---|" + "---|" * len(policies)]
+        for key, share in air.items():
+            per = conf.get(key, {})
+            lines.append(f"| {key} | {100 * share:.1f} % | "
+                         + " | ".join(f"{per[q]['mean']:.2f}" if q in per else "-" for q in policies) + " |")
+    return lines
+
+
+def _pct_or_none(v) -> str:
+    return "n/a" if v is None else f"{100 * v:.2f} %"
 
 
 def _fmt(v):
@@ -287,6 +388,33 @@ def figures(config: StudyConfig, out, report: dict | None = None) -> list[Path]:
         ax.legend(fontsize=8)
         ax.grid(alpha=0.3)
         paths.append(_save(fig, out / "fig12_eta.png"))
+
+    # When the goal was lost: the window of the loss, over every scenario, and what followed.
+    loss = report.get("goal_loss", {})
+    if loss:
+        fig, axes = plt.subplots(1, len(policies), figsize=(3.2 * len(policies), 3.4), sharey=True, squeeze=False)
+        for ax, q in zip(axes[0], policies):
+            totals: dict = {}
+            for per in loss.values():
+                for w, cell in per[q]["by_window"].items():
+                    t = totals.setdefault(int(w), {"A": 0, "L_at_loss": 0, "L_later": 0})
+                    for kind, n in cell.items():
+                        t[kind] += n
+            ws = sorted(totals)
+            bottom = np.zeros(len(ws))
+            for kind, color, label in (("A", "tab:green", "then an alternative site"),
+                                       ("L_at_loss", "tab:red", "emergency landing in that window"),
+                                       ("L_later", "tab:orange", "emergency landing later")):
+                h = np.array([totals[w][kind] for w in ws], float)
+                ax.bar(ws, h, bottom=bottom, color=color, label=label)
+                bottom += h
+            ax.set_title(LABEL[q])
+            ax.set_xlabel("cruise window of the loss")
+            ax.grid(axis="y", alpha=0.3)
+        axes[0][0].set_ylabel("missions that lost the goal")
+        axes[0][-1].legend(fontsize=7)
+        fig.text(0.99, 0.01, "all scenarios", ha="right", fontsize=7)
+        paths.append(_save(fig, out / "fig13_goal_loss_window.png"))
     return paths
 
 
