@@ -3,7 +3,9 @@
 The attacker controls a compromised vehicle of the UAV formation (:mod:`stp_env.coobservation.uav`) from a random
 compromise time; its reward is entering a forbidden zone without missing an observation
 (:mod:`stp_env.coobservation.learned`). It trains against the unsecured schedule (every 90 s), where such attacks
-exist, and is evaluated afterwards on every schedule by ``stp-env coobservation --attackers learned:<npz>``.
+exist, or with ``--schedule secured`` against the ellipse-secured one (an attacker that must try where the ellipses
+say it cannot win), and is evaluated afterwards on every schedule by
+``stp-env coobservation --attackers learned:<npz>``.
 
 ``python scripts/coobservation_train_attacker.py --out runs/attacker`` trains the shipped attacker's recipe: 500 k
 decisions of 1 s, PPO started from a behaviour-cloned copy of the ``opportunistic`` scripted attacker
@@ -35,12 +37,18 @@ def main(argv=None):
                     help="a scripted attacker to imitate before PPO, or 'none' (PPO from scratch)")
     ap.add_argument("--learning-rate", type=float, default=1e-4)
     ap.add_argument("--log-std-init", type=float, default=-2.0, help="log of the initial exploration noise std")
+    ap.add_argument("--schedule", choices=["unsecured", "secured"], default="unsecured",
+                    help="the schedule it trains against (secured: the ellipse-secured one, where no attack the "
+                         "ellipses allow exists; start from a teacher that tries, e.g. --teacher reckless)")
     ap.add_argument("--out", default="runs/attacker")
     ap.add_argument("--ship", action="store_true", help="copy the exported attacker into the package data")
     args = ap.parse_args(argv)
+    from stp_env.coobservation.cli import schedules_for
+
     sc = FormationScenario()
     params = sc.params()
-    tp = threat.threat_params(sc.schedule(sc.uniform_times(UNSECURED_PERIOD)), sc.forbidden, sc.observation_radius)
+    times = schedules_for(sc, [args.schedule], UNSECURED_PERIOD)[args.schedule]
+    tp = threat.threat_params(sc.schedule(times), sc.forbidden, sc.observation_radius)
     teacher = None if args.teacher == "none" else args.teacher
     cfg = learned.AttackerTrainConfig(total_timesteps=args.timesteps, n_envs=args.n_envs, seed=args.seed,
                                       teacher=teacher, learning_rate=args.learning_rate,

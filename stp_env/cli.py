@@ -512,6 +512,8 @@ def _train_intruder(args) -> int:
 def _parse_grid(items) -> dict:
     """``["learning_rate=1e-4,3e-4", ...]`` as ``{"learning_rate": [0.0001, 0.0003]}`` (each value a JSON number,
     boolean or list when it reads as one, else a string; the configuration checks them)."""
+    from stp_env.loaders import parse_json
+
     grid = {}
     for item in items:
         name, sep, values = item.partition("=")
@@ -521,8 +523,8 @@ def _parse_grid(items) -> dict:
             raise ValueError(f"--grid: {name} given twice.")
         parsed = []
         for text in values.split(","):
-            try:
-                parsed.append(json.loads(text))
+            try:  # a number, boolean or null when it reads as one (the configuration checks the value)
+                parsed.append(parse_json(text, "--grid", "grid value"))
             except ValueError:
                 parsed.append(text)
         grid[name.strip()] = parsed

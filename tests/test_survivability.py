@@ -173,8 +173,8 @@ def test_bezier_tube_and_traffic_prefixes():
     assert interior_reach(1) == 0 and abs(interior_reach(2) - 0.5) < 1e-6 and abs(interior_reach(3) - 0.75) < 1e-6
     assert np.allclose(bernstein(3, np.linspace(0, 1, 7)).sum(-1), 1.0)
     mission = MissionConfig()
-    big = sample_traffic(5, mission, TrafficConfig(n_partial=30, n_unknown=20))
-    few = sample_traffic(5, mission, TrafficConfig(n_partial=10, n_unknown=5))
+    big = sample_traffic(5, mission, TrafficConfig(n_partial=30, n_unknown=20, model="local"))
+    few = sample_traffic(5, mission, TrafficConfig(n_partial=10, n_unknown=5, model="local"))
     assert np.array_equal(big.nominal[:10], few.nominal[:10])
     assert np.array_equal(big.nominal[30:35], few.nominal[10:15])
     assert np.array_equal(big.t_in[:10], few.t_in[:10])

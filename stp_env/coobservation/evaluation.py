@@ -178,13 +178,14 @@ def attackers_digest(specs) -> str:
     """A hex digest of the attackers named by ``specs`` (the command line's names; a ``learned:<path>`` one by its
     file's bytes), what a resumable job's pieces are named by."""
     import hashlib
-    from pathlib import Path
+
+    from stp_env.loaders import read_bytes
 
     h = hashlib.sha256()
     for spec in specs:
         h.update(spec.encode() + b"\0")
         if spec.startswith("learned:"):
-            h.update(hashlib.sha256(Path(spec.split(":", 1)[1]).read_bytes()).digest())
+            h.update(hashlib.sha256(read_bytes(spec.split(":", 1)[1], "learned-policy")).digest())
     return h.hexdigest()
 
 

@@ -131,9 +131,14 @@ class SurveyTask:
     w_c: float = 10.0
     w_t: float = 1.0
     rho: float = 0.01
+    given_routes: tuple | None = None
+    obstacles: tuple = ()
 
     def routes(self) -> np.ndarray:
-        """``(3, T + 1, 2)`` sampled every step at ``speed`` (the last waypoint held until the common end)."""
+        """``(R, T + 1, 2)``: ``given_routes`` when set (waypoints one step apart, e.g. a Section II plan), else the
+        boustrophedon passes sampled every step at ``speed`` (the last waypoint held until the common end)."""
+        if self.given_routes is not None:
+            return np.asarray(self.given_routes, float)
         paths = []
         for p, ys in enumerate(self.passes):
             x0, x1 = self.x_range
@@ -217,7 +222,7 @@ def survey_flows(task: SurveyTask, secure=None, *, k_max: int = 8, rrt_iteration
         secure = checkpoints.ellipse_test(task.forbidden, task.v_max, task.radius)
     cps = [checkpoints.secure_checkpoints(r, secure) for r in routes]
     greedy = [checkpoints.greedy_checkpoints(r, secure) for r in routes]
-    obs = Obstacles2D.from_polygons(task.forbidden, margin=0.05)
+    obs = Obstacles2D.from_polygons(tuple(task.forbidden) + tuple(task.obstacles), margin=0.05)
     graph = checkpoints.checkpoint_graph(routes, cps, secure, obs, task.lo, task.hi, task.v_max,
                                          rrt_iterations=rrt_iterations, rrt_step=0.8, seed=seed, progress=progress)
     prob = flows.FlowProblem.from_graph(graph, task.w_c, task.w_t, task.rho)

@@ -135,7 +135,10 @@ def sweep(config, seeds, *, grid: dict | None = None, executor=None, params=None
     with tqdm(total=len(job), desc=f"train-intruder sweep ({executor.describe()})", unit="run",
               disable=not progress) as bar:
         pieces = executor.run(job, out_dir=out / "pieces", progress=bar.update)
-    runs = [(point_name(points[i]), s, json.loads(str(p["history"]))) for (i, s), p in zip(job.arguments, pieces)]
+    from stp_env.loaders import parse_json
+
+    runs = [(point_name(points[i]), s, parse_json(str(p["history"]), out / "pieces", "training run's history"))
+            for (i, s), p in zip(job.arguments, pieces)]
     write_text(json.dumps({"config": config.to_json(), "seeds": list(dict.fromkeys(s for _, s, _ in runs)),
                            "grid": {k: list(v) for k, v in (grid or {}).items()},
                            "runs": [{"point": name, "seed": s, "dir": str(run_dir(out, s, points[i])),

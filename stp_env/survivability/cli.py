@@ -53,17 +53,17 @@ def add_parser(sub) -> None:
     sp.add_argument("--n-mc", type=kit.positive_int, default=2500,
                     help="Monte Carlo realisations per segment robustness")
     sp.add_argument("--traffic", choices=traffic_models, default=traffic_models[0],
-                    help="intruder traffic model: local (default; short hops around a uniform entry point, entry "
-                         "times over the endurance) or paper (Section III-B: control points anywhere in the area, "
-                         "times in (t_0, t_fu), hovering degree-1 intruders, realisations over the whole "
-                         "uncertainty tube); see docs/survivability.md")
+                    help="intruder traffic model: paper (default; Section III-B: control points anywhere in the "
+                         "area, times in (t_0, t_fu), hovering degree-1 intruders, realisations over the whole "
+                         "uncertainty tube) or local (the earlier default: short hops around a uniform entry point, "
+                         "entry times over the endurance); see docs/survivability.md")
     sp.add_argument("--hover-share", type=kit.real(0.0, 1.0), default=None,
                     help="with --traffic paper: probability that an intruder hovers (default 0.1, the project's "
                          "choice: the paper gives none)")
     sp.add_argument("--nf-count", choices=nf_counts, default=nf_counts[0],
-                    help="what pi_Nf counts: landing (default; trajectories from the successor state to any "
-                         "landing site) or goal (the paper's Algorithm 1: trajectories to the terminal set Omega, "
-                         "summed over the successor's cell)")
+                    help="what pi_Nf counts: goal (default; the paper's Algorithm 1: trajectories to the terminal "
+                         "set Omega, summed over the successor's cell) or landing (the earlier default: trajectories "
+                         "from the successor state to any landing site)")
     sp.add_argument("--reveal", choices=reveals, default=reveals[0],
                     help="when an intruder's actual path becomes known: segment (default; a conflict anywhere on the "
                          "segment chosen at a decision point), step (a conflict in the next time step; one found "

@@ -20,17 +20,18 @@ POLICIES = ("R", "Nf", "S", "AvgR")
 
 EARTH_RADIUS_KM = 6371.0
 
-TRAFFIC_MODELS = ("local", "paper")
-"""Intruder traffic models (:mod:`stp_env.survivability.traffic`): ``local``, this project's short hops around a
-uniform entry point with entry times spread over the endurance (the default until the study is re-run), and
-``paper``, the survivability paper's Section III-B model (control points anywhere in the area, control times in
-the mission window ``(t_0, t_fu)``, a share of hovering degree-1 intruders, realisations using the whole tube)."""
+TRAFFIC_MODELS = ("paper", "local")
+"""Intruder traffic models (:mod:`stp_env.survivability.traffic`): ``paper`` (the default), the survivability
+paper's Section III-B model (control points anywhere in the area, control times in the mission window
+``(t_0, t_fu)``, a share of hovering degree-1 intruders, realisations using the whole tube), and ``local``, this
+project's earlier short hops around a uniform entry point with entry times spread over the endurance (the default
+of studies before the paper's model was; kept as a named variant)."""
 
-NF_COUNTS = ("landing", "goal")
-"""What ``pi_Nf``'s ``N_f`` counts (:mod:`stp_env.survivability.dp`): ``landing``, the trajectories from the
-successor *state* to any landing site (the default until the study is re-run), or ``goal``, the paper's
-``c.N_f`` of Algorithm 1: the trajectories to the current terminal set ``Omega`` summed over every state of the
-successor's *cell*."""
+NF_COUNTS = ("goal", "landing")
+"""What ``pi_Nf``'s ``N_f`` counts (:mod:`stp_env.survivability.dp`): ``goal`` (the default), the paper's ``c.N_f``
+of Algorithm 1: the trajectories to the current terminal set ``Omega`` summed over every state of the successor's
+*cell*, or ``landing``, the project's earlier count of the trajectories from the successor *state* to any landing
+site (kept as a named variant)."""
 
 REVEAL_MODELS = ("segment", "step", "radius")
 """When an intruder whose actual path the ownship does not know (an unknown one, or a partially known one's actual
@@ -286,7 +287,7 @@ class TrafficConfig(_Overrides):
         speed_range: [m/s] an intruder's mean ground speed is uniform in this range (its flight time is its path
             length over that speed).
         samples_per_min: points per minute at which a path is rasterised into cells.
-        model: ``local`` (default) or ``paper`` (:data:`TRAFFIC_MODELS`). ``reach_km`` and ``speed_range`` apply
+        model: ``paper`` (default) or ``local`` (:data:`TRAFFIC_MODELS`). ``reach_km`` and ``speed_range`` apply
             to ``local`` only: the paper's control points lie anywhere in the area and its times in ``(t_0, t_fu)``.
         hover_share: with ``model="paper"``, the probability that an intruder hovers (drawn independently for
             each intruder, so a larger scenario keeps a smaller one's intruders): a degree-1 curve at a fixed
@@ -301,7 +302,7 @@ class TrafficConfig(_Overrides):
     reach_km: float = 10.0
     speed_range: tuple[float, float] = (20.0, 40.0)
     samples_per_min: int = 6
-    model: str = "local"
+    model: str = "paper"
     hover_share: float | None = None
 
     def __post_init__(self) -> None:
@@ -345,9 +346,9 @@ class PlannerConfig(_Overrides):
         n_survival: how many of the ``n_mc`` realisations give ``pi_S``'s survivability ``R`` (the fraction of
             them in which some trajectory stays feasible, :mod:`stp_env.survivability.dp`); a multiple of 64, at
             most ``n_mc``; 0: the tree recursion ``R = 1 - prod (1 - p R')`` instead.
-        nf_count: what ``pi_Nf``'s ``N_f`` counts (:data:`NF_COUNTS`): ``landing`` (default), the trajectories
-            from the successor state to any landing site; ``goal``, the paper's ``c.N_f`` (Section III-A,
-            Algorithm 1), the trajectories to the current terminal set ``Omega`` summed over the successor's cell.
+        nf_count: what ``pi_Nf``'s ``N_f`` counts (:data:`NF_COUNTS`): ``goal`` (default), the paper's ``c.N_f``
+            (Section III-A, Algorithm 1), the trajectories to the current terminal set ``Omega`` summed over the
+            successor's cell; ``landing``, the trajectories from the successor state to any landing site.
         reveal: when an intruder's actual path becomes known (:data:`REVEAL_MODELS`, Section III-B's "until the
             ownship encounters a conflict"): ``segment`` (default), a conflict anywhere on the segment chosen at a
             decision point; ``step``, a conflict in the next time step (one cell time, ``cell_min``), so that a
@@ -360,7 +361,7 @@ class PlannerConfig(_Overrides):
     beta: float = 0.5
     n_mc: int = 2500
     n_survival: int = 256
-    nf_count: str = "landing"
+    nf_count: str = "goal"
     reveal: str = "segment"
     sense_km: float | None = None
 
