@@ -62,8 +62,9 @@ def same(a, b) -> bool:
 
 def study_slice(instances: int, levels, cores: int, factories, n_mc: int | None = None) -> dict:
     """A slice of the survivability study (the paper's mission, ``levels`` x ``levels`` scenarios, ``instances``
-    instances) in this process and with the executor each factory makes: the seconds, the same missions (checked), and the same
-    projection from the measured time per group (a group: one instance of the scenarios with one N_p)."""
+    instances) in this process and with the executor each factory makes: the seconds, the same missions (checked),
+    and the same projection from the measured time per group (a group: one instance of the scenarios with one
+    N_p)."""
     import tempfile
 
     from stp_env.survivability.study import StudyConfig, read_study, run_study, study_groups

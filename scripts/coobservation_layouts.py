@@ -110,7 +110,7 @@ def figure(section2, family, path: Path) -> None:
     fig, axes = plt.subplots(rows, cols, figsize=(2.6 * cols, 2.7 * rows), squeeze=False)
     tasks = [(section2, "Section II routes")] + [(layouts.random_survey(r["seed"])[0], f"layout {r['seed']}")
                                                   for r in family]
-    results = [None] + family
+    results = [None, *family]
     for ax, (task, title), row in zip(axes.flat, tasks, results):
         plots.draw_zones(ax, task.obstacles, task.forbidden, labels=False)
         for route in task.routes():

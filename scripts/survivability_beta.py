@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from stp_env.survivability import analysis
-from stp_env.survivability.config import PlannerConfig
+from stp_env.survivability.config import PlannerConfig, TrafficConfig
 from stp_env.survivability.study import StudyConfig, read_study, run_study
 
 SCENARIOS = [(100, 100), (100, 250), (250, 100)]
@@ -34,8 +34,10 @@ def main() -> None:
         out = Path(args.out) / f"beta{beta:g}"
         results = {}
         for p, u in SCENARIOS:
+            # the earlier model (local traffic, landing count), with which docs/survivability.md measured it
             config = StudyConfig(n_partial=(p,), n_unknown=(u,), n_instances=args.instances,
-                                 planner=PlannerConfig(beta=beta))
+                                 traffic=TrafficConfig(model="local"),
+                                 planner=PlannerConfig(beta=beta, nf_count="landing"))
             run_study(config, out / f"{p}-{u}")
             rows = read_study(out / f"{p}-{u}")
             summary = analysis.summarize(rows, config.policies)[(p, u)]

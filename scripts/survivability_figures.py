@@ -79,8 +79,8 @@ def network_figure(out: Path) -> dict:
     arrivals = {int(k): float(fwd[g.term_goal & (k_of == k)].sum()) for k in range(net.goal_windows[0],
                                                                                   net.goal_windows[1] + 1)}
     # Every policy with no traffic at all.
-    planner = PlannerConfig()
-    empty = make_instance(g, TrafficConfig(n_partial=0, n_unknown=0), planner, 0)
+    planner = PlannerConfig(nf_count="landing")  # the earlier model, as docs/survivability.md's figures
+    empty = make_instance(g, TrafficConfig(n_partial=0, n_unknown=0, model="local"), planner, 0)
     flown = {q: run_mission(g, empty, q, planner) for q in POLICIES}
     origin = {"trajectories to the goal": float(n_goal[g.origin]), "to any site": float(n_all[g.origin]),
               "goal arrivals by cruise window": arrivals, "graph states": g.n_states, "segments": g.n_segments,
@@ -92,8 +92,8 @@ def network_figure(out: Path) -> dict:
 def mission_figure(out: Path, scenario, instance: int) -> dict:
     g = build_graph()
     net = g.net
-    planner = PlannerConfig()
-    traffic = TrafficConfig(n_partial=scenario[0], n_unknown=scenario[1])
+    planner = PlannerConfig(nf_count="landing")  # the earlier model, as docs/survivability.md's figures
+    traffic = TrafficConfig(n_partial=scenario[0], n_unknown=scenario[1], model="local")
     inst = make_instance(g, traffic, planner, (0, instance))
     first = initial_tables(g, inst, POLICIES)
     results = {q: run_mission(g, inst, q, planner, seed=(0, instance), initial_tables=first[q]) for q in POLICIES}

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from stp_env.survivability import analysis
-from stp_env.survivability.config import PlannerConfig
+from stp_env.survivability.config import PlannerConfig, TrafficConfig
 from stp_env.survivability.gym_env import SurvivabilityEnv
 from stp_env.survivability.learned import load_policy
 from stp_env.survivability.mission import initial_tables, make_instance, run_mission
@@ -52,14 +52,16 @@ def train(args) -> None:
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    planner = PlannerConfig(n_mc=args.train_n_mc)
-    base = SurvivabilityEnv(GRID, planner=planner)
+    # the earlier model (local traffic, landing count), with which the shipped policy was trained and measured
+    planner = PlannerConfig(n_mc=args.train_n_mc, nf_count="landing")
+    base = SurvivabilityEnv(GRID, planner=planner, traffic=TrafficConfig(model="local"))
     pool = []
     for j in tqdm(range(args.pool), unit="instance", desc="training instances"):
         scenario = GRID[j % len(GRID)]
         traffic = base.traffic.with_overrides(n_partial=scenario[0], n_unknown=scenario[1])
         pool.append((scenario, make_instance(base.graph, traffic, planner, (1, j))))
-    env = Monitor(SurvivabilityEnv(GRID, planner=planner, reward_failure=-1.0, graph=base.graph, pool=pool))
+    env = Monitor(SurvivabilityEnv(GRID, planner=planner, traffic=base.traffic, reward_failure=-1.0,
+                                   graph=base.graph, pool=pool))
 
     class Progress(BaseCallback):
         def _on_training_start(self):
@@ -113,8 +115,8 @@ def compare(args) -> None:
     from tqdm.auto import tqdm
 
     policy = load_policy(args.policy)
-    planner = PlannerConfig()
-    env = SurvivabilityEnv(HELD_OUT, planner=planner)
+    planner = PlannerConfig(nf_count="landing")  # the earlier model, as the shipped policy's measurements
+    env = SurvivabilityEnv(HELD_OUT, planner=planner, traffic=TrafficConfig(model="local"))
     graph = env.graph
     rows = []
     t0 = time.perf_counter()

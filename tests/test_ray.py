@@ -429,6 +429,6 @@ def test_the_sweep_options_are_checked_before_anything_runs(tmp_path):
         with pytest.raises(ValueError, match="--grid"):
             _parse_grid(bad)
     for argv in (["--grid", "n_epochs=1,2"], ["--ray"]):
-        code, stdout, stderr = run_cli(["train-intruder", *argv, "--out", str(tmp_path / "sweep")])
+        code, _, stderr = run_cli(["train-intruder", *argv, "--out", str(tmp_path / "sweep")])
         assert code == 2 and "--seeds" in stderr and stderr.count("\n") == 1, stderr
     assert not (tmp_path / "sweep").exists() or not any((tmp_path / "sweep").iterdir())

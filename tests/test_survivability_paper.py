@@ -210,7 +210,8 @@ def test_traffic_options_are_validated():
     g = build_graph(build_network(small()))
     with pytest.raises(ValueError, match="nf_count"):
         dp.tables(g, np.ones(g.n_segments, bool), np.ones(g.n_segments, np.float32), "Nf", "goal", nf_count="all")
-    assert TrafficConfig(model="paper").hover_fraction == PAPER_HOVER_SHARE and TrafficConfig(model="local").hover_fraction == 0
+    assert TrafficConfig(model="paper").hover_fraction == PAPER_HOVER_SHARE
+    assert TrafficConfig(model="local").hover_fraction == 0
 
 
 def corridor_with_alternate(alternate: bool) -> MissionConfig:

@@ -100,10 +100,9 @@ def schedules_for(scenario, names, period: float, progress: bool = True) -> dict
 
 def run(args) -> int:
     import jax
-
-    from stp_env import cli_kit as kit
     import numpy as np
 
+    from stp_env import cli_kit as kit
     from stp_env.coobservation import evaluation, threat
     from stp_env.coobservation.uav import FormationScenario
     from stp_env.evaluation.pipeline import PIECES, check_output_dir

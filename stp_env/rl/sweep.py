@@ -28,7 +28,6 @@ import numpy as np
 
 from stp_env.files import write_text
 
-
 ENVIRONMENT_FIELDS = ("scenario", "kbar", "vehicle_policy", "spawn_mode", "forced_reward", "collision_reward",
                       "shaping_reward", "horizon")
 """What the shipped ``EnvParams`` depend on (or the env built from them): a grid may not vary these."""

@@ -224,7 +224,7 @@ def run_study(config: StudyConfig, out: str | os.PathLike, *, progress: bool = T
                    + ("" if isinstance(executor, execution.LocalExecutor) else f" on {executor.describe()}"))
 
         def append(index: int, result: dict) -> None:
-            i, p, unknowns = job.arguments[index]
+            i, p, _ = job.arguments[index]
             writer.writerows(piece_rows(result))
             f.flush()
             os.fsync(f.fileno())
