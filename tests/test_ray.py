@@ -135,19 +135,24 @@ def test_params_travel_to_workers_exactly():
     assert weak.weak_type and float(weak) == 1.5
 
 
-def test_a_killed_job_resumes_from_the_pieces_it_wrote(tmp_path, monkeypatch, local_evaluation):
-    """An evaluation interrupted in its third batch wrote the first two; run again, it computes only the third and
-    gives what an uninterrupted run gives. Another seed is another job: nothing is reused."""
-    calls = []
-    piece = runner.evaluation_piece
+def _interrupted_at_the_third(piece, calls: list):
+    """``piece``, recording its arguments in ``calls``, interrupted (as by Ctrl-C) at its third call."""
 
-    def interrupted_at_the_third(context, argument):
+    def interrupted(context, argument):
         calls.append(argument)
         if len(calls) == 3:
             raise KeyboardInterrupt
         return piece(context, argument)
 
-    monkeypatch.setattr(runner, "evaluation_piece", interrupted_at_the_third)
+    return interrupted
+
+
+def test_a_killed_job_resumes_from_the_pieces_it_wrote(tmp_path, monkeypatch, local_evaluation):
+    """An evaluation interrupted in its third batch wrote the first two; run again, it computes only the third and
+    gives what an uninterrupted run gives. Another seed is another job: nothing is reused."""
+    calls = []
+    piece = runner.evaluation_piece
+    monkeypatch.setattr(runner, "evaluation_piece", _interrupted_at_the_third(piece, calls))
     with pytest.raises(KeyboardInterrupt):
         runner.evaluate([TINY], pieces_dir=tmp_path, **EVALUATION)
     folders = list(tmp_path.iterdir())
@@ -306,14 +311,7 @@ def test_a_killed_study_resumes_from_the_groups_it_wrote(tmp_path, monkeypatch):
     study.run_study(config, tmp_path / "whole", progress=False)
     calls = []
     piece = study.study_piece
-
-    def interrupted_at_the_third(context, argument):
-        calls.append(argument)
-        if len(calls) == 3:
-            raise KeyboardInterrupt
-        return piece(context, argument)
-
-    monkeypatch.setattr(study, "study_piece", interrupted_at_the_third)
+    monkeypatch.setattr(study, "study_piece", _interrupted_at_the_third(piece, calls))
     with pytest.raises(KeyboardInterrupt):
         study.run_study(config, tmp_path / "killed", progress=False)
     assert len(_missions(tmp_path / "killed")) == 2 * 2 * len(config.policies)     # two groups of two scenarios

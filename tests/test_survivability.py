@@ -483,8 +483,9 @@ def test_exported_maskable_ppo_policy_matches_sb3_contrib_with_masks(tmp_path):
     assert [plain(o) for o in obs] != want
 
 
-def _write_missions(path, outcomes):
-    """A study's missions file from ``{(n_p, n_u): {policy: [outcome per instance]}}``."""
+def _write_missions(path, outcomes, extra=None):
+    """A study's missions file from ``{(n_p, n_u): {policy: [outcome per instance]}}``; ``extra(instance,
+    outcome)``: columns that replace the defaults (no reveal, the goal kept, 9 windows)."""
     with open(path, "w", newline="") as f:
         w = csv.DictWriter(f, FIELDS)
         w.writeheader()
@@ -493,7 +494,7 @@ def _write_missions(path, outcomes):
                 for i, o in enumerate(outs):
                     w.writerow({"n_partial": p, "n_unknown": u, "instance": i, "policy": policy, "outcome": o,
                                 "reveals": 0, "omega_switch": -1, "n_dp": 1, "windows": 9, "instance_s": 1.0,
-                                "mission_s": 0.25})
+                                "mission_s": 0.25, **(extra(i, o) if extra else {})})
 
 
 def test_report_thresholds_rates_and_cli_on_a_hand_built_study(tmp_path):
@@ -698,15 +699,8 @@ def test_report_names_the_best_policy_on_the_diagonal_the_relative_gain_and_the_
     from stp_env.survivability.study import StudyConfig
 
     outcomes = {(50, 50): {"R": ["G"] * 30 + ["L"] * 10, "S": ["G"] * 20 + ["A"] * 16 + ["L"] * 4}}
-    with open(tmp_path / "missions.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, FIELDS)
-        w.writeheader()
-        for (p, u), per in outcomes.items():
-            for policy, outs in per.items():
-                for i, o in enumerate(outs):
-                    w.writerow({"n_partial": p, "n_unknown": u, "instance": i, "policy": policy, "outcome": o,
-                                "reveals": i % 3, "omega_switch": -1 if o == "G" else 4, "n_dp": 1,
-                                "windows": 4 if o == "L" else 9, "instance_s": 1.0, "mission_s": 0.25})
+    _write_missions(tmp_path / "missions.csv", outcomes, lambda i, o: {
+        "reveals": i % 3, "omega_switch": -1 if o == "G" else 4, "windows": 4 if o == "L" else 9})
     config = StudyConfig(n_partial=(50,), n_unknown=(50,), n_instances=40, policies=("R", "S"),
                          mission=small())
     report = build_report(config, tmp_path, n_boot=50)
