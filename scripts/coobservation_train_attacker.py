@@ -40,6 +40,9 @@ def main(argv=None):
     ap.add_argument("--schedule", choices=["unsecured", "secured"], default="unsecured",
                     help="the schedule it trains against (secured: the ellipse-secured one, where no attack the "
                          "ellipses allow exists; start from a teacher that tries, e.g. --teacher reckless)")
+    ap.add_argument("--margin-reward", type=float, default=0.0,
+                    help="reward an entry by its time margin (stp_env.coobservation.learned; > 1 makes a detected "
+                         "entry worth more than no attempt: an attacker that must try, against --schedule secured)")
     ap.add_argument("--out", default="runs/attacker")
     ap.add_argument("--ship", action="store_true", help="copy the exported attacker into the package data")
     args = ap.parse_args(argv)
@@ -52,7 +55,7 @@ def main(argv=None):
     teacher = None if args.teacher == "none" else args.teacher
     cfg = learned.AttackerTrainConfig(total_timesteps=args.timesteps, n_envs=args.n_envs, seed=args.seed,
                                       teacher=teacher, learning_rate=args.learning_rate,
-                                      log_std_init=args.log_std_init)
+                                      log_std_init=args.log_std_init, margin_reward=args.margin_reward)
     start = time.time()
     path = learned.train(params, tp, (0.0, sc.duration - 10.0), cfg, args.out)
     print(f"wrote {path} after {time.time() - start:.0f} s")

@@ -247,3 +247,26 @@ def test_the_attackers_vec_env_keeps_the_batched_vec_env_contract():
     venv.close()
     with pytest.raises(RuntimeError, match="reset"):
         venv.step_wait()
+
+
+def test_the_margin_reward_grows_with_the_attempts_time_margin():
+    """An attacker that must try is paid by its attempt's time margin: on reckless episodes, the bonus is 0 without an
+    entry and ``m (1 + clip(margin, -60, 3) / 60)`` with one, the margin being the evaluation's (``threat.attempts``);
+    a lost attempt (margin ``-inf``) earns nothing."""
+    import jax
+
+    from stp_env.coobservation import learned, threat
+
+    params, threats, _ = _setup()
+    tp = threats["unsecured"]
+    final, _ = threat.rollout(jax.random.key(4), params, tp, attackers.reckless, 24, threat.steps_for(params),
+                              (0.0, 200.0))
+    o = threat.outcomes(jax.device_get(final))
+    margin = threat.attempts(jax.device_get(final), params, tp)["margin"]
+    bonus = np.asarray(jax.vmap(lambda ts: learned.margin_bonus(ts, params, tp, 3.0))(final))
+    entered = o["entered"]
+    assert entered.any() and (~entered).any()
+    assert np.all(bonus[~entered] == 0.0)
+    want = 3.0 * (1.0 + np.clip(margin[entered], -learned.MARGIN_SCALE, 3.0) / learned.MARGIN_SCALE)
+    np.testing.assert_allclose(bonus[entered], want, rtol=1e-5, atol=1e-5)
+    assert np.all((bonus >= 0) & (bonus <= 3.0 * (1 + 3.0 / learned.MARGIN_SCALE) + 1e-6))

@@ -22,12 +22,13 @@ class AttackerVecEnv(JaxVecEnv):
     ``rollout/ep_rew_mean``)."""
 
     def __init__(self, n_envs: int, params, tp, t_window, base, programs, *, action_repeat: int, gamma: float,
-                 shaping: float, residual: bool):
+                 shaping: float, residual: bool, margin_reward: float = 0.0):
         super().__init__(n_envs, gym.spaces.Box(-2.0, 2.0, (attackers.OBS_SIZE,), np.float32),
                          gym.spaces.Box(-1.0, 1.0, (2,), np.float32))
         self.params, self.tp = params, tp
         self._batch_reset, self._batch_step = programs
         self.action_repeat, self.gamma, self.shaping, self.residual = action_repeat, gamma, shaping, residual
+        self.margin_reward = float(margin_reward)
         self._keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.arange(n_envs))
         self.window = jnp.asarray(t_window, jnp.float32)
         self._returns = np.zeros(n_envs)
@@ -45,7 +46,7 @@ class AttackerVecEnv(JaxVecEnv):
         if self._states is None:
             raise RuntimeError("Call reset() before step().")
         out = self._batch_step(self._keys, self._states, self._actions, self.params, self.tp, self.window,
-                         self.action_repeat, self.gamma, self.shaping, self.residual)
+                         self.action_repeat, self.gamma, self.shaping, self.residual, self.margin_reward)
         self._keys, self._states = out[0], out[1]
         obs, rew, done, term_obs, stats = jax.device_get(out[2:])
         self._returns += rew

@@ -14,7 +14,12 @@ observation, trained on the batched JAX wrapper, and exported to a small ``.npz`
 * Reward: ``+1`` at the first entry into a forbidden zone, ``-2`` at the detection (an entry that is detected nets
   ``-1``, so entering is only worth it undetected), plus a potential-based shaping ``gamma phi(s') - phi(s)`` with
   ``phi = -shaping * distance / 1 km`` to the best entry point before the entry and to the next observation point
-  after it (it does not change which policies are optimal).
+  after it (it does not change which policies are optimal). With ``margin_reward = m > 0`` (an attacker that must
+  *try*, e.g. against a schedule secured so that no undetected entry exists) an episode that entered a zone also
+  earns, when it ends, ``m (1 + clip(margin, -MARGIN_SCALE, 3 s) / MARGIN_SCALE)``: the attempt's time margin
+  (:func:`stp_env.coobservation.threat.attempt_margin`, the searched attacker's objective) turned into a reward
+  that grows as the attack comes closer to passing unseen, so that the best attack is the one with the largest
+  margin even where every attack is detected (``m > 1`` makes a detected entry worth more than no attempt).
 * :func:`train` (PPO, modest budgets; optionally started from a scripted ``teacher`` by behaviour cloning,
   :func:`demonstrations` and :func:`imitate`, since the reward of an entry is rare under random exploration)
   writes ``attacker.npz`` with :func:`stp_env.baselines.learned.export_mlp`;
@@ -68,7 +73,24 @@ def reset_one(key, params, tp, t_window):
     return ts, attackers.attacker_observation(ts, params, tp)
 
 
-def step_one(key, ts, action, params, tp, action_repeat: int, gamma: float, shaping: float, residual: bool = True):
+MARGIN_SCALE = 60.0
+"""Margins [s] at or below ``-MARGIN_SCALE`` (and lost attempts, ``-inf``) earn no margin reward."""
+
+
+def margin_bonus(ts, params, tp, margin_reward):
+    """``margin_reward (1 + clip(margin, -MARGIN_SCALE, 3) / MARGIN_SCALE)`` for an episode that entered a zone,
+    0 otherwise (the module docstring)."""
+    from stp_env.sim.bounds import V_MAX, WIND
+
+    c = jnp.maximum(ts.compromised, 0)
+    speed = params.vehicles.bounds[V_MAX] + params.vehicles.bounds[WIND]
+    margin = threat.attempt_margin(ts, tp, speed, params.episode.dt)
+    bonus = margin_reward * (1.0 + jnp.clip(margin, -MARGIN_SCALE, 3.0) / MARGIN_SCALE)
+    return jnp.where(ts.entered[c], bonus, 0.0)
+
+
+def step_one(key, ts, action, params, tp, action_repeat: int, gamma: float, shaping: float, residual: bool = True,
+             margin_reward=0.0):
     """``action_repeat`` simulator steps with the attacker's ``action`` (:func:`command`); returns ``(state, obs,
     reward, done)``."""
     phi0 = _phi(ts, params, tp, shaping)
@@ -88,18 +110,19 @@ def step_one(key, ts, action, params, tp, action_repeat: int, gamma: float, shap
     # stop: once done (the episode ended or the attacker was detected), the steps change nothing and earn nothing
     (ts, r, done), _ = engine.play(sub, (ts, jnp.zeros(()), jnp.asarray(False)), jax.random.split(key, action_repeat),
                                    stop=lambda carry: carry[2])
-    r = r + jnp.where(done, 0.0, gamma * _phi(ts, params, tp, shaping)) - phi0
+    r = r + jnp.where(done, margin_bonus(ts, params, tp, margin_reward), gamma * _phi(ts, params, tp, shaping)) - phi0
     return ts, attackers.attacker_observation(ts, params, tp), r, done
 
 
 @functools.partial(jax.jit, static_argnames=("action_repeat", "residual"))
 def batch_step(keys, states, actions, params, tp, t_window, action_repeat: int, gamma: float, shaping: float,
-               residual: bool = True):
+               residual: bool = True, margin_reward=0.0):
     """One decision of ``n`` envs with auto-reset. Returns ``(keys, states, obs, rewards, dones, terminal_obs,
     stats)``; ``stats``: ``entered``, ``detected`` of the finished episode."""
     def one(key, ts, a):
         key, k_step, k_reset = jax.random.split(key, 3)
-        ts, obs, r, done = step_one(k_step, ts, a, params, tp, action_repeat, gamma, shaping, residual)
+        ts, obs, r, done = step_one(k_step, ts, a, params, tp, action_repeat, gamma, shaping, residual,
+                                    margin_reward)
         c = jnp.maximum(ts.compromised, 0)
         stats = jnp.stack([ts.entered[c], jnp.isfinite(ts.detect_time)]).astype(jnp.float32)
         new_ts, new_obs = reset_one(k_reset, params, tp, t_window)
@@ -120,7 +143,7 @@ def batch_reset(keys, params, tp, t_window):
 
 
 def make_vec_env(n_envs: int, params, tp, t_window, *, action_repeat: int = 5, gamma: float = 0.99,
-                 shaping: float = 1.0, seed: int = 0, residual: bool = True):
+                 shaping: float = 1.0, seed: int = 0, residual: bool = True, margin_reward: float = 0.0):
     """A Stable-Baselines3 ``VecEnv`` (imported lazily: needs the ``rl`` extra). ``seed``: an integer in
     ``[0, 2**63 - 1]`` (:func:`stp_env.seeds.prng_key`: every seed its own keys)."""
     from stp_env.coobservation.attacker_vec_env import AttackerVecEnv
@@ -128,7 +151,7 @@ def make_vec_env(n_envs: int, params, tp, t_window, *, action_repeat: int = 5, g
 
     base = jax.random.key_data(prng_key(seed))  # raw key data: the keys are selected with jnp.where
     return AttackerVecEnv(n_envs, params, tp, t_window, base, (batch_reset, batch_step), action_repeat=action_repeat,
-                          gamma=gamma, shaping=shaping, residual=residual)
+                          gamma=gamma, shaping=shaping, residual=residual, margin_reward=margin_reward)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -143,6 +166,7 @@ class AttackerTrainConfig(PPOConfig):
     log_std_init: float = -1.0  # exploration noise std e^-1 = 0.37 (of the residual: about 9 m/s and 1.5 rad/s)
     action_repeat: int = 5
     shaping: float = 1.0
+    margin_reward: float = 0.0  # > 0: reward an entry by its time margin (an attacker that must try; module doc)
     residual: bool = True
     teacher: str | None = None  # a scripted attacker (attackers.ATTACKERS) to imitate before PPO (residual only)
     demo_decisions: int = 3000  # decisions of every env recorded from the teacher
@@ -255,7 +279,8 @@ def train(params, tp, t_window, config: AttackerTrainConfig, out_dir, progress: 
     out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(config.torch_threads)
     venv = make_vec_env(config.n_envs, params, tp, t_window, action_repeat=config.action_repeat, gamma=config.gamma,
-                        shaping=config.shaping, seed=config.seed, residual=config.residual)
+                        shaping=config.shaping, seed=config.seed, residual=config.residual,
+                        margin_reward=config.margin_reward)
     model = make_model(config, venv)
     model.set_logger(configure(str(out), ["csv"]))
     imitation = None
