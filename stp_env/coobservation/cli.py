@@ -128,7 +128,7 @@ def run(args) -> int:
     searches = {}
     if SEARCHED in args.attackers:
         found, searches = evaluation.run_searched(params, threats, args.search_budget, seed=args.seed,
-                                                  progress=not args.no_progress)
+                                                  progress=not args.no_progress, executor=executor)
         rows += found
     table = evaluation.markdown(rows) + "\n\nEntry attempts:\n\n" + evaluation.attempts_markdown(rows)
     print(table)

@@ -192,12 +192,14 @@ def attackers_digest(specs) -> str:
 MARGIN_QUANTILES = {"min": 0.0, "5%": 0.05, "25%": 0.25, "50%": 0.5, "75%": 0.75, "95%": 0.95, "max": 1.0}
 
 
-def run_searched(params, threats: dict, budget: int, *, seed: int = 0, config=None, progress: bool = True):
+def run_searched(params, threats: dict, budget: int, *, seed: int = 0, config=None, progress: bool = True,
+                 executor=None):
     """The searched attacker (:mod:`stp_env.coobservation.searched`) against every schedule in ``threats``:
     ``budget`` evaluations of the cross-entropy search each (``config``: a :class:`SearchConfig`, default
     :func:`~stp_env.coobservation.searched.default_config`), the wind keyed by ``seed``. Returns the rows (one per
     schedule, over every evaluated attack) and, per schedule, the search's record: evaluations, the best margin,
-    the best attack ``z`` and what it means (replay: ``SearchedAttack(params, threat, wind_seed).episode(z)``)."""
+    the best attack ``z`` and what it means (replay: ``SearchedAttack(params, threat, wind_seed).episode(z)``).
+    ``executor`` runs each search's restarts (:mod:`stp_env.execution`)."""
     from stp_env.coobservation import searched
 
     check_int(budget, "budget", 1)
@@ -207,7 +209,7 @@ def run_searched(params, threats: dict, budget: int, *, seed: int = 0, config=No
         attack = searched.SearchedAttack(params, tp, wind_seed=seed)
         with tqdm(total=config.budget, desc=f"searched attacker, {s_name}", unit="attack",
                   disable=not progress) as bar:
-            out = searched.run(attack, config, seed=seed, progress=bar)
+            out = searched.run(attack, config, seed=seed, progress=bar, executor=executor)
         o = threat.outcomes(out.finals)
         o.update({f"attempt_{k}": v for k, v in threat.attempts(out.finals, params, tp).items()})
         rows.append(summarize(s_name, "searched", o))

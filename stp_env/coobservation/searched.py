@@ -176,12 +176,15 @@ def finals_of(attack: SearchedAttack, zs, batch: int) -> threat_lib.ThreatState:
     return jax.device_get(jax.tree.map(lambda *a: jnp.concatenate(a), *out))
 
 
-def run(attack: SearchedAttack, config: search_lib.SearchConfig, seed: int = 0, progress=None) -> SearchOutcome:
+def run(attack: SearchedAttack, config: search_lib.SearchConfig, seed: int = 0, progress=None,
+        executor=None) -> SearchOutcome:
     """Search ``attack`` with the cross-entropy method (``config.method`` must be ``"cem"``), then replay every
-    evaluated attack for its final state (the attempt counts and margins of the evaluation)."""
+    evaluated attack for its final state (the attempt counts and margins of the evaluation). ``executor`` runs the
+    search's restarts (:mod:`stp_env.execution`; default in this process, the same result on Ray)."""
     if config.method != "cem":
         raise ValueError(f"the searched attacker uses the cross-entropy method; got method {config.method!r}.")
-    result = search_lib.search(attack.objective, DIM, jax.random.key(seed), config, progress=progress)
+    result = search_lib.search(attack.objective, DIM, jax.random.key(seed), config, progress=progress,
+                               executor=executor)
     finals = finals_of(attack, result.samples, config.batch)
     if not math.isfinite(result.best_value):
         raise ArithmeticError("every attack of the search evaluated to NaN or -inf.")
