@@ -412,16 +412,17 @@ def figures(config: StudyConfig, out, report: dict | None = None) -> list[Path]:
             ax.set_xlabel("cruise window of the loss")
             ax.grid(axis="y", alpha=0.3)
         axes[0][0].set_ylabel("missions that lost the goal")
-        axes[0][-1].legend(fontsize=7)
+        handles, labels = axes[0][0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="lower center", ncol=3, fontsize=8)
         fig.text(0.99, 0.01, "all scenarios", ha="right", fontsize=7)
-        paths.append(_save(fig, out / "fig13_goal_loss_window.png"))
+        paths.append(_save(fig, out / "fig13_goal_loss_window.png", rect=(0, 0.08, 1, 1)))
     return paths
 
 
-def _save(fig, path: Path) -> Path:
+def _save(fig, path: Path, rect=None) -> Path:
     import matplotlib.pyplot as plt
 
-    fig.tight_layout()
+    fig.tight_layout(**({} if rect is None else {"rect": rect}))
     save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
