@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from stp_env.coobservation import checkpoints, exact, layouts, paper
+from stp_env.files import save_figure, write_text
 
 KEYS = ("checkpoints_algorithm1", "cross_edges", "max_single_flow_gain", "robots_needed")
 
@@ -91,7 +92,7 @@ def main(argv=None) -> None:
                                     "histogram_rho_lowered": {str(k): lowered.count(k)
                                                               for k in sorted({k for k in lowered if k})}}
     result["seconds"] = round(time.time() - start, 1)
-    (out / "coobservation_layouts.json").write_text(json.dumps(result, indent=1) + "\n")
+    write_text(json.dumps(result, indent=1) + "\n", out / "coobservation_layouts.json")
     figure(section2, family, out / "coobservation_layouts.png")
     print(json.dumps({k: result[k] for k in ("k_star_ellipse", "k_star_exact", "seconds")}))
 
@@ -129,7 +130,7 @@ def figure(section2, family, path: Path) -> None:
         ax.axis("off")
     fig.suptitle("Section III-F: surveillance robots K* on Section II's routes and on generated layouts", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
 
 
