@@ -430,3 +430,16 @@ def test_the_sweep_options_are_checked_before_anything_runs(tmp_path):
         code, _, stderr = run_cli(["train-intruder", *argv, "--out", str(tmp_path / "sweep")])
         assert code == 2 and "--seeds" in stderr and stderr.count("\n") == 1, stderr
     assert not (tmp_path / "sweep").exists() or not any((tmp_path / "sweep").iterdir())
+
+
+def test_a_study_past_its_time_limit_stops_after_the_group_that_passed_it(tmp_path):
+    """``max_seconds``: the group that finishes past the limit is written, nothing after it; the same call without
+    the limit flies the rest, and the missions are those of an uninterrupted study."""
+    from stp_env.survivability import study
+
+    config = _tiny_study()
+    study.run_study(config, tmp_path / "limited", progress=False, max_seconds=0.0)
+    assert len(_missions(tmp_path / "limited")) == 2 * len(config.policies)        # one group of two scenarios
+    study.run_study(config, tmp_path / "limited", progress=False)
+    study.run_study(config, tmp_path / "whole", progress=False)
+    assert _missions(tmp_path / "limited") == _missions(tmp_path / "whole")

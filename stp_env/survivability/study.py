@@ -12,6 +12,7 @@ between policies and between neighbouring scenarios are estimated with much less
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import json
@@ -233,9 +234,8 @@ def run_study(config: StudyConfig, out: str | os.PathLike, *, progress: bool = T
                 raise _Deadline
 
         try:
-            executor.run(job, progress=bar.update, on_piece=append)
-        except _Deadline:
-            pass
+            with contextlib.suppress(_Deadline):  # max_seconds passed: the groups written so far stay
+                executor.run(job, progress=bar.update, on_piece=append)
         finally:
             bar.close()
     return path
