@@ -446,6 +446,10 @@ def _add_train_intruder_parser(sub) -> None:
                     metavar="N",
                     help="PPO minibatch: transitions per gradient step (--batch-size is the older spelling; not "
                          "the episodes of a batch as in `evaluate`)")
+    tr.add_argument("--learning-rate", type=kit.real(1e-9, 1.0), default=3e-4, help="the optimiser's step size")
+    tr.add_argument("--log-std-init", type=kit.real(-20.0, 5.0), default=0.0,
+                    help="initial log standard deviation of the Gaussian actions (lower after --clone keeps PPO's "
+                         "exploration near the clone)")
     kit.add_seed(tr, "torch, SB3 and the JAX environment keys", maximum=MAX_SEED_32)
     tr.add_argument("--horizon", choices=["intruder", "episode"], default="intruder",
                     help="intruder: appearance to departure; episode: the core's whole episode")
@@ -454,12 +458,26 @@ def _add_train_intruder_parser(sub) -> None:
     tr.add_argument("--spawn-mode", choices=kit.spawn_modes(), default="outside",
                     help="where the intruder appears: outside every avoid region, on a vehicle's avoid boundary "
                          "(where the max-k intruders start), or either")
+    kit.add_wind_model(tr, "uniform", "how each agent's wind in its disk is drawn")
     tr.add_argument("--forced-reward", type=kit.real(-1e6, 1e6), default=5.0,
                     help="reward per vehicle newly forced to avoid")
     tr.add_argument("--collision-reward", type=kit.real(-1e6, 1e6), default=10.0,
                     help="reward per collision the intruder causes")
     tr.add_argument("--shaping-reward", type=kit.real(-1e6, 1e6), default=0.01,
                     help="reward times the decrease of min V^A over unforced vehicles [per m]")
+    tr.add_argument("--kbar-reward", type=kit.real(-1e6, 1e6), default=0.0,
+                    help="reward once when the k̄-th vehicle is forced (on top of --forced-reward)")
+    tr.add_argument("--observation", choices=["core", "game"], default="core",
+                    help="what the intruder sees: core (the nearest vehicles, their V^A and forced flags) or game "
+                         "(and the buffer game's features: the unforced vehicles ranked by V^B, the hop heading to "
+                         "each; loads V^B)")
+    tr.add_argument("--clone", choices=kit.intruder_names(),
+                    default=None, metavar="INTRUDER",
+                    help="start from a scripted intruder (e.g. optimal-max-k): clone its actions (with DAgger "
+                         "rounds) and fit the critic to its returns before PPO")
+    tr.add_argument("--clone-steps", type=kit.positive_int, default=200,
+                    help="with --clone: steps of every environment recorded per round [steps]")
+    tr.add_argument("--clone-rounds", type=kit.count, default=2, help="with --clone: DAgger rounds after the first fit")
     tr.add_argument("--eval-every", type=kit.count, default=200_000,
                     help="environment steps between evaluations [steps]")
     tr.add_argument("--eval-episodes", type=kit.positive_int, default=256, help="held-out episodes per evaluation")
@@ -492,9 +510,12 @@ def _train_intruder(args) -> int:
     formats = ("stdout", "csv", "tensorboard") if args.tensorboard else ("stdout", "csv")
     config = TrainConfig(scenario=args.scenario, kbar=args.kbar, algo=args.algo, total_timesteps=args.timesteps,
                          n_envs=args.n_envs, n_steps=args.n_steps, batch_size=args.batch_size, seed=args.seed,
+                         learning_rate=args.learning_rate, log_std_init=args.log_std_init,
                          horizon=args.horizon, vehicle_policy=args.vehicle_policy, spawn_mode=args.spawn_mode,
-                         forced_reward=args.forced_reward,
+                         wind_model=args.wind_model, forced_reward=args.forced_reward,
                          collision_reward=args.collision_reward, shaping_reward=args.shaping_reward,
+                         kbar_reward=args.kbar_reward, observation=args.observation, clone=args.clone,
+                         clone_steps=args.clone_steps, clone_rounds=args.clone_rounds,
                          eval_every=args.eval_every, eval_episodes=args.eval_episodes,
                          checkpoint_every=args.checkpoint_every, out_dir=args.out, log_formats=formats)
     if args.seeds is not None:

@@ -149,11 +149,20 @@ def _hop_to(state, params, j, rel):
     steered to with the proportional law of :func:`_steer`. The game's own turn rate is bang-bang; held over a
     decision step (0.1 s) it zig-zags across the optimal heading by ``omega_max dt``, which costs the hop time the
     buffer region is built on. Where ``V^B > 0`` (no direction in the table): straight at the vehicle."""
+    heading, inside = hop_geometry(state, params, j, rel)
+    point = state.intruder_x[:2] + 100.0 * jnp.stack([jnp.cos(heading), jnp.sin(heading)])
+    return jnp.where(inside, _steer(state, params, point), _steer(state, params, state.x[j, :2]))
+
+
+def hop_geometry(state, params, j, rel):
+    """The buffer game's hop toward vehicle ``j`` (intruder paper eqs. 46-47): the world heading of steepest
+    descent of ``V^B`` (``-grad_p V^B`` turned by the vehicle's heading) and whether it holds (``V^B <= 0`` and a
+    non-zero gradient; elsewhere the hop flies straight at the vehicle). ``rel``: every vehicle's relative state
+    (the learned intruders' ``"game"`` observation reads the same geometry, :mod:`stp_env.baselines.observations`)."""
     g = tables.buffer_gradient(params, rel[j])
     heading = state.x[j, 2] + jnp.arctan2(-g[1], -g[0])
-    point = state.intruder_x[:2] + 100.0 * jnp.stack([jnp.cos(heading), jnp.sin(heading)])
     inside = (tables.buffer_value(params, rel[j]) <= 0.0) & (jnp.hypot(g[0], g[1]) > 1e-3)
-    return jnp.where(inside, _steer(state, params, point), _steer(state, params, state.x[j, :2]))
+    return heading, inside
 
 
 def optimal_max_k(key, state, params):

@@ -26,9 +26,9 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
+from stp_env.baselines.observations import NEEDS_BUFFER, OBSERVATIONS, intruder_observation, observation_size
 from stp_env.files import atomic_open
 from stp_env.loaders import LoadError, parse_json, read_npz
-from stp_env.sim.core import intruder_observation_size, observe
 
 ACTIVATIONS = {"tanh": jnp.tanh, "relu": lambda x: jnp.maximum(x, 0.0)}
 FORMAT_VERSION = 1
@@ -44,6 +44,11 @@ class MLPIntruder:
     action: tuple[np.ndarray, np.ndarray]
     activation: str
     metadata: dict
+
+    @property
+    def observation(self) -> str:
+        """The observation set it was trained on (:mod:`stp_env.baselines.observations`; ``"core"`` if unrecorded)."""
+        return self.metadata.get("observation", "core")
 
     @property
     def obs_size(self) -> int:
@@ -146,6 +151,8 @@ def _mlp_from_arrays(arrays: dict, path, n_outputs: int = 2) -> MLPIntruder:
                       f"{width} outputs")
         width = w.shape[0]
         pairs.append((w.astype(np.float32), b.astype(np.float32)))
+    if meta.get("observation", "core") not in OBSERVATIONS:
+        raise bad(f"unknown observation set {meta.get('observation')!r}; allowed: {', '.join(OBSERVATIONS)}")
     if width != n_outputs:
         what = "an intruder action has 2 (speed, turn rate)" if n_outputs == 2 else f"expected {n_outputs}"
         raise bad(f"the action layer has {width} outputs; {what}")
@@ -154,18 +161,20 @@ def _mlp_from_arrays(arrays: dict, path, n_outputs: int = 2) -> MLPIntruder:
 
 def mlp_intruder(mlp: MLPIntruder, name: str = "learned"):
     """A jittable intruder policy ``(key, state, params) -> (2,)``: the MLP's deterministic action on the
-    intruder observation. Raises ``ValueError`` (at trace time) if ``params`` gives another observation size."""
+    intruder observation of the set it was trained on (:attr:`MLPIntruder.observation`). Raises ``ValueError`` (at
+    trace time) if ``params`` gives another observation size."""
     act = ACTIVATIONS[mlp.activation]
+    observation = mlp.observation
     hidden = [(jnp.asarray(w), jnp.asarray(b)) for w, b in mlp.hidden]
     w_out, b_out = jnp.asarray(mlp.action[0]), jnp.asarray(mlp.action[1])
 
     def policy(key, state, params):
         del key
-        size = intruder_observation_size(params)
+        size = observation_size(params, observation)
         if size != mlp.obs_size:
             raise ValueError(f"The intruder MLP takes {mlp.obs_size} observations but these params give {size} "
                              "(n_nearest differs from training).")
-        h = observe(state, params)[1].astype(jnp.float32)
+        h = intruder_observation(state, params, observation)
         for w, b in hidden:
             h = act(w @ h + b)
         return jnp.clip(w_out @ h + b_out, -1.0, 1.0)
@@ -203,4 +212,17 @@ def load_intruder(name_or_path: str = "town-kbar2"):
             raise ValueError(f"unknown intruder {name_or_path!r}; shipped: {', '.join(shipped_intruders())} "
                              "(or pass the path of an .npz from export_mlp).")
         path = Path(str(resources.files("stp_env") / "data" / "intruders" / f"{name_or_path}.npz"))
-    return mlp_intruder(load_mlp(path), name=f"learned:{path.stem}")
+    return learned_record(load_mlp(path), name=f"learned:{path.stem}")
+
+
+def learned_record(mlp: MLPIntruder, name: str = "learned"):
+    """The :class:`~stp_env.baselines.intruders.Intruder` record of a learned intruder: its policy
+    (:func:`mlp_intruder`), whether it reads ``V^B`` (its observation set does) and where it appears when the
+    configuration leaves it open (where it was trained to: ``metadata["spawn_mode"]``, else outside)."""
+    from stp_env.baselines.intruders import Intruder
+    from stp_env.sim.types import SPAWN_MODES
+
+    spawn = mlp.metadata.get("spawn_mode", "outside")
+    return Intruder(mlp_intruder(mlp, name=name), needs_buffer=mlp.observation in NEEDS_BUFFER,
+                    spawn=spawn if spawn in SPAWN_MODES else "outside",
+                    description=f"learned ({mlp.observation} observation)")

@@ -21,7 +21,8 @@ observation, trained on the batched JAX wrapper, and exported to a small ``.npz`
   that grows as the attack comes closer to passing unseen, so that the best attack is the one with the largest
   margin even where every attack is detected (``m > 1`` makes a detected entry worth more than no attempt).
 * :func:`train` (PPO, modest budgets; optionally started from a scripted ``teacher`` by behaviour cloning,
-  :func:`demonstrations` and :func:`imitate`, since the reward of an entry is rare under random exploration)
+  :func:`demonstrations` and :func:`stp_env.rl.imitation.imitate`, since the reward of an entry is rare under
+  random exploration)
   writes ``attacker.npz`` with :func:`stp_env.baselines.learned.export_mlp`;
   :func:`mlp_attacker` turns it into a jittable attacker for :func:`stp_env.coobservation.threat.rollout`.
 """
@@ -40,6 +41,7 @@ import numpy as np
 from stp_env.baselines import nominal_tracking
 from stp_env.coobservation import attackers, threat
 from stp_env.files import write_text
+from stp_env.rl.imitation import imitate
 from stp_env.rl.ppo import PPOConfig, make_model
 from stp_env.sim import engine
 
@@ -239,31 +241,6 @@ def demonstrations(venv, params, tp, teacher, n_decisions: int, progress: bool =
         venv.step_async(act)
         obs, _rew, _done, _infos = venv.step_wait()
     return np.concatenate(xs).astype(np.float32), np.concatenate(ys).astype(np.float32)
-
-
-def imitate(policy, obs, actions, epochs: int, lr: float = 1e-3, batch: int = 1024, seed: int = 0) -> float:
-    """Fit the mean action of an SB3 actor-critic ``policy`` to ``actions`` (behaviour cloning, mean squared
-    error); returns the final epoch's loss."""
-    import torch
-
-    params = [*policy.mlp_extractor.policy_net.parameters(), *policy.action_net.parameters()]
-    opt = torch.optim.Adam(params, lr=lr)
-    x, y = torch.as_tensor(obs), torch.as_tensor(actions)
-    gen = torch.Generator().manual_seed(seed)
-    loss_value = float("nan")
-    for _ in range(epochs):
-        perm = torch.randperm(len(x), generator=gen)
-        total = 0.0
-        for i in range(0, len(x), batch):
-            idx = perm[i:i + batch]
-            latent = policy.mlp_extractor.forward_actor(policy.pi_features_extractor(x[idx]))
-            loss = torch.mean((policy.action_net(latent) - y[idx]) ** 2)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            total += loss.item() * len(idx)
-        loss_value = total / len(x)
-    return loss_value
 
 
 def train(params, tp, t_window, config: AttackerTrainConfig, out_dir, progress: bool = True) -> Path:

@@ -29,6 +29,7 @@ import jax.numpy as jnp
 
 from stp_env import sim
 from stp_env.baselines import vehicle_policy
+from stp_env.baselines.observations import intruder_observation
 from stp_env.seeds import check_seed
 from stp_env.sim import core
 from stp_env.sim.jit import sim_jit
@@ -99,51 +100,55 @@ def episode_stats(state: EnvState):
     }
 
 
-def intruder_obs(state: EnvState, params: EnvParams):
-    return core.observe(state, params)[1].astype(jnp.float32)
+def intruder_obs(state: EnvState, params: EnvParams, observation: str = "core"):
+    """The intruder's observation of set ``observation`` (:mod:`stp_env.baselines.observations`)."""
+    return intruder_observation(state, params, observation)
 
 
 # ------------------------------------------------------------------------------------------------ one env
-@functools.partial(sim_jit, static_argnames=("horizon",))
-def env_reset(key, params: EnvParams, horizon: str):
+@functools.partial(sim_jit, static_argnames=("horizon", "observation"))
+def env_reset(key, params: EnvParams, horizon: str, observation: str = "core"):
     """``(key, state, obs)``: the env key after the reset split, the new state, the intruder's observation."""
     key, k_reset = jax.random.split(key)
     state = reset_one(k_reset, params, horizon)
-    return key, state, intruder_obs(state, params)
+    return key, state, intruder_obs(state, params, observation)
 
 
-@functools.partial(sim_jit, static_argnames=("horizon", "vehicle_policy"))
-def env_step(key, state: EnvState, action, params: EnvParams, horizon: str, vehicle_policy):
+@functools.partial(sim_jit, static_argnames=("horizon", "vehicle_policy", "observation"))
+def env_step(key, state: EnvState, action, params: EnvParams, horizon: str, vehicle_policy,
+             observation: str = "core"):
     """``(key, state, obs, reward, terminated, truncated, stats)`` without auto-reset (Gymnasium API)."""
     key, k_step = jax.random.split(key)
     state, reward = step_one(k_step, state, action, params, vehicle_policy)
     terminated, truncated = episode_end(state, params, horizon)
-    return key, state, intruder_obs(state, params), reward, terminated, truncated, episode_stats(state)
+    return (key, state, intruder_obs(state, params, observation), reward, terminated, truncated,
+            episode_stats(state))
 
 
 # ------------------------------------------------------------------------------------------------ batch
-@functools.partial(sim_jit, static_argnames=("horizon",))
-def batch_reset(keys, params: EnvParams, horizon: str):
+@functools.partial(sim_jit, static_argnames=("horizon", "observation"))
+def batch_reset(keys, params: EnvParams, horizon: str, observation: str = "core"):
     """:func:`env_reset` for a batch of keys ``(n,)``."""
-    return jax.vmap(env_reset.__wrapped__, in_axes=(0, None, None))(keys, params, horizon)
+    return jax.vmap(env_reset.__wrapped__, in_axes=(0, None, None, None))(keys, params, horizon, observation)
 
 
-@functools.partial(sim_jit, static_argnames=("horizon", "vehicle_policy"))
-def batch_step(keys, states: EnvState, actions, params: EnvParams, horizon: str, vehicle_policy):
+@functools.partial(sim_jit, static_argnames=("horizon", "vehicle_policy", "observation"))
+def batch_step(keys, states: EnvState, actions, params: EnvParams, horizon: str, vehicle_policy,
+               observation: str = "core"):
     """One step of ``n`` envs with auto-reset, in one compiled program.
 
     Returns ``(keys, states, obs, rewards, terminated, truncated, terminal_obs, stats)``: ``obs`` are the
     observations after the auto-reset of the finished envs, ``terminal_obs`` and ``stats`` those of the state
     the step reached (before the reset). The reset branch runs only when some env finished.
     """
-    step = jax.vmap(env_step.__wrapped__, in_axes=(0, 0, 0, None, None, None))
+    step = jax.vmap(env_step.__wrapped__, in_axes=(0, 0, 0, None, None, None, None))
     keys, states, obs, rewards, terminated, truncated, stats = step(keys, states, actions, params, horizon,
-                                                                    vehicle_policy)
+                                                                    vehicle_policy, observation)
     done = terminated | truncated
 
     def reset_done(operand):
         keys, states, obs = operand
-        new_keys, new_states, new_obs = batch_reset.__wrapped__(keys, params, horizon)
+        new_keys, new_states, new_obs = batch_reset.__wrapped__(keys, params, horizon, observation)
 
         def pick(a, b):
             return jnp.where(done.reshape(done.shape + (1,) * (a.ndim - 1)), a, b)

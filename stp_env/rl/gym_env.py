@@ -3,7 +3,9 @@
 ================  ==========================================================================================
 observation       ``Box(-2, 2, (8 + 7K,), float32)``: :func:`stp_env.sim.observe`'s intruder row (present flag,
                   position, heading, ``tau / t_IAT``, time to appear, ``|N^RP| / N``, then the ``K`` nearest
-                  flying vehicles in its body frame with their avoid values ``V^A`` and forced flags)
+                  flying vehicles in its body frame with their avoid values ``V^A`` and forced flags);
+                  ``observation="game"`` appends the buffer game's features (31 more,
+                  :mod:`stp_env.baselines.observations`)
 action            ``Box(-1, 1, (2,), float32)``: speed in ``[v_min, v_max]`` and turn rate in
                   ``[-omega_max, omega_max]`` of the intruder (clipped; NaN or a wrong shape is a ``ValueError``)
 reward            the core's intruder reward (:class:`stp_env.sim.RewardConfig`: ``forced`` per vehicle newly
@@ -28,8 +30,8 @@ import jax
 import numpy as np
 
 from stp_env import assembly, sim
+from stp_env.baselines.observations import check_observation, observation_size
 from stp_env.rl import functional as F
-from stp_env.sim.core import intruder_observation_size
 
 
 def build_params(scenario="town", config: sim.EnvConfig | None = None, *, params=None, store=None) -> sim.EnvParams:
@@ -59,17 +61,21 @@ class IntruderEnv(gym.Env):
         horizon: ``"intruder"`` or ``"episode"``.
         vehicle_policy: a name in :data:`stp_env.baselines.VEHICLE_POLICIES` (``"switching"``: ``u*``, eq. 38).
         params: prebuilt :class:`stp_env.sim.EnvParams` (instead of scenario and config).
+        observation: the intruder's observation set (:mod:`stp_env.baselines.observations`: ``"core"``, or
+            ``"game"`` with the buffer game's features, which needs ``V^B`` in the params).
     """
 
     metadata: ClassVar[dict] = {"render_modes": []}
 
     def __init__(self, scenario="town", config: sim.EnvConfig | None = None, *, horizon: str = "intruder",
-                 vehicle_policy: str = "switching", params: sim.EnvParams | None = None, store=None):
+                 vehicle_policy: str = "switching", params: sim.EnvParams | None = None, store=None,
+                 observation: str = "core"):
         self.horizon = F.check_horizon(horizon)
         self.vehicle_policy_name = vehicle_policy
         self._vehicle_policy = F.check_vehicle_policy(vehicle_policy)
         self.params = build_params(scenario, config, params=params, store=store)
-        size = intruder_observation_size(self.params)
+        self.observation = check_observation(observation)
+        size = observation_size(self.params, self.observation)
         self.observation_space = gym.spaces.Box(-2.0, 2.0, (size,), np.float32)
         self.action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
         self.render_mode = None
@@ -86,14 +92,15 @@ class IntruderEnv(gym.Env):
             self._key = key
         elif self._key is None:
             self._key = F.key_for_seed(int(self.np_random.integers(0, 2**32)))
-        self._key, self.state, obs = F.env_reset(self._key, self.params, self.horizon)
+        self._key, self.state, obs = F.env_reset(self._key, self.params, self.horizon, self.observation)
         return np.asarray(obs), {"kbar": self.kbar, "time": float(self.state.t)}
 
     def step(self, action):
         if self.state is None:
             raise RuntimeError("Call reset() before step().")
         action = check_action(action, (2,))
-        out = F.env_step(self._key, self.state, action, self.params, self.horizon, self._vehicle_policy)
+        out = F.env_step(self._key, self.state, action, self.params, self.horizon, self._vehicle_policy,
+                         self.observation)
         self._key, self.state = out[0], out[1]
         obs, reward, terminated, truncated, stats = jax.device_get(out[2:])
         info = {name: (float(value) if name == "time" else int(value)) for name, value in stats.items()}

@@ -28,8 +28,8 @@ import numpy as np
 
 from stp_env.files import write_text
 
-ENVIRONMENT_FIELDS = ("scenario", "kbar", "vehicle_policy", "spawn_mode", "forced_reward", "collision_reward",
-                      "shaping_reward", "horizon")
+ENVIRONMENT_FIELDS = ("scenario", "kbar", "vehicle_policy", "spawn_mode", "wind_model", "forced_reward",
+                      "collision_reward", "shaping_reward", "kbar_reward", "horizon", "observation", "clone")
 """What the shipped ``EnvParams`` depend on (or the env built from them): a grid may not vary these."""
 
 

@@ -52,11 +52,21 @@ class TrainConfig(PPOConfig):
             buffer game's worst vehicles, for which the relative buffer table ``V^B`` of the k̄ is loaded).
         spawn_mode: where the intruder appears (:class:`stp_env.sim.EnvConfig`): ``"outside"`` every avoid region
             (Assumption 3), on a vehicle's avoid ``"boundary"`` (where the max-k intruders start) or ``"mixed"``.
+        wind_model: how each agent's wind in its disk is drawn (:mod:`stp_env.sim.winds`; ``"converging"``: the
+            buffer game's helping winds, where the pinwheel reaches k̄ = 3).
         forced_reward: per vehicle newly forced to avoid (eq. 39); collision_reward: per collision the intruder
             causes; shaping_reward: times the decrease of ``min V^A`` over the vehicles unforced before each step
             [per m] (both potentials of a step over the same vehicles, so forcing one is rewarded; before that fix
             the potential jumped by up to ``d_sense`` when a vehicle was forced, and with ``forced_reward = 1`` the
-            intruder learned to approach and not force).
+            intruder learned to approach and not force); kbar_reward: once when ``|N^RP|`` reaches k̄ (the k̄-th
+            forced vehicle, on top of its ``forced_reward``).
+        observation: the intruder's observation set (:mod:`stp_env.baselines.observations`): ``"core"`` (the
+            nearest vehicles' relative states, ``V^A`` and forced flags) or ``"game"`` (and the buffer game's
+            features: the unforced vehicles ranked by ``V^B``, the hop heading toward each; loads ``V^B``).
+        clone: ``None`` or a scripted intruder (:data:`stp_env.baselines.INTRUDERS`) to start from: its actions
+            are cloned on ``clone_steps`` steps of every training env, then ``clone_rounds`` DAgger rounds, and the
+            critic is fitted to its returns, before PPO (:mod:`stp_env.rl.imitation`); clone_epochs: passes over
+            the data per fit.
         algo, net_arch, total_timesteps, n_envs, n_steps, batch_size, n_epochs, learning_rate, gamma, gae_lambda,
         ent_coef, clip_range, log_std_init, seed, torch_threads: the algorithm's settings
         (:class:`stp_env.rl.ppo.PPOConfig`). ``total_timesteps`` is rounded up to whole rollouts
@@ -72,9 +82,16 @@ class TrainConfig(PPOConfig):
     horizon: str = "intruder"
     vehicle_policy: str = "switching"
     spawn_mode: str = "outside"
+    wind_model: str = "uniform"
     forced_reward: float = 5.0
     collision_reward: float = 10.0
     shaping_reward: float = 0.01
+    kbar_reward: float = 0.0
+    observation: str = "core"
+    clone: str | None = None
+    clone_steps: int = 200
+    clone_rounds: int = 2
+    clone_epochs: int = 30
     eval_every: int = 200_000
     eval_episodes: int = 256
     eval_seed: int = 1_000_000
@@ -99,13 +116,25 @@ class TrainConfig(PPOConfig):
         unknown = sorted(set(self.log_formats) - set(LOG_FORMATS))
         if unknown:
             raise ValueError(f"unknown log formats {unknown}; allowed: {', '.join(LOG_FORMATS)}.")
-        for name in ("forced_reward", "collision_reward", "shaping_reward"):
+        for name in ("forced_reward", "collision_reward", "shaping_reward", "kbar_reward"):
             check_real(getattr(self, name), name)
+        from stp_env.baselines import INTRUDERS
+        from stp_env.baselines.observations import check_observation
+
+        check_observation(self.observation)
+        from stp_env.sim import winds
+
+        winds.make(self.wind_model)  # a registered name (ValueError otherwise)
+        if self.clone is not None and self.clone not in INTRUDERS:
+            raise ValueError(f"clone {self.clone!r} is not a scripted intruder; allowed: {', '.join(INTRUDERS)}.")
+        check_int(self.clone_steps, "clone_steps", 1, None)
+        check_int(self.clone_rounds, "clone_rounds", 0, None)
+        check_int(self.clone_epochs, "clone_epochs", 1, None)
 
     def env_config(self) -> sim.EnvConfig:
         rewards = sim.RewardConfig(forced=self.forced_reward, intruder_collision=self.collision_reward,
-                                   shaping=self.shaping_reward)
-        return sim.EnvConfig(rewards=rewards, spawn_mode=self.spawn_mode)
+                                   shaping=self.shaping_reward, kbar_reached=self.kbar_reward)
+        return sim.EnvConfig(rewards=rewards, spawn_mode=self.spawn_mode, wind_model=self.wind_model)
 
     def scenario_object(self):
         from stp_env.scenarios import make
@@ -155,6 +184,7 @@ def summarize(result: dict, kbar: int, *, confidence: float = 0.95) -> dict:
         "mean_n_forced": s["forced_mean"],
         "ci95_n_forced": s["forced_ci95"],
         "max_n_forced": s["forced_max"],
+        "episodes_reaching_kbar": s["kbar_reached"],
         "episodes_above_kbar": s["exceed"],
         "episodes_above_kbar_upper": s["exceed_upper"],
         "collisions": s["collisions"],
@@ -216,14 +246,59 @@ def _callbacks(config: TrainConfig, eval_env, out: Path, kbar: int):
     return callbacks
 
 
+def learning_curves(history, out, kbar: int) -> Path | None:
+    """``out/learning_curves.png`` from a run's held-out evaluations (the rows of ``evaluations.csv``): the mean
+    ``|N^RP|`` with its 95 % interval, and the share of episodes reaching k̄ with its Clopper-Pearson interval,
+    against the training steps (a cloned start is the point at 0 steps). ``None`` without evaluations."""
+    if not history:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from stp_env.evaluation.stats import clopper_pearson_interval
+    from stp_env.files import atomic_open
+
+    steps = np.asarray([r["timesteps"] for r in history], float)
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    ax = axes[0]
+    mean = np.asarray([r["mean_n_forced"] for r in history])
+    half = np.asarray([r["ci95_n_forced"] for r in history])  # the normal interval's half-width
+    ax.plot(steps, mean, "o-", label="mean |N^RP|")
+    ax.fill_between(steps, mean - half, mean + half, alpha=0.25, label="95 % interval")
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("vehicles forced per held-out episode")
+    ax.legend(loc="lower right")
+    ax = axes[1]
+    rate = np.asarray([r["episodes_reaching_kbar"] / r["episodes"] for r in history])
+    bounds = np.asarray([clopper_pearson_interval(r["episodes_reaching_kbar"], r["episodes"]) for r in history])
+    ax.plot(steps, 100 * rate, "o-", label=f"episodes reaching k̄ = {kbar}")
+    ax.fill_between(steps, 100 * bounds[:, 0], 100 * bounds[:, 1], alpha=0.25, label="95 % interval")
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("% of held-out episodes")
+    ax.legend(loc="lower right")
+    fig.suptitle(f"{Path(out).name}: held-out evaluations during training")
+    fig.tight_layout()
+    target = Path(out) / "learning_curves.png"
+    with atomic_open(target, "wb") as fh:
+        fig.savefig(fh, format="png", dpi=110)
+    plt.close(fig)
+    return target
+
+
 def build_params(config: TrainConfig, *, store=None, progress: bool = False) -> sim.EnvParams:
     """The training environment's ``EnvParams``: the scenario's, with the relative buffer table ``V^B`` of its k̄
-    when the vehicles play the buffer game (``worst``)."""
+    when the vehicles play the buffer game (``worst``), the observation reads it (``"game"``) or the clone's
+    teacher does (``optimal-max-k``)."""
     from stp_env.baselines import BUFFER_GAME_VEHICLE_POLICIES
+    from stp_env.baselines.intruders import capabilities
+    from stp_env.baselines.observations import NEEDS_BUFFER
 
     scenario = config.scenario_object()
     params = assembly.params_for(scenario, config.env_config(), store=store, progress=progress)
-    if config.vehicle_policy in BUFFER_GAME_VEHICLE_POLICIES:
+    if (config.vehicle_policy in BUFFER_GAME_VEHICLE_POLICIES or config.observation in NEEDS_BUFFER
+            or (config.clone is not None and capabilities(config.clone).needs_buffer)):
         params = assembly.with_buffer(params, assembly.load_buffer(scenario, int(params.intruder.kbar), store=store,
                                                                      progress=progress))
     return params
@@ -247,7 +322,8 @@ def train(config: TrainConfig, *, params: sim.EnvParams | None = None):
     write_text(json.dumps(config.to_json(), indent=2), out / "config.json")
     if params is None:
         params = build_params(config)
-    env_kwargs = {"params": params, "horizon": config.horizon, "vehicle_policy": config.vehicle_policy}
+    env_kwargs = {"params": params, "horizon": config.horizon, "vehicle_policy": config.vehicle_policy,
+                  "observation": config.observation}
     venv = VecMonitor(IntruderVecEnv(config.n_envs, **env_kwargs),
                       info_keywords=("n_forced", "collisions", "guarantee_violations"))
     eval_env = IntruderVecEnv(config.n_envs, **env_kwargs)
@@ -255,6 +331,17 @@ def train(config: TrainConfig, *, params: sim.EnvParams | None = None):
     model = make_model(config, venv)
     model.set_logger(configure(str(out), list(config.log_formats)))
     callbacks = _callbacks(config, eval_env, out, kbar)
+    clone = None
+    if config.clone is not None:
+        from stp_env.baselines import INTRUDERS
+        from stp_env.rl.imitation import clone_intruder
+
+        clone = clone_intruder(model, IntruderVecEnv(config.n_envs, **env_kwargs), INTRUDERS[config.clone],
+                               n_steps=config.clone_steps, dagger_rounds=config.clone_rounds,
+                               epochs=config.clone_epochs, gamma=config.gamma, seed=config.seed)
+        clone["teacher"] = config.clone
+        callbacks[0].init_callback(model)
+        callbacks[0].evaluate()  # the clone, before PPO: timesteps 0 in evaluations.csv
     total = config.trained_timesteps
     if total != config.total_timesteps:
         from stp_env.progress import note
@@ -270,7 +357,8 @@ def train(config: TrainConfig, *, params: sim.EnvParams | None = None):
         "scenario": config.scenario, "kbar": kbar, "horizon": config.horizon, "seed": config.seed,
         "vehicle_policy": config.vehicle_policy, "spawn_mode": config.spawn_mode,
         "total_timesteps": int(model.num_timesteps), "requested_timesteps": config.total_timesteps,
-        "final_eval": {k: v for k, v in final.items()}})
+        "observation": config.observation, "clone": clone, "final_eval": {k: v for k, v in final.items()}})
+    learning_curves(callbacks[0].history, out, kbar)
     venv.close()
     eval_env.close()
     return model, callbacks[0].history

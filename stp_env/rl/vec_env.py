@@ -25,10 +25,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env import sim
+from stp_env.baselines.observations import check_observation, observation_size
 from stp_env.rl import functional as F
 from stp_env.rl.gym_env import build_params
 from stp_env.rl.jax_vec_env import JaxVecEnv
-from stp_env.sim.core import intruder_observation_size
 
 STAT_NAMES = ("n_forced", "collisions", "intruder_collisions", "guarantee_violations")
 INFO_NAMES = (*STAT_NAMES, "time")
@@ -39,14 +39,15 @@ class IntruderVecEnv(JaxVecEnv):
 
     Args:
         n_envs: batch size.
-        scenario, config, horizon, vehicle_policy, params, store: as for :class:`stp_env.rl.IntruderEnv`.
+        scenario, config, horizon, vehicle_policy, params, store, observation: as for
+            :class:`stp_env.rl.IntruderEnv`.
     """
 
     PER_ENV_ATTRS = ("n_forced", "time", "intruder_status")
 
     def __init__(self, n_envs: int, scenario="town", config: sim.EnvConfig | None = None, *,
                  horizon: str = "intruder", vehicle_policy: str = "switching", params: sim.EnvParams | None = None,
-                 store=None):
+                 store=None, observation: str = "core"):
         if isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1:
             raise ValueError(f"n_envs must be an integer >= 1; got {n_envs!r}.")
         self.horizon = F.check_horizon(horizon)
@@ -54,7 +55,8 @@ class IntruderVecEnv(JaxVecEnv):
         self._vehicle_policy = F.check_vehicle_policy(vehicle_policy)
         self.params = build_params(scenario, config, params=params, store=store)
         self.kbar = int(self.params.intruder.kbar)
-        size = intruder_observation_size(self.params)
+        self.observation = check_observation(observation)
+        size = observation_size(self.params, self.observation)
         super().__init__(n_envs, gym.spaces.Box(-2.0, 2.0, (size,), np.float32),
                          gym.spaces.Box(-1.0, 1.0, (2,), np.float32))
         self._keys = None
@@ -68,7 +70,8 @@ class IntruderVecEnv(JaxVecEnv):
         for i, seed in enumerate(self._seeds):
             if seed is not None:
                 keys[i] = np.asarray(F.key_for_seed(seed))
-        self._keys, self._states, obs = F.batch_reset(jnp.asarray(keys), self.params, self.horizon)
+        self._keys, self._states, obs = F.batch_reset(jnp.asarray(keys), self.params, self.horizon,
+                                                             self.observation)
         obs = np.asarray(obs)
         times = np.asarray(self._states.t).tolist()
         self.reset_infos = [{"kbar": self.kbar, "time": t} for t in times]
@@ -82,7 +85,7 @@ class IntruderVecEnv(JaxVecEnv):
         if self._actions is None:
             raise RuntimeError("Call step_async() before step_wait().")
         out = F.batch_step(self._keys, self._states, self._actions, self.params, self.horizon,
-                           self._vehicle_policy)
+                           self._vehicle_policy, self.observation)
         self._keys, self._states = out[0], out[1]
         self._actions = None
         obs, rewards, terminated, truncated, terminal_obs, stats, new_times = jax.device_get(

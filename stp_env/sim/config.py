@@ -36,7 +36,9 @@ class RewardConfig:
     arrival (``late_arrival`` instead if after the STA); ``collision`` once on a collision (negative).
     Intruder: ``forced`` per vehicle newly forced to avoid (eq. 39); ``intruder_collision`` per vehicle it
     collides with or that collides because of it; ``shaping`` times the decrease of the smallest avoid-region value
-    ``min_i V^A_i`` over unforced flying vehicles [per m] (a potential-based shaping, 0 by default).
+    ``min_i V^A_i`` over unforced flying vehicles [per m] (a potential-based shaping, 0 by default);
+    ``kbar_reached`` once in the step where ``|N^RP|`` reaches k̄ (the k̄-th forced vehicle, on top of its
+    ``forced``; 0 by default).
     """
 
     progress: float = 0.01
@@ -46,6 +48,7 @@ class RewardConfig:
     forced: float = 1.0
     intruder_collision: float = 10.0
     shaping: float = 0.0
+    kbar_reached: float = 0.0
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):

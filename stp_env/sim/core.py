@@ -395,6 +395,9 @@ def _rewards(state: EnvState, new_state: EnvState, ev: Events, params: EnvParams
     newly_forced = jnp.isfinite(new_state.avoid_start) & ~jnp.isfinite(state.avoid_start)
     intruder_hits = ev.collided & (ev.hit_intruder | (ev.hit_vehicle & jnp.isfinite(state.avoid_start)))
     r_int = w.forced * jnp.sum(newly_forced) + w.intruder_collision * jnp.sum(intruder_hits)
+    n_before = jnp.sum(jnp.isfinite(state.avoid_start))
+    reached = (n_before < params.intruder.kbar) & (n_before + jnp.sum(newly_forced) >= params.intruder.kbar)
+    r_int = r_int + jnp.where(reached, w.kbar_reached, 0.0)
     # Both potentials over the vehicles unforced *before* the step: forcing one lowers the potential (a positive
     # shaping reward) instead of removing it from the minimum (which would make the potential jump up).
     unforced = flying(state) & ~jnp.isfinite(state.avoid_start)

@@ -46,6 +46,7 @@ class RewardWeights(NamedTuple):
     forced: jax.Array
     intruder_collision: jax.Array
     shaping: jax.Array
+    kbar_reached: jax.Array
 
 
 def _pytree(cls, meta=()):
