@@ -459,6 +459,12 @@ def _add_train_intruder_parser(sub) -> None:
                     help="where the intruder appears: outside every avoid region, on a vehicle's avoid boundary "
                          "(where the max-k intruders start), or either")
     kit.add_wind_model(tr, "uniform", "how each agent's wind in its disk is drawn")
+    tr.add_argument("--backend", default="jax", metavar="BACKEND[:PARAM=VALUE,...]",
+                    help="the vehicles' plant: jax (the papers' Dubins model) or pymunk-dynamic[:param=value,...] "
+                         "(a rigid body with actuator lag, where the tracking bound does not hold)")
+    tr.add_argument("--control-dt", type=kit.real(1e-4, 1.0), default=None,
+                    help="the vehicles' tracker and safety filter period [s] (default: the certified 0.02 s; "
+                         "another value is uncertified: collisions then count as assumption failures)")
     tr.add_argument("--forced-reward", type=kit.real(-1e6, 1e6), default=5.0,
                     help="reward per vehicle newly forced to avoid")
     tr.add_argument("--collision-reward", type=kit.real(-1e6, 1e6), default=10.0,
@@ -512,7 +518,8 @@ def _train_intruder(args) -> int:
                          n_envs=args.n_envs, n_steps=args.n_steps, batch_size=args.batch_size, seed=args.seed,
                          learning_rate=args.learning_rate, log_std_init=args.log_std_init,
                          horizon=args.horizon, vehicle_policy=args.vehicle_policy, spawn_mode=args.spawn_mode,
-                         wind_model=args.wind_model, forced_reward=args.forced_reward,
+                         wind_model=args.wind_model, backend=args.backend, control_dt=args.control_dt,
+                         forced_reward=args.forced_reward,
                          collision_reward=args.collision_reward, shaping_reward=args.shaping_reward,
                          kbar_reward=args.kbar_reward, observation=args.observation, clone=args.clone,
                          clone_steps=args.clone_steps, clone_rounds=args.clone_rounds,

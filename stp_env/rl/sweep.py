@@ -28,8 +28,9 @@ import numpy as np
 
 from stp_env.files import write_text
 
-ENVIRONMENT_FIELDS = ("scenario", "kbar", "vehicle_policy", "spawn_mode", "wind_model", "forced_reward",
-                      "collision_reward", "shaping_reward", "kbar_reward", "horizon", "observation", "clone")
+ENVIRONMENT_FIELDS = ("scenario", "kbar", "vehicle_policy", "spawn_mode", "wind_model", "backend", "control_dt",
+                      "forced_reward", "collision_reward", "shaping_reward", "kbar_reward", "horizon", "observation",
+                      "clone")
 """What the shipped ``EnvParams`` depend on (or the env built from them): a grid may not vary these."""
 
 

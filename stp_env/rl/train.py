@@ -54,6 +54,11 @@ class TrainConfig(PPOConfig):
             (Assumption 3), on a vehicle's avoid ``"boundary"`` (where the max-k intruders start) or ``"mixed"``.
         wind_model: how each agent's wind in its disk is drawn (:mod:`stp_env.sim.winds`; ``"converging"``: the
             buffer game's helping winds, where the pinwheel reaches k̄ = 3).
+        backend: the vehicles' plant (:mod:`stp_env.sim.backends`: ``"jax"``, the papers' Dubins model, or
+            ``"pymunk-dynamic[:param=value,...]"``, the rigid body with actuator lag, where the tracking bound no
+            longer holds: docs/model_mismatch.md); control_dt: ``None`` (the certified inner period) or another
+            period of the vehicles' tracker and safety filter [s] (e.g. 0.1: once per step; uncertified, so the
+            vehicles' collisions count as assumption failures).
         forced_reward: per vehicle newly forced to avoid (eq. 39); collision_reward: per collision the intruder
             causes; shaping_reward: times the decrease of ``min V^A`` over the vehicles unforced before each step
             [per m] (both potentials of a step over the same vehicles, so forcing one is rewarded; before that fix
@@ -83,6 +88,8 @@ class TrainConfig(PPOConfig):
     vehicle_policy: str = "switching"
     spawn_mode: str = "outside"
     wind_model: str = "uniform"
+    backend: str = "jax"
+    control_dt: float | None = None
     forced_reward: float = 5.0
     collision_reward: float = 10.0
     shaping_reward: float = 0.01
@@ -125,6 +132,7 @@ class TrainConfig(PPOConfig):
         from stp_env.sim import winds
 
         winds.make(self.wind_model)  # a registered name (ValueError otherwise)
+        self.env_config()  # the backend and the inner period, checked before anything runs
         if self.clone is not None and self.clone not in INTRUDERS:
             raise ValueError(f"clone {self.clone!r} is not a scripted intruder; allowed: {', '.join(INTRUDERS)}.")
         check_int(self.clone_steps, "clone_steps", 1, None)
@@ -134,7 +142,11 @@ class TrainConfig(PPOConfig):
     def env_config(self) -> sim.EnvConfig:
         rewards = sim.RewardConfig(forced=self.forced_reward, intruder_collision=self.collision_reward,
                                    shaping=self.shaping_reward, kbar_reached=self.kbar_reward)
-        return sim.EnvConfig(rewards=rewards, spawn_mode=self.spawn_mode, wind_model=self.wind_model)
+        from stp_env.sim.backends import vehicle_model
+
+        inner = {} if self.control_dt is None else {"control_dt": self.control_dt, "allow_uncertified": True}
+        return sim.EnvConfig(rewards=rewards, spawn_mode=self.spawn_mode, wind_model=self.wind_model,
+                             vehicle_model=vehicle_model(self.backend), **inner)
 
     def scenario_object(self):
         from stp_env.scenarios import make
@@ -355,8 +367,10 @@ def train(config: TrainConfig, *, params: sim.EnvParams | None = None):
     model.save(out / "model")
     export_mlp(model, out / "intruder.npz", metadata={
         "scenario": config.scenario, "kbar": kbar, "horizon": config.horizon, "seed": config.seed,
-        "vehicle_policy": config.vehicle_policy, "spawn_mode": config.spawn_mode,
-        "total_timesteps": int(model.num_timesteps), "requested_timesteps": config.total_timesteps,
+        "vehicle_policy": config.vehicle_policy, "spawn_mode": config.spawn_mode, "wind_model": config.wind_model,
+        "backend": config.backend, "control_dt": config.control_dt,
+        "kbar_reward": config.kbar_reward, "total_timesteps": int(model.num_timesteps),
+        "requested_timesteps": config.total_timesteps,
         "observation": config.observation, "clone": clone, "final_eval": {k: v for k, v in final.items()}})
     learning_curves(callbacks[0].history, out, kbar)
     venv.close()
