@@ -12,7 +12,14 @@ Shipped intruders: :func:`load_intruder` ``("town-kbar2")`` (``stp_env/data/intr
 episodes, vehicles on ``switching`` with the HJ filter, default ``EnvConfig``) it forces on average 0.528 vehicles
 (95 % interval 0.497-0.559), against 0.048 (0.035-0.061) for the random-Bezier intruder ``bezier3``, 0.508
 (0.477-0.539) for ``greedy`` and 0.488 (0.457-0.519) for the HJ strategy ``max-k``; at most 1 vehicle (k̄ = 2), no
-collision, no guarantee violation.
+collision, no guarantee violation. ``"crossing-kbar2"`` and ``"pinwheel-kbar3"``: clones of ``optimal-max-k`` on the
+``"game"`` observation (:mod:`stp_env.baselines.observations`) with PPO after them, as strong as the script on
+5,000 held-out episodes each (model cards and the evaluation: ``docs/learned_intruders.md``); their files record a
+small check that ``tests/test_learned_intruders.py`` replays.
+
+A file records the observation set it was trained on (``metadata["observation"]``, ``"core"`` when absent) and the
+spawn mode it was trained with; :func:`load_intruder` returns an :class:`~stp_env.baselines.intruders.Intruder`
+record that says so (``needs_buffer`` for the game observation), so every runner loads ``V^B`` for it.
 """
 
 from __future__ import annotations
