@@ -12,11 +12,9 @@ spawned outside the avoid regions, a held-out seed) and prints one JSON line per
 or ``|N^RP| > k̄`` is a finding, saved replayable in ``--out/events.json`` with the results and figures.
 
 Reproducibility: a run is deterministic given the seed and the code (same config in two processes: identical
-rollouts and weights). The shipped ``town-kbar2`` was trained from the tree of commit d1ce834 (06:35, 589 s); the
-simulation core changed after that (commits 5231dfe, 0b2d824), and a 1 M-step re-run on 3bebeed diverges from the
-shipped run's 1 M-step checkpoint from the first update (held-out mean ``|N^RP|`` 0.574 vs 0.531 at that point).
-The shipped weights still gave the same held-out numbers on 3bebeed (0.528, 95 % 0.497-0.559, 1,000 episodes,
-measured by an earlier ``compare`` that drew its own episodes, not the evaluator's).
+rollouts and weights). After ``train --ship``, ``python scripts/ship_learned_intruder.py runs/town-kbar2 town-kbar2``
+records the small check that ``tests/test_learned_intruders.py`` replays (the same weights). The model card and the
+comparison with the earlier shipped policy (PPO from scratch, 4.2 M steps): ``docs/learned_intruders.md``.
 """
 
 from __future__ import annotations
@@ -32,11 +30,13 @@ from stp_env.baselines import INTRUDERS
 from stp_env.rl.train import TrainConfig, train
 
 # forced_reward 5: one forced vehicle outweighs the shaping of a whole approach (shaping_reward * d_sense = 3.7).
-SHIPPED = TrainConfig(scenario="town", n_envs=256, n_steps=64, batch_size=4096, n_epochs=10, learning_rate=3e-4,
-                      forced_reward=5.0, collision_reward=10.0, shaping_reward=0.01, net_arch=(64, 64),
-                      total_timesteps=4_194_304, seed=0, eval_every=524_288, eval_episodes=256,
-                      checkpoint_every=1_048_576, out_dir="runs/town-kbar2",
-                      log_formats=("stdout", "csv", "tensorboard"))
+# Started from a clone of the buffer game's intruder (optimal-max-k; the teacher reads V^B while cloning, the
+# policy sees the core observation, so running it needs no buffer table), then PPO near the clone.
+SHIPPED = TrainConfig(scenario="town", n_envs=256, n_steps=64, batch_size=4096, n_epochs=10, learning_rate=1e-4,
+                      log_std_init=-1.5, forced_reward=5.0, collision_reward=10.0, shaping_reward=0.01,
+                      kbar_reward=5.0, observation="core", clone="optimal-max-k", net_arch=(64, 64),
+                      total_timesteps=524_288, seed=0, eval_every=131_072, eval_episodes=1024,
+                      checkpoint_every=0, out_dir="runs/town-kbar2", log_formats=("stdout", "csv"))
 HELD_OUT_SEED = 20_240_601  # compare's episodes: the evaluator's seed, not training's
 DATA = Path(__file__).resolve().parents[1] / "stp_env" / "data" / "intruders"
 
