@@ -459,7 +459,7 @@ def _add_train_intruder_parser(sub) -> None:
                     help="where the intruder appears: outside every avoid region, on a vehicle's avoid boundary "
                          "(where the max-k intruders start), or either")
     kit.add_wind_model(tr, "uniform", "how each agent's wind in its disk is drawn")
-    tr.add_argument("--backend", default="jax", metavar="BACKEND[:PARAM=VALUE,...]",
+    tr.add_argument("--backend", type=_backend, default="jax", metavar="BACKEND[:PARAM=VALUE,...]",
                     help="the vehicles' plant: jax (the papers' Dubins model) or pymunk-dynamic[:param=value,...] "
                          "(a rigid body with actuator lag, where the tracking bound does not hold)")
     tr.add_argument("--control-dt", type=kit.real(1e-4, 1.0), default=None,
