@@ -24,7 +24,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import importlib
 import math
@@ -33,10 +32,11 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 
+from stp_env.baselines.record import Intruder
 from stp_env.sim import tables
 from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN
 from stp_env.sim.physics import control_to_action, relative_state, wrap_angle
-from stp_env.sim.types import FLYING, SPAWN_MODES
+from stp_env.sim.types import FLYING
 
 HEADING_GAIN = 3.0  # [1/s]
 
@@ -149,20 +149,9 @@ def _hop_to(state, params, j, rel):
     steered to with the proportional law of :func:`_steer`. The game's own turn rate is bang-bang; held over a
     decision step (0.1 s) it zig-zags across the optimal heading by ``omega_max dt``, which costs the hop time the
     buffer region is built on. Where ``V^B > 0`` (no direction in the table): straight at the vehicle."""
-    heading, inside = hop_geometry(state, params, j, rel)
+    heading, inside = tables.buffer_hop(params, rel[j], state.x[j, 2])
     point = state.intruder_x[:2] + 100.0 * jnp.stack([jnp.cos(heading), jnp.sin(heading)])
     return jnp.where(inside, _steer(state, params, point), _steer(state, params, state.x[j, :2]))
-
-
-def hop_geometry(state, params, j, rel):
-    """The buffer game's hop toward vehicle ``j`` (intruder paper eqs. 46-47): the world heading of steepest
-    descent of ``V^B`` (``-grad_p V^B`` turned by the vehicle's heading) and whether it holds (``V^B <= 0`` and a
-    non-zero gradient; elsewhere the hop flies straight at the vehicle). ``rel``: every vehicle's relative state
-    (the learned intruders' ``"game"`` observation reads the same geometry, :mod:`stp_env.baselines.observations`)."""
-    g = tables.buffer_gradient(params, rel[j])
-    heading = state.x[j, 2] + jnp.arctan2(-g[1], -g[0])
-    inside = (tables.buffer_value(params, rel[j]) <= 0.0) & (jnp.hypot(g[0], g[1]) > 1e-3)
-    return heading, inside
 
 
 def optimal_max_k(key, state, params):
@@ -199,48 +188,6 @@ def ordered_max_k(order):
 
     policy.__name__ = "ordered_max_k(" + ",".join(map(str, order)) + ")"
     return policy
-
-
-@dataclasses.dataclass(frozen=True)
-class Intruder:
-    """An intruder policy and what running it takes: the record every entry of :data:`INTRUDERS` is, and what a
-    plug-in module may define instead of a bare function (:func:`resolve_intruder`), so that the environment, the
-    evaluator and the falsifier treat it as they treat the registered ones.
-
-    Attributes:
-        policy: the jittable ``(key, state, params) -> (2,)`` actions in ``[-1, 1]``.
-        needs_buffer: the policy reads ``V^B`` (``params.tables.buffer_values``): whoever runs it loads the buffer table
-            (:func:`stp_env.assembly.load_buffer`, :func:`stp_env.assembly.with_buffer`).
-        spawn: where it appears when the configuration leaves it open (``SPAWN_MODES`` of
-            :mod:`stp_env.sim.types`: ``"outside"``, ``"boundary"`` on a vehicle's avoid boundary, ``"mixed"``).
-        description: one line, for listings.
-
-    The record is called like its policy (the simulator takes it wherever it takes a policy); it is hashable, so
-    it is a static argument of the compiled rollouts like a function.
-    """
-
-    policy: Callable
-    needs_buffer: bool = False
-    spawn: str = "outside"
-    description: str = ""
-
-    def __post_init__(self) -> None:
-        if not callable(self.policy) or isinstance(self.policy, Intruder):
-            raise ValueError(f"an intruder's policy is a function (key, state, params) -> (2,); got "
-                             f"{type(self.policy).__name__}.")
-        if not isinstance(self.needs_buffer, bool):
-            raise ValueError(f"needs_buffer must be a bool; got {self.needs_buffer!r}.")
-        if self.spawn not in SPAWN_MODES:
-            raise ValueError(f"spawn must be one of {', '.join(SPAWN_MODES)}; got {self.spawn!r}.")
-        if not isinstance(self.description, str):
-            raise ValueError(f"description must be a string; got {type(self.description).__name__}.")
-
-    def __call__(self, key, state, params):
-        return self.policy(key, state, params)
-
-    @property
-    def __name__(self) -> str:
-        return getattr(self.policy, "__name__", "intruder")
 
 
 INTRUDERS = {

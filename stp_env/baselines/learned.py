@@ -226,7 +226,7 @@ def learned_record(mlp: MLPIntruder, name: str = "learned"):
     """The :class:`~stp_env.baselines.intruders.Intruder` record of a learned intruder: its policy
     (:func:`mlp_intruder`), whether it reads ``V^B`` (its observation set does) and where it appears when the
     configuration leaves it open (where it was trained to: ``metadata["spawn_mode"]``, else outside)."""
-    from stp_env.baselines.intruders import Intruder
+    from stp_env.baselines.record import Intruder
     from stp_env.sim.types import SPAWN_MODES
 
     spawn = mlp.metadata.get("spawn_mode", "outside")

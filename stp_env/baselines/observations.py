@@ -32,7 +32,6 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from stp_env.baselines.intruders import hop_geometry
 from stp_env.sim import tables
 from stp_env.sim.core import observe
 from stp_env.sim.physics import control_to_action, relative_state, wrap_angle
@@ -66,7 +65,7 @@ def game_features(state, params):
     present = jnp.isfinite(neg)
 
     def candidate(j, ok):
-        heading, inside = hop_geometry(state, params, j, rel)
+        heading, inside = tables.buffer_hop(params, rel[j], state.x[j, 2])
         d = state.x[j, :2] - xi[:2]
         direction = jnp.where(inside, heading, jnp.arctan2(d[1], d[0]))
         err = wrap_angle(direction - xi[2])

@@ -264,6 +264,17 @@ def buffer_gradient(params, x_rel):
     return jnp.where(_inside(grid, x_rel), g, 0.0)
 
 
+def buffer_hop(params, x_rel, vehicle_heading):
+    """The buffer game's hop toward a vehicle (intruder paper eqs. 46-47) from the intruder's relative state
+    ``x_rel`` (3,): the world heading of steepest descent of ``V^B`` (``-grad_p V^B`` turned by the vehicle's
+    heading) and whether it holds (``V^B <= 0`` and a non-zero gradient; elsewhere the hop flies straight at the
+    vehicle). The scripted ``optimal-max-k`` intruder and the learned intruders' ``"game"`` observation read it."""
+    g = buffer_gradient(params, x_rel)
+    heading = vehicle_heading + jnp.arctan2(-g[1], -g[0])
+    inside = (buffer_value(params, x_rel) <= 0.0) & (jnp.hypot(g[0], g[1]) > 1e-3)
+    return heading, inside
+
+
 def buffer_descent(params, x_rel):
     """One gradient read of ``V^B`` at ``x_rel`` for the worst vehicle: ``(v, angle, |grad_p V^B|)``, the game's
     speed (the minimiser of :func:`worst_control`) and the heading, in the vehicle's body frame, along which the
