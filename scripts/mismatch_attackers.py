@@ -8,7 +8,10 @@ appearing on a vehicle's avoid boundary as in docs/model_mismatch.md):
 * ``lag0.1``, ``lag0.3``: the pymunk rigid body with 0.1 s / 0.3 s actuator lags (``pymunk-dynamic``), where
   every episode breaks the robust-tracking bound;
 * ``filter0.1``: the Dubins plant with the tracker and the safety filter run once per 0.1 s step instead of every
-  0.02 s (uncertified: collisions count as assumption failures, not guarantee violations);
+  0.02 s (uncertified: collisions count as assumption failures, not guarantee violations); its certified avoid
+  margin grows with the period (one inner step of the value's fastest fall: 14.7 m instead of 3.76 m);
+* ``filter0.1-margin``: the same with the avoid margin kept at the 0.02 s loop's 3.761 m (a filter calibrated for
+  the fine loop, run at the coarse rate);
 * ``dubins``: the certified reference.
 
 For each plant, ``train`` trains an intruder (``stp_env.rl.train``; ``--timesteps`` of PPO after cloning ``hj``)
@@ -16,7 +19,8 @@ into ``OUT/PLANT/learned``; ``evaluate`` runs the scripted intruders (``hj``, ``
 learned one of that plant on ``--episodes`` intruder episodes (from its appearance to its departure; seeds
 ``--seed + i``, disjoint from training's) and appends one JSON line per (plant, intruder) to ``OUT/results.jsonl``:
 episodes with a collision, with a collision the intruder caused, with a guarantee violation (each with its exact
-95 % Clopper-Pearson interval), mean ``|N^RP|``. A rerun skips what is there.
+95 % Clopper-Pearson interval), mean ``|N^RP|``, and the smallest intruder-vehicle separation (the margin to
+``R_c`` = 100 m: how close the attack came, where no collision happened). A rerun skips what is there.
 
     python scripts/mismatch_attackers.py train --plants filter0.1 lag0.1 --out runs/mismatch-attackers
     python scripts/mismatch_attackers.py evaluate --plants dubins filter0.1 lag0.1 --out runs/mismatch-attackers
@@ -31,6 +35,7 @@ import sys
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from stp_env.baselines import INTRUDERS
@@ -38,10 +43,12 @@ from stp_env.evaluation.stats import clopper_pearson_interval
 from stp_env.rl.imitation import teacher_actions
 from stp_env.rl.train import TrainConfig, build_params, train
 from stp_env.rl.vec_env import IntruderVecEnv
+from stp_env.sim.types import FLYING, PRESENT
 
 PLANTS = {
     "dubins": {},
     "filter0.1": {"control_dt": 0.1},
+    "filter0.1-margin": {"control_dt": 0.1, "avoid_margin": 3.761},
     "lag0.1": {"backend": "pymunk-dynamic:speed_time_constant=0.1,turn_time_constant=0.1"},
     "lag0.3": {"backend": "pymunk-dynamic:speed_time_constant=0.3,turn_time_constant=0.3"},
 }
@@ -57,19 +64,33 @@ def config_for(plant: str, out: Path, timesteps: int, n_envs: int) -> TrainConfi
                        log_formats=("csv",), **PLANTS[plant])
 
 
+@jax.jit
+def _separation(states):
+    """The smallest distance between the intruder and a flying vehicle in each env's state (inf if none)."""
+    def one(s):
+        d = jnp.hypot(*(s.x[:, :2] - s.intruder_x[None, :2]).T)
+        return jnp.min(jnp.where((s.status == FLYING) & (s.intruder_status == PRESENT), d, jnp.inf))
+
+    return jax.vmap(one)(states)
+
+
 def run_episodes(venv, predict, n_episodes: int, seed: int) -> dict:
-    """Per-episode collisions, intruder-caused collisions, guarantee violations and ``|N^RP|`` of ``predict``."""
+    """Per-episode collisions, intruder-caused collisions, guarantee violations, ``|N^RP|`` and the smallest
+    intruder-vehicle separation (over the states each step starts from) of ``predict``."""
     n = venv.num_envs
-    rows = {"collisions": [], "intruder_collisions": [], "guarantee_violations": [], "n_forced": []}
+    rows = {"collisions": [], "intruder_collisions": [], "guarantee_violations": [], "n_forced": [],
+            "min_separation": []}
     for start in range(0, n_episodes, n):
         venv.seed(seed + start)
         obs = venv.reset()
         finished = np.zeros(n, bool)
         final = [None] * n
+        closest = np.full(n, np.inf)
         while not finished.all():
+            closest = np.where(finished, closest, np.minimum(closest, np.asarray(_separation(venv._states))))
             obs, _rewards, dones, infos = venv.step(predict(obs))
             for i in np.flatnonzero(dones & ~finished):
-                final[i] = infos[i]
+                final[i] = {**infos[i], "min_separation": closest[i]}
             finished |= dones
         for i in range(min(n, n_episodes - start)):
             for key in rows:
@@ -79,7 +100,10 @@ def run_episodes(venv, predict, n_episodes: int, seed: int) -> dict:
 
 def summary(result: dict) -> dict:
     e = len(result["n_forced"])
-    out = {"episodes": e, "mean_n_forced": float(result["n_forced"].mean())}
+    sep = result["min_separation"]
+    out = {"episodes": e, "mean_n_forced": float(result["n_forced"].mean()),
+           "min_separation_m": float(sep.min()), "separation_p1_m": float(np.percentile(sep, 1)),
+           "separation_median_m": float(np.median(sep))}
     for key in ("collisions", "intruder_collisions", "guarantee_violations"):
         k = int(np.sum(result[key] > 0))
         lo, hi = clopper_pearson_interval(k, e)

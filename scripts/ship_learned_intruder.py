@@ -44,6 +44,7 @@ def main(argv=None) -> int:
     config = TrainConfig(scenario=meta["scenario"], kbar=meta["kbar"], vehicle_policy=meta["vehicle_policy"],
                          spawn_mode=meta["spawn_mode"], wind_model=meta.get("wind_model", "uniform"),
                          backend=meta.get("backend", "jax"), control_dt=meta.get("control_dt"),
+                         avoid_margin=meta.get("avoid_margin"),
                          observation=mlp.observation, n_envs=args.n_envs)
     note(f"checking {path} on {args.episodes} held-out {config.scenario} episodes", True)
     params = build_params(config, progress=True)

@@ -462,6 +462,9 @@ def _add_train_intruder_parser(sub) -> None:
     tr.add_argument("--backend", type=_backend, default="jax", metavar="BACKEND[:PARAM=VALUE,...]",
                     help="the vehicles' plant: jax (the papers' Dubins model) or pymunk-dynamic[:param=value,...] "
                          "(a rigid body with actuator lag, where the tracking bound does not hold)")
+    tr.add_argument("--avoid-margin", type=kit.real(0.0, 1e4), default=None,
+                    help="the safety filter's avoid margin [m] (default: the certified one of the filter period; "
+                         "below it is uncertified)")
     tr.add_argument("--control-dt", type=kit.real(1e-4, 1.0), default=None,
                     help="the vehicles' tracker and safety filter period [s] (default: the certified 0.02 s; "
                          "another value is uncertified: collisions then count as assumption failures)")
@@ -519,6 +522,7 @@ def _train_intruder(args) -> int:
                          learning_rate=args.learning_rate, log_std_init=args.log_std_init,
                          horizon=args.horizon, vehicle_policy=args.vehicle_policy, spawn_mode=args.spawn_mode,
                          wind_model=args.wind_model, backend=args.backend, control_dt=args.control_dt,
+                         avoid_margin=args.avoid_margin,
                          forced_reward=args.forced_reward,
                          collision_reward=args.collision_reward, shaping_reward=args.shaping_reward,
                          kbar_reward=args.kbar_reward, observation=args.observation, clone=args.clone,

@@ -128,6 +128,7 @@ def test_shipped_learned_intruders_play_as_recorded():
         config = TrainConfig(scenario=meta["scenario"], kbar=meta["kbar"], vehicle_policy=meta["vehicle_policy"],
                              spawn_mode=meta["spawn_mode"], wind_model=meta.get("wind_model", "uniform"),
                          backend=meta.get("backend", "jax"), control_dt=meta.get("control_dt"),
+                         avoid_margin=meta.get("avoid_margin"),
                              observation=meta.get("observation", "core"), n_envs=check["n_envs"])
         p = build_params(config)
         venv = IntruderVecEnv(check["n_envs"], params=p, horizon=meta["horizon"],

@@ -29,8 +29,8 @@ import numpy as np
 from stp_env.files import write_text
 
 ENVIRONMENT_FIELDS = ("scenario", "kbar", "vehicle_policy", "spawn_mode", "wind_model", "backend", "control_dt",
-                      "forced_reward", "collision_reward", "shaping_reward", "kbar_reward", "horizon", "observation",
-                      "clone")
+                      "avoid_margin", "forced_reward", "collision_reward", "shaping_reward", "kbar_reward", "horizon",
+                      "observation", "clone")
 """What the shipped ``EnvParams`` depend on (or the env built from them): a grid may not vary these."""
 
 

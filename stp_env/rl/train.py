@@ -58,7 +58,9 @@ class TrainConfig(PPOConfig):
             ``"pymunk-dynamic[:param=value,...]"``, the rigid body with actuator lag, where the tracking bound no
             longer holds: docs/model_mismatch.md); control_dt: ``None`` (the certified inner period) or another
             period of the vehicles' tracker and safety filter [s] (e.g. 0.1: once per step; uncertified, so the
-            vehicles' collisions count as assumption failures).
+            vehicles' collisions count as assumption failures); avoid_margin: ``None`` (the certified margin of the
+            inner period, which grows with it: one inner step of the value's fastest fall) or a margin [m] (below
+            the certified one: uncertified).
         forced_reward: per vehicle newly forced to avoid (eq. 39); collision_reward: per collision the intruder
             causes; shaping_reward: times the decrease of ``min V^A`` over the vehicles unforced before each step
             [per m] (both potentials of a step over the same vehicles, so forcing one is rewarded; before that fix
@@ -90,6 +92,7 @@ class TrainConfig(PPOConfig):
     wind_model: str = "uniform"
     backend: str = "jax"
     control_dt: float | None = None
+    avoid_margin: float | None = None
     forced_reward: float = 5.0
     collision_reward: float = 10.0
     shaping_reward: float = 0.01
@@ -145,6 +148,8 @@ class TrainConfig(PPOConfig):
         from stp_env.sim.backends import vehicle_model
 
         inner = {} if self.control_dt is None else {"control_dt": self.control_dt, "allow_uncertified": True}
+        if self.avoid_margin is not None:
+            inner.update(avoid_margin=self.avoid_margin, allow_uncertified=True)
         return sim.EnvConfig(rewards=rewards, spawn_mode=self.spawn_mode, wind_model=self.wind_model,
                              vehicle_model=vehicle_model(self.backend), **inner)
 
@@ -368,7 +373,7 @@ def train(config: TrainConfig, *, params: sim.EnvParams | None = None):
     export_mlp(model, out / "intruder.npz", metadata={
         "scenario": config.scenario, "kbar": kbar, "horizon": config.horizon, "seed": config.seed,
         "vehicle_policy": config.vehicle_policy, "spawn_mode": config.spawn_mode, "wind_model": config.wind_model,
-        "backend": config.backend, "control_dt": config.control_dt,
+        "backend": config.backend, "control_dt": config.control_dt, "avoid_margin": config.avoid_margin,
         "kbar_reward": config.kbar_reward, "total_timesteps": int(model.num_timesteps),
         "requested_timesteps": config.total_timesteps,
         "observation": config.observation, "clone": clone, "final_eval": {k: v for k, v in final.items()}})
