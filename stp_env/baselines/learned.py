@@ -7,16 +7,17 @@ back with numpy only and evaluate the deterministic action (the Gaussian mean, c
 intruder runs inside :func:`stp_env.sim.rollout` and the evaluation library like any scripted one.
 
 Shipped intruders (``stp_env/data/intruders/``): :func:`load_intruder` ``("town-kbar2")`` (the SB3 model is the
-``.zip`` beside it; reproduced by ``python scripts/train_intruder.py train --ship``: a clone of ``optimal-max-k``
-on the core observation, then 524,288 PPO steps, seed 0, a 64 x 64 tanh MLP). Over 1,000 held-out ``town``
-episodes (``stp-env evaluate --scenario town --kbar 2 --spawn-mode outside --intruder learned:town-kbar2
-optimal-max-k greedy max-k bezier3 --episodes 1000 --seed 20240601``, vehicles on ``switching`` with the HJ filter) it forces on average 0.520 vehicles, against 0.519 for the earlier
-shipped policy (PPO from scratch, 4.2 M steps), 0.511 for ``optimal-max-k``, 0.504 for ``greedy``, 0.489 for
-``max-k`` and 0.047 for the random-Bezier ``bezier3`` (95 % half-widths 0.031; 0.013 for ``bezier3``); at most 1 vehicle (k̄ = 2), no
-collision, no guarantee violation. ``"crossing-kbar2"`` and ``"pinwheel-kbar3"``: clones of ``optimal-max-k`` on the
-``"game"`` observation (:mod:`stp_env.baselines.observations`) with PPO after them, as strong as the script on
-5,000 held-out episodes each (model cards and the evaluation: ``docs/learned_intruders.md``); their files record a
-small check that ``tests/test_learned_intruders.py`` replays.
+``.zip`` beside it; reproduced by ``python scripts/train_intruder.py train --ship``: a clone of ``optimal-max-k`` on
+the core observation, then 524,288 PPO steps, seed 0, a 64 x 64 tanh MLP). Over 1,000 held-out ``town`` episodes
+(``stp-env evaluate --scenario town --kbar 2 --spawn-mode outside --intruder learned:town-kbar2 optimal-max-k greedy
+max-k bezier3 --episodes 1000 --seed 20240601``, vehicles on ``switching`` with the HJ filter) it forces on average
+0.520 vehicles, against 0.519 for the earlier shipped policy (PPO from scratch, 4.2 M steps), 0.511 for
+``optimal-max-k``, 0.504 for ``greedy``, 0.489 for ``max-k`` and 0.047 for the random-Bezier ``bezier3`` (95 %
+half-widths 0.031; 0.013 for ``bezier3``); at most 1 vehicle (k̄ = 2), no collision, no guarantee violation.
+``"crossing-kbar2"`` and ``"pinwheel-kbar3"``: clones of ``optimal-max-k`` on the ``"game"`` observation
+(:mod:`stp_env.baselines.observations`) with PPO after them, as strong as the script on 5,000 held-out episodes each
+(model cards and the evaluation: ``docs/learned_intruders.md``); their files record a small check that
+``tests/test_learned_intruders.py`` replays.
 
 A file records the observation set it was trained on (``metadata["observation"]``, ``"core"`` when absent) and the
 spawn mode it was trained with; :func:`load_intruder` returns an :class:`~stp_env.baselines.intruders.Intruder`
