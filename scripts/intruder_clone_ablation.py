@@ -17,11 +17,8 @@ import json
 import sys
 import time
 
-import jax
-import numpy as np
-
 from stp_env.baselines import INTRUDERS
-from stp_env.rl.imitation import agreement, clone_intruder, intruder_demonstrations, teacher_actions
+from stp_env.rl.imitation import agreement, clone_intruder, intruder_demonstrations, scripted_predict
 from stp_env.rl.ppo import make_model
 from stp_env.rl.train import TrainConfig, build_params, evaluate_on_vec_env, summarize
 from stp_env.rl.vec_env import IntruderVecEnv
@@ -55,11 +52,7 @@ def main(argv=None) -> int:
     print(json.dumps({"agreement_within_0.1": agreement(clone, obs, act, 0.1),
                       "agreement_within_0.05": agreement(clone, obs, act, 0.05)}), flush=True)
 
-    def script(_obs):
-        keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(venv._keys)
-        return np.asarray(teacher_actions(teacher, keys, venv._states, venv.params))
-
-    for name, predict in (("clone", clone), (args.teacher, script)):
+    for name, predict in (("clone", clone), (args.teacher, scripted_predict(venv, teacher))):
         row = summarize(evaluate_on_vec_env(predict, venv, args.episodes, config.eval_seed), args.kbar)
         print(json.dumps({"intruder": name, "observation": args.observation, **row}), flush=True)
     print(json.dumps({"seconds": round(time.perf_counter() - t0, 1)}))

@@ -40,8 +40,8 @@ import numpy as np
 
 from stp_env.baselines import INTRUDERS
 from stp_env.evaluation.stats import clopper_pearson_interval
-from stp_env.rl.imitation import teacher_actions
-from stp_env.rl.train import TrainConfig, build_params, train
+from stp_env.rl.imitation import scripted_predict
+from stp_env.rl.train import TrainConfig, build_params, evaluate_on_vec_env, train
 from stp_env.rl.vec_env import IntruderVecEnv
 from stp_env.sim.types import FLYING, PRESENT
 
@@ -75,27 +75,10 @@ def _separation(states):
 
 
 def run_episodes(venv, predict, n_episodes: int, seed: int) -> dict:
-    """Per-episode collisions, intruder-caused collisions, guarantee violations, ``|N^RP|`` and the smallest
-    intruder-vehicle separation (over the states each step starts from) of ``predict``."""
-    n = venv.num_envs
-    rows = {"collisions": [], "intruder_collisions": [], "guarantee_violations": [], "n_forced": [],
-            "min_separation": []}
-    for start in range(0, n_episodes, n):
-        venv.seed(seed + start)
-        obs = venv.reset()
-        finished = np.zeros(n, bool)
-        final = [None] * n
-        closest = np.full(n, np.inf)
-        while not finished.all():
-            closest = np.where(finished, closest, np.minimum(closest, np.asarray(_separation(venv._states))))
-            obs, _rewards, dones, infos = venv.step(predict(obs))
-            for i in np.flatnonzero(dones & ~finished):
-                final[i] = {**infos[i], "min_separation": closest[i]}
-            finished |= dones
-        for i in range(min(n, n_episodes - start)):
-            for key in rows:
-                rows[key].append(final[i][key])
-    return {k: np.asarray(v) for k, v in rows.items()}
+    """Per-episode stats of ``predict`` and the smallest intruder-vehicle separation (over the states each step
+    started from)."""
+    result = evaluate_on_vec_env(predict, venv, n_episodes, seed, track=lambda v: _separation(v._states))
+    return {**result, "min_separation": result["tracked_min"]}
 
 
 def summary(result: dict) -> dict:
@@ -147,11 +130,7 @@ def main(argv=None) -> int:
 
                 predict = load_mlp(learned).action_numpy
             else:
-                teacher = INTRUDERS[name]
-
-                def predict(obs, teacher=teacher, venv=venv):
-                    keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(venv._keys)
-                    return np.asarray(teacher_actions(teacher, keys, venv._states, venv.params))
+                predict = scripted_predict(venv, INTRUDERS[name])
 
             row = {"plant": plant, **PLANTS[plant], "intruder": name,
                    **summary(run_episodes(venv, predict, args.episodes, args.seed))}

@@ -79,6 +79,17 @@ def teacher_actions(teacher, keys, states, params):
     return _teacher_fn(teacher)(keys, states, params)
 
 
+def scripted_predict(venv, teacher):
+    """``predict(obs) -> actions`` that plays the scripted intruder ``teacher`` on ``venv`` (an
+    :class:`stp_env.rl.IntruderVecEnv`): it reads the envs' states, not the observations (for evaluating a script
+    on the same episodes as a learned policy)."""
+    def predict(_obs):
+        keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(venv._keys)  # not the keys the step will use
+        return np.asarray(teacher_actions(teacher, keys, venv._states, venv.params))
+
+    return predict
+
+
 _TEACHERS: dict = {}
 
 
@@ -102,10 +113,10 @@ def intruder_demonstrations(venv, teacher, n_steps: int, gamma: float, *, studen
     venv.seed(seed)
     obs = venv.reset()
     xs, ys, rs, ds = [], [], [], []
+    label = scripted_predict(venv, teacher)
     for _ in tqdm(range(n_steps), desc="teacher demonstrations" if student is None else "DAgger",
                   unit="step", disable=not progress):
-        keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(venv._keys)  # not the keys the step will use
-        act = np.asarray(teacher_actions(teacher, keys, venv._states, venv.params), np.float32)
+        act = label(obs).astype(np.float32)
         xs.append(obs)
         ys.append(act)
         fly = act if student is None else np.asarray(student(obs), np.float32)

@@ -162,30 +162,34 @@ class TrainConfig(PPOConfig):
         return dataclasses.asdict(self)
 
 
-def evaluate_on_vec_env(predict, venv, n_episodes: int, seed: int) -> dict:
+def evaluate_on_vec_env(predict, venv, n_episodes: int, seed: int, track=None) -> dict:
     """Run ``n_episodes`` episodes of ``predict(obs) -> actions`` on an :class:`IntruderVecEnv`, each env's
     first episode after ``venv.seed(seed + k n_envs)`` (so episode ``j`` is seeded ``seed + j``). Returns
-    per-episode arrays ``n_forced``, ``collisions``, ``guarantee_violations``, ``returns``."""
+    per-episode arrays of the final infos' ``n_forced``, ``collisions``, ``intruder_collisions``,
+    ``guarantee_violations``, and ``returns``; with ``track(venv) -> (n_envs,)``, also ``tracked_min``: the
+    smallest value it gave over the states each step of the episode started from."""
+    from stp_env.rl.vec_env import STAT_NAMES
+
     n = venv.num_envs
-    rows = {"n_forced": [], "collisions": [], "guarantee_violations": [], "returns": []}
+    rows = {name: [] for name in (*STAT_NAMES, "returns", *(("tracked_min",) if track is not None else ()))}
     for start in range(0, n_episodes, n):
         venv.seed(seed + start)
         obs = venv.reset()
         finished = np.zeros(n, bool)
         returns = np.zeros(n)
+        lowest = np.full(n, np.inf)
         final = [None] * n
         while not finished.all():
+            if track is not None:
+                lowest = np.where(finished, lowest, np.minimum(lowest, np.asarray(track(venv))))
             obs, rewards, dones, infos = venv.step(predict(obs))
             returns += np.where(finished, 0.0, rewards)
             for i in np.flatnonzero(dones & ~finished):
-                final[i] = infos[i]
+                final[i] = {**infos[i], "returns": returns[i], "tracked_min": lowest[i]}
             finished |= dones
-        take = min(n, n_episodes - start)
-        for i in range(take):
-            rows["n_forced"].append(final[i]["n_forced"])
-            rows["collisions"].append(final[i]["collisions"])
-            rows["guarantee_violations"].append(final[i]["guarantee_violations"])
-            rows["returns"].append(returns[i])
+        for i in range(min(n, n_episodes - start)):
+            for name in rows:
+                rows[name].append(final[i][name])
     return {k: np.asarray(v) for k, v in rows.items()}
 
 
