@@ -17,6 +17,8 @@ states its own small errors lead to, which plain cloning never shows it.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import numpy as np
 
@@ -90,13 +92,10 @@ def scripted_predict(venv, teacher):
     return predict
 
 
-_TEACHERS: dict = {}
-
-
+@functools.cache
 def _teacher_fn(teacher):
-    if teacher not in _TEACHERS:
-        _TEACHERS[teacher] = jax.jit(jax.vmap(lambda k, s, p: teacher(k, s, p), in_axes=(0, 0, None)))
-    return _TEACHERS[teacher]
+    """The batched, jitted ``teacher`` (one compiled program per teacher and process)."""
+    return jax.jit(jax.vmap(lambda k, s, p: teacher(k, s, p), in_axes=(0, 0, None)))
 
 
 def intruder_demonstrations(venv, teacher, n_steps: int, gamma: float, *, student=None, seed: int = 0,
