@@ -51,10 +51,10 @@ def _unpad(v, grid, lead: int):
 def unpadded(params):
     """``params`` with the avoid table and the tracking gradients in their plain layouts (what the peer's scalar
     reads index)."""
-    grads = _unpad(params.tables.tracking_grads, params.tables.tracking_grid, 0)
+    grads = _unpad(params.tables.tracking_table, params.tables.tracking_grid, 0)
     avoid = jnp.asarray(_unpad(params.tables.avoid_values, params.tables.avoid_grid, 1))
     return params.replace(tables=dict(avoid_values=avoid,
-                                      tracking_grads=tuple(jnp.asarray(grads[..., i]) for i in range(grads.shape[-1]))))
+                                      tracking_table=tuple(jnp.asarray(grads[..., i]) for i in range(grads.shape[-1]))))
 
 
 @contextlib.contextmanager

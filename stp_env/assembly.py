@@ -24,7 +24,7 @@ from stp_env.reach.fall_rate import FALL_RATE_BAND
 from stp_env.scenarios.catalog.city import CITY_CASES
 from stp_env.sim.bounds import bounds_row
 from stp_env.sim.config import EnvConfig
-from stp_env.sim.margins import default_avoid_margin
+from stp_env.sim.margins import default_avoid_margin, tube_free_level
 from stp_env.sim.tables import pad_components, pad_periodic
 from stp_env.sim.types import EnvParams, EpisodeParams, IntruderParams, TableParams, VehicleParams, WindParams
 
@@ -269,6 +269,11 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
         sdf = np.full((5, 5), 1.0e6, np.float32)
 
     grads = hj.interpolation.gradient_field(tcfg.grid, jnp.asarray(-np.asarray(tracking.value), jnp.float32))
+    tracking_value = np.asarray(tracking.value, np.float32)
+    box = tcfg.error_dynamics.control_space.blocks[0]
+    error_states = np.stack([np.broadcast_to(np.asarray(x), tcfg.grid.shape) for x in tcfg.grid.broadcast_states()])
+    free_level = tube_free_level(tracking_value, -np.stack([np.asarray(g) for g in grads]), error_states, box.lo,
+                                 box.hi, config.control_dt, tracking.bound - tracking.raised)
     kbar = plan.kbar if plan.kbar is not None else (scenario.kbar if scenario.kbar is not None else -1)
     f32 = np.float32
     return EnvParams(
@@ -319,8 +324,9 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
             detection_range=jnp.asarray(d_a, f32),
             avoid_margin=jnp.asarray(margin, f32),
             avoid_fall_rate=jnp.asarray(avoid.fall_rate, f32),
-            tracking_grads=jnp.asarray(pad_components(grads, tcfg.grid), f32),
+            tracking_table=jnp.asarray(pad_components([*grads, tracking_value], tcfg.grid), f32),
             tracking_bound=jnp.asarray(tracking.bound, f32),
+            tracking_free_level=jnp.asarray(free_level, f32),
             sdf_grid=sdf_grid,
             avoid_grid=acfg.grid,
             tracking_grid=tcfg.grid,

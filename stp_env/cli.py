@@ -150,11 +150,13 @@ def _add_episode_options(p, *, many: bool) -> None:
                    help="where the intruder appears: outside every avoid region (Assumption 3), on a vehicle's "
                         "avoid boundary (Observation 1), or auto (boundary for max-k and optimal-max-k, else "
                         "outside)")
-    p.add_argument("--vehicle-policy", choices=kit.vehicle_policy_names(), default=None if many else "switching",
+    p.add_argument("--vehicle-policy", type=kit.vehicle_policy_spec, default=None if many else "switching",
+                   metavar="POLICY",
                    help="switching: u* (eq. 38) with the safety filter; nominal: u^PP, the filter off; worst: "
                         "every unforced vehicle flies the buffer game's control toward the intruder (the assumption "
-                        "behind V^B), forced ones u^A" + (" (default: switching outside the default suite)"
-                                                          if many else ""))
+                        "behind V^B), forced ones u^A; learned:NAME_OR_PATH: a learned vehicle policy inside the HJ "
+                        "filters (kappa where the tracking tube leaves no room, u^A while forced)"
+                        + (" (default: switching outside the default suite)" if many else ""))
     p.add_argument("--episode", choices=kit.source_constant("evaluation/config.py", "EPISODE_CHOICES"),
                    default="window",
                    help="window: from 5 s before the intruder's appearance window to 10 s after it can leave; "
@@ -453,8 +455,9 @@ def _add_train_intruder_parser(sub) -> None:
     kit.add_seed(tr, "torch, SB3 and the JAX environment keys", maximum=MAX_SEED_32)
     tr.add_argument("--horizon", choices=["intruder", "episode"], default="intruder",
                     help="intruder: appearance to departure; episode: the core's whole episode")
-    tr.add_argument("--vehicle-policy", choices=kit.vehicle_policy_names(), default="switching",
-                    help="the vehicles' policy (worst: the buffer game's worst vehicles, as in `evaluate`)")
+    tr.add_argument("--vehicle-policy", type=kit.vehicle_policy_spec, default="switching", metavar="POLICY",
+                    help="the vehicles' policy (worst: the buffer game's worst vehicles, as in `evaluate`; "
+                         "learned:NAME_OR_PATH: a learned vehicle policy inside the HJ filters)")
     tr.add_argument("--spawn-mode", choices=kit.spawn_modes(), default="outside",
                     help="where the intruder appears: outside every avoid region, on a vehicle's avoid boundary "
                          "(where the max-k intruders start), or either")

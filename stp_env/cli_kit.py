@@ -235,6 +235,24 @@ def vehicle_policy_names() -> tuple[str, ...]:
     return source_constant("baselines/vehicles.py", "VEHICLE_POLICIES")
 
 
+def vehicle_policy_spec(text: str) -> str:
+    """A vehicle policy: a scripted name (:func:`vehicle_policy_names`) or ``learned:NAME_OR_PATH`` (checked by
+    loading it: a bad file is refused before anything is computed)."""
+    if text.startswith("learned:"):
+        from stp_env.baselines import vehicle_policy
+
+        try:
+            vehicle_policy(text)
+        except ValueError as err:
+            raise argparse.ArgumentTypeError(str(err)) from None
+        return text
+    names = vehicle_policy_names()
+    if text not in names:
+        raise argparse.ArgumentTypeError(f"unknown vehicle policy {text!r}; allowed: {', '.join(names)}, or "
+                                         "learned:NAME_OR_PATH")
+    return text
+
+
 def spawn_modes() -> tuple[str, ...]:
     """:data:`stp_env.sim.types.SPAWN_MODES`."""
     return source_constant("sim/types.py", "SPAWN_MODES")
@@ -243,5 +261,5 @@ def spawn_modes() -> tuple[str, ...]:
 __all__ = ["MAX_KBAR", "HelpFormatter", "add_batch_size", "add_cache_dir", "add_out", "add_progress", "add_scenario",
            "add_seed", "add_wind_model", "count", "describe_wind_models", "integer", "intruder_names", "kbar",
            "nonnegative", "positive", "positive_int", "probability", "real", "scenario", "scenario_names", "seed",
-           "source_constant", "spawn_modes", "unit_interval", "vehicle_policy_names", "wind_model",
-           "wind_model_catalog"]
+           "source_constant", "spawn_modes", "unit_interval", "vehicle_policy_names", "vehicle_policy_spec",
+           "wind_model", "wind_model_catalog"]

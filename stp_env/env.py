@@ -377,13 +377,13 @@ class STPParallelEnv(ParallelEnv):
                  vehicle_policy: str | None = None, intruder=None, backend: str | None = None,
                  progress: bool | None = None, **config_overrides):
         from stp_env import progress as progress_mod
-        from stp_env.baselines import BUFFER_GAME_VEHICLE_POLICIES, VEHICLE_POLICIES
+        from stp_env.baselines import BUFFER_GAME_VEHICLE_POLICIES
+        from stp_env.baselines import vehicle_policy as resolve_vehicle_policy
         from stp_env.baselines.intruders import capabilities, resolve_intruder
         from stp_env.scenarios import Scenario, make
 
-        if vehicle_policy is not None and vehicle_policy not in VEHICLE_POLICIES:
-            raise ValueError(f"vehicle_policy {vehicle_policy!r} is not known; allowed: None (the agents act) or "
-                             f"{', '.join(VEHICLE_POLICIES)}.")
+        if vehicle_policy is not None:  # a scripted name or learned:NAME_OR_PATH; ValueError before anything is built
+            vehicle_policy_fn = resolve_vehicle_policy(vehicle_policy)
 
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode {render_mode!r} is not supported; allowed: "
@@ -432,7 +432,7 @@ class STPParallelEnv(ParallelEnv):
         if buffer_game and params.tables.buffer_values is None:
             params = assembly.with_buffer(params, assembly.load_buffer(scenario, store=store,
                                                                          progress=self._progress))
-        self._vehicle_policy = None if vehicle_policy is None else VEHICLE_POLICIES[vehicle_policy]
+        self._vehicle_policy = None if vehicle_policy is None else vehicle_policy_fn
         self._vehicle_policy_name = vehicle_policy
         self._intruder_policy = intruder_policy
         self._intruder_name = None if intruder is None else (intruder if isinstance(intruder, str)

@@ -70,7 +70,7 @@ def test_the_closed_loop_of_the_certification_is_the_simulators(wind, horizon):
     lo, hi = jnp.asarray(grid.lo), jnp.asarray(grid.hi)
 
     def gradient(t, e):
-        return sim.tables.interpolate_components(grid, params.tables.tracking_grads, jnp.clip(e, lo, hi))
+        return sim.tables.interpolate_components(grid, params.tables.tracking_table, jnp.clip(e, lo, hi))
 
     xs, _, _ = closed_loop.rollout(params.tables.tracking_dynamics, gradient, gradient, jnp.zeros(3),
                                    h=float(params.episode.dt) / substeps, n_steps=attack.n_steps * substeps,

@@ -25,9 +25,11 @@ from stp_env.baselines.vehicles import (
     BUFFER_GAME_VEHICLE_POLICIES,
     VEHICLE_POLICIES,
     fallback_control,
+    hj_filter,
     nominal_tracking,
     safety_filter,
     switching,
+    tube_keeping,
     vehicle_policy,
     worst,
 )
@@ -40,6 +42,7 @@ __all__ = [
     "bezier_intruder",
     "fallback_control",
     "greedy_pursuit",
+    "hj_filter",
     "hj_pursuit",
     "hover",
     "intruder_policy",
@@ -52,6 +55,7 @@ __all__ = [
     "random_intruder",
     "safety_filter",
     "switching",
+    "tube_keeping",
     "vehicle_policy",
     "worst",
 ]

@@ -221,7 +221,11 @@ def load_intruder(name_or_path: str = "town-kbar2"):
             raise ValueError(f"unknown intruder {name_or_path!r}; shipped: {', '.join(shipped_intruders())} "
                              "(or pass the path of an .npz from export_mlp).")
         path = Path(str(resources.files("stp_env") / "data" / "intruders" / f"{name_or_path}.npz"))
-    return learned_record(load_mlp(path), name=f"learned:{path.stem}")
+    mlp = load_mlp(path)
+    if mlp.metadata.get("role", "intruder") != "intruder":
+        raise ValueError(f"{path}: not an intruder (metadata role {mlp.metadata.get('role')!r}; a learned vehicle "
+                         "policy is passed as --vehicle-policy learned:NAME).")
+    return learned_record(mlp, name=f"learned:{path.stem}")
 
 
 def learned_record(mlp: MLPIntruder, name: str = "learned"):

@@ -7,6 +7,8 @@
 * :func:`safety_filter`: wraps any vehicle policy (learned or not) in the least-restrictive HJ filter: the
   policy's action is kept except where the vehicle is forced (its relative state reached the avoid boundary,
   eqs. 17-18), where ``u^A`` replaces it. ``switching == safety_filter(nominal_tracking)``.
+* :func:`tube_keeping` / :func:`hj_filter`: the filter of a policy that may leave its plan: ``kappa`` wherever the
+  tracking value leaves no room for one inner step of another control, and ``u^A`` while forced.
 * :func:`worst`: the vehicle behaviour the relative buffer region ``V^B`` assumes (eqs. 22/46-47, Fig. 6): while
   the intruder is present, every flying vehicle not yet forced plays the minimising player of the buffer game,
   from the gradient of ``V^B``: the game's speed (that of :func:`stp_env.sim.tables.worst_control`) and a turn
@@ -69,6 +71,33 @@ def safety_filter(policy):
     return filtered
 
 
+def tube_keeping(policy):
+    """Keep ``policy``'s vehicles in their tracking tubes: a vehicle flying its plan (nominal mode, never forced)
+    applies ``policy``'s action only while its tracking value ``V(e)`` is at most
+    ``params.tables.tracking_free_level`` (one inner step of ``V``'s fastest rise under any control below ``V(0)``:
+    :func:`stp_env.sim.margins.tube_free_level`), and the tracker ``kappa`` otherwise, so that its error stays
+    within ``r_e`` as every other vehicle's plan assumes (STP's separation rests on every vehicle staying in its
+    tube). Other vehicles (after an avoidance, waiting) keep ``policy``'s action; forced ones get ``u^A`` from
+    :func:`safety_filter`. Where the tracking value is flat below ``V(0)`` the free set is empty and the filter is
+    ``kappa`` on the plan (``docs/learned_vehicles.md`` measures it on the crossing)."""
+
+    def kept(key, state, params):
+        a = policy(key, state, params)
+        on_plan = (state.status == FLYING) & (state.mode == NOMINAL) & ~jnp.isfinite(state.avoid_start)
+        hold = on_plan & ~(state.tracking_value <= params.tables.tracking_free_level)
+        return jnp.where(hold[:, None], state.track_action, a)
+
+    kept.__name__ = f"tube_keeping({getattr(policy, '__name__', 'policy')})"
+    return kept
+
+
+def hj_filter(policy):
+    """Both HJ filters around ``policy``: :func:`tube_keeping` on the plan and ``u^A`` while forced (eq. 38)."""
+    filtered = safety_filter(tube_keeping(policy))
+    filtered.__name__ = f"hj_filter({getattr(policy, '__name__', 'policy')})"
+    return filtered
+
+
 switching = safety_filter(nominal_tracking)
 switching.__name__ = "switching"
 switching.__doc__ = "``u*`` (eq. 38): ``u^A`` while forced and the intruder is present, else ``u^PP``."
@@ -110,8 +139,17 @@ BUFFER_GAME_VEHICLE_POLICIES = frozenset({"worst"})
 """The vehicle policies that read the buffer table (the evaluation loads it for them)."""
 
 
+LEARNED_PREFIX = "learned:"
+
+
 def vehicle_policy(name: str):
-    """A vehicle policy by name: one of :data:`VEHICLE_POLICIES`."""
+    """A vehicle policy by name: one of :data:`VEHICLE_POLICIES`, or ``"learned:NAME_OR_PATH"`` for a learned
+    vehicle policy inside both HJ filters (:func:`stp_env.baselines.learned_vehicles.load_vehicle_policy`)."""
+    if isinstance(name, str) and name.startswith(LEARNED_PREFIX):
+        from stp_env.baselines.learned_vehicles import load_vehicle_policy
+
+        return load_vehicle_policy(name[len(LEARNED_PREFIX):])
     if name not in VEHICLE_POLICIES:
-        raise ValueError(f"vehicle_policy {name!r} is not known; allowed: {', '.join(VEHICLE_POLICIES)}.")
+        raise ValueError(f"vehicle_policy {name!r} is not known; allowed: {', '.join(VEHICLE_POLICIES)}, or "
+                         f"'{LEARNED_PREFIX}NAME_OR_PATH' for a learned vehicle policy.")
     return VEHICLE_POLICIES[name]

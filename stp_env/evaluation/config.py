@@ -99,7 +99,8 @@ class Configuration:
     def label(self) -> str:
         wind = "default" if self.wind is None else f"{self.wind:g}"
         return (f"{self.scenario}_k{self.kbar}_{self.intruder.replace(':', '.').replace('/', '.')}_wind{wind}"
-                f"_{self.wind_model}_{self.effective_spawn_mode}_{self.vehicle_policy}"
+                f"_{self.wind_model}_{self.effective_spawn_mode}_"
+                f"{self.vehicle_policy.replace(':', '.').replace('/', '.')}"
                 + ("" if self.backend == "jax" else f"_{self.backend.replace(':', '.').replace(',', '.')}"))
 
     def make_scenario(self):

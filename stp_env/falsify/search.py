@@ -99,7 +99,7 @@ class SearchResult:
     samples: np.ndarray | None = None
 
 
-TABLE_FIELDS = {"tables": ("avoid_values", "tracking_grads", "sdf"),
+TABLE_FIELDS = {"tables": ("avoid_values", "tracking_table", "sdf"),
                 "vehicles": ("nominal_states", "nominal_controls")}
 """The large arrays of an attack's environment (``attack.base``): :func:`compiled` passes them to the compiled
 program as arguments. Closed over, they would be baked into it as constants (the avoid table alone is tens of

@@ -130,7 +130,7 @@ class TrackingAttack:
         def game(x_ref, x_own):
             """The game's reference control and the vehicle's worst wind (world frame) at the core's error."""
             x_rel = relative_state(x_own, x_ref)
-            p = tables.interpolate_components(grid, base.tables.tracking_grads, jnp.clip(x_rel, lo_b, hi_b))
+            p = tables.interpolate_components(grid, base.tables.tracking_table, jnp.clip(x_rel, lo_b, hi_b))
             d = dyn.optimal_disturbance(tuple(x_rel[i] for i in range(3)), tuple(p[i] for i in range(3)))
             u = jnp.clip(jnp.stack([d[0], d[1]]), lo, hi)
             if dyn.wind > 0:  # the combined wind pushes the reference; the vehicle's own wind is its opposite

@@ -28,10 +28,12 @@ One step of length ``dt`` (intruder paper Sections II and IV):
    vehicles, or one of them hitting another vehicle or a building): the fallback stands in for replanning
    (Algorithm 4), which is what the paper's guarantee after the intruder leaves rests on, and carries no guarantee
    of its own. Such collisions still count as collisions. A vehicle that applied ``kappa`` at every inner step of
-   its nominal flight and still got farther than ``r_e`` from its nominal position breaks the robust-tracking
-   guarantee (SPP eqs. 24-26): that is a guarantee violation too (``tracking_violation``), whatever the intruder
-   does. A vehicle outside what the proofs certify (``EnvParams.vehicles.certified`` false: a plan that is not a
-   flight of ``U^p``, or an uncertified inner period or avoid margin, accepted only with
+   its nominal flight (except where its tracking value ``V(e)`` was at most ``tables.tracking_free_level``, the set
+   in which a tube-keeping filter lets another control through: :func:`stp_env.baselines.tube_keeping`) and still
+   got farther than ``r_e`` from its nominal position breaks the robust-tracking guarantee (SPP eqs. 24-26): that
+   is a guarantee violation too (``tracking_violation``), whatever the intruder does. A vehicle outside what the
+   proofs certify (``EnvParams.vehicles.certified`` false: a plan that is not a flight of ``U^p``, or an
+   uncertified inner period or avoid margin, accepted only with
    ``EnvConfig.allow_uncertified``) has its assumptions failed from the start: its collisions and tracking errors
    are not guarantee violations.
 
@@ -131,6 +133,7 @@ def reset(key, params: EnvParams) -> EnvState:
         avoid_action=jnp.zeros((n, model.action_dim), t0.dtype),
         track_action=jnp.zeros((n, model.action_dim), t0.dtype),
         tracking_error=jnp.zeros((n,), t0.dtype),
+        tracking_value=jnp.zeros((n,), t0.dtype),
         max_tracking_error=jnp.zeros((n,), t0.dtype),
         tracked=jnp.ones((n,), bool),
         tracking_violation=jnp.zeros((n,), bool),
@@ -172,20 +175,20 @@ def avoidance_actions(params: EnvParams, state: EnvState):
 
 def tracking_actions(params: EnvParams, state: EnvState):
     """``kappa`` (SPP eq. 26) of every vehicle for its nominal trajectory at ``state.t``, as actions ``(N, 2)``,
-    and the tracking errors ``||e_p||`` ``(N,)`` [m]."""
+    the tracking errors ``||e_p||`` ``(N,)`` [m] and the tracking values ``V(e)`` ``(N,)`` [m]."""
     x_ref, _ = nominal_reference(params, state.t)
     err = relative_state(poses(params, state), x_ref)
-    u = jax.vmap(lambda e: tables.tracking_control(params, e)[0])(err)
+    u, _, value = jax.vmap(lambda e: tables.tracking_control_and_value(params, e))(err)
     return (params.vehicles.model.command_to_action(state.x, u[:, 0], u[:, 1], params.vehicles.bounds),
-            jnp.hypot(err[:, 0], err[:, 1]))
+            jnp.hypot(err[:, 0], err[:, 1]), value)
 
 
 def refresh_controllers(state: EnvState, params: EnvParams) -> EnvState:
-    """The papers' controllers and values at the state: ``V^A`` and ``u^A`` against the intruder, ``kappa`` and
-    the tracking error (every inner step; :func:`lifecycle` at the step's end)."""
-    track_action, err = tracking_actions(params, state)
+    """The papers' controllers and values at the state: ``V^A`` and ``u^A`` against the intruder, ``kappa``, the
+    tracking error and its value (every inner step; :func:`lifecycle` at the step's end)."""
+    track_action, err, value = tracking_actions(params, state)
     return replace(state, avoid_value=avoid_values(params, state), avoid_action=avoidance_actions(params, state),
-                   track_action=track_action, tracking_error=err)
+                   track_action=track_action, tracking_error=err, tracking_value=value)
 
 
 def observe_controllers(state: EnvState, params: EnvParams) -> EnvState:
@@ -294,7 +297,12 @@ def _vehicle_controls(key, s: EnvState, actions, fly, present, params: EnvParams
     use_filter = avoiding & params.episode.safety_filter
     a_veh = jnp.where(use_filter[:, None], s.avoid_action, a_veh)
     complied = s.complied & ~(avoiding & (jnp.max(jnp.abs(a_veh - s.avoid_action), axis=1) > COMPLIANCE_TOL))
-    tracked = s.tracked & ~(on_plan(s) & (jnp.max(jnp.abs(a_veh - s.track_action), axis=1) > COMPLIANCE_TOL))
+    # a vehicle on its plan may fly another control than kappa where its tracking value leaves room for one inner
+    # step of it (the tube-keeping filter's free set, stp_env.sim.margins.tube_free_level): it still counts as
+    # tracking, so that leaving the tube from there is a guarantee violation, not an assumption failure
+    free = s.tracking_value <= params.tables.tracking_free_level
+    deviates = jnp.max(jnp.abs(a_veh - s.track_action), axis=1) > COMPLIANCE_TOL
+    tracked = s.tracked & ~(on_plan(s) & deviates & ~free)
     return a_veh, replace(s, complied=complied, tracked=tracked, used_filter=use_filter)
 
 

@@ -17,6 +17,8 @@ The margin is the sum of both, plus an allowance for float32 rounding.
 
 from __future__ import annotations
 
+import math
+
 ROUNDING_ALLOWANCE = 0.01
 """[m] added to the avoid margin for float32 rounding: positions of a few kilometres are resolved to about
 1e-4 m, and an intruder that plays the game optimally from the margin ends on ``R_c`` exactly, where rounding
@@ -28,3 +30,29 @@ def default_avoid_margin(control_dt: float, fall_rate: float, table_error: float
     margin to below ``table_error`` between two checks of the inner loop, and from ``table_error`` up ``u^A`` keeps
     the intruder out of ``R_c`` in closed loop."""
     return control_dt * fall_rate + table_error + ROUNDING_ALLOWANCE
+
+
+def tube_free_level(value, gradient, states, control_lo, control_hi, control_dt: float, level: float) -> float:
+    """The tracking value below which a tube-keeping filter may let a vehicle on its plan fly another control than
+    the tracker ``kappa`` for one inner step [m] (``-inf`` when no such level exists).
+
+    The error dynamics (SPP eqs. 24-25, body frame) depend on the vehicle's control ``(v, omega)`` through
+    ``-v + omega e_y`` (``e_x``), ``-omega e_x`` (``e_y``) and ``-omega`` (``e_theta``); over the control box another
+    control changes them by at most ``dv + domega |e_y|``, ``domega |e_x|`` and ``domega``, so it raises ``V`` at
+    most ``|V_x| (dv + domega |e_y|) + |V_y| domega |e_x| + |V_theta| domega`` faster than ``kappa`` (under which
+    ``V`` does not rise). One inner step of the largest such rate over the sub-level set ``{V <= level}`` is taken off
+    ``level``: from ``V <= free level`` any control ends the step with ``V <= level`` (to first order in the step),
+    from where ``kappa`` keeps the error within the tube. ``value`` ``(...)``: ``V`` on the grid; ``gradient``
+    ``(3, ...)``: its gradient; ``states`` ``(3, ...)``: the grid's error states."""
+    import numpy as np
+
+    value = np.asarray(value, np.float64)
+    g = np.abs(np.asarray(gradient, np.float64))
+    e = np.abs(np.asarray(states, np.float64))
+    dv = float(control_hi[0] - control_lo[0])
+    dom = float(control_hi[1] - control_lo[1])
+    rate = g[0] * (dv + dom * e[1]) + g[1] * dom * e[0] + g[2] * dom
+    inside = value <= level
+    if not np.any(inside):
+        return -math.inf
+    return float(level - control_dt * np.max(rate[inside]))

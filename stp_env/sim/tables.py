@@ -133,7 +133,7 @@ def _cell_axis(grid, d: int, pos):
 def pad_components(fields, grid) -> np.ndarray:
     """Arrays on ``grid`` (one per component, e.g. a gradient field) stacked on a trailing axis, periodic axes
     padded (:func:`pad_periodic`): the layout :func:`interpolate_components` reads
-    (``EnvParams.tables.tracking_grads``)."""
+    (``EnvParams.tables.tracking_table``)."""
     return np.stack([pad_periodic(f, grid) for f in fields], axis=-1)
 
 
@@ -204,6 +204,12 @@ RECOVERY_GAIN = 2.0  # [1/s] turn rate per radian of bearing error when the erro
 
 
 def tracking_control(params, error):
+    """:func:`tracking_control_and_value` without the value."""
+    u, d, _ = tracking_control_and_value(params, error)
+    return u, d
+
+
+def tracking_control_and_value(params, error):
     """The robust tracker ``kappa(e)`` (SPP eq. 26) at the tracking error ``e`` (3,): ``(v, omega)``, and the worst
     wind of the same game (in the vehicle's body frame, as it enters the error dynamics: the vehicle's own wind
     in the world frame is ``-R(theta) d``).
@@ -213,12 +219,15 @@ def tracking_control(params, error):
     re-evaluated often enough: the core runs it at the inner control rate (``EnvConfig.control_dt``), not at the
     decision rate, because held for 0.1 s it chatters out of the invariant set (see ``docs/numerics.md``). Outside
     the table (the guarantee already broken) the vehicle heads for its reference at full speed, so that it
-    recovers instead of flying off with a gradient read at the table's edge."""
+    recovers instead of flying off with a gradient read at the table's edge.
+
+    The third output is the tracking value ``V(e)`` [m] (the same block read: ``params.tables.tracking_table``
+    holds the gradient and the value), ``inf`` outside the table."""
     dyn = params.tables.tracking_dynamics
     grid = params.tables.tracking_grid
     lo, hi = jnp.asarray(grid.lo), jnp.asarray(grid.hi)
     e = jnp.clip(error, lo, hi)
-    p = _tracking_read(grid, params.tables.tracking_grads, e)
+    p = _tracking_read(grid, params.tables.tracking_table, e)
     pp = tuple(p[i] for i in range(3))
     ee = tuple(e[i] for i in range(3))
     u = jnp.stack(dyn.optimal_control(ee, pp))
@@ -228,7 +237,7 @@ def tracking_control(params, error):
     bearing = jnp.arctan2(error[1], error[0])
     recover = jnp.stack([jnp.asarray(box.hi[0], u.dtype),
                          jnp.clip(RECOVERY_GAIN * bearing, box.lo[1], box.hi[1]).astype(u.dtype)])
-    return jnp.where(inside, u, recover), d[2:4]
+    return jnp.where(inside, u, recover), d[2:4], jnp.where(inside, p[3], jnp.inf)
 
 
 # ------------------------------------------------------------------------------------------------ buffer game

@@ -129,8 +129,12 @@ class TableParams:
     #                               the table's closed-loop error and rounding: stp_env.sim.margins)
     avoid_fall_rate: jax.Array    # () [m/s] the fastest fall of the interpolated V^A near its zero level: the check
     #                               can fire as low as avoid_margin - control_dt * avoid_fall_rate
-    tracking_grads: jax.Array     # (*tracking_grid.shape, 3) gradient of W = -V of the tracking-error game, padded
+    tracking_table: jax.Array     # (*tracking_grid.shape, 4) the gradient of W = -V of the tracking-error game (3)
+    #                               and V itself [m], padded (one block read gives kappa and the value)
     tracking_bound: jax.Array     # () r_e [m]
+    tracking_free_level: jax.Array  # () [m] a tube-keeping filter lets a vehicle on its plan leave kappa only
+    #                               while V(e) <= this level (V(0) less one inner step of V's fastest rise under
+    #                               any control: stp_env.sim.margins.tube_free_level)
     # --- static
     sdf_grid: Grid
     avoid_grid: Grid
@@ -172,9 +176,9 @@ MOVED = {
                                     "d_sense")},
     "intruder_bounds": ("intruder", "bounds"),
     **{f: ("tables", f) for f in ("sdf", "sdf_grid", "avoid_taus", "avoid_values", "avoid_grid", "avoid_dynamics",
-                                  "detection_range", "avoid_margin", "avoid_fall_rate", "tracking_grads",
-                                  "tracking_grid", "tracking_dynamics", "tracking_bound", "buffer_values",
-                                  "buffer_grid")},
+                                  "detection_range", "avoid_margin", "avoid_fall_rate", "tracking_table",
+                                  "tracking_grid", "tracking_dynamics", "tracking_bound", "tracking_free_level",
+                                  "buffer_values", "buffer_grid")},
     "wind_model": ("wind", "model"),
 }
 
@@ -265,9 +269,11 @@ class EnvState:
     avoid_action: jax.Array       # (N, action_dim) u^A (eq. 15) of each vehicle against the intruder (action)
     track_action: jax.Array       # (N, action_dim) kappa (SPP eq. 26) of each vehicle for its nominal trajectory
     tracking_error: jax.Array     # (N,) [m] distance to the nominal position (body-frame error ||e_p||)
+    tracking_value: jax.Array     # (N,) [m] V of the tracking game at the error (inf outside its table)
     max_tracking_error: jax.Array  # (N,) [m] largest ||e_p|| at an inner step while flying its plan (nominal
     #                               mode, never forced); the robust-tracking guarantee bounds it by r_e
-    tracked: jax.Array            # (N,) bool: applied kappa at every inner step while flying its plan
+    tracked: jax.Array            # (N,) bool: applied kappa at every inner step while flying its plan, except
+    #                               where its tracking value was at most tables.tracking_free_level
     tracking_violation: jax.Array  # (N,) bool: tracked, and max_tracking_error exceeded r_e
 
 
@@ -279,7 +285,7 @@ EnvState = _pytree(EnvState)
 VEHICLE_FIELDS = ("x", "status", "mode", "avoid_start", "complied", "assumption_ok", "used_filter", "min_separation",
                   "arrival_time", "collision_time", "collided_with_intruder", "guarantee_violation",
                   "intruder_distance", "avoid_value", "avoid_action", "track_action", "tracking_error",
-                  "max_tracking_error", "tracked", "tracking_violation")
+                  "tracking_value", "max_tracking_error", "tracked", "tracking_violation")
 
 
 def replace(obj: Any, **changes) -> Any:
