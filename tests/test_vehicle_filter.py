@@ -174,3 +174,21 @@ def test_flying_faster_after_the_avoidance_arrives_earlier_on_the_same_episodes(
     for r in (slow, fast):
         assert r["collisions"].sum() == 0 and r["guarantee_violations"].sum() == 0
 
+
+
+def test_shipped_vehicle_policies_fly_as_recorded():
+    """Every shipped learned vehicle policy replays the small batch its file records (the ego's on-time arrivals
+    and delays against ``max-k`` on the crossing): the same outcomes today."""
+    from stp_env.baselines.learned_vehicles import shipped_vehicle_policies
+    from stp_env.rl.vehicle_env import replay_check
+
+    names = shipped_vehicle_policies()
+    assert names
+    for name in names:
+        mlp = load_vehicle_mlp(name)
+        check = mlp.metadata["check"]
+        result = replay_check(mlp, check)
+        same = np.mean(np.asarray(result["on_time"]) == np.asarray(check["on_time"]))
+        assert same >= 0.9, name  # float rounding on another CPU may flip a borderline episode, not more
+        delays = [(a, b) for a, b in zip(result["delay_s"], check["delay_s"]) if a is not None and b is not None]
+        assert np.median([abs(a - b) for a, b in delays]) < 0.5, name
