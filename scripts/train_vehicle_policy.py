@@ -3,6 +3,7 @@
     python scripts/train_vehicle_policy.py train --out runs/vehicle-crossing [--steps 262144] [--seed 0] [--resume]
     python scripts/train_vehicle_policy.py evaluate --policy runs/vehicle-crossing/vehicle.npz --episodes 1024
     python scripts/train_vehicle_policy.py ship runs/vehicle-crossing/vehicle.npz crossing-after-avoidance
+    python scripts/train_vehicle_policy.py curve runs/vehicle-crossing --out docs/learned_vehicle_curve.png
 
 The env is :class:`stp_env.rl.vehicle_env.EgoVehicleVecEnv` on the crossing (k̄ = 2, 6 m/s, the intruder appearing
 on a vehicle's avoid boundary, every episode to the vehicles' targets) against the shipped learned intruder
@@ -134,6 +135,38 @@ def ship(args) -> None:
     print(json.dumps({"shipped": str(dest), "check_on_time": sum(check["on_time"]), "episodes": check["episodes"]}))
 
 
+def curve(args) -> None:
+    """The training run's held-out on-time rate (with its 95 % interval) and energy against PPO steps, as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from stp_env.files import atomic_open
+
+    log = json.loads((Path(args.run) / "curve.json").read_text())
+    steps = np.array([r["steps"] for r in log]) / 1e3
+    rate = np.array([r["on_time_rate"] for r in log])
+    lo, hi = np.array([r["on_time_ci"] for r in log]).T
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(9, 3.4))
+    ax.fill_between(steps, lo, hi, alpha=0.3)
+    ax.plot(steps, rate, "o-", label="learned (ego after its avoidance)")
+    for value, label, style in ((args.reference_u, "u* (fallback at 13 m/s)", "--"),
+                                (args.reference_vmax, "fallback at 25 m/s", ":")):
+        if value is not None:
+            ax.axhline(value, color="k", ls=style, lw=1, label=label)
+    ax.set(xlabel="PPO steps (thousands)", ylabel="on time (held-out egos)", ylim=(0, 1.02))
+    ax.legend(fontsize=7, loc="lower right")
+    bx.plot(steps, [r["energy_mean"] for r in log], "o-")
+    bx.set(xlabel="PPO steps (thousands)", ylabel="energy: mean integral of (v / v_max)^2 [s]")
+    fig.suptitle(f"crossing, k̄ = 2, against {log[0].get('intruder', 'learned:crossing-kbar2')}: "
+                 f"{log[0]['episodes']} held-out episodes per point", fontsize=9)
+    fig.tight_layout()
+    with atomic_open(Path(args.out), "wb") as fh:
+        fig.savefig(fh, format="png", dpi=110)
+    print(f"wrote {args.out}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -158,10 +191,15 @@ def main() -> None:
     sh = sub.add_parser("ship")
     sh.add_argument("policy")
     sh.add_argument("name")
+    cv = sub.add_parser("curve")
+    cv.add_argument("run")
+    cv.add_argument("--out", default="docs/learned_vehicle_curve.png")
+    cv.add_argument("--reference-u", type=float, default=None, help="u*'s on-time rate, drawn as a line")
+    cv.add_argument("--reference-vmax", type=float, default=None, help="the 25 m/s fallback's, drawn as a line")
     args = parser.parse_args()
     if args.command == "evaluate":
         args.episodes = args.eval_episodes
-    {"train": train, "evaluate": evaluate, "ship": ship}[args.command](args)
+    {"train": train, "evaluate": evaluate, "ship": ship, "curve": curve}[args.command](args)
 
 
 if __name__ == "__main__":
