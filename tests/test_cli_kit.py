@@ -160,3 +160,17 @@ def test_one_spec_parser_reads_names_and_parameters_and_names_what_is_wrong():
                         (3, "thing must be a string")):
         with pytest.raises(ValueError, match=re.escape(needle)):
             parse_spec(bad, "thing", fields, of)
+
+
+def test_vehicle_policies_on_the_command_line_are_names_or_learned_files(tmp_path):
+    """``--vehicle-policy`` takes the scripted names and ``learned:NAME_OR_PATH``; a learned intruder's file, an
+    unknown name or a missing file is refused while parsing, with the reason."""
+    import argparse
+
+    assert cli_kit.vehicle_policy_spec("switching") == "switching"
+    assert cli_kit.vehicle_policy_spec("learned:crossing-after-avoidance") == "learned:crossing-after-avoidance"
+    for bad, why in (("zigzag", "unknown vehicle policy"), ("learned:no-such-policy", "unknown learned vehicle"),
+                     ("learned:crossing-kbar2", "unknown learned vehicle"),
+                     (f"learned:{tmp_path / 'missing.npz'}", "missing")):
+        with pytest.raises(argparse.ArgumentTypeError, match=why):
+            cli_kit.vehicle_policy_spec(bad)
