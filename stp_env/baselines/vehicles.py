@@ -33,7 +33,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from stp_env.sim import tables
+from stp_env.sim import core, tables
 from stp_env.sim.bounds import OMEGA_MAX, V_MAX
 from stp_env.sim.physics import control_to_action, relative_state, wrap_angle
 from stp_env.sim.types import AFTER_AVOIDANCE, AVOIDING, FLYING, NOMINAL, PRESENT
@@ -83,8 +83,7 @@ def tube_keeping(policy):
 
     def kept(key, state, params):
         a = policy(key, state, params)
-        on_plan = (state.status == FLYING) & (state.mode == NOMINAL) & ~jnp.isfinite(state.avoid_start)
-        hold = on_plan & ~(state.tracking_value <= params.tables.tracking_free_level)
+        hold = core.on_plan(state) & ~(state.tracking_value <= params.tables.tracking_free_level)
         return jnp.where(hold[:, None], state.track_action, a)
 
     kept.__name__ = f"tube_keeping({getattr(policy, '__name__', 'policy')})"

@@ -37,6 +37,23 @@ class JaxVecEnv(VecEnv):
         self._states = None
         self._actions = None
 
+    def _keys_for_reset(self) -> np.ndarray:
+        """The env keys ``(n_envs, 2)`` a ``reset()`` starts from, by SB3's seeding rule: env ``i`` seeded with
+        ``s`` gets :func:`stp_env.rl.functional.key_for_seed` ``(s)``; an unseeded env keeps its key stream (its
+        current key in ``self._keys``); before the first reset, unseeded envs draw seeds as ``VecEnv.seed(None)``
+        does."""
+        from stp_env.rl.functional import key_for_seed
+
+        current = getattr(self, "_keys", None)
+        if current is None and any(s is None for s in self._seeds):
+            drawn = self.seed(None)
+            self._seeds = [s if s is not None else d for s, d in zip(self._seeds, drawn)]
+        keys = np.array(current) if current is not None else np.zeros((self.num_envs, 2), np.uint32)
+        for i, seed in enumerate(self._seeds):
+            if seed is not None:
+                keys[i] = np.asarray(key_for_seed(seed))
+        return keys
+
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = check_action(actions, (self.num_envs, *self.action_space.shape))
 

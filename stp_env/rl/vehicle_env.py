@@ -248,14 +248,8 @@ class EgoVehicleVecEnv(JaxVecEnv):
         self._keys = self._egos = None
 
     def reset(self) -> np.ndarray:
-        if self._keys is None and any(s is None for s in self._seeds):
-            drawn = self.seed(None)
-            self._seeds = [s if s is not None else d for s, d in zip(self._seeds, drawn)]
-        keys = np.array(self._keys) if self._keys is not None else np.zeros((self.num_envs, 2), np.uint32)
-        for i, seed in enumerate(self._seeds):
-            if seed is not None:
-                keys[i] = np.asarray(F.key_for_seed(seed))
-        self._keys, self._states, self._egos, obs = batch_reset(jnp.asarray(keys), self.params, self.intruder)
+        keys = jnp.asarray(self._keys_for_reset())
+        self._keys, self._states, self._egos, obs = batch_reset(keys, self.params, self.intruder)
         self.reset_infos = [{} for _ in range(self.num_envs)]
         self._reset_seeds()
         self._reset_options()
