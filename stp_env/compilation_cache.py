@@ -40,6 +40,7 @@ from __future__ import annotations
 import os
 import stat
 import sys
+import time
 import warnings
 from pathlib import Path
 
@@ -156,6 +157,71 @@ def _reset_jax_cache() -> None:
     cc.reset_cache()
 
 
+_LRU_MODULE = "jax._src.lru_cache"
+
+
+def _atomic_puts(module) -> None:
+    """Make the file cache of ``module`` (``jax._src.lru_cache``) write each entry atomically.
+
+    Without a size limit (JAX's default, and this module's: it prunes by itself) JAX writes an entry in place and
+    takes no lock, so a process that reads the entry while another writes it gets a truncated executable; test
+    workers crashed deserialising one (a segmentation fault in XLA, in a program two workers compiled at once). The
+    entry is written to a temporary file in the same folder and renamed into place (atomic on POSIX), so a reader
+    finds no entry or the whole one. With JAX's own size limit it locks the folder and is left as it is."""
+    cls = getattr(module, "LRUCache", None)
+    suffix = getattr(module, "_CACHE_SUFFIX", None)
+    if cls is None or suffix is None or getattr(cls.put, "_atomic", False):
+        return
+    original = cls.put
+
+    def put(self, key: str, value: bytes) -> None:
+        if getattr(self, "eviction_enabled", True) or not key:
+            return original(self, key, value)
+        path = Path(str(self.path)) / f"{key}{suffix}"
+        if path.exists():
+            return None
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.{time.monotonic_ns()}.tmp")
+        try:
+            tmp.write_bytes(value)
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
+        return None
+
+    put._atomic = True
+    cls.put = put
+
+
+class _PatchOnImport:
+    """A ``sys.meta_path`` finder that applies :func:`_atomic_puts` when JAX loads its cache module (importing the
+    package does not import JAX)."""
+
+    def find_spec(self, name, path=None, target=None):
+        if name != _LRU_MODULE:
+            return None
+        sys.meta_path.remove(self)
+        import importlib.util
+
+        spec = importlib.util.find_spec(name)
+        if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
+            return spec
+        load = spec.loader.exec_module
+
+        def exec_module(module):
+            load(module)
+            _atomic_puts(module)
+
+        spec.loader.exec_module = exec_module
+        return spec
+
+
+def _make_writes_atomic() -> None:
+    if _LRU_MODULE in sys.modules:
+        _atomic_puts(sys.modules[_LRU_MODULE])
+    elif not any(isinstance(f, _PatchOnImport) for f in sys.meta_path):
+        sys.meta_path.insert(0, _PatchOnImport())
+
+
 def _apply(directory: str | None) -> None:
     """Point JAX's persistent cache at ``directory`` (``None``: off), in the environment or in JAX's config."""
     if _jax_imported():
@@ -171,6 +237,8 @@ def _apply(directory: str | None) -> None:
         else:
             os.environ[_JAX_DIR] = directory
             os.environ.setdefault(_JAX_MIN_TIME, str(MIN_COMPILE_TIME_S))
+    if directory is not None:
+        _make_writes_atomic()
     _state["directory"] = directory
     _state["set_by_us"] = True
 

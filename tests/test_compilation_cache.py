@@ -30,8 +30,10 @@ hits = []
 monitoring.register_event_listener(lambda event, **kw: hits.append(event) if event.endswith("cache_hits") else None)
 y = jax.jit(lambda x: jnp.sin(x) * factor + jnp.cumsum(x))(jnp.arange(7.0))
 from stp_env import compilation_cache
+from jax._src import lru_cache
 print(json.dumps({"hits": len(hits), "y": float(y.sum()), "dir": str(compilation_cache.directory()),
-                  "jax_dir": jax.config.jax_compilation_cache_dir}))
+                  "jax_dir": jax.config.jax_compilation_cache_dir,
+                  "atomic": bool(getattr(lru_cache.LRUCache.put, "_atomic", False))}))
 """
 
 
@@ -166,3 +168,14 @@ def test_the_size_limit_is_read_from_the_environment(monkeypatch):
     monkeypatch.setenv(compilation_cache.MAX_GB_ENV_VAR, "lots")
     with pytest.raises(ValueError, match="size in GB"):
         compilation_cache.max_size_bytes()
+
+
+@pytest.mark.parametrize("first", ["stp_env", "jax"])
+def test_entries_are_written_whole(tmp_path, first):
+    """Whichever is imported first, JAX's file cache writes an entry to a temporary file and renames it into place:
+    a worker reading an entry another is writing never gets a truncated executable (two test workers crashed
+    deserialising one). Nothing temporary is left behind."""
+    out, _ = _run(_env(tmp_path), first=first)
+    assert out["atomic"]
+    written = _entries(tmp_path / "xla")
+    assert written and not any(name.endswith(".tmp") for name in written)
