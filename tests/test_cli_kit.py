@@ -163,14 +163,20 @@ def test_one_spec_parser_reads_names_and_parameters_and_names_what_is_wrong():
 
 
 def test_vehicle_policies_on_the_command_line_are_names_or_learned_files(tmp_path):
-    """``--vehicle-policy`` takes the scripted names and ``learned:NAME_OR_PATH``; a learned intruder's file, an
-    unknown name or a missing file is refused while parsing, with the reason."""
+    """``--vehicle-policy`` takes the scripted names and ``learned:NAME_OR_PATH``; an unknown name or an empty
+    learned spec is refused while parsing; a learned spec naming a bad file is refused when the configuration is
+    checked, before anything is computed."""
     import argparse
+
+    from stp_env.evaluation import Configuration
 
     assert cli_kit.vehicle_policy_spec("switching") == "switching"
     assert cli_kit.vehicle_policy_spec("learned:crossing-after-avoidance") == "learned:crossing-after-avoidance"
-    for bad, why in (("zigzag", "unknown vehicle policy"), ("learned:no-such-policy", "unknown learned vehicle"),
-                     ("learned:crossing-kbar2", "unknown learned vehicle"),
-                     (f"learned:{tmp_path / 'missing.npz'}", "missing")):
+    for bad, why in (("zigzag", "unknown vehicle policy"), ("learned:", "needs a shipped name")):
         with pytest.raises(argparse.ArgumentTypeError, match=why):
             cli_kit.vehicle_policy_spec(bad)
+    for bad, why in (("learned:no-such-policy", "unknown learned vehicle"),
+                     ("learned:crossing-kbar2", "unknown learned vehicle"),
+                     (f"learned:{tmp_path / 'missing.npz'}", "missing")):
+        with pytest.raises(ValueError, match=why):
+            Configuration(vehicle_policy=bad)

@@ -3,7 +3,7 @@
 The file format is the learned intruders' (:func:`stp_env.baselines.learned.export_mlp`: numpy weights, nothing
 unpickled) with ``metadata["role"] == "vehicle"``: one MLP shared by every vehicle (parameter sharing), applied to
 each vehicle's row of :func:`stp_env.sim.observe` (the deterministic action, the Gaussian mean clipped to
-``[-1, 1]``). :func:`load_vehicle_policy` wraps it in :func:`stp_env.baselines.vehicles.hj_filter`: ``kappa`` on
+``[-1, 1]``). ``vehicle_policy("learned:NAME")`` wraps it in :func:`stp_env.baselines.vehicles.hj_filter`: ``kappa`` on
 the plan wherever the tracking tube leaves no room, ``u^A`` while forced (eq. 38); the learned action elsewhere
 (after an avoidance, where the paper replans: Algorithm 4). ``stp-env evaluate --vehicle-policy learned:NAME`` and
 every runner that takes a vehicle policy by name load it (:func:`stp_env.baselines.vehicles.vehicle_policy`).
@@ -14,7 +14,6 @@ was trained, what it improves over ``u*`` and what it does not guarantee).
 
 from __future__ import annotations
 
-import functools
 from importlib import resources
 from pathlib import Path
 
@@ -69,15 +68,3 @@ def load_vehicle_mlp(name_or_path: str) -> MLPIntruder:
         raise ValueError(f"{path}: not a vehicle policy (metadata role {mlp.metadata.get('role')!r}; a learned "
                          "intruder is passed as an intruder: --intruder learned:NAME).")
     return mlp
-
-
-@functools.cache
-def load_vehicle_policy(name_or_path: str):
-    """A learned vehicle policy inside both HJ filters (module docstring), jittable; cached (one function, one
-    compiled rollout, per file)."""
-    from stp_env.baselines.vehicles import hj_filter
-
-    mlp = load_vehicle_mlp(name_or_path)
-    policy = hj_filter(mlp_vehicles(mlp, name=f"learned:{Path(name_or_path).stem}"))
-    policy.__name__ = f"learned:{Path(name_or_path).stem}"
-    return policy

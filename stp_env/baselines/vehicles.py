@@ -30,6 +30,9 @@ documented faster substitute: fly at the fastest planning speed toward the targe
 
 from __future__ import annotations
 
+import functools
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 
@@ -141,13 +144,23 @@ BUFFER_GAME_VEHICLE_POLICIES = frozenset({"worst"})
 LEARNED_PREFIX = "learned:"
 
 
+@functools.cache
+def learned_vehicle_policy(name_or_path: str):
+    """A learned vehicle policy (:mod:`stp_env.baselines.learned_vehicles`: a shipped name or an ``.npz``) inside
+    both HJ filters (:func:`hj_filter`), jittable; cached (one function, one compiled rollout, per file)."""
+    from stp_env.baselines.learned_vehicles import load_vehicle_mlp, mlp_vehicles
+
+    name = f"learned:{Path(name_or_path).stem}"
+    policy = hj_filter(mlp_vehicles(load_vehicle_mlp(name_or_path), name=name))
+    policy.__name__ = name
+    return policy
+
+
 def vehicle_policy(name: str):
     """A vehicle policy by name: one of :data:`VEHICLE_POLICIES`, or ``"learned:NAME_OR_PATH"`` for a learned
-    vehicle policy inside both HJ filters (:func:`stp_env.baselines.learned_vehicles.load_vehicle_policy`)."""
+    vehicle policy inside both HJ filters (:func:`learned_vehicle_policy`)."""
     if isinstance(name, str) and name.startswith(LEARNED_PREFIX):
-        from stp_env.baselines.learned_vehicles import load_vehicle_policy
-
-        return load_vehicle_policy(name[len(LEARNED_PREFIX):])
+        return learned_vehicle_policy(name[len(LEARNED_PREFIX):])
     if name not in VEHICLE_POLICIES:
         raise ValueError(f"vehicle_policy {name!r} is not known; allowed: {', '.join(VEHICLE_POLICIES)}, or "
                          f"'{LEARNED_PREFIX}NAME_OR_PATH' for a learned vehicle policy.")
