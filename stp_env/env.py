@@ -171,6 +171,7 @@ from stp_env.seeds import prng_key
 from stp_env.sim import core
 from stp_env.sim.backends import with_backend
 from stp_env.sim.jit import sim_jit
+from stp_env.sim.rollout import intruder_decision
 from stp_env.sim.types import (
     AFTER_AVOIDANCE,
     COLLIDED,
@@ -275,7 +276,7 @@ def _advance_scripted(key, state, actions, params, vehicle_policy=None, intruder
     key, sub = jax.random.split(key)
     if intruder_policy is not None:
         k_i, sub = jax.random.split(sub)
-        a_i = intruder_policy(k_i, state, params)
+        a_i = intruder_decision(intruder_policy, k_i, state, params)
         actions = actions.at[params.vehicles.n, :2].set(a_i.astype(actions.dtype))
     new, rewards = core.step(sub, state, actions, params, vehicle_policy=vehicle_policy)
     obs_v, obs_i = core.observe(new, params)

@@ -48,7 +48,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from stp_env.sim import fleet, tables
+from stp_env.sim import fleet, gates, tables
 from stp_env.sim import spawn as spawn_lib
 from stp_env.sim import wind as wind_lib
 from stp_env.sim.physics import action_to_control, dubins_step, relative_state, rotate
@@ -88,10 +88,9 @@ def reset(key, params: EnvParams) -> EnvState:
     """A new episode at ``params.episode.t_start``: vehicles already departed are on their nominal trajectories (zero
     tracking error), the others wait; the intruder appears at ``t_ ~ U(appear_window)``."""
     n = params.vehicles.n
-    k_appear, k_wind, k_intruder, k_spawn = jax.random.split(key, 4)
+    _, k_wind, k_intruder, k_spawn = jax.random.split(key, 4)
     t0 = params.episode.t_start
-    lo, hi = params.intruder.appear_window[0], params.intruder.appear_window[1]
-    t_appear = lo + (hi - lo) * jax.random.uniform(k_appear, (), dtype=t0.dtype)
+    t_appear = appear_time(key, params)
     model = params.vehicles.model
     x_nom, _ = nominal_reference(params, t0)
     departed = params.vehicles.departure <= t0
@@ -141,6 +140,14 @@ def reset(key, params: EnvParams) -> EnvState:
     return lifecycle(state, params)
 
 
+def appear_time(key, params: EnvParams):
+    """The time ``t_ ~ U(appear_window)`` at which the intruder of the episode reset with ``key`` appears (drawn
+    by :func:`reset`; the evaluator orders its batches by it without resetting)."""
+    lo, hi = params.intruder.appear_window[0], params.intruder.appear_window[1]
+    k_appear = jax.random.split(key, 4)[0]
+    return lo + (hi - lo) * jax.random.uniform(k_appear, (), dtype=params.episode.t_start.dtype)
+
+
 # ------------------------------------------------------------------------------------------------ helpers
 def poses(params: EnvParams, state: EnvState):
     """Every vehicle's pose ``(x, y, heading)`` ``(N, 3)`` from its state (the vehicle model's
@@ -157,20 +164,33 @@ def intruder_present(state: EnvState):
     return state.intruder_status == PRESENT
 
 
-def avoid_values(params: EnvParams, state: EnvState):
-    """``V^A`` of each vehicle against the intruder ``(N,)``; ``FAR`` when not flying or no intruder."""
-    vals = tables.vehicle_intruder_values(params, state)
-    ok = flying(state) & intruder_present(state)
-    return jnp.where(ok, vals, tables.FAR)
-
-
 def avoidance_actions(params: EnvParams, state: EnvState):
-    """``u^A`` (eq. 15) of every vehicle against the present intruder, as actions ``(N, 2)`` (computed once per
-    step by :func:`lifecycle` into ``state.avoid_action``)."""
+    """``u^A`` (eq. 15) of every vehicle against the intruder, as actions ``(N, 2)``, read whether or not the
+    vehicle flies and the intruder is present (:func:`avoid_reads` masks and gates it)."""
     tau = state.t - state.t_appear
     rel = relative_state(poses(params, state), state.intruder_x[None, :])
     u = jax.vmap(lambda r: tables.avoidance_control(params, tau, r))(rel)
     return params.vehicles.model.command_to_action(state.x, u[:, 0], u[:, 1], params.vehicles.bounds)
+
+
+def avoid_reads(params: EnvParams, state: EnvState):
+    """``V^A`` ``(N,)`` and ``u^A`` as actions ``(N, 2)`` of every vehicle against the present intruder (the values
+    in ``state.avoid_value`` and ``state.avoid_action``, refreshed every inner step): ``FAR`` and zero actions for
+    vehicles not flying or while no intruder is present. The reads are skipped when no vehicle of any episode of the
+    batch needs them (:func:`stp_env.sim.gates.when_any`; exact: the masked reads give the skip's values)."""
+    relevant = flying(state) & intruder_present(state)
+    n, a = state.avoid_action.shape
+
+    def read(state):
+        vals = tables.vehicle_intruder_values(params, state)
+        acts = avoidance_actions(params, state)
+        return (jnp.where(relevant, vals, tables.FAR).astype(state.avoid_value.dtype),
+                jnp.where(relevant[:, None], acts, 0.0).astype(state.avoid_action.dtype))
+
+    def skip(state):
+        return (jnp.full((n,), tables.FAR, state.avoid_value.dtype), jnp.zeros((n, a), state.avoid_action.dtype))
+
+    return gates.when_any(relevant, read, skip, state)
 
 
 def tracking_actions(params: EnvParams, state: EnvState):
@@ -187,8 +207,9 @@ def refresh_controllers(state: EnvState, params: EnvParams) -> EnvState:
     """The papers' controllers and values at the state: ``V^A`` and ``u^A`` against the intruder, ``kappa``, the
     tracking error and its value (every inner step; :func:`lifecycle` at the step's end)."""
     track_action, err, value = tracking_actions(params, state)
-    return replace(state, avoid_value=avoid_values(params, state), avoid_action=avoidance_actions(params, state),
-                   track_action=track_action, tracking_error=err, tracking_value=value)
+    avoid_value, avoid_action = avoid_reads(params, state)
+    return replace(state, avoid_value=avoid_value, avoid_action=avoid_action, track_action=track_action,
+                   tracking_error=err, tracking_value=value)
 
 
 def observe_controllers(state: EnvState, params: EnvParams) -> EnvState:
@@ -445,13 +466,17 @@ def step(key, state: EnvState, actions, params: EnvParams, vehicle_policy=None):
 
     def inner(carry, m):
         s, closest = move(carry[:2], m)
-        return (avoid_start(observe_controllers(s, params), params), closest, s), None
+        # the controllers for the next inner step; after the last one the lifecycle at t + dt refreshes them
+        nxt = jax.lax.cond(m < m_sub - 1, lambda s: avoid_start(observe_controllers(s, params), params),
+                           lambda s: s, s)
+        return (nxt, closest, s), None
 
     far = jnp.full((n,), jnp.inf, state.x.dtype)
     init = (state, Closest(pair_sq=jnp.full((n, n), jnp.inf, state.x.dtype), intruder=far, building=far), state)
     # Every inner step ends with the controllers refreshed for the next one; the step continues from the last inner
     # step's state before that refresh (the lifecycle at t + dt comes first). One scan over all M inner steps, not
-    # M - 1 plus a last one written apart: the step's program holds the inner step once, which halves its compile.
+    # M - 1 plus a last one written apart: the step's program holds the inner step once, which halves its compile;
+    # the last inner step's refresh, which the lifecycle would overwrite, is skipped by a branch on the scan index.
     (_, closest, sub), _ = jax.lax.scan(inner, init, jnp.arange(m_sub))
     new_state, ev = _events(state, replace(sub, wind=wind_state), closest, params)
     return new_state, _rewards(state, new_state, ev, params)

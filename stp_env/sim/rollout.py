@@ -8,18 +8,27 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from stp_env.sim import core, engine
+from stp_env.sim import core, engine, gates
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.types import EnvParams
 
 
 def episode_step(key, state, params: EnvParams, vehicle_policy, intruder_policy):
-    """One step: the intruder's action once (the decision rate), the vehicle policy as the feedback law of every
-    inner control step (:func:`stp_env.sim.core.step`); returns ``(state, rewards)``."""
+    """One step: the intruder's action once (the decision rate, :func:`intruder_decision`), the vehicle policy as
+    the feedback law of every inner control step (:func:`stp_env.sim.core.step`); returns ``(state, rewards)``."""
     k_i, k_s = jax.random.split(key)
-    a_i = intruder_policy(k_i, state, params)
+    a_i = intruder_decision(intruder_policy, k_i, state, params)
     actions = jnp.concatenate([jnp.zeros((params.vehicles.n, 2), a_i.dtype), a_i[None, :]], axis=0)
     return core.step(k_s, state, actions, params, vehicle_policy=vehicle_policy)
+
+
+def intruder_decision(intruder_policy, key, state, params: EnvParams):
+    """The scripted intruder's action ``intruder_policy(key, state, params)``, computed only while the intruder is
+    present in some episode of the batch (:func:`stp_env.sim.gates.when_any`): the core ignores an absent
+    intruder's action, so the zero action of the skip changes nothing."""
+    shape = jax.eval_shape(intruder_policy, key, state, params)
+    return gates.when_any(core.intruder_present(state), lambda k: intruder_policy(k, state, params),
+                          lambda k: jnp.zeros(shape.shape, shape.dtype), key)
 
 
 @functools.partial(sim_jit, static_argnames=("vehicle_policy", "intruder_policy", "n_envs", "n_steps", "record"))
