@@ -361,7 +361,7 @@ def _render(args) -> int:
         config, params, vehicle_policy, intruder_policy, record = _event_to_render(args, store)
         seed, index = record["seed"], record["index"]
         n_steps, batch_size, recorded = record["n_steps"], record["batch_size"], record["recorded"]
-        airborne_only = record.get("airborne_only", False)
+        airborne_only, episodes = record.get("airborne_only", False), record.get("episodes")
     else:
         intruder = "max-k" if args.intruder is None else args.intruder
         config = _configurations(args, args.scenario, [args.kbar], [intruder], args.vehicle_policy)[0]
@@ -369,12 +369,13 @@ def _render(args) -> int:
         params = build_params([config], store=store, progress=not args.no_progress)[0]
         n_steps, batch_size, recorded = steps_for(params), args.batch_size, True
         vehicle_policy, intruder_policy = config.policies()
-        airborne_only = True
+        airborne_only, episodes = True, None
     start = time.perf_counter()
     # An evaluation without recording (evaluate(..., showcase=False)) ran another program: drawing needs the
     # trajectory, so such an episode is replayed alone (the same episode up to float rounding).
     final, traj = replay(seed, index, params, vehicle_policy, intruder_policy, n_steps,
-                         batch_size=batch_size if recorded else 1, airborne_only=airborne_only)
+                         batch_size=batch_size if recorded else 1, airborne_only=airborne_only,
+                         episodes=episodes if recorded else None)
     title = (f"{config.scenario}, k̄ = {config.kbar}, {config.intruder} intruder\nseed {seed}, episode {index}: "
              f"|N^RP| = {int(final['n_forced'])}")
     files, n_frames = render_episode(traj, final, params, config.make_scenario(), args.out, frame_dt=args.frame_dt,

@@ -48,8 +48,9 @@ def _int(value, name: str, where: str, lo: int, hi: int = INT32_MAX) -> int:
 def check_event(record, where: str = "event") -> dict:
     """``record`` (an ``events.json`` entry) checked for what a replay uses: a ``config`` of
     :class:`Configuration` fields whose intruder is registered, learned or a plug-in spec (see the module
-    docstring), a seed, an index, the step count, plan length and batch size, the ``recorded`` flag and the
-    optional ``airborne_only`` flag (absent in records written before it existed: the whole fleet).
+    docstring), a seed, an index, the step count, plan length and batch size, the ``recorded`` flag, the
+    optional ``airborne_only`` flag (absent in records written before it existed: the whole fleet) and the optional
+    run size ``episodes`` (which finds the episode's batch; absent in older records: its consecutive indices).
     Returns it unchanged; ``ValueError`` starting with ``where`` otherwise."""
     if not isinstance(record, dict):
         raise ValueError(f"{where}: a record must be a JSON object; got a {type(record).__name__}.")
@@ -79,6 +80,10 @@ def check_event(record, where: str = "event") -> dict:
     _int(record["n_steps"], "n_steps", where, 1)
     _int(record["plan_samples"], "plan_samples", where, 1)
     _int(record["batch_size"], "batch_size", where, 1, MAX_REPLAY_BATCH)
+    if "episodes" in record:  # absent in records written before the batches were ordered by appearance time
+        _int(record["episodes"], "episodes", where, 1)
+        if record["index"] >= record["episodes"]:
+            raise ValueError(f"{where}: index {record['index']} is not an episode of a run of {record['episodes']}.")
     if not isinstance(record["recorded"], bool):
         raise ValueError(f"{where}: recorded must be true or false; got {record['recorded']!r}.")
     if not isinstance(record.get("airborne_only", False), bool):

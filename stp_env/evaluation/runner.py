@@ -26,7 +26,7 @@ from stp_env import assembly, sim
 from stp_env.evaluation.config import Configuration
 from stp_env.evaluation.summary import forced_summary
 from stp_env.seeds import check_seed, prng_key
-from stp_env.sim import fleet, fleet_expand
+from stp_env.sim import core, fleet, fleet_expand
 from stp_env.sim.bounds import WIND
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.rollout import rollout_keys
@@ -63,6 +63,39 @@ def simulated_vehicles(params, airborne_only: bool) -> tuple[int, ...] | None:
     if not airborne_only:
         return None
     return tuple(int(i) for i in fleet.airborne(params))
+
+
+def episode_order(seed: int, episodes: int, params) -> np.ndarray:
+    """Episodes ``0 .. episodes - 1`` of the run with ``seed`` in the order the evaluator batches them: by the time
+    their intruder appears (ties by index). The intruder's avoid reads and decisions are skipped in every step in
+    which no episode of a batch has it present (:func:`stp_env.sim.gates.when_any`), so batches of episodes whose
+    intruders come together skip most of them; an episode's outcome does not depend on its batch
+    (``tests/test_gates.py``). The order depends only on the seed, the count and the appearance window."""
+    key = prng_key(seed)
+    times = _appear_times(key, jnp.arange(episodes, dtype=jnp.int32), params)
+    return np.lexsort((np.arange(episodes), np.asarray(times))).astype(np.int32)
+
+
+@sim_jit
+def _appear_times(key, indices, params):
+    def one(i):
+        episode_key = jax.random.fold_in(jax.random.fold_in(key, i), 0)
+        return core.appear_time(jax.random.split(episode_key)[0], params)   # the reset key (sim.engine)
+    return jax.vmap(one)(indices)
+
+
+def batch_indices(order: np.ndarray, first: int, batch_size: int) -> np.ndarray:
+    """The episode indices of the batch at positions ``first .. first + batch_size - 1`` of ``order``; a last
+    batch past the end is filled with the indices after the run's last episode (their results are dropped)."""
+    chosen = np.asarray(order[first:first + batch_size], np.int32)
+    extra = len(order) + np.arange(batch_size - len(chosen), dtype=np.int32)
+    return np.concatenate([chosen, extra]).astype(np.int32)
+
+
+def _showcase_of(ep: dict) -> int:
+    """The position in ``ep`` of the episode with the most forced vehicles, the lowest index among them."""
+    most = ep["n_forced"] == np.max(ep["n_forced"])
+    return int(np.flatnonzero(most)[np.argmin(ep["index"][most])])
 
 
 def pad_plan(params, n_samples: int):
@@ -112,7 +145,7 @@ class ConfigResult:
 
 
 def _events(config: Configuration, seed: int, n_steps: int, plan_samples: int, batch_size: int, recorded: bool,
-            ep: dict, kbar: int, airborne_only: bool) -> list[dict]:
+            ep: dict, kbar: int, airborne_only: bool, episodes: int) -> list[dict]:
     n_forced = ep["n_forced"]
     kinds = {
         "bound_exceeded": n_forced > kbar,
@@ -126,7 +159,8 @@ def _events(config: Configuration, seed: int, n_steps: int, plan_samples: int, b
         collided = np.flatnonzero(ep["status"][j] == COLLIDED)
         out.append({
             "label": config.label, "config": dataclasses.asdict(config), "seed": seed, "index": int(ep["index"][j]),
-            "n_steps": n_steps, "plan_samples": plan_samples, "batch_size": batch_size, "recorded": recorded,
+            "n_steps": n_steps, "plan_samples": plan_samples, "batch_size": batch_size, "episodes": episodes,
+            "recorded": recorded,
             "airborne_only": airborne_only, "kinds": [k for k, v in kinds.items() if v[j]],
             "n_forced": int(n_forced[j]),
             "collided_vehicles": collided.tolist(),
@@ -330,6 +364,7 @@ class EvaluationContext:
     configs: tuple
     params: tuple
     active: tuple
+    orders: tuple
     episodes: int
     batch_size: int
     n_steps: int
@@ -338,17 +373,19 @@ class EvaluationContext:
 
 def evaluation_job(configs, params, *, seed: int, episodes: int, batch_size: int, n_steps: int, record: bool,
                    airborne_only: bool, resumable: bool = False):
-    """The batches of an evaluation as a :class:`stp_env.execution.Job`: piece ``(c, first)`` runs episodes
-    ``first .. first + batch_size - 1`` of configuration ``c`` (:func:`evaluation_piece`); ``params`` already
-    padded to one plan length. ``resumable``: give the job its fingerprint (the configurations, the numbers, every
-    array of the params and the package's source), which names the folder its pieces are written to."""
+    """The batches of an evaluation as a :class:`stp_env.execution.Job`: piece ``(c, first)`` runs the episodes at
+    positions ``first .. first + batch_size - 1`` of configuration ``c``'s :func:`episode_order`
+    (:func:`evaluation_piece`); ``params`` already padded to one plan length. ``resumable``: give the job its
+    fingerprint (the configurations, the numbers, every array of the params and the package's source), which names
+    the folder its pieces are written to."""
     from stp_env import execution
 
     host = tuple(execution.to_host(p) for p in params)
     active = tuple(simulated_vehicles(p, airborne_only) for p in params)
+    orders = tuple(episode_order(seed, episodes, p) for p in params)
     context = EvaluationContext(token=execution.new_token(), seed=seed, configs=tuple(configs), params=host,
-                                active=active, episodes=episodes, batch_size=batch_size, n_steps=n_steps,
-                                record=record)
+                                active=active, orders=orders, episodes=episodes, batch_size=batch_size,
+                                n_steps=n_steps, record=record)
     arguments = tuple((c, first) for c in range(len(configs)) for first in range(0, episodes, batch_size))
     fingerprint = None
     if resumable:
@@ -363,8 +400,8 @@ def evaluation_job(configs, params, *, seed: int, episodes: int, batch_size: int
 def evaluation_piece(context: EvaluationContext, argument) -> dict:
     """One batch of an evaluation (a piece of :func:`evaluation_job`): its kept episodes' final states
     (``ep/<field>``, with ``n_forced`` and ``index``), with ``record`` the trajectory of its episode with the most
-    forced vehicles (``show/<field>``), and its compute time (``seconds``). Episode ``i``'s key is
-    ``fold_in(fold_in(key(seed), i), 0)``, as in every evaluation."""
+    forced vehicles (the lowest index among them; ``show/<field>``), and its compute time (``seconds``). Episode
+    ``i``'s key is ``fold_in(fold_in(key(seed), i), 0)``, as in every evaluation, whatever batch it runs in."""
     from stp_env import execution
 
     timer = execution.Timer()
@@ -375,7 +412,7 @@ def evaluation_piece(context: EvaluationContext, argument) -> dict:
         context.token, ("configuration", c),
         lambda: (execution.to_device(context.params[c]), *context.configs[c].policies()))
     batch_size = context.batch_size
-    indices = np.arange(first, first + batch_size, dtype=np.int32)
+    indices = batch_indices(context.orders[c], first, batch_size)
     final, traj = run_batch(prng_key(context.seed), jnp.asarray(indices), params, vehicle_policy, intruder_policy,
                             context.n_steps, record=context.record, active=context.active[c])
     keep = min(batch_size, context.episodes - first)
@@ -384,7 +421,7 @@ def evaluation_piece(context: EvaluationContext, argument) -> dict:
     ep["index"] = indices[:keep]
     out = {f"ep/{k}": v for k, v in ep.items()}
     if context.record:
-        j = int(np.argmax(ep["n_forced"]))
+        j = _showcase_of(ep)
         out.update({f"show/{k}": np.asarray(v[j]) for k, v in traj.items()})
     out["seconds"] = np.float64(timer.seconds())
     return out
@@ -403,24 +440,29 @@ def _run_job(executor, job, configs, episodes, pieces_dir, progress):
 
 def _combine_batches(config, params, pieces, seed, episodes, batch_size, n_steps, plan_samples, confidence,
                      max_events, record, airborne_only, active) -> ConfigResult:
-    """A configuration's result from its batches, in batch order (what the loop over batches computed)."""
+    """A configuration's result from its batches: the episodes in index order, the showcase the episode with the
+    most forced vehicles (the lowest index among them)."""
     chunks: list[dict] = []
-    showcase, best = None, -1
+    showcase, best = None, (-1, 0)
     for piece in pieces:
         ep = {k[3:]: v for k, v in piece.items() if k.startswith("ep/")}
-        j = int(np.argmax(ep["n_forced"]))
-        if record and ep["n_forced"][j] > best:
-            best = int(ep["n_forced"][j])
+        j = _showcase_of(ep)
+        rank = (int(ep["n_forced"][j]), -int(ep["index"][j]))
+        if record and rank > best:
+            best = rank
             showcase = {k[5:]: v for k, v in piece.items() if k.startswith("show/")}
             showcase.update(index=int(ep["index"][j]), final={k: v[j] for k, v in ep.items()})
         chunks.append(ep)
     seconds = max(float(sum(float(p["seconds"]) for p in pieces)), 1e-9)
     ep = {k: np.concatenate([c[k] for c in chunks]) for k in chunks[0]}
+    by_index = np.argsort(ep["index"], kind="stable")   # the batches ran in appearance order; report index order
+    ep = {k: v[by_index] for k, v in ep.items()}
     summary = summarize(config, ep, params, confidence=confidence)
     summary.update(seed=seed, n_steps=n_steps, batch_size=batch_size, seconds=round(seconds, 2),
                    episodes_per_s=round(episodes / seconds, 2),
                    simulated_vehicles=params.vehicles.n if active is None else len(active))
-    events = _events(config, seed, n_steps, plan_samples, batch_size, record, ep, config.kbar, airborne_only)
+    events = _events(config, seed, n_steps, plan_samples, batch_size, record, ep, config.kbar, airborne_only,
+                     episodes)
     summary["events_saved"] = min(len(events), max_events)
     return ConfigResult(config=config, seed=seed, n_steps=n_steps, plan_samples=plan_samples, episodes=ep,
                         summary=summary, events=events[:max_events], showcase=showcase, params=params,
@@ -428,13 +470,17 @@ def _combine_batches(config, params, pieces, seed, episodes, batch_size, n_steps
 
 
 def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_steps: int, *, batch_size: int = 1,
-           record: bool = True, airborne_only: bool = True, progress: bool | None = None):
+           record: bool = True, airborne_only: bool = True, progress: bool | None = None,
+           episodes: int | None = None):
     """Episode ``index`` of the run with ``seed``: ``(final state, trajectory)`` as numpy dicts (the trajectory
     ``None`` without ``record``).
 
-    The batch of ``batch_size`` episodes that holds ``index`` runs again (the same compiled program and inputs as
-    in :func:`evaluate` when ``params``, ``n_steps``, ``batch_size`` and ``record`` are the same), so the replay
-    is bit for bit the evaluated episode. Another batch size is another compiled program, which XLA may vectorize
+    The batch of ``batch_size`` episodes that held ``index`` in the evaluation of ``episodes`` episodes
+    (:func:`episode_order`) runs again (the same compiled program and inputs as in :func:`evaluate` when ``params``,
+    ``n_steps``, ``batch_size`` and ``record`` are the same), so the replay is bit for bit the evaluated episode.
+    Without ``episodes`` (a record written before the batches were ordered) the batch is the ``batch_size``
+    consecutive indices that hold ``index``: the same program with other batch-mates, which do not change an
+    episode (``tests/test_gates.py``). Another batch size is another compiled program, which XLA may vectorize
     differently (10 of 10 town episodes of a batch of 250 replayed alone ended identically, BENCHMARKS.md). Either
     way the reachability artifacts must be the same as in the evaluation. ``airborne_only`` as in
     :func:`evaluate` (the whole fleet or part of it are also different programs). ``progress``: announce the
@@ -443,20 +489,30 @@ def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_ste
     from stp_env import progress as progress_mod
 
     check_seed(seed)
-    for name, value, lo, hi in (("index", index, 0, MAX_EPISODES - 1), ("batch_size", batch_size, 1, MAX_EPISODES),
-                                ("n_steps", n_steps, 1, None)):
+    checks = [("index", index, 0, MAX_EPISODES - 1), ("batch_size", batch_size, 1, MAX_EPISODES),
+              ("n_steps", n_steps, 1, None)]
+    if episodes is not None:
+        checks.append(("episodes", episodes, 1, MAX_EPISODES))
+    for name, value, lo, hi in checks:
         if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < lo or (
                 hi is not None and value > hi):
             raise ValueError(f"{name} must be an integer >= {lo}" + ("" if hi is None else f" and <= {hi}")
                              + f"; got {value!r}.")
     index, batch_size, n_steps = int(index), int(batch_size), int(n_steps)
-    first = (index // batch_size) * batch_size
-    indices = jnp.arange(first, first + batch_size, dtype=jnp.int32)
+    if episodes is None:
+        first = (index // batch_size) * batch_size
+        indices = np.arange(first, first + batch_size, dtype=np.int32)
+    else:
+        if index >= episodes:
+            raise ValueError(f"index {index} is not an episode of a run of {episodes}.")
+        order = episode_order(seed, int(episodes), params)
+        position = int(np.flatnonzero(order == index)[0])
+        indices = batch_indices(order, (position // batch_size) * batch_size, batch_size)
     progress_mod.note(f"replaying episode {index} of seed {seed} in its batch of {batch_size} (compiles the "
                       "simulator's batch once per machine)", progress)
-    final, traj = run_batch(prng_key(seed), indices, params, vehicle_policy, intruder_policy, n_steps,
+    final, traj = run_batch(prng_key(seed), jnp.asarray(indices), params, vehicle_policy, intruder_policy, n_steps,
                             record=record, active=simulated_vehicles(params, airborne_only))
-    j = index - first
+    j = int(np.flatnonzero(indices == index)[0])
     state = {k: v[j] for k, v in host_state(final).items()}
     state["n_forced"] = np.sum(np.isfinite(state["avoid_start"]))
     return state, (None if traj is None else {k: np.asarray(v[j]) for k, v in traj.items()})
@@ -487,7 +543,7 @@ def replay_event(event: dict, *, store=None, progress: bool = False, intruder_po
                                                                intruder_policy=intruder_policy)
     return replay(event["seed"], event["index"], params, vehicle_policy, intruder_policy, event["n_steps"],
                   batch_size=event["batch_size"], record=event["recorded"],
-                  airborne_only=event.get("airborne_only", False))
+                  airborne_only=event.get("airborne_only", False), episodes=event.get("episodes"))
 
 
 def same_outcome(a: dict, b: dict, *, atol: float = 1e-3) -> bool:
