@@ -128,7 +128,7 @@ def time_city(args) -> dict:
     (city,) = build_params([city_config], progress=False)  # the shipped intruder-aware plan of this k̄
     out = time_evaluator(city_config, city, args.city_episodes, args.batch_size, showcase=False,
                          ignore=tuple(args.ignore))
-    out.update(scenario="city-intruder", kbar=args.city_kbar, vehicles=int(city.n_vehicles))
+    out.update(scenario="city-intruder", kbar=args.city_kbar, vehicles=int(city.vehicles.n))
     return out
 
 
