@@ -26,7 +26,7 @@ from stp_env import assembly, sim
 from stp_env.evaluation.config import Configuration
 from stp_env.evaluation.summary import forced_summary
 from stp_env.seeds import check_seed, prng_key
-from stp_env.sim import core, fleet, fleet_expand
+from stp_env.sim import core, engine, fleet, fleet_expand
 from stp_env.sim.bounds import WIND
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.rollout import rollout_keys
@@ -46,7 +46,7 @@ def run_batch(key, indices, params, vehicle_policy, intruder_policy, n_steps: in
     the ground or in its target for the whole episode) and put the others back with
     :func:`stp_env.sim.fleet_expand.expand`: the same episodes (the same random numbers) at a fraction of the cost;
     ``None``: the whole fleet."""
-    keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.fold_in(key, i), 0))(indices)
+    keys = jax.vmap(lambda i: episode_key(key, i))(indices)
     if active is None or len(active) == params.vehicles.n:
         return rollout_keys(keys, params, vehicle_policy, intruder_policy, n_steps, record=record)
     ids = np.asarray(active)
@@ -78,10 +78,12 @@ def episode_order(seed: int, episodes: int, params) -> np.ndarray:
 
 @sim_jit
 def _appear_times(key, indices, params):
-    def one(i):
-        episode_key = jax.random.fold_in(jax.random.fold_in(key, i), 0)
-        return core.appear_time(jax.random.split(episode_key)[0], params)   # the reset key (sim.engine)
-    return jax.vmap(one)(indices)
+    return jax.vmap(lambda i: core.appear_time(engine.reset_key(episode_key(key, i)), params))(indices)
+
+
+def episode_key(key, index):
+    """The key of episode ``index`` of the run keyed by ``key`` (``fold_in(fold_in(key, index), 0)``)."""
+    return jax.random.fold_in(jax.random.fold_in(key, index), 0)
 
 
 def batch_indices(order: np.ndarray, first: int, batch_size: int) -> np.ndarray:

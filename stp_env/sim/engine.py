@@ -46,6 +46,11 @@ def play(step, carry, xs, *, stop=None, record=None, batched: bool = False):
     return jax.lax.scan(jax.vmap(body) if batched else body, carry, xs)
 
 
+def reset_key(episode_key):
+    """The key the episode keyed ``episode_key`` resets with (the first half of its split)."""
+    return jax.random.split(episode_key)[0]
+
+
 def _split(episode_key, n_steps: int):
     k_reset, k_run = jax.random.split(episode_key)
     return k_reset, jax.random.split(k_run, n_steps)
