@@ -180,13 +180,8 @@ def tables_many(graph: Graph, feasible, robustness, policies, omega: str, start:
     meta, arrays = _consts(graph)
     exact = blocked_bits is not None and "S" in policies
     bits = jnp.asarray(blocked_bits if exact else np.zeros((1, 1), np.uint32), jnp.uint32)
-    # Kept out of the persistent compilation cache: serialising or deserialising this program's executable crashed
-    # test workers (a segmentation fault inside XLA, at the cache's write and at its read).
-    from jax._src.config import enable_compilation_cache
-
-    with enable_compilation_cache(False):
-        out = tables_jit(meta, arrays, jnp.asarray(feasible, bool), jnp.asarray(robustness, jnp.float32),
-                         jnp.int32(start), bits, policies, omega, exact, nf_count)
+    out = tables_jit(meta, arrays, jnp.asarray(feasible, bool), jnp.asarray(robustness, jnp.float32),
+                     jnp.int32(start), bits, policies, omega, exact, nf_count)
     return dict(zip(policies, out))
 
 
