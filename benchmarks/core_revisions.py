@@ -1,8 +1,8 @@
-"""The batched core of this tree against the core of another git revision, in the same run: rollout time and
-whether the two compute the same episodes.
+"""The batched core (or the PettingZoo adapter's step loop) of this tree against that of another git revision, in
+the same run: time and whether the two compute the same episodes.
 
     python benchmarks/core_revisions.py --base REV [--scenarios town city] [--envs 256] [--steps 50] [--reps 3]
-        [--ignore FIELD ...]
+        [--ignore FIELD ...] [--program core|adapter]
 
 ``REV``'s ``stp_env`` package is exported with ``git archive`` into a temporary directory and imported from there
 (this tree's ``stp_env`` otherwise); everything else is the same: the scenario's shipped plan, ``switching``
@@ -11,6 +11,11 @@ vehicles, the HJ intruder, ``sim.rollout`` over ``--envs`` episodes of ``--steps
 The two trees alternate ``--reps`` times and the fastest run of each is kept (the machine is noisy). The final
 states and per-step records of the first call are hashed: ``same_episodes`` says whether both trees computed them
 bit for bit. Prints one JSON line per scenario; ``speedup`` is the base's time over this tree's.
+
+``--program adapter``: instead of the batched core, ``--steps`` steps of one ``parallel_env(scenario,
+vehicle_policy="switching")`` (the vehicles flown inside the step, the intruder's actions from a seeded generator,
+auto-reset; what training an intruder runs), after 300 warm-up steps; its time is the fastest of three such loops,
+and the digest covers every observation, reward, termination and the final state.
 """
 
 from __future__ import annotations
@@ -66,7 +71,47 @@ def time_rollout(params, n_envs: int, n_steps: int, record: bool = False, ignore
     return {"first_s": first_s, "run_s": min(times), "digest": _digest(first, ignore)}
 
 
-def run_one(scenario: str, n_envs: int, n_steps: int, ignore=()) -> dict:
+def time_adapter(scenario: str, n_steps: int, ignore=()) -> dict:
+    """The adapter's step loop (``vehicle_policy="switching"``, seeded random intruder actions, auto-reset): the
+    fastest of three loops of ``n_steps`` after 300 warm-up steps, and the digest of the warm-up loop's outputs."""
+    import numpy as np
+
+    from stp_env.env import parallel_env
+
+    env = parallel_env(scenario=scenario, vehicle_policy="switching")
+    rng = np.random.default_rng(0)
+    zero = np.zeros(2, np.float32)
+    episode = [0]
+    env.reset(seed=0)
+
+    def loop(n, record=None):
+        for _ in range(n):
+            if not env.agents:
+                episode[0] += 1
+                env.reset(seed=episode[0])
+            out = env.step({a: (rng.uniform(-1, 1, 2).astype(np.float32) if a == "intruder" else zero)
+                            for a in env.agents})
+            if record is not None:
+                record.append(out[:4])
+
+    t0 = time.perf_counter()
+    record = []
+    loop(300, record)
+    first_s = time.perf_counter() - t0
+    times = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        loop(n_steps)
+        times.append(time.perf_counter() - t0)
+    leaves = [np.asarray(v, np.float64) for step in record for part in step for _, v in sorted(part.items())]
+    return {"first_s": first_s, "run_s": min(times), "digest": _digest([leaves, env.env_state], ignore)}
+
+
+def run_one(scenario: str, n_envs: int, n_steps: int, ignore=(), program: str = "core") -> dict:
+    if program == "adapter":
+        import stp_env
+
+        return {**time_adapter(scenario, n_steps, ignore), "package": stp_env.__file__}
     sys.path.insert(0, HERE)
     import env_throughput
 
@@ -92,10 +137,12 @@ def main() -> None:
     parser.add_argument("--reps", type=int, default=3)
     parser.add_argument("--ignore", nargs="*", default=[],
                         help="state fields left out of the episodes' digest (a field one of the trees added)")
+    parser.add_argument("--program", choices=("core", "adapter"), default="core",
+                        help="the batched core's rollout, or the adapter's step loop (--envs ignored)")
     parser.add_argument("--one", action="store_true", help="run one case in this process (used internally)")
     args = parser.parse_args()
     if args.one:
-        print(json.dumps(run_one(args.scenarios[0], args.envs, args.steps, tuple(args.ignore))))
+        print(json.dumps(run_one(args.scenarios[0], args.envs, args.steps, tuple(args.ignore), args.program)))
         return
     if not args.base:
         parser.error("--base REV is required")
@@ -110,7 +157,8 @@ def main() -> None:
                 for name, path in trees.items():
                     env = dict(os.environ, PYTHONPATH=os.pathsep.join([path, os.environ.get("PYTHONPATH", "")]))
                     res = subprocess.run([sys.executable, __file__, "--one", "--scenarios", scenario, "--envs",
-                                          str(args.envs), "--steps", str(args.steps), "--ignore", *args.ignore],
+                                          str(args.envs), "--steps", str(args.steps), "--program", args.program,
+                                          "--ignore", *args.ignore],
                                          capture_output=True,
                                          text=True, check=True, env=env, cwd=tmp)
                     out = json.loads(res.stdout.strip().splitlines()[-1])
@@ -119,14 +167,15 @@ def main() -> None:
                     runs[name].append(out)
             best = {name: min(r["run_s"] for r in runs[name]) for name in trees}
             print(json.dumps({
-                "benchmark": "core_revisions", "scenario": scenario, "base": rev, "envs": args.envs,
-                "steps": args.steps, "reps": args.reps, "loadavg_1min_before": load,
+                "benchmark": "core_revisions", "program": args.program, "scenario": scenario, "base": rev,
+                "envs": args.envs, "steps": args.steps, "reps": args.reps, "loadavg_1min_before": load,
                 "run_s": {name: round(best[name], 3) for name in trees},
                 "run_s_all": {name: [round(r["run_s"], 3) for r in runs[name]] for name in trees},
                 "first_call_s": {name: round(min(r["first_s"] for r in runs[name]), 1) for name in trees},
                 "speedup": round(best["base"] / best["this"], 2),
                 "same_episodes": len({r["digest"] for name in trees for r in runs[name]}) == 1,
-                "env_steps_per_s_this": round(args.envs * args.steps / best["this"]),
+                "env_steps_per_s_this": round((1 if args.program == "adapter" else args.envs) * args.steps
+                                              / best["this"]),
             }), flush=True)
 
 

@@ -13,6 +13,10 @@ Prints one JSON line. Measured in the same run:
 * ``core_env_steps_per_s`` / ``core_agent_steps_per_s``: :func:`stp_env.sim.rollout` over ``--envs`` episodes
   (``switching`` vehicles, HJ-pursuit intruder), compile excluded.
 * ``--long N``: N adapter steps (zero actions, auto-reset), peak RSS growth and step-function traces.
+* ``--cpu-threads N``: XLA's CPU thread pools sized ``N`` before JAX starts (:mod:`stp_env.cpu_threads`; default:
+  one per core). One thread is the setting for a loop over one environment, every core the one for the batched
+  core, so the adapter's and the core's figures are each read from the run with their setting
+  (``cpu_threads`` in the output says which run it is).
 
 Both scenarios fly their shipped STP plans (``stp_env/data/plans``; the city's is BEACLS Case 0, 50 vehicles).
 """
@@ -139,10 +143,15 @@ def main() -> None:
     parser.add_argument("--envs", type=int, default=1024)
     parser.add_argument("--core-steps", type=int, default=200)
     parser.add_argument("--long", type=int, default=0)
+    parser.add_argument("--cpu-threads", type=int, default=None,
+                        help="XLA's CPU thread-pool size (default: one thread per core)")
     args = parser.parse_args()
+    from stp_env import set_cpu_threads
+
+    set_cpu_threads(args.cpu_threads)  # before JAX's first computation
     scenario, params = _params(args.scenario)
     result = {"case": "env_throughput", "scenario": args.scenario, "n_agents": params.vehicles.n + 1,
-              "loadavg_1min_before": round(os.getloadavg()[0], 2)}
+              "cpu_threads": args.cpu_threads, "loadavg_1min_before": round(os.getloadavg()[0], 2)}
     result["mpe2_env_steps_per_s"] = round(mpe2_rate(args.mpe_steps), 1)
     result["adapter_env_steps_per_s"] = round(adapter_rate(scenario, params, args.adapter_steps), 1)
     result["adapter_over_mpe2"] = round(result["adapter_env_steps_per_s"] / result["mpe2_env_steps_per_s"], 2)

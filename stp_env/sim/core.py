@@ -465,19 +465,21 @@ def step(key, state: EnvState, actions, params: EnvParams, vehicle_policy=None):
         return s, _closest_approach(closest, s, params)
 
     def inner(carry, m):
-        s, closest = move(carry[:2], m)
+        s, closest = move(carry, m)
         # the controllers for the next inner step; after the last one the lifecycle at t + dt refreshes them
         nxt = jax.lax.cond(m < m_sub - 1, lambda s: avoid_start(observe_controllers(s, params), params),
                            lambda s: s, s)
-        return (nxt, closest, s), None
+        return (nxt, closest), None
 
     far = jnp.full((n,), jnp.inf, state.x.dtype)
-    init = (state, Closest(pair_sq=jnp.full((n, n), jnp.inf, state.x.dtype), intruder=far, building=far), state)
+    init = (state, Closest(pair_sq=jnp.full((n, n), jnp.inf, state.x.dtype), intruder=far, building=far))
     # Every inner step ends with the controllers refreshed for the next one; the step continues from the last inner
     # step's state before that refresh (the lifecycle at t + dt comes first). One scan over all M inner steps, not
     # M - 1 plus a last one written apart: the step's program holds the inner step once, which halves its compile;
-    # the last inner step's refresh, which the lifecycle would overwrite, is skipped by a branch on the scan index.
-    (_, closest, sub), _ = jax.lax.scan(inner, init, jnp.arange(m_sub))
+    # the last inner step's refresh, which the lifecycle would overwrite, is skipped by a branch on the scan index,
+    # so the carried state after the scan is that last inner step's state (one state in the carry, not two: each
+    # carried copy is a buffer copy per inner step).
+    (sub, closest), _ = jax.lax.scan(inner, init, jnp.arange(m_sub))
     new_state, ev = _events(state, replace(sub, wind=wind_state), closest, params)
     return new_state, _rewards(state, new_state, ev, params)
 

@@ -1,0 +1,77 @@
+"""How many threads XLA's CPU runtime gives a program: every core for batches, one for a loop over one environment.
+
+On a CPU, XLA runs a compiled program as a sequence of small kernels (one per fusion) and hands the kernels that are
+ready at the same time to a pool of threads, one thread per core by default. For a batch of a thousand episodes
+(``stp-env evaluate``, the falsifier, the vectorised training environments) each kernel has work for every core and
+the pool pays. For one environment at a time (the PettingZoo ``env.step`` loop, a SuperSuit worker) the kernels are
+tiny (a few microseconds: seven vehicles, one intruder) and handing them to another core costs more than running
+them: a town step of the adapter runs about 1.35 times faster with one thread than with two on the 2-core machine
+(``BENCHMARKS.md``, "Environment throughput"), and the batched core about 0.75 times as fast.
+
+XLA's CPU client reads the size of its pools once, when JAX starts its CPU backend (the first computation), from the
+environment variable ``PJRT_NPROC`` (then ``NPROC``; unset: the number of cores the process may run on). Set it
+before the first JAX computation:
+
+* ``PJRT_NPROC=1 python my_loop.py`` in the shell, or
+* :func:`set_cpu_threads` ``(1)`` first thing in the script (after ``import stp_env``, before any environment or
+  array is made); it refuses, with the reason, once the backend has started with another setting.
+
+The setting is the process's; child processes inherit the environment variable. It changes how fast programs run,
+never what they compute (the kernels are the same; ``tests/test_cpu_threads.py``).
+"""
+
+from __future__ import annotations
+
+import os
+
+ENV_VAR = "PJRT_NPROC"
+"""The environment variable XLA's CPU client reads for the size of its thread pools."""
+
+
+def _backend_started() -> bool:
+    """Whether JAX has created its backends (after which XLA's thread pools are fixed)."""
+    import sys
+
+    if "jax" not in sys.modules:
+        return False
+    try:
+        from jax._src import xla_bridge
+    except ImportError:  # pragma: no cover - JAX moved the module: assume started, the safe answer
+        return True
+    return bool(xla_bridge.backends_are_initialized())
+
+
+def cpu_threads() -> int | None:
+    """The thread count set for XLA's CPU runtime (``PJRT_NPROC``, else ``NPROC``), ``None`` when neither is set
+    (every core the process may run on)."""
+    for var in (ENV_VAR, "NPROC"):
+        value = os.environ.get(var, "").strip()
+        if value:
+            try:
+                return int(value)
+            except ValueError:
+                return None  # XLA ignores a value it cannot parse
+    return None
+
+
+def set_cpu_threads(n: int | None) -> None:
+    """Give XLA's CPU runtime ``n`` threads per program (``None``: every core, XLA's default). Must come before the
+    first JAX computation of the process; afterwards only the setting already in effect is accepted.
+
+    Raises ``ValueError`` for a count that is not a positive integer and ``RuntimeError`` once the backend has
+    started with a different setting (nothing is changed then)."""
+    if n is not None and (isinstance(n, bool) or not isinstance(n, int) or n < 1):
+        raise ValueError(f"the CPU thread count must be a positive integer or None (every core); got {n!r}.")
+    if cpu_threads() == n:
+        return
+    if _backend_started():
+        current = cpu_threads()
+        raise RuntimeError(
+            f"XLA's CPU runtime has already started with {current if current is not None else 'one thread per core'} "
+            f"(the first JAX computation fixes it); set the thread count before it: {ENV_VAR}={n or ''} in the "
+            "environment, or stp_env.set_cpu_threads(...) before making any environment or array.")
+    if n is None:
+        os.environ.pop(ENV_VAR, None)
+        os.environ.pop("NPROC", None)
+    else:
+        os.environ[ENV_VAR] = str(n)
