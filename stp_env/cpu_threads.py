@@ -4,9 +4,11 @@ On a CPU, XLA runs a compiled program as a sequence of small kernels (one per fu
 ready at the same time to a pool of threads, one thread per core by default. For a batch of a thousand episodes
 (``stp-env evaluate``, the falsifier, the vectorised training environments) each kernel has work for every core and
 the pool pays. For one environment at a time (the PettingZoo ``env.step`` loop, a SuperSuit worker) the kernels are
-tiny (a few microseconds: seven vehicles, one intruder) and handing them to another core costs more than running
-them: a town step of the adapter runs about 1.35 times faster with one thread than with two on the 2-core machine
-(``BENCHMARKS.md``, "Environment throughput"), and the batched core about 0.75 times as fast.
+tiny (a microsecond or so: seven vehicles, one intruder) and handing them to another core costs more than running
+them. On the 2-core machine, with one thread, the adapter's step loop ran about 1.15 times as fast when the
+machine was otherwise idle and about 1.25 times as fast beside a background job on both cores (medians of three
+runs), and the batched core at 1,024 episodes about 0.6-0.9 times as fast (``BENCHMARKS.md``, "Environment
+throughput: XLA's CPU threads"; ``python benchmarks/cpu_threads.py``).
 
 XLA's CPU client reads the size of its pools once, when JAX starts its CPU backend (the first computation), from the
 environment variable ``PJRT_NPROC`` (then ``NPROC``; unset: the number of cores the process may run on). Set it
