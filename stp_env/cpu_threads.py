@@ -5,10 +5,10 @@ ready at the same time to a pool of threads, one thread per core by default. For
 (``stp-env evaluate``, the falsifier, the vectorised training environments) each kernel has work for every core and
 the pool pays. For one environment at a time (the PettingZoo ``env.step`` loop, a SuperSuit worker) the kernels are
 tiny (a microsecond or so: seven vehicles, one intruder) and handing them to another core costs more than running
-them. On the 2-core machine, with one thread, the adapter's step loop ran about 1.15 times as fast when the
-machine was otherwise idle and about 1.25 times as fast beside a background job on both cores (medians of three
-runs), and the batched core at 1,024 episodes about 0.6-0.9 times as fast (``BENCHMARKS.md``, "Environment
-throughput: XLA's CPU threads"; ``python benchmarks/cpu_threads.py``).
+them. On the 2-core machine, with one thread, the adapter's step loop ran 1.06 (town) and 1.2 (city) times as fast
+when the machine was otherwise idle and 1.73 and 1.24 times as fast beside a background job on both cores (medians
+of three runs each), and the batched core at 1,024 episodes 0.69 (city) to 1.03 (town) times as fast
+(``BENCHMARKS.md``, "Environment throughput: XLA's CPU threads"; ``python benchmarks/cpu_threads.py``).
 
 XLA's CPU client reads the size of its pools once, when JAX starts its CPU backend (the first computation), from the
 environment variable ``PJRT_NPROC`` (then ``NPROC``; unset: the number of cores the process may run on). Set it

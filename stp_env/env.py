@@ -20,7 +20,7 @@ machine compile the simulator, later processes load the compiled programs (:mod:
 The environment is a thin adapter around the pure JAX core :mod:`stp_env.sim` (``reset``, ``step``, ``observe``;
 one jitted call per step); batched rollouts of thousands of episodes use the core directly
 (:func:`stp_env.sim.rollout`). A loop over one environment on a CPU runs faster with XLA's CPU runtime on one
-thread (about 1.15x on an idle 2-core machine, 1.25x on a busy one): ``stp_env.set_cpu_threads(1)`` before the first
+thread (1.06-1.2x on an idle 2-core machine, 1.24-1.73x on a busy one): ``stp_env.set_cpu_threads(1)`` before the first
 environment or array of the process (or ``PJRT_NPROC=1`` in the environment; :mod:`stp_env.cpu_threads`, which
 also says why batches want every core).
 
