@@ -44,13 +44,13 @@ from stp_env.sim.types import AFTER_AVOIDANCE, AVOIDING, FLYING, NOMINAL, PRESEN
 HEADING_GAIN = 2.0  # [1/s] fallback turn rate per radian of heading error
 
 
-def fallback_control(state, params):
-    """Head for the target at the fastest planning speed: ``(N, 2)`` actions."""
+def fallback_control(state, params, speed=None):
+    """Head for the target at ``speed`` [m/s] (default: the fastest planning speed): ``(N, 2)`` actions."""
     pose = params.vehicles.model.pose(state.x)
     d = params.vehicles.targets - pose[:, :2]
     err = wrap_angle(jnp.arctan2(d[:, 1], d[:, 0]) - pose[:, 2])
     omega = jnp.clip(HEADING_GAIN * err, -params.vehicles.bounds[OMEGA_MAX], params.vehicles.bounds[OMEGA_MAX])
-    v = jnp.full_like(omega, params.vehicles.planning_v_max)
+    v = jnp.full_like(omega, params.vehicles.planning_v_max if speed is None else speed)
     return params.vehicles.model.command_to_action(state.x, v, omega, params.vehicles.bounds)
 
 

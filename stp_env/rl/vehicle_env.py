@@ -36,13 +36,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env.baselines.vehicles import HEADING_GAIN, hj_filter, switching
+from stp_env.baselines.vehicles import fallback_control, hj_filter, switching
 from stp_env.rl import functional as F
 from stp_env.rl.jax_vec_env import JaxVecEnv
 from stp_env.sim import core
-from stp_env.sim.bounds import OMEGA_MAX, V_MAX
+from stp_env.sim.bounds import V_MAX
 from stp_env.sim.jit import sim_jit
-from stp_env.sim.physics import action_to_control, control_to_action, wrap_angle
+from stp_env.sim.physics import action_to_control
 from stp_env.sim.types import AFTER_AVOIDANCE, ARRIVED, COLLIDED, FLYING, PRESENT, EnvParams
 
 MAX_DRAWS = 8
@@ -128,12 +128,7 @@ def _held(action, n):
 def fallback_vmax(key, state, params):
     """The fallback of :func:`stp_env.baselines.fallback_control` at ``U``'s top speed (not the planning speed)."""
     del key
-    pose = params.vehicles.model.pose(state.x)
-    d = params.vehicles.targets - pose[:, :2]
-    err = wrap_angle(jnp.arctan2(d[:, 1], d[:, 0]) - pose[:, 2])
-    b = params.vehicles.bounds
-    omega = jnp.clip(HEADING_GAIN * err, -b[OMEGA_MAX], b[OMEGA_MAX])
-    return control_to_action(jnp.full_like(omega, b[V_MAX]), omega, b)
+    return fallback_control(state, params, speed=params.vehicles.bounds[V_MAX])
 
 
 def ego_done(state, ego, params: EnvParams, late_limit):
