@@ -52,7 +52,7 @@ def cpu_threads() -> int | None:
             try:
                 return int(value)
             except ValueError:
-                return None  # XLA ignores a value it cannot parse
+                continue  # XLA skips a value it cannot parse and reads the next variable
     return None
 
 

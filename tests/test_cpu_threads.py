@@ -75,3 +75,5 @@ def test_reads_the_variables_xla_reads(monkeypatch):
     assert cpu_threads.cpu_threads() == 3
     monkeypatch.setenv("PJRT_NPROC", "1")
     assert cpu_threads.cpu_threads() == 1
+    monkeypatch.setenv("PJRT_NPROC", "one")  # unparseable: XLA goes on to NPROC
+    assert cpu_threads.cpu_threads() == 3
