@@ -312,8 +312,9 @@ class Layout(NamedTuple):
         return cls(treedef, tuple(out))
 
     def unpack(self, words: np.ndarray):
-        """The pytree from the host copy of :func:`pack`'s array."""
-        words = np.ascontiguousarray(words, np.int32)
+        """The pytree from the host copy of :func:`pack`'s array. ``words`` is copied once; the leaves are views
+        of that copy (writable, each its own slice)."""
+        words = np.array(words, np.int32, copy=True)
         total = sum(n for _, _, n in self.leaves)
         if words.shape != (total,):
             raise ValueError(f"packed step output of shape {words.shape}; the layout needs ({total},).")
@@ -326,7 +327,7 @@ class Layout(NamedTuple):
             elif dtype.itemsize < 4:
                 out.append(chunk.astype(dtype).reshape(shape))
             else:
-                out.append(chunk.view(dtype).reshape(shape).copy())
+                out.append(chunk.view(dtype).reshape(shape))
         return jax.tree.unflatten(self.treedef, out)
 
 
@@ -645,22 +646,23 @@ class STPParallelEnv(ParallelEnv):
 
     def step(self, actions):
         arr = self._parse_actions(actions)  # raises before anything changes
+        scripted = not (self._vehicle_policy is None and self._intruder_policy is None)
         if self._step_layout is None:  # traced once per environment, not compiled
-            advance = (_advance if self._vehicle_policy is None and self._intruder_policy is None
-                       else functools.partial(_advance_scripted, vehicle_policy=self._vehicle_policy,
-                                              intruder_policy=self._intruder_policy))
+            advance = (functools.partial(_advance_scripted, vehicle_policy=self._vehicle_policy,
+                                         intruder_policy=self._intruder_policy) if scripted else _advance)
             self._step_layout = Layout.of(jax.eval_shape(advance, self._key, self._state, arr, self.params)[2])
-        if self._vehicle_policy is None and self._intruder_policy is None:
-            compile_note("the environment's step", self._key, self._state, arr, self.params, progress=self._progress)
-            self._key, self._state, words = _advance_jit(self._key, self._state, arr, self.params)
-        else:
-            scripted = ", ".join(f"{name} {who}" for name, who in ((self._vehicle_policy_name, "vehicles"),
-                                                                   (self._intruder_name, "intruder")) if name)
-            compile_note(f"the environment's step ({scripted})", self._key, self._state, arr, self.params,
-                         progress=self._progress)
+            # the shapes of the step's arguments are fixed for the environment's life (a new plan keeps them), so
+            # the compilation is announced here, at its first step, and not looked up at every step
+            flown = ", ".join(f"{name} {who}" for name, who in ((self._vehicle_policy_name, "vehicles"),
+                                                                (self._intruder_name, "intruder")) if name)
+            compile_note(f"the environment's step ({flown})" if scripted else "the environment's step", self._key,
+                         self._state, arr, self.params, progress=self._progress)
+        if scripted:
             self._key, self._state, words = _advance_scripted_jit(self._key, self._state, arr, self.params,
                                                                   vehicle_policy=self._vehicle_policy,
                                                                   intruder_policy=self._intruder_policy)
+        else:
+            self._key, self._state, words = _advance_jit(self._key, self._state, arr, self.params)
         self._steps += 1
         out = self._step_layout.unpack(np.asarray(words))
         obs, rewards, info = self._observations(out.obs_vehicles, out.obs_intruder), out.rewards, out.info
@@ -670,13 +672,12 @@ class STPParallelEnv(ParallelEnv):
         intruder_done = int(info.intruder_status) == GONE
         truncated_all = bool(out.truncated) or self._steps >= self.max_cycles
         infos = self._infos(info)
-        live = list(self.agents)
-        rew = {a: float(rewards[self._index[a]]) for a in live}
-        terms, truncs = {}, {}
-        for a in live:
-            i = self._index[a]
-            terms[a] = bool(intruder_done) if a == "intruder" else bool(done_v[i])
-            truncs[a] = truncated_all and not terms[a]
+        live = self.agents
+        rewards, done = rewards.tolist(), [*done_v.tolist(), intruder_done]  # Python scalars, indexed per agent
+        index = self._index
+        rew = {a: rewards[index[a]] for a in live}
+        terms = {a: done[index[a]] for a in live}
+        truncs = {a: truncated_all and not terms[a] for a in live}
         infos = {a: infos[a] for a in live}
         obs = {a: obs[a] for a in live}
         self.agents = [a for a in live if not (terms[a] or truncs[a])]
@@ -725,12 +726,11 @@ class STPParallelEnv(ParallelEnv):
 
     # ------------------------------------------------------------------------------------------ conversions
     def _observations(self, obs_vehicles, obs_intruder) -> dict[str, np.ndarray]:
-        obs = {f"vehicle_{i}": obs_vehicles[i] for i in range(self.params.vehicles.n)}
+        obs = dict(zip(self.possible_agents[:-1], obs_vehicles))  # one row view per vehicle
         obs["intruder"] = obs_intruder
         return obs
 
     def _infos(self, info: StepInfo):
-        n = self.params.vehicles.n
         status, mode, avoid_start = info.status.astype(int), info.mode.astype(int), info.avoid_start
         forced = np.isfinite(avoid_start)
         n_forced = int(forced.sum())
@@ -754,26 +754,32 @@ class STPParallelEnv(ParallelEnv):
             "intruder_status": INTRUDER_STATUS_NAMES[int(info.intruder_status)],
             "time": t,
         }
+        # built from Python lists (one tolist() per column): a dict per vehicle without per-element numpy scalars
         infos = {}
-        for i in range(n):
-            infos[f"vehicle_{i}"] = {
-                "status": STATUS_NAMES[status[i]],
-                "mode": MODE_NAMES[mode[i]],
-                "avoid_start_time": float(avoid_start[i]) if forced[i] else None,
-                "forced": bool(forced[i]),
+        columns = zip(self.possible_agents, status.tolist(), mode.tolist(), avoid_start.tolist(), forced.tolist(),
+                      collided.tolist(), violation.tolist(), error.tolist(), max_error.tolist(),
+                      info.tracked.tolist(), track_violation.tolist(), used.tolist(), self._replanned.tolist(),
+                      self._sta.tolist(), min_sep.tolist(), new_collision.tolist())
+        for (agent, st, md, start, frc, col, viol, err, max_err, tracked, track_viol, used_i, replanned, sta,
+             sep, new_col) in columns:
+            infos[agent] = {
+                "status": STATUS_NAMES[st],
+                "mode": MODE_NAMES[md],
+                "avoid_start_time": start if frc else None,
+                "forced": frc,
                 "n_forced": n_forced,
                 "kbar": kbar,
-                "collision": bool(collided[i]),
-                "guarantee_violation": bool(violation[i]),
-                "tracking_error": float(error[i]),
-                "max_tracking_error": float(max_error[i]),
-                "tracked": bool(info.tracked[i]),
-                "tracking_violation": bool(track_violation[i]),
-                "used_filter": bool(used[i]),
-                "replanned": bool(self._replanned[i]),
-                "sta": float(self._sta[i]),
-                "min_separation": float(min_sep[i]),
-                "cost": float(new_collision[i]),
+                "collision": col,
+                "guarantee_violation": viol,
+                "tracking_error": err,
+                "max_tracking_error": max_err,
+                "tracked": tracked,
+                "tracking_violation": track_viol,
+                "used_filter": used_i,
+                "replanned": replanned,
+                "sta": sta,
+                "min_separation": sep,
+                "cost": float(new_col),
                 "time": t,
                 "episode": dict(episode),
             }

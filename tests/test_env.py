@@ -4,6 +4,7 @@ bad inputs, and long runs without recompilation."""
 from __future__ import annotations
 
 import functools
+import itertools
 import resource
 import types
 
@@ -27,6 +28,7 @@ import stp_env.env as stp_module
 from stp_env import sim
 from stp_env.env import TRACE_COUNTS, env, parallel_env, raw_env
 from stp_env.sim.jit import sim_jit
+from stp_env.sim.types import MODE_NAMES, STATUS_NAMES
 
 
 def _enable_x64(on: bool):
@@ -338,6 +340,45 @@ def test_episode_results_are_readable_at_the_end_whatever_agent_is_left(par):
     # random actions: no vehicle tracked its plan, so there is no tracking error to bound (the evaluator's rule)
     assert not np.asarray(state.tracked)[in_episode].any()
     assert par.episode["max_tracking_error"] is None
+
+
+def test_vehicle_infos_are_the_core_state_as_python_scalars(par):
+    """Every vehicle's info entries are the core state's arrays after the step, read element by element, as plain
+    Python scalars (the infos are built from whole columns; this reads them one at a time); the rewards and
+    terminations are Python floats and bools; each observation is its own writable array."""
+    obs, infos = par.reset(seed=5, options={"appear_time": float(par.params.episode.t_start) + 0.5})
+    rng = np.random.default_rng(2)
+    for _ in range(12):
+        actions = {a: rng.uniform(-1, 1, 2).astype(np.float32) for a in par.agents}
+        obs, rewards, terms, truncs, infos = par.step(actions)
+        state = jax.device_get(par.env_state)
+        for agent, info in infos.items():
+            if agent == "intruder":
+                continue
+            i = int(agent.split("_")[1])
+            forced = bool(np.isfinite(state.avoid_start[i]))
+            expected = {
+                "status": STATUS_NAMES[int(state.status[i])], "mode": MODE_NAMES[int(state.mode[i])],
+                "avoid_start_time": float(state.avoid_start[i]) if forced else None, "forced": forced,
+                "collision": bool(state.status[i] == sim.COLLIDED),
+                "guarantee_violation": bool(state.guarantee_violation[i]),
+                "tracking_error": float(state.tracking_error[i]),
+                "max_tracking_error": float(state.max_tracking_error[i]), "tracked": bool(state.tracked[i]),
+                "tracking_violation": bool(state.tracking_violation[i]), "used_filter": bool(state.used_filter[i]),
+                "min_separation": float(state.min_separation[i]), "time": float(state.t),
+                "sta": float(par.params.vehicles.sta[i]), "replanned": False,
+            }
+            for field, value in expected.items():
+                assert info[field] == value and type(info[field]) is type(value), (agent, field, info[field])
+        assert all(type(r) is float for r in rewards.values())
+        assert all(type(v) is bool for v in [*terms.values(), *truncs.values()])
+        names = list(obs)
+        for a, b in itertools.pairwise(names):
+            assert not np.shares_memory(obs[a], obs[b])
+        for a in names:
+            obs[a][...] = 0.0  # writable
+        if not par.agents:
+            break
 
 
 def test_tracking_error_and_violation_in_the_infos(par):
