@@ -227,6 +227,33 @@ def test_the_vectorised_action_check_equals_the_per_agent_one(par, values, dtype
     np.testing.assert_array_equal(fast, _per_agent(par, acts))
 
 
+def test_the_vectorised_action_check_equals_the_per_agent_one_for_a_three_input_vehicle_model(par):
+    """With a vehicle model of three inputs (the intruder keeps two), the actions are checked per input size and
+    give what the per-agent check gives."""
+    from stp_env.sim.vehicle_models.dubins import Dubins
+
+    class ThreeInputs(Dubins):
+        name = "three-inputs"
+        action_dim = 3
+
+    par.reset(seed=1)
+    params = par.params
+    par.params = params.replace(vehicles=dict(model=ThreeInputs()))  # the env is shared: restored below
+    try:
+        rng = np.random.default_rng(7)
+        acts = {a: rng.uniform(-3, 3, 2 if a == "intruder" else 3).astype(np.float32) for a in par.agents}
+        fast = np.zeros((par.params.vehicles.n + 1, 3), np.float32)
+        assert par._parse_plain(acts, fast)
+        reference = np.zeros_like(fast)
+        for agent, a in acts.items():
+            reference[par._index[agent], :a.shape[0]] = par._check_action(agent, a)
+        np.testing.assert_array_equal(fast, reference)
+        acts["vehicle_0"] = np.zeros(2, np.float32)  # a vehicle's action of the intruder's size: the general path
+        assert not par._parse_plain(acts, np.zeros_like(fast))
+    finally:
+        par.params = params
+
+
 @pytest.mark.parametrize("odd", [[0.5, 0.5], None, np.array([1, 0]), np.array([np.nan, 0.0]),
                                  np.zeros(3, np.float32), np.zeros((1, 2), np.float32)])
 def test_anything_but_plain_float_arrays_takes_the_general_path(par, odd):
