@@ -50,12 +50,16 @@ action replaced by the avoidance control ``u^A`` (eq. 15) until the intruder lea
 ``used_filter`` says when. ``vehicle_policy="worst"`` (or any name of
 :data:`stp_env.baselines.VEHICLE_POLICIES`) flies the vehicles by that scripted policy instead of their actions
 (which are still checked, then ignored): ``"worst"`` is the buffer game's worst vehicle, under which an optimal
-intruder can reach the k̄ bound (the intruder paper's Fig. 6; scenario ``"fig6"``). ``intruder="max-k"`` (a name of
-:data:`stp_env.baselines.INTRUDERS`, ``"learned:NAME_OR_PATH"``, a plug-in ``"package.module:policy"``, or the
-policy itself) flies the intruder by that policy the same way (the ``intruder`` agent's actions are checked, then
-ignored); its record's capabilities apply (:class:`stp_env.baselines.intruders.Intruder`): the buffer table is
-loaded for one that reads ``V^B``, and without a ``config`` or a ``spawn_mode`` it appears where it spawns by
-default (``"boundary"`` for ``max-k``).
+intruder can reach the k̄ bound (the intruder paper's Fig. 6; scenario ``"fig6"``). ``vehicle_policy`` may also be
+the user's own jittable function ``(key, state, params) -> actions`` ``(N, action_dim)`` in ``[-1, 1]`` (clipped;
+checked once, abstractly, when the env is made), evaluated inside the step at every inner control step like the
+named ones (the papers' controllers are in ``state.track_action`` and ``state.avoid_action``): one jitted call
+per step instead of the user's call plus the step's. Define it once: the step compiles per function object.
+``intruder="max-k"`` (a name of :data:`stp_env.baselines.INTRUDERS`, ``"learned:NAME_OR_PATH"``, a plug-in
+``"package.module:policy"``, or the policy itself) flies the intruder by that policy the same way (the
+``intruder`` agent's actions are checked, then ignored); its record's capabilities apply
+(:class:`stp_env.baselines.intruders.Intruder`): the buffer table is loaded for one that reads ``V^B``, and
+without a ``config`` or a ``spawn_mode`` it appears where it spawns by default (``"boundary"`` for ``max-k``).
 
 Observations
 ------------
@@ -364,6 +368,24 @@ _advance_jit = sim_jit(_count_traces(_packed(_advance)))
 _advance_scripted_jit = sim_jit(_packed(_advance_scripted), static_argnames=("vehicle_policy", "intruder_policy"))
 
 
+def _check_vehicle_policy(policy, params) -> None:
+    """A vehicle policy passed as a function: traced once abstractly on the env's state (nothing computed), it
+    must return the vehicles' actions ``(N, action_dim)`` as floats; ``ValueError`` saying what it returned."""
+    key = jax.random.key(0)
+    name = getattr(policy, "__name__", repr(policy))
+    try:
+        out = jax.eval_shape(policy, key, jax.eval_shape(core.reset, key, params), params)
+    except Exception as err:  # anything the trace raises: the message says which policy and why
+        raise ValueError(f"vehicle_policy {name!r} is not a jittable function (key, state, params) -> actions: "
+                         f"{type(err).__name__}: {err}") from err
+    want = (params.vehicles.n, params.vehicles.model.action_dim)
+    shape, dtype = getattr(out, "shape", None), getattr(out, "dtype", None)
+    if shape is None or tuple(shape) != want or not jnp.issubdtype(dtype, jnp.floating):
+        got = f"shape {tuple(shape)}, dtype {dtype}" if shape is not None else type(out).__name__
+        raise ValueError(f"vehicle_policy {name!r} must return the vehicles' actions, floats of shape {want} (one "
+                         f"row per vehicle, in [-1, 1]); it returned {got}.")
+
+
 def _check_appear_window(params) -> None:
     """The intruder's appearance window must lie within the episode ``[t_start, t_end]``."""
     lo, hi = (float(v) for v in np.asarray(params.intruder.appear_window))
@@ -384,15 +406,18 @@ class STPParallelEnv(ParallelEnv):
     def __init__(self, scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, *,
                  max_cycles: int | None = None, render_mode: str | None = None, params: sim.EnvParams | None = None,
                  render_avoid_regions: bool = False, store=None, replan: bool = False,
-                 vehicle_policy: str | None = None, intruder=None, backend: str | None = None,
+                 vehicle_policy=None, intruder=None, backend: str | None = None,
                  progress: bool | None = None, **config_overrides):
         from stp_env import progress as progress_mod
-        from stp_env.baselines import BUFFER_GAME_VEHICLE_POLICIES
+        from stp_env.baselines import BUFFER_GAME_VEHICLE_POLICIES, VEHICLE_POLICIES
         from stp_env.baselines import vehicle_policy as resolve_vehicle_policy
         from stp_env.baselines.intruders import capabilities, resolve_intruder
         from stp_env.scenarios import Scenario, make
 
-        if vehicle_policy is not None:  # a scripted name or learned:NAME_OR_PATH; ValueError before anything is built
+        vehicle_policy_fn = None
+        if callable(vehicle_policy):  # the user's own jittable policy (its outputs are checked below)
+            vehicle_policy_fn = vehicle_policy
+        elif vehicle_policy is not None:  # a name or learned:NAME_OR_PATH; ValueError before anything is built
             vehicle_policy_fn = resolve_vehicle_policy(vehicle_policy)
 
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -437,13 +462,17 @@ class STPParallelEnv(ParallelEnv):
         elif backend is not None:
             params = params.replace(vehicles=dict(model=config.vehicle_model))
         _check_appear_window(params)
-        buffer_game = vehicle_policy in BUFFER_GAME_VEHICLE_POLICIES or (intruder_caps is not None
-                                                                          and intruder_caps.needs_buffer)
+        buffer_policies = {VEHICLE_POLICIES[name] for name in BUFFER_GAME_VEHICLE_POLICIES}
+        buffer_game = vehicle_policy_fn in buffer_policies or (intruder_caps is not None
+                                                                and intruder_caps.needs_buffer)
         if buffer_game and params.tables.buffer_values is None:
             params = assembly.with_buffer(params, assembly.load_buffer(scenario, store=store,
                                                                          progress=self._progress))
-        self._vehicle_policy = None if vehicle_policy is None else vehicle_policy_fn
-        self._vehicle_policy_name = vehicle_policy
+        if callable(vehicle_policy):
+            _check_vehicle_policy(vehicle_policy_fn, params)
+        self._vehicle_policy = vehicle_policy_fn
+        self._vehicle_policy_name = (vehicle_policy if vehicle_policy is None or isinstance(vehicle_policy, str)
+                                     else getattr(vehicle_policy, "__name__", "custom policy"))
         self._intruder_policy = intruder_policy
         self._intruder_name = None if intruder is None else (intruder if isinstance(intruder, str)
                                                              else intruder_caps.__name__)

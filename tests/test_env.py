@@ -254,6 +254,52 @@ def test_the_vectorised_action_check_equals_the_per_agent_one_for_a_three_input_
         par.params = params
 
 
+def _hold_still(key, state, params):
+    """A user's own vehicle policy: the zero action for every vehicle."""
+    del key
+    return jnp.zeros((params.vehicles.n, params.vehicles.model.action_dim), state.x.dtype)
+
+
+def test_a_function_as_vehicle_policy_flies_inside_the_step():
+    """``vehicle_policy=`` a function: the same episode, bit for bit, as its actions passed from outside (zero
+    actions: held over the step or evaluated at every inner step, they are the same), the safety filter included."""
+    # the HJ-pursuit intruder appearing on an avoid boundary forces vehicles: the safety filter acts in both
+    par = parallel_env(intruder="hj", spawn_mode="boundary")
+    own = parallel_env(vehicle_policy=_hold_still, intruder="hj", spawn_mode="boundary")
+    options = {"appear_time": float(par.params.episode.t_start) + 0.5}
+    par.reset(seed=6, options=options)
+    own.reset(seed=6, options=options)
+    rng = np.random.default_rng(3)
+    zero = np.zeros(2, np.float32)
+    for _ in range(40):
+        intruder = rng.uniform(-1, 1, 2).astype(np.float32)
+        outside = par.step({a: intruder if a == "intruder" else zero for a in par.agents})
+        inside = own.step({a: intruder if a == "intruder" else rng.uniform(-1, 1, 2).astype(np.float32)
+                           for a in own.agents})  # the vehicles' actions are ignored
+        assert outside[1:4] == inside[1:4]
+        for agent in outside[0]:
+            np.testing.assert_array_equal(outside[0][agent], inside[0][agent])
+        if not par.agents:
+            break
+    assert np.isfinite(np.asarray(par.env_state.avoid_start)).any()  # a vehicle was forced: the filter flew it
+    for a, b in zip(jax.tree.leaves(par.env_state), jax.tree.leaves(own.env_state)):
+        np.testing.assert_array_equal(np.asarray(jax.random.key_data(a) if a.dtype == jax.random.key(0).dtype
+                                                 else a),
+                                      np.asarray(jax.random.key_data(b) if b.dtype == jax.random.key(0).dtype
+                                                 else b))
+
+
+@pytest.mark.parametrize("policy, message", [
+    (lambda key, state, params: jnp.zeros(3), r"must return the vehicles' actions.*returned shape \(3,\)"),
+    (lambda key, state, params: jnp.zeros((params.vehicles.n, 2), jnp.int32), "dtype int32"),
+    (lambda key, state, params: state.no_such_field, "not a jittable function.*no_such_field"),
+    (42, "vehicle_policy 42 is not known"),
+])
+def test_a_bad_vehicle_policy_is_refused_when_the_env_is_made(policy, message):
+    with pytest.raises(ValueError, match=message):
+        parallel_env(vehicle_policy=policy)
+
+
 @pytest.mark.parametrize("odd", [[0.5, 0.5], None, np.array([1, 0]), np.array([np.nan, 0.0]),
                                  np.zeros(3, np.float32), np.zeros((1, 2), np.float32)])
 def test_anything_but_plain_float_arrays_takes_the_general_path(par, odd):
