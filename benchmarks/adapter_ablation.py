@@ -38,7 +38,7 @@ def run_one(scenario: str, mode: str) -> dict:
     import numpy as np
 
     import stp_env.env as env_module
-    from stp_env.sim import core, tables
+    from stp_env.sim import core
     from stp_env.sim import wind as wind_lib
 
     if mode == "observe":
@@ -48,20 +48,11 @@ def run_one(scenario: str, mode: str) -> dict:
             return tuple(jnp.zeros(s.shape, s.dtype) for s in jax.eval_shape(full, state, params))
 
         core.observe = observe
-    elif mode == "track":
-        tables._tracking_read = lambda grid, padded, e: e * 0.0 + 1.0
-    elif mode == "avoid":
-        tables._avoid_read = lambda grid, taus, values, tau, x: (x[0] * 0.0 + tables.FAR, x * 0.0)
-    elif mode == "pairs":
-        def no_pairs(closest, s, params):
-            p = s.x[:, :2]
-            return core.Closest(pair_sq=closest.pair_sq,
-                                intruder=jnp.minimum(closest.intruder, jnp.hypot(*(p - s.intruder_x[None, :2]).T)),
-                                building=jnp.minimum(closest.building, core.building_distance(params, p)))
+    elif mode in ("track", "avoid", "pairs", "building"):
+        sys.path.insert(0, HERE)
+        import core_ablation
 
-        core._closest_approach = no_pairs
-    elif mode == "building":
-        core.building_distance = lambda params, p: jnp.full(p.shape[:-1], 1.0e6, p.dtype)
+        core_ablation.ablate(mode)
     elif mode == "rewards":
         core._rewards = lambda state, new, ev, params: jnp.zeros((params.vehicles.n + 1,), jnp.float32)
     elif mode == "wind":

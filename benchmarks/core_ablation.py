@@ -22,18 +22,13 @@ import time
 MODES = ("none", "avoid", "track", "pairs", "building", "all")
 
 
-def run_one(scenario: str, mode: str, n_envs: int, n_steps: int) -> float:
-    import jax
+def ablate(mode: str) -> None:
+    """Replace the part ``mode`` names (``avoid``, ``track``, ``pairs``, ``building`` or ``all``) by a constant of
+    its shape, before anything is traced (``benchmarks/adapter_ablation.py`` uses the same replacements)."""
     import jax.numpy as jnp
 
-    sys.path.insert(0, os.path.dirname(__file__))
-    import env_throughput
-
-    from stp_env import sim
-    from stp_env.baselines import INTRUDERS, switching
     from stp_env.sim import core, tables
 
-    _, params = env_throughput._params(scenario)
     if mode in ("avoid", "all"):
         tables._avoid_read = lambda grid, taus, values, tau, x: (x[0] * 0.0 + tables.FAR, x * 0.0)
     if mode in ("track", "all"):
@@ -47,6 +42,19 @@ def run_one(scenario: str, mode: str, n_envs: int, n_steps: int) -> float:
         core._closest_approach = no_pairs
     if mode in ("building", "all"):
         core.building_distance = lambda params, p: jnp.full(p.shape[:-1], 1.0e6, p.dtype)
+
+
+def run_one(scenario: str, mode: str, n_envs: int, n_steps: int) -> float:
+    import jax
+
+    sys.path.insert(0, os.path.dirname(__file__))
+    import env_throughput
+
+    from stp_env import sim
+    from stp_env.baselines import INTRUDERS, switching
+
+    _, params = env_throughput._params(scenario)
+    ablate(mode)
 
     def go(seed):
         return jax.block_until_ready(sim.rollout(jax.random.key(seed), params, switching, INTRUDERS["hj"], n_envs,
