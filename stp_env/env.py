@@ -299,44 +299,39 @@ def _advance_scripted(key, state, actions, params, vehicle_policy=None, intruder
 
 
 class Layout(NamedTuple):
-    """How :func:`pack` laid a pytree out: its structure and, per leaf, shape, dtype and number of int32 words
-    (``plan``: per leaf, where its words start and end and how they are read back, derived from ``leaves``)."""
+    """How :func:`pack` laid a pytree out: its structure and, per leaf, shape, dtype and number of int32 words."""
 
     treedef: Any
     leaves: tuple
-    plan: tuple = ()
 
     @classmethod
     def of(cls, tree) -> Layout:
         """The layout of ``tree`` (arrays or ``jax.ShapeDtypeStruct`` leaves, e.g. from ``jax.eval_shape``)."""
         leaves, treedef = jax.tree.flatten(tree)
-        out, plan, start = [], [], 0
+        out = []
         for x in leaves:
             dtype = np.dtype(x.dtype)
             n = int(np.prod(x.shape, dtype=np.int64))
-            words = n * max(1, dtype.itemsize // 4)  # 1 word, 2 for 8-byte leaves
-            out.append((tuple(x.shape), dtype, words))
-            kind = "bool" if dtype == np.bool_ else "widened" if dtype.itemsize < 4 else "bits"
-            plan.append((start, start + words, kind, dtype, tuple(x.shape)))
-            start += words
-        return cls(treedef, tuple(out), tuple(plan))
+            out.append((tuple(x.shape), dtype, n * max(1, dtype.itemsize // 4)))  # 1 word, 2 for 8-byte leaves
+        return cls(treedef, tuple(out))
 
     def unpack(self, words: np.ndarray):
         """The pytree from the host copy of :func:`pack`'s array. ``words`` is copied once; the leaves are views
         of that copy (writable, each its own slice)."""
         words = np.array(words, np.int32, copy=True)
-        total = self.plan[-1][1] if self.plan else 0
+        total = sum(n for _, _, n in self.leaves)
         if words.shape != (total,):
             raise ValueError(f"packed step output of shape {words.shape}; the layout needs ({total},).")
-        out = []
-        for start, stop, kind, dtype, shape in self.plan:
-            chunk = words[start:stop]
-            if kind == "bits":
-                out.append(chunk.view(dtype).reshape(shape))
-            elif kind == "bool":
+        out, i = [], 0
+        for shape, dtype, n in self.leaves:
+            chunk = words[i:i + n]
+            i += n
+            if dtype == np.bool_:
                 out.append((chunk != 0).reshape(shape))
-            else:
+            elif dtype.itemsize < 4:
                 out.append(chunk.astype(dtype).reshape(shape))
+            else:
+                out.append(chunk.view(dtype).reshape(shape))
         return jax.tree.unflatten(self.treedef, out)
 
 
@@ -661,19 +656,6 @@ class STPParallelEnv(ParallelEnv):
         result as the general path, with one finiteness check and one clip per action size instead of one per
         agent (the per-agent checks were a third of an adapter step for the city's 51 agents)."""
         live = set(self.agents)
-        if self.params.vehicles.model.action_dim == 2:  # every agent's action has size 2: one stack of them all
-            values = list(actions.values())
-            for a in values:
-                if type(a) is not np.ndarray or a.dtype.kind != "f" or a.shape != (2,):
-                    return False
-            if not live.issuperset(actions):
-                return False
-            stacked = np.array(values, np.float64).reshape(len(values), 2)
-            if not np.isfinite(stacked).all():
-                return False
-            index = self._index
-            arr[[index[a] for a in actions], :2] = np.clip(stacked, -1.0, 1.0)
-            return True
         groups: dict[int, tuple[list, list]] = {}
         for agent, a in actions.items():
             if agent not in live or type(a) is not np.ndarray or a.dtype.kind != "f" or a.ndim != 1:
