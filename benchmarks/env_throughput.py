@@ -17,6 +17,8 @@ Prints one JSON line. Measured in the same run:
   one per core). One thread is the setting for a loop over one environment, every core the one for the batched
   core, so the adapter's and the core's figures are each read from the run with their setting
   (``cpu_threads`` in the output says which run it is).
+* ``--cpu-devices N``: JAX's CPU backend split into ``N`` devices (:func:`stp_env.set_cpu_devices`); the core's
+  batch is then shared among them (:func:`stp_env.sim.engine.across_devices`), the adapter runs on the first.
 
 Both scenarios fly their shipped STP plans (``stp_env/data/plans``; the city's is BEACLS Case 0, 50 vehicles).
 """
@@ -154,13 +156,17 @@ def main() -> None:
     parser.add_argument("--long", type=int, default=0)
     parser.add_argument("--cpu-threads", type=int, default=None,
                         help="XLA's CPU thread-pool size (default: one thread per core)")
+    parser.add_argument("--cpu-devices", type=int, default=1,
+                        help="JAX CPU devices the core's batch is shared among (one per core: the batch setting)")
     args = parser.parse_args()
-    from stp_env import set_cpu_threads
+    from stp_env import set_cpu_devices, set_cpu_threads
 
     set_cpu_threads(args.cpu_threads)  # before JAX's first computation
+    set_cpu_devices(args.cpu_devices)
     scenario, params = _params(args.scenario)
     result = {"case": "env_throughput", "scenario": args.scenario, "n_agents": params.vehicles.n + 1,
-              "cpu_threads": args.cpu_threads, "loadavg_1min_before": round(os.getloadavg()[0], 2)}
+              "cpu_threads": args.cpu_threads,
+              "cpu_devices": args.cpu_devices, "loadavg_1min_before": round(os.getloadavg()[0], 2)}
     result["mpe2_env_steps_per_s"] = round(mpe2_rate(args.mpe_steps), 1)
     result["adapter_env_steps_per_s"] = round(adapter_rate(scenario, params, args.adapter_steps), 1)
     result["adapter_over_mpe2"] = round(result["adapter_env_steps_per_s"] / result["mpe2_env_steps_per_s"], 2)

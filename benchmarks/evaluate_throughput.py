@@ -15,7 +15,8 @@ jitted ``policy + step`` per call, one episode at a time, as a gym-style loop ov
 ``--base REV`` also runs the city case on another git revision's ``stp_env`` (exported with ``git archive``, its
 own process, after this tree's): ``city_speedup_vs_base`` is the base's seconds over this tree's, and
 ``city_same_episodes_as_base`` compares a hash of every episode's final state (in index order; ``--ignore`` leaves
-fields out of it, e.g. one whose meaning changed where no episode reads it).
+fields out of it, e.g. one whose meaning changed where no episode reads it). ``--cpu-devices N`` shares each batch
+among ``N`` CPU devices (:func:`stp_env.set_cpu_devices`; the digests then compare another program's episodes).
 """
 
 from __future__ import annotations
@@ -98,17 +99,22 @@ def main() -> None:
     parser.add_argument("--base", help="also run the city case on this git revision (e.g. HEAD~1)")
     parser.add_argument("--ignore", nargs="*", default=[], help="final-state fields left out of the digests")
     parser.add_argument("--city-only", action="store_true", help="the city case alone (used internally)")
+    parser.add_argument("--cpu-devices", type=int, default=1,
+                        help="JAX CPU devices each batch is shared among (stp_env.set_cpu_devices)")
     args = parser.parse_args()
-    if args.city_only:
-        import stp_env
+    import stp_env
 
+    if args.cpu_devices != 1:  # (a --base revision's package may predate the setting)
+        stp_env.set_cpu_devices(args.cpu_devices)  # before JAX's first computation
+    if args.city_only:
         print(json.dumps({"city": time_city(args), "package": stp_env.__file__}))
         return
     load = os.getloadavg()[0]
     config = Configuration(scenario="town", kbar=2, intruder=args.intruder)
     town = build_params([config], progress=False)[0]
     out = {"case": "evaluate_throughput", "intruder": args.intruder, "vehicle_policy": "switching",
-           "batch_size": args.batch_size, "loadavg_1min_before": round(load, 2)}
+           "batch_size": args.batch_size,
+           "cpu_devices": args.cpu_devices, "loadavg_1min_before": round(load, 2)}
     out["town"] = time_evaluator(config, town, args.town_episodes, args.batch_size, showcase=True)
     out["town_peer_step_loop"] = time_step_loop(town, INTRUDERS[args.intruder], args.peer_episodes)
     out["town_ratio"] = round(out["town"]["episodes_per_s"] / out["town_peer_step_loop"]["episodes_per_s"], 1)

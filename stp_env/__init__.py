@@ -5,17 +5,18 @@ docstring is the user's manual), imported on first use. The single-agent views a
 (``gymnasium.make("stp_env/Intruder-v0")``, :mod:`stp_env.registration`). Importing the package turns on JAX's
 persistent compilation cache (:mod:`stp_env.compilation_cache`: programs compile once per machine;
 ``STP_ENV_COMPILATION_CACHE=0`` turns it off). :func:`set_cpu_threads` (:mod:`stp_env.cpu_threads`) sizes XLA's CPU
-thread pools before JAX starts: one thread makes a loop over one environment faster.
+thread pools before JAX starts: one thread makes a loop over one environment faster; :func:`set_cpu_devices`
+splits the CPU into one device per core, among which batches of episodes are shared.
 """
 
 from __future__ import annotations
 
 import warnings as _warnings
 
-from stp_env.cpu_threads import set_cpu_threads
+from stp_env.cpu_threads import set_cpu_devices, set_cpu_threads
 from stp_env.version import __version__
 
-__all__ = ["__version__", "env", "parallel_env", "set_cpu_threads"]
+__all__ = ["__version__", "env", "parallel_env", "set_cpu_devices", "set_cpu_threads"]
 
 try:
     from stp_env import compilation_cache as _compilation_cache

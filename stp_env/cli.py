@@ -193,6 +193,7 @@ def _add_evaluate_parsers(sub) -> None:
     kit.add_out(ev, "evaluation")
     ev.add_argument("--no-figures", action="store_true", help="write the results only")
     kit.add_ray(ev, "the batches of episodes")
+    kit.add_cpu_devices(ev)
     ev.add_argument("--whole-fleet", action="store_true",
                     help="simulate every vehicle of the plan, not only those that can fly in the episode window "
                          "(the same episodes up to float rounding, 2-4x slower; for comparison)")
@@ -338,6 +339,7 @@ def _evaluate(args) -> int:
     configs = _evaluation_configs(args)
     for config in configs:
         config.make_scenario()               # a k̄ the scenario does not allow fails here
+    kit.apply_cpu_devices(args)              # before JAX's first computation
     executor = kit.executor(args)            # --ray without ray installed, or a cluster not reached, fails here
     result = pipeline.run(configs, args.out, episodes=args.episodes, seed=args.seed, batch_size=args.batch_size,
                           confidence=args.confidence, store=ArtifactStore(args.cache_dir),
@@ -362,6 +364,7 @@ def _render(args) -> int:
         seed, index = record["seed"], record["index"]
         n_steps, batch_size, recorded = record["n_steps"], record["batch_size"], record["recorded"]
         airborne_only, episodes = record.get("airborne_only", False), record.get("episodes")
+        devices = record.get("devices") if recorded else None
     else:
         intruder = "max-k" if args.intruder is None else args.intruder
         config = _configurations(args, args.scenario, [args.kbar], [intruder], args.vehicle_policy)[0]
@@ -369,13 +372,13 @@ def _render(args) -> int:
         params = build_params([config], store=store, progress=not args.no_progress)[0]
         n_steps, batch_size, recorded = steps_for(params), args.batch_size, True
         vehicle_policy, intruder_policy = config.policies()
-        airborne_only, episodes = True, None
+        airborne_only, episodes, devices = True, None, None
     start = time.perf_counter()
     # An evaluation without recording (evaluate(..., showcase=False)) ran another program: drawing needs the
     # trajectory, so such an episode is replayed alone (the same episode up to float rounding).
     final, traj = replay(seed, index, params, vehicle_policy, intruder_policy, n_steps,
                          batch_size=batch_size if recorded else 1, airborne_only=airborne_only,
-                         episodes=episodes if recorded else None)
+                         episodes=episodes if recorded else None, devices=devices)
     title = (f"{config.scenario}, k̄ = {config.kbar}, {config.intruder} intruder\nseed {seed}, episode {index}: "
              f"|N^RP| = {int(final['n_forced'])}")
     files, n_frames = render_episode(traj, final, params, config.make_scenario(), args.out, frame_dt=args.frame_dt,
@@ -410,6 +413,8 @@ def _event_to_render(args, store):
                              f"({recorded_intruder!r}); a saved event replays with its own intruder.")
         if is_plugin_spec(args.intruder):
             intruder_policy = resolve_intruder(args.intruder)  # typed by the user: trusted
+    if record["recorded"] and record.get("devices", 1) != 1:
+        kit.follow_cpu_devices(record["devices"])  # the evaluation's program, if JAX has not started yet
     config, params, vehicle_policy, intruder_policy = prepare_event(
         record, store=store, progress=not args.no_progress, intruder_policy=intruder_policy, where=where)
     return config, params, vehicle_policy, intruder_policy, record

@@ -132,6 +132,38 @@ def add_ray(parser, what: str) -> None:
                              "this machine); implies --ray")
 
 
+def add_cpu_devices(parser) -> None:
+    """``--cpu-devices N``: JAX's CPU split into ``N`` devices, each batch shared among them."""
+    parser.add_argument("--cpu-devices", type=positive_int, default=1, metavar="N",
+                        help="split the CPU into N devices and share every batch among them (N = the cores: about "
+                             "2x faster on 2 cores); another compiled program than on one device, so episodes agree "
+                             "in their outcomes, not always in their last bits; events record N and replay with it; "
+                             "not with --ray")
+
+
+def apply_cpu_devices(args) -> None:
+    """Set ``--cpu-devices`` before JAX starts (:func:`stp_env.set_cpu_devices`); ``ValueError`` with --ray or once
+    JAX has started with another count."""
+    from stp_env.cpu_threads import set_cpu_devices
+
+    if args.cpu_devices != 1 and (getattr(args, "ray", False) or getattr(args, "ray_address", None)):
+        raise ValueError("--cpu-devices shares the batches of this process among its devices; with --ray the batches "
+                         "run in Ray's workers: leave it out.")
+    try:
+        set_cpu_devices(args.cpu_devices)
+    except RuntimeError as err:
+        raise ValueError(str(err)) from None
+
+
+def follow_cpu_devices(n: int) -> None:
+    """Use ``n`` CPU devices (a saved event's count) when JAX has not started; otherwise leave the count as it is
+    (the replay then says that it runs another program)."""
+    from stp_env.cpu_threads import _backend_started, set_cpu_devices
+
+    if not _backend_started():
+        set_cpu_devices(int(n))
+
+
 def executor(args):
     """The executor that ``--ray`` / ``--ray-address`` ask for (in-process without them)."""
     from stp_env.execution import executor_for

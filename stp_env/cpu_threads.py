@@ -77,3 +77,48 @@ def set_cpu_threads(n: int | None) -> None:
         os.environ.pop("NPROC", None)
     else:
         os.environ[ENV_VAR] = str(n)
+
+
+def cpu_devices() -> int:
+    """How many devices JAX's CPU backend has or will have (:func:`set_cpu_devices`; 1 unless set)."""
+    import jax
+
+    n = int(jax.config.jax_num_cpu_devices)
+    if n > 0:
+        return n
+    for flag in os.environ.get("XLA_FLAGS", "").split():
+        if flag.startswith("--xla_force_host_platform_device_count="):
+            try:
+                return int(flag.split("=", 1)[1])
+            except ValueError:
+                break
+    return 1
+
+
+def set_cpu_devices(n: int) -> None:
+    """Split JAX's CPU backend into ``n`` devices (``jax_num_cpu_devices``); ``n`` = the number of cores is the
+    setting for batches of episodes.
+
+    XLA runs one program on one device at a time and, inside it, gives kernels to other cores only when several
+    are ready at once: a batched rollout kept about 1.45 of the 2 cores busy. With one device per core the episode
+    engine (:func:`stp_env.sim.engine.across_devices`) shares each batch among the devices, which run side by side:
+    the town rollout at 1,024 episodes went from about 575,000 to 870,000 agent-steps/s on the 2-core machine
+    (``BENCHMARKS.md``, "The batched core on one device per core"). Results: each device runs a batch of its
+    share, another compiled program than the whole batch on one device, so the episodes agree in their outcomes and
+    may differ in their last bits (``docs/numerics.md``); the same device count gives the same bits. A loop over
+    one environment runs on the first device and is unchanged.
+
+    Must come before the first JAX computation (like :func:`set_cpu_threads`); ``ValueError`` for a count that is
+    not a positive integer, ``RuntimeError`` once the backend has started with another count (nothing changed)."""
+    import jax
+
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise ValueError(f"the CPU device count must be a positive integer; got {n!r}.")
+    if cpu_devices() == n:
+        return
+    if _backend_started():
+        raise RuntimeError(
+            f"JAX's CPU backend has already started with {cpu_devices()} device(s) (the first JAX computation fixes "
+            f"it); set the device count before it: stp_env.set_cpu_devices({n}) before making any environment or "
+            "array.")
+    jax.config.update("jax_num_cpu_devices", n)

@@ -215,6 +215,11 @@ def test_saved_events_replay(tiny_run):
         assert int(replayed["n_forced"]) == record["n_forced"]
         assert np.flatnonzero(replayed["status"] == COLLIDED).tolist() == record["collided_vehicles"]
         assert traj["x"].shape[0] == record["n_steps"]
+        assert record["devices"] == 1                    # one CPU device: the batch was not shared
+    # a record of a run whose batches were shared among two devices replays here on one: another program, said so
+    with pytest.warns(RuntimeWarning, match="shared among 2 device"):
+        replayed, _ = replay_event(dict(records[0], devices=2))
+    assert same_outcome(load_event_state(out / "events.npz", records[0]), replayed)
 
 
 def test_replay_of_any_episode_matches_the_batch(tiny_run):

@@ -373,6 +373,8 @@ def test_a_plugin_spec_typed_on_the_command_line_is_used(tmp_path, monkeypatch):
     (json.dumps([_event(recorded="yes")]), "recorded"),
     (json.dumps([_event(airborne_only=1)]), "airborne_only"),
     (json.dumps([_event(batch_size=10**9)]), "batch_size"),
+    (json.dumps([_event(devices=0)]), "devices"),
+    (json.dumps([_event(devices="2")]), "devices"),
     (json.dumps([_event(config={"scenario": "tiny-intruder", "evil": 1})]), "unknown config field"),
     (json.dumps([_event(config={"scenario": "tiny-intruder", "kbar": "2"})]), "kbar"),
     (json.dumps([_event(intruder="nope")]), "unknown intruder"),

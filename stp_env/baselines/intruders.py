@@ -31,6 +31,7 @@ from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from stp_env.baselines.record import Intruder
 from stp_env.sim import tables
@@ -69,8 +70,9 @@ def bezier_intruder(degree: int):
         raise ValueError(f"degree must be an integer >= 1; got {degree!r}.")
     if degree == 1:
         return hover
-    binom = jnp.asarray([math.comb(degree, i) for i in range(degree + 1)], jnp.float32)
-    powers = jnp.arange(degree + 1, dtype=jnp.float32)
+    # numpy constants: a JAX array made here, at import, would start JAX's backend and fix its settings too early
+    binom = np.asarray([math.comb(degree, i) for i in range(degree + 1)], np.float32)
+    powers = np.arange(degree + 1, dtype=np.float32)
 
     def policy(key, state, params):
         del key

@@ -27,8 +27,9 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-E1 = jnp.array([1.0, 0.0, 0.0])
+E1 = np.array([1.0, 0.0, 0.0])  # numpy: a JAX array at import would start the backend too early
 _BISECTION_STEPS = 32
 B_FLOOR = 0.2
 _TINY = 1e-12

@@ -41,7 +41,8 @@ from stp_env.sim.types import COLLIDED, FLYING, OUT_OF_BOUNDS, EnvParams, EnvSta
 
 INF = jnp.inf
 NEVER = 1e9  # [s] time of the placeholder observations that pad a schedule
-FLY_PLAN = jnp.full((2,), jnp.nan, jnp.float32)  # an attacker's "action" that lets the vehicle fly its plan
+# an attacker's "action": its vehicle flies its plan (numpy, so that importing does no JAX work)
+FLY_PLAN = np.full((2,), np.nan, np.float32)
 
 
 @jax.tree_util.register_dataclass

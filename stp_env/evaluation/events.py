@@ -50,7 +50,8 @@ def check_event(record, where: str = "event") -> dict:
     :class:`Configuration` fields whose intruder is registered, learned or a plug-in spec (see the module
     docstring), a seed, an index, the step count, plan length and batch size, the ``recorded`` flag, the
     optional ``airborne_only`` flag (absent in records written before it existed: the whole fleet) and the optional
-    run size ``episodes`` (which finds the episode's batch; absent in older records: its consecutive indices).
+    run size ``episodes`` (which finds the episode's batch; absent in older records: its consecutive indices) and the
+    optional ``devices`` its batch was shared among (absent in older records: one).
     Returns it unchanged; ``ValueError`` starting with ``where`` otherwise."""
     if not isinstance(record, dict):
         raise ValueError(f"{where}: a record must be a JSON object; got a {type(record).__name__}.")
@@ -84,6 +85,8 @@ def check_event(record, where: str = "event") -> dict:
         _int(record["episodes"], "episodes", where, 1)
         if record["index"] >= record["episodes"]:
             raise ValueError(f"{where}: index {record['index']} is not an episode of a run of {record['episodes']}.")
+    if "devices" in record:  # absent in records written before batches were shared among devices: one
+        _int(record["devices"], "devices", where, 1, 1 << 16)
     if not isinstance(record["recorded"], bool):
         raise ValueError(f"{where}: recorded must be true or false; got {record['recorded']!r}.")
     if not isinstance(record.get("airborne_only", False), bool):

@@ -27,7 +27,7 @@ CSV_COLUMNS = (
     "violation_episodes", "violation_upper", "assumption_failures", "tracking_violations", "max_tracking_error_m",
     "tracking_bound_m", "due", "on_time_rate", "arrived_rate",
     "min_separation_m", "min_separation_p5_m", "min_separation_median_m", "collision_radius_m", "seed", "n_steps",
-    "batch_size", "seconds", "episodes_per_s",
+    "batch_size", "devices", "seconds", "episodes_per_s",
 )
 
 

@@ -147,7 +147,7 @@ class ConfigResult:
 
 
 def _events(config: Configuration, seed: int, n_steps: int, plan_samples: int, batch_size: int, recorded: bool,
-            ep: dict, kbar: int, airborne_only: bool, episodes: int) -> list[dict]:
+            ep: dict, kbar: int, airborne_only: bool, episodes: int, devices: int | None) -> list[dict]:
     n_forced = ep["n_forced"]
     kinds = {
         "bound_exceeded": n_forced > kbar,
@@ -162,7 +162,7 @@ def _events(config: Configuration, seed: int, n_steps: int, plan_samples: int, b
         out.append({
             "label": config.label, "config": dataclasses.asdict(config), "seed": seed, "index": int(ep["index"][j]),
             "n_steps": n_steps, "plan_samples": plan_samples, "batch_size": batch_size, "episodes": episodes,
-            "recorded": recorded,
+            "recorded": recorded, **({} if devices is None else {"devices": devices}),
             "airborne_only": airborne_only, "kinds": [k for k, v in kinds.items() if v[j]],
             "n_forced": int(n_forced[j]),
             "collided_vehicles": collided.tolist(),
@@ -394,7 +394,8 @@ def evaluation_job(configs, params, *, seed: int, episodes: int, batch_size: int
         from stp_env.evaluation.report import source_hash
 
         fingerprint = execution.digest("evaluate", [dataclasses.asdict(c) for c in configs], seed, episodes,
-                                       batch_size, n_steps, record, active, list(host), source_hash())
+                                       batch_size, n_steps, record, active, list(host), source_hash(),
+                                       *([engine.shares(batch_size)] if engine.shares(batch_size) > 1 else []))
     return execution.Job(name="evaluate", function=evaluation_piece, context=context, arguments=arguments,
                          fingerprint=fingerprint, units=tuple(min(batch_size, episodes - f) for _, f in arguments))
 
@@ -426,6 +427,7 @@ def evaluation_piece(context: EvaluationContext, argument) -> dict:
         j = _showcase_of(ep)
         out.update({f"show/{k}": np.asarray(v[j]) for k, v in traj.items()})
     out["seconds"] = np.float64(timer.seconds())
+    out["devices"] = np.int64(engine.shares(batch_size))  # where it ran: a Ray worker may have another count
     return out
 
 
@@ -456,15 +458,18 @@ def _combine_batches(config, params, pieces, seed, episodes, batch_size, n_steps
             showcase.update(index=int(ep["index"][j]), final={k: v[j] for k, v in ep.items()})
         chunks.append(ep)
     seconds = max(float(sum(float(p["seconds"]) for p in pieces)), 1e-9)
+    counts = sorted({int(p["devices"]) for p in pieces})
+    devices = counts[0] if len(counts) == 1 else None   # batches run on different counts: no single program
     ep = {k: np.concatenate([c[k] for c in chunks]) for k in chunks[0]}
     by_index = np.argsort(ep["index"], kind="stable")   # the batches ran in appearance order; report index order
     ep = {k: v[by_index] for k, v in ep.items()}
     summary = summarize(config, ep, params, confidence=confidence)
-    summary.update(seed=seed, n_steps=n_steps, batch_size=batch_size, seconds=round(seconds, 2),
+    summary.update(seed=seed, n_steps=n_steps, batch_size=batch_size, devices=devices if devices else counts,
+                   seconds=round(seconds, 2),
                    episodes_per_s=round(episodes / seconds, 2),
                    simulated_vehicles=params.vehicles.n if active is None else len(active))
     events = _events(config, seed, n_steps, plan_samples, batch_size, record, ep, config.kbar, airborne_only,
-                     episodes)
+                     episodes, devices)
     summary["events_saved"] = min(len(events), max_events)
     return ConfigResult(config=config, seed=seed, n_steps=n_steps, plan_samples=plan_samples, episodes=ep,
                         summary=summary, events=events[:max_events], showcase=showcase, params=params,
@@ -473,7 +478,7 @@ def _combine_batches(config, params, pieces, seed, episodes, batch_size, n_steps
 
 def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_steps: int, *, batch_size: int = 1,
            record: bool = True, airborne_only: bool = True, progress: bool | None = None,
-           episodes: int | None = None):
+           episodes: int | None = None, devices: int | None = None):
     """Episode ``index`` of the run with ``seed``: ``(final state, trajectory)`` as numpy dicts (the trajectory
     ``None`` without ``record``).
 
@@ -484,7 +489,9 @@ def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_ste
     consecutive indices that hold ``index``: the same program with other batch-mates, which do not change an
     episode (``tests/test_gates.py``). Another batch size is another compiled program, which XLA may vectorize
     differently (10 of 10 town episodes of a batch of 250 replayed alone ended identically, BENCHMARKS.md). Either
-    way the reachability artifacts must be the same as in the evaluation. ``airborne_only`` as in
+    way the reachability artifacts must be the same as in the evaluation. ``devices``: among how many devices the
+    evaluation shared its batches (:func:`stp_env.sim.engine.shares`, saved with each event; ``None``: not known);
+    on another count the batch is another program, and a ``RuntimeWarning`` says so. ``airborne_only`` as in
     :func:`evaluate` (the whole fleet or part of it are also different programs). ``progress``: announce the
     replay on standard error (:mod:`stp_env.progress`; ``None``: in a terminal).
     """
@@ -510,6 +517,14 @@ def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_ste
         order = episode_order(seed, int(episodes), params)
         position = int(np.flatnonzero(order == index)[0])
         indices = batch_indices(order, (position // batch_size) * batch_size, batch_size)
+    here = engine.shares(batch_size)
+    if devices is not None and int(devices) != here:
+        import warnings
+
+        warnings.warn(f"episode {index} was evaluated with its batch shared among {int(devices)} device(s) and is "
+                      f"replayed on {here}: another compiled program, so the outcome agrees but the last bits may not "
+                      "(set the same count with stp_env.set_cpu_devices before JAX starts for a bit-for-bit replay).",
+                      RuntimeWarning, stacklevel=2)
     progress_mod.note(f"replaying episode {index} of seed {seed} in its batch of {batch_size} (compiles the "
                       "simulator's batch once per machine)", progress)
     final, traj = run_batch(prng_key(seed), jnp.asarray(indices), params, vehicle_policy, intruder_policy, n_steps,
@@ -545,7 +560,8 @@ def replay_event(event: dict, *, store=None, progress: bool = False, intruder_po
                                                                intruder_policy=intruder_policy)
     return replay(event["seed"], event["index"], params, vehicle_policy, intruder_policy, event["n_steps"],
                   batch_size=event["batch_size"], record=event["recorded"],
-                  airborne_only=event.get("airborne_only", False), episodes=event.get("episodes"))
+                  airborne_only=event.get("airborne_only", False), episodes=event.get("episodes"),
+                  devices=event.get("devices"))
 
 
 def same_outcome(a: dict, b: dict, *, atol: float = 1e-3) -> bool:

@@ -66,8 +66,52 @@ def episode(key, init, step, n_steps: int, *, stop=None, record=None):
 
 def episodes(episode_keys, init, step, n_steps: int, *, stop=None, record=None):
     """:func:`episode` of each key of ``episode_keys`` ``(B,)``, batched (:func:`play` with ``batched=True``):
-    ``(final carries, records)`` batched over ``B`` on the leading axis, the records ``(B, n_steps, ...)``."""
-    k_reset, k_steps = jax.vmap(lambda k: _split(k, n_steps))(episode_keys)
-    final, records = play(step, jax.vmap(init)(k_reset), jnp.swapaxes(k_steps, 0, 1), stop=stop, record=record,
-                          batched=True)
-    return final, jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), records)
+    ``(final carries, records)`` batched over ``B`` on the leading axis, the records ``(B, n_steps, ...)``.
+
+    With several devices on JAX's default backend (e.g. the CPU split into one device per core,
+    :func:`stp_env.set_cpu_devices`) the episodes are shared out among them (:func:`across_devices`); each
+    episode's arithmetic is its own, so the results are the same as on one device."""
+
+    def run(keys):
+        k_reset, k_steps = jax.vmap(lambda k: _split(k, n_steps))(keys)
+        final, records = play(step, jax.vmap(init)(k_reset), jnp.swapaxes(k_steps, 0, 1), stop=stop, record=record,
+                              batched=True)
+        return final, jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), records)
+
+    return across_devices(run, episode_keys)
+
+
+MESH_AXIS = "stp_env_episodes"
+"""The name of the mesh axis :func:`across_devices` shares a batch along."""
+
+
+def shares(n: int) -> int:
+    """Among how many devices :func:`across_devices` shares a batch of ``n``: every device of JAX's default backend,
+    or one (no sharing) with a single device or fewer than one element per device. Each share is another compiled
+    program than the whole batch, so results are bit for bit the same only for the same count."""
+    count = len(jax.devices())
+    return count if 1 < count <= n else 1
+
+
+def across_devices(fn, batch):
+    """``fn(batch)`` with the batch (a pytree whose leaves have the batch on their leading axis, as do ``fn``'s
+    outputs) split into equal shares, one per device of JAX's default backend, run side by side
+    (``jax.shard_map``; the devices compute independently, no communication). Everything ``fn`` closes over is
+    replicated. With one device, or fewer episodes than devices, it is ``fn(batch)``. A batch that does not divide
+    evenly is padded with copies of its last element, and the padding cut from the outputs.
+
+    ``fn`` must treat the batch's elements independently (a ``vmap`` over it, as the episode engine does): each
+    device then computes exactly what one device computes for those elements."""
+    n = jax.tree.leaves(batch)[0].shape[0]
+    if shares(n) == 1:
+        return fn(batch)
+    devices = jax.devices()
+    from jax.sharding import Mesh, PartitionSpec
+
+    pad = -n % len(devices)
+    if pad:
+        batch = jax.tree.map(lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]), batch)
+    mesh = Mesh(devices, (MESH_AXIS,))
+    out = jax.shard_map(fn, mesh=mesh, in_specs=PartitionSpec(MESH_AXIS), out_specs=PartitionSpec(MESH_AXIS),
+                        check_vma=False)(batch)
+    return jax.tree.map(lambda a: a[:n], out) if pad else out
