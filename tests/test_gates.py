@@ -116,3 +116,36 @@ def test_the_evaluator_batches_episodes_by_their_intruders_appearance():
     t_appear = np.asarray(jax.vmap(lambda k: sim.reset(k, params).t_appear)(keys))
     assert np.all(np.diff(t_appear[order]) >= 0) and np.ptp(t_appear) > 1.0
     np.testing.assert_array_equal(batch_indices(order, 32, 16), np.concatenate([order[32:], np.arange(40, 48)]))
+
+
+def test_boundary_spawns_are_computed_only_when_an_episode_of_the_batch_spawns_on_a_boundary():
+    """The intruder's boundary candidates (a bisection of table reads each) are gated: in a batch mixing boundary
+    and outside spawns, and in one with outside spawns only, every episode's spawn is the ungated one, and the same
+    as the episode's spawn alone."""
+    from stp_env.sim import spawn as spawn_mod
+
+    params = _params()
+    states = jax.vmap(lambda k: sim.reset(k, params))(jax.random.split(jax.random.key(5), 8))
+    fly = states.status == sim.FLYING
+    assert bool(fly.any())
+    keys = jax.random.split(jax.random.key(11), 8)
+
+    def with_probability(probability):
+        return replace(params, intruder=replace(params.intruder, spawn_boundary_probability=jnp.float32(probability)))
+
+    def batched(k, x, f, p):
+        return jax.vmap(lambda k, x, f: spawn_mod.spawn(k, x, f, p))(k, x, f)
+
+    gated_run = jax.jit(batched)
+    with unittest.mock.patch.object(gates, "when_any", lambda pred, compute, skip, *ops: compute(*ops)):
+        full_run = jax.jit(batched).lower(keys, states.x, fly, with_probability(0.5)).compile()
+    out = {}
+    for probability in (0.5, 0.0):
+        p = with_probability(probability)
+        out[probability] = gated = np.asarray(gated_run(keys, states.x, fly, p))
+        np.testing.assert_array_equal(gated, np.asarray(full_run(keys, states.x, fly, p)))
+        for j in range(8):
+            alone = np.asarray(gated_run(keys[j:j + 1], states.x[j:j + 1], fly[j:j + 1], p))[0]
+            np.testing.assert_array_equal(alone, gated[j])
+    # the mixed batch did spawn some intruders on a boundary: they differ from the outside-only spawns
+    assert 0 < int(np.sum(np.any(out[0.5] != out[0.0], axis=1))) < 8

@@ -18,7 +18,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from stp_env.sim import tables
+from stp_env.sim import gates, tables
 from stp_env.sim.fleet import random_vehicle
 from stp_env.sim.physics import relative_state, rotate, wrap_angle
 from stp_env.sim.types import EnvParams
@@ -95,8 +95,13 @@ def spawn(key, x, fly, params: EnvParams):
     k_mode, k_cand = jax.random.split(key)
     keys = jax.random.split(k_cand, N_CANDIDATES)
     boundary = jax.random.uniform(k_mode) < params.intruder.spawn_boundary_probability
-    cands = jnp.where(boundary, jax.vmap(lambda k: _candidate_boundary(k, x, fly, params))(keys),
-                      jax.vmap(lambda k: _candidate_outside(k, x, fly, params))(keys))
+    outside = jax.vmap(lambda k: _candidate_outside(k, x, fly, params))(keys)
+    # The boundary candidates (a bisection of N_BISECT table reads each) only when some episode of the batch spawns
+    # on a boundary: an episode that does not takes ``outside`` either way, so the gate is exact (stp_env.sim.gates)
+    cands = gates.when_any(
+        boundary, lambda ks: jnp.where(boundary, jax.vmap(lambda k: _candidate_boundary(k, x, fly, params))(ks),
+                                       outside),
+        lambda ks: outside, keys)
     inside = jnp.all((cands[:, :2] >= params.episode.domain_lo) & (cands[:, :2] <= params.episode.domain_hi), axis=1)
     minv = jax.vmap(lambda c: _min_value(params, x, fly, c))(cands)
     legal = inside & (minv > params.tables.avoid_margin + SPAWN_CLEARANCE * params.tables.tracking_bound)
