@@ -102,8 +102,9 @@ def set_cpu_devices(n: int) -> None:
     XLA runs one program on one device at a time and, inside it, gives kernels to other cores only when several
     are ready at once: a batched rollout kept about 1.45 of the 2 cores busy. With one device per core the episode
     engine (:func:`stp_env.sim.engine.across_devices`) shares each batch among the devices, which run side by side:
-    the town rollout at 1,024 episodes went from about 575,000 to 870,000 agent-steps/s on the 2-core machine
-    (``BENCHMARKS.md``, "The batched core on one device per core"). Results: each device runs a batch of its
+    on the 2-core machine the town rollout at 1,024 episodes went from about 470,000 to 900,000 agent-steps/s and
+    10,000 city evaluation episodes from 70.7 s to 36.0 s (``BENCHMARKS.md``, "The batched core on one device per
+    core"). Results: each device runs a batch of its
     share, another compiled program than the whole batch on one device, so the episodes agree in their outcomes and
     may differ in their last bits (``docs/numerics.md``); the same device count gives the same bits. A loop over
     one environment runs on the first device and is unchanged.
