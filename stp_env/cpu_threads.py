@@ -104,10 +104,9 @@ def set_cpu_devices(n: int) -> None:
     engine (:func:`stp_env.sim.engine.across_devices`) shares each batch among the devices, which run side by side:
     on the 2-core machine the town rollout at 1,024 episodes went from about 470,000 to 900,000 agent-steps/s and
     10,000 city evaluation episodes from 70.7 s to 36.0 s (``BENCHMARKS.md``, "The batched core on one device per
-    core"). Results: each device runs a batch of its
-    share, another compiled program than the whole batch on one device, so the episodes agree in their outcomes and
-    may differ in their last bits (``docs/numerics.md``); the same device count gives the same bits. A loop over
-    one environment runs on the first device and is unchanged.
+    core"). Results: each device runs a batch of its share, another compiled program than the whole batch on one
+    device, so the episodes agree in their outcomes and may differ in their last bits (``docs/numerics.md``); the
+    same device count gives the same bits. A loop over one environment runs on the first device and is unchanged.
 
     Must come before the first JAX computation (like :func:`set_cpu_threads`); ``ValueError`` for a count that is
     not a positive integer, ``RuntimeError`` once the backend has started with another count (nothing changed)."""

@@ -393,9 +393,10 @@ def evaluation_job(configs, params, *, seed: int, episodes: int, batch_size: int
     if resumable:
         from stp_env.evaluation.report import source_hash
 
+        shares = engine.shares(batch_size)  # another count is another program (left out at one: older runs resume)
         fingerprint = execution.digest("evaluate", [dataclasses.asdict(c) for c in configs], seed, episodes,
                                        batch_size, n_steps, record, active, list(host), source_hash(),
-                                       *([engine.shares(batch_size)] if engine.shares(batch_size) > 1 else []))
+                                       *([shares] if shares > 1 else []))
     return execution.Job(name="evaluate", function=evaluation_piece, context=context, arguments=arguments,
                          fingerprint=fingerprint, units=tuple(min(batch_size, episodes - f) for _, f in arguments))
 
@@ -464,9 +465,8 @@ def _combine_batches(config, params, pieces, seed, episodes, batch_size, n_steps
     by_index = np.argsort(ep["index"], kind="stable")   # the batches ran in appearance order; report index order
     ep = {k: v[by_index] for k, v in ep.items()}
     summary = summarize(config, ep, params, confidence=confidence)
-    summary.update(seed=seed, n_steps=n_steps, batch_size=batch_size, devices=devices if devices else counts,
-                   seconds=round(seconds, 2),
-                   episodes_per_s=round(episodes / seconds, 2),
+    summary.update(seed=seed, n_steps=n_steps, batch_size=batch_size, devices=counts if devices is None else devices,
+                   seconds=round(seconds, 2), episodes_per_s=round(episodes / seconds, 2),
                    simulated_vehicles=params.vehicles.n if active is None else len(active))
     events = _events(config, seed, n_steps, plan_samples, batch_size, record, ep, config.kbar, airborne_only,
                      episodes, devices)
