@@ -69,8 +69,8 @@ def episodes(episode_keys, init, step, n_steps: int, *, stop=None, record=None):
     ``(final carries, records)`` batched over ``B`` on the leading axis, the records ``(B, n_steps, ...)``.
 
     With several devices on JAX's default backend (e.g. the CPU split into one device per core,
-    :func:`stp_env.set_cpu_devices`) the episodes are shared out among them (:func:`across_devices`); each
-    episode's arithmetic is its own, so the results are the same as on one device."""
+    :func:`stp_env.set_cpu_devices`) the episodes are shared out among them (:func:`across_devices`): the same
+    outcomes as on one device, not always the same last bits (each share is another compiled program)."""
 
     def run(keys):
         k_reset, k_steps = jax.vmap(lambda k: _split(k, n_steps))(keys)
@@ -101,7 +101,8 @@ def across_devices(fn, batch):
     evenly is padded with copies of its last element, and the padding cut from the outputs.
 
     ``fn`` must treat the batch's elements independently (a ``vmap`` over it, as the episode engine does): each
-    device then computes exactly what one device computes for those elements."""
+    device then computes the same arithmetic for its elements as one device would, compiled as another program (a
+    batch of its share), so the last bits may differ as between batch sizes (``docs/numerics.md``)."""
     n = jax.tree.leaves(batch)[0].shape[0]
     if shares(n) == 1:
         return fn(batch)
