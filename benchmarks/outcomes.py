@@ -1,13 +1,16 @@
-"""Whether sharing the evaluator's batches among CPU devices keeps every episode's outcome.
+"""Whether a change that moves last bits keeps every episode's outcome: the evaluator's episodes on one CPU device
+against those on several, or those of this tree against another git revision's.
 
-    python benchmarks/cpu_devices_outcomes.py [--episodes 1000] [--devices 2]
+    python benchmarks/outcomes.py [--episodes 1000] [--devices 2]
+    python benchmarks/outcomes.py --base REV [--episodes 1000]
 
-Evaluates town (k̄ = 2) and city-intruder (k̄ = 3) against the max-k intruder (seed 0, batches of 250) once on one
-CPU device and once on ``--devices`` (:func:`stp_env.set_cpu_devices`; each run in its own process, the count being
-fixed when JAX starts) and compares the episodes: how many are the same bit for bit, how many are the same outcome
-(:func:`stp_env.evaluation.same_outcome`), in how many any discrete field differs (statuses, modes, the forced set,
-compliance, violations, step counts), the largest difference of the final positions and of the avoid start times,
-and the time of each run. Prints one JSON line.
+Evaluates town (k̄ = 2) and city-intruder (k̄ = 3) against the max-k intruder (seed 0, batches of 250) twice, each
+run in its own process: on one CPU device and on ``--devices`` (:func:`stp_env.set_cpu_devices`, the count being
+fixed when JAX starts); or, with ``--base REV``, with this tree's package and with ``REV``'s (exported with ``git
+archive`` as ``benchmarks/core_revisions.py`` does), both on one device. Compares the episodes: how many are the
+same bit for bit, how many are the same outcome (:func:`stp_env.evaluation.same_outcome`), in how many any discrete
+field differs (statuses, modes, the forced set, compliance, violations, step counts), the largest difference of the
+final positions and of the avoid start times, and the time of each run. Prints one JSON line.
 """
 
 from __future__ import annotations
@@ -21,13 +24,16 @@ import tempfile
 import time
 
 import numpy as np
+from core_revisions import export  # the same export of a revision's package (this folder is on sys.path)
 
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CASES = (("town", 2), ("city-intruder", 3))
 
 
 def run_one(devices: int, episodes: int, out: str) -> None:
     import stp_env
 
+    print(f"package: {stp_env.__file__}", file=sys.stderr)  # which tree's package ran (checked by the caller)
     stp_env.set_cpu_devices(devices)
     from stp_env.evaluation import Configuration, evaluate
 
@@ -69,21 +75,36 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--episodes", type=int, default=1000)
     parser.add_argument("--devices", type=int, default=2)
+    parser.add_argument("--base", help="compare with this git revision (both on one device) instead of --devices")
     parser.add_argument("--one", nargs=2, metavar=("DEVICES", "OUT"), help="one run in this process (internal)")
     args = parser.parse_args()
     if args.one:
         run_one(int(args.one[0]), args.episodes, args.one[1])
         return
-    out = {"case": "cpu_devices_outcomes", "devices": args.devices, "episodes": args.episodes,
-           "loadavg_1min_before": round(os.getloadavg()[0], 2)}
+    out = {"case": "outcomes", "episodes": args.episodes, "loadavg_1min_before": round(os.getloadavg()[0], 2)}
     with tempfile.TemporaryDirectory() as tmp:
+        if args.base:
+            rev = subprocess.run(["git", "-C", ROOT, "rev-parse", "--short", args.base], capture_output=True,
+                                 text=True, check=True).stdout.strip()
+            os.mkdir(os.path.join(tmp, "base"))
+            base_tree = export(rev, os.path.join(tmp, "base"))
+            runs = {"this": (1, ROOT), "base": (1, base_tree)}
+            out["base"] = rev
+        else:
+            runs = {"devices_1": (1, ROOT), f"devices_{args.devices}": (args.devices, ROOT)}
         paths = {}
-        for d in (1, args.devices):
-            paths[d] = os.path.join(tmp, f"d{d}.npz")
+        for name, (devices, tree) in runs.items():
+            paths[name] = os.path.join(tmp, f"{name}.npz")
+            env = dict(os.environ, PYTHONPATH=os.pathsep.join([tree, os.environ.get("PYTHONPATH", "")]))
             res = subprocess.run([sys.executable, os.path.abspath(__file__), "--episodes", str(args.episodes),
-                                  "--one", str(d), paths[d]], capture_output=True, text=True, check=True)
-            out[f"seconds_devices_{d}"] = json.loads(res.stdout.strip().splitlines()[-1])
-        with np.load(paths[1]) as a, np.load(paths[args.devices]) as b:
+                                  "--one", str(devices), paths[name]], capture_output=True, text=True, check=True,
+                                 env=env, cwd=tmp)
+            package = next(line for line in res.stderr.splitlines() if line.startswith("package: "))[9:]
+            if not package.startswith(tree):
+                raise SystemExit(f"the {name} run imported {package}, not the package in {tree}")
+            out[f"seconds_{name}"] = json.loads(res.stdout.strip().splitlines()[-1])
+        first, second = paths.values()
+        with np.load(first) as a, np.load(second) as b:
             for scenario, _ in CASES:
                 out[scenario] = compare(a, b, scenario)
     print(json.dumps(out))
