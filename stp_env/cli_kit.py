@@ -132,25 +132,52 @@ def add_ray(parser, what: str) -> None:
                              "this machine); implies --ray")
 
 
+def cpu_device_count(value: str) -> int | str:
+    """``--cpu-devices``'s value: a positive integer or ``auto``."""
+    if value.strip() == "auto":
+        return "auto"
+    try:
+        return positive_int(value)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer or 'auto', got {value[:40]!r}") from None
+
+
 def add_cpu_devices(parser) -> None:
-    """``--cpu-devices N``: JAX's CPU split into ``N`` devices, each batch shared among them."""
-    parser.add_argument("--cpu-devices", type=positive_int, default=1, metavar="N",
-                        help="split the CPU into N devices and share every batch among them (N = the cores: about "
-                             "2x faster on 2 cores); another compiled program than on one device, so episodes agree "
-                             "in their outcomes, not always in their last bits; events record N and replay with it; "
-                             "not with --ray")
+    """``--cpu-devices N|auto``: JAX's CPU split into ``N`` devices, each batch shared among them (default: the
+    ``STP_ENV_CPU_DEVICES`` environment variable, else ``auto``, one device per core)."""
+    parser.add_argument("--cpu-devices", type=cpu_device_count, default=None, metavar="N",
+                        help="split the CPU into N devices and share every batch among them: 'auto' (the default, "
+                             "or the STP_ENV_CPU_DEVICES environment variable) is one per core, about 2x faster on 2 "
+                             "cores than 1; each count is another compiled program, so episodes agree in their "
+                             "outcomes, not always in their last bits; events record N and replay with it; with "
+                             "--ray, Ray's workers run the batches on one device each")
 
 
 def apply_cpu_devices(args) -> None:
-    """Set ``--cpu-devices`` before JAX starts (:func:`stp_env.set_cpu_devices`); ``ValueError`` with --ray or once
-    JAX has started with another count."""
-    from stp_env.cpu_threads import set_cpu_devices
+    """Set ``--cpu-devices`` before JAX starts (:func:`stp_env.set_cpu_devices`). ``auto``: one device per core
+    (:func:`stp_env.cpu_threads.available_cores`), or nothing when JAX has already started (it keeps its count) or
+    with --ray (the batches run in Ray's workers, one device each). ``ValueError`` for a count other than 1 with
+    --ray, a bad ``STP_ENV_CPU_DEVICES``, or a count other than the one JAX has started with."""
+    from stp_env.cpu_threads import (
+        DEVICES_ENV_VAR,
+        _backend_started,
+        available_cores,
+        default_cpu_devices,
+        set_cpu_devices,
+    )
 
-    if args.cpu_devices != 1 and (getattr(args, "ray", False) or getattr(args, "ray_address", None)):
-        raise ValueError("--cpu-devices shares the batches of this process among its devices; with --ray the batches "
-                         "run in Ray's workers: leave it out.")
+    requested = args.cpu_devices if args.cpu_devices is not None else default_cpu_devices()
+    on_ray = bool(getattr(args, "ray", False) or getattr(args, "ray_address", None))
+    if requested == "auto":
+        if not on_ray and not _backend_started():
+            set_cpu_devices(available_cores())
+        return
+    if requested != 1 and on_ray:
+        source = "--cpu-devices" if args.cpu_devices is not None else DEVICES_ENV_VAR
+        raise ValueError(f"{source} shares the batches of this process among its devices; with --ray the batches "
+                         "run in Ray's workers: leave it out (or give 1).")
     try:
-        set_cpu_devices(args.cpu_devices)
+        set_cpu_devices(requested)
     except RuntimeError as err:
         raise ValueError(str(err)) from None
 

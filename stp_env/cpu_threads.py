@@ -95,6 +95,34 @@ def cpu_devices() -> int:
     return 1
 
 
+DEVICES_ENV_VAR = "STP_ENV_CPU_DEVICES"
+"""The environment variable that sets ``stp-env evaluate``'s default ``--cpu-devices``: a positive integer, or
+``auto`` (unset: ``auto``, one device per core, :func:`available_cores`)."""
+
+
+def available_cores() -> int:
+    """How many cores this process may run on (its CPU affinity where the system reports one)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # pragma: no cover - systems without affinity (macOS, Windows)
+        return max(1, os.cpu_count() or 1)
+
+
+def default_cpu_devices() -> int | str:
+    """The device count :data:`DEVICES_ENV_VAR` asks for: a positive integer, or ``"auto"`` (also when unset);
+    ``ValueError`` naming the variable for anything else."""
+    value = os.environ.get(DEVICES_ENV_VAR, "").strip()
+    if value in ("", "auto"):
+        return "auto"
+    try:
+        n = int(value)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise ValueError(f"{DEVICES_ENV_VAR} must be a positive integer or 'auto'; got {value!r}.")
+    return n
+
+
 def set_cpu_devices(n: int) -> None:
     """Split JAX's CPU backend into ``n`` devices (``jax_num_cpu_devices``); ``n`` = the number of cores is the
     setting for batches of episodes.

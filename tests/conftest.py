@@ -15,6 +15,10 @@ import pytest
 from hypothesis import HealthCheck, settings
 
 jax.config.update("jax_platforms", "cpu")
+# `stp-env evaluate` splits the CPU into one device per core unless told otherwise; the suite calls the command line
+# in-process and in child processes and compares with the library on one device, so it pins one device (the tests of
+# the default itself, tests/test_cpu_devices.py, set the variable per child process).
+os.environ.setdefault("STP_ENV_CPU_DEVICES", "1")
 
 # JAX's persistent compilation cache (stp_env/compilation_cache.py) is on in every worker, in the artifact cache
 # directory they share: a program that one worker or test file compiled is loaded by the others (most of the suite's

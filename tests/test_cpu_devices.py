@@ -52,8 +52,13 @@ print(json.dumps({"out": out, "errors": errors, "n_devices": len(jax.devices())}
 """
 
 
-def _run(code: str, *args) -> dict:
+def _run(code: str, *args, env_vars: dict | None = None) -> dict:
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    for k, v in (env_vars or {}).items():
+        if v is None:
+            env.pop(k, None)
+        else:
+            env[k] = v
     out = subprocess.run([sys.executable, "-c", code, *map(str, args)], capture_output=True, text=True, env=env)
     assert out.returncode == 0, out.stderr[-3000:]
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -169,3 +174,72 @@ def test_cpu_devices_are_refused_with_ray():
 
     with pytest.raises(ValueError, match="with --ray"):
         cli_kit.apply_cpu_devices(argparse.Namespace(cpu_devices=2, ray=True, ray_address=None))
+
+
+_DEFAULT = """
+import argparse, json, sys
+import jax
+from stp_env import cli_kit
+from stp_env.cpu_threads import available_cores, cpu_devices
+args = argparse.Namespace(cpu_devices=json.loads(sys.argv[1]), ray=sys.argv[2] == "ray", ray_address=None)
+try:
+    cli_kit.apply_cpu_devices(args)
+    error = None
+except ValueError as err:
+    error = str(err)
+print(json.dumps({"error": error, "devices": len(jax.devices()), "cores": available_cores()}))
+"""
+
+
+@pytest.mark.parametrize(("flag", "variable", "ray", "expected"), [
+    (None, None, "", "cores"),        # the command line's default: one device per core
+    ("auto", "1", "", "cores"),       # the flag wins over the environment variable
+    (None, "auto", "", "cores"),
+    (None, "3", "", 3),
+    (1, None, "", 1),
+    (None, None, "ray", 1),           # auto with --ray: Ray's workers run the batches, this process stays at one
+    (None, "1", "ray", 1),
+])
+def test_the_default_device_count_is_one_per_core_or_the_environment_variable(flag, variable, ray, expected):
+    got = _run(_DEFAULT, json.dumps(flag), ray, env_vars={cpu_threads.DEVICES_ENV_VAR: variable})
+    assert got["error"] is None
+    assert got["devices"] == (got["cores"] if expected == "cores" else expected)
+
+
+@pytest.mark.parametrize(("flag", "variable", "ray", "message"), [
+    (None, "two", "", "STP_ENV_CPU_DEVICES must be a positive integer or 'auto'"),
+    (None, "0", "", "STP_ENV_CPU_DEVICES must be a positive integer or 'auto'"),
+    (None, "2", "ray", "STP_ENV_CPU_DEVICES shares the batches"),
+    (2, None, "ray", "--cpu-devices shares the batches"),
+])
+def test_bad_default_device_counts_are_one_line_errors(flag, variable, ray, message):
+    got = _run(_DEFAULT, json.dumps(flag), ray, env_vars={cpu_threads.DEVICES_ENV_VAR: variable})
+    assert message in got["error"] and "\n" not in got["error"]
+    assert got["devices"] == 1  # nothing was set
+
+
+def test_auto_follows_a_backend_already_started():
+    """In a process whose JAX has started (a notebook, the test suite), ``auto`` keeps the count it has."""
+    import argparse
+
+    import jax
+
+    from stp_env import cli_kit
+
+    jax.numpy.zeros(1).block_until_ready()
+    before = len(jax.devices())
+    cli_kit.apply_cpu_devices(argparse.Namespace(cpu_devices="auto", ray=False, ray_address=None))
+    assert len(jax.devices()) == before
+
+
+@pytest.mark.parametrize(("value", "ok"), [("auto", "auto"), ("2", 2), ("0", None), ("many", None), ("1.5", None)])
+def test_the_cpu_devices_option_takes_a_positive_integer_or_auto(value, ok, capsys):
+    from stp_env import cli
+
+    parser = cli._build_parser()
+    if ok is not None:
+        assert parser.parse_args(["evaluate", "--cpu-devices", value]).cpu_devices == ok
+        return
+    with pytest.raises(SystemExit):
+        parser.parse_args(["evaluate", "--cpu-devices", value])
+    assert "expected a positive integer or 'auto'" in capsys.readouterr().err
