@@ -19,6 +19,9 @@ updates) after one warm-up rollout that compiles the JAX programs, and prints on
 * ``native_core`` (with ``--observation game``): the native VecEnv with the core observation, to price the game
   features.
 
+``--cpu-devices N``: JAX's CPU split into ``N`` devices before JAX starts (:func:`stp_env.set_cpu_devices`), the
+native VecEnv's batch shared among them; ``--native-only`` skips the peer.
+
 ``env_steps_per_s`` counts core steps (one simulated step of one scenario copy), ``agent_steps_per_s`` the
 transitions PPO stores. The ratio line compares env steps per second.
 """
@@ -96,7 +99,12 @@ def main() -> None:
     parser.add_argument("--spawn-mode", default="outside")
     parser.add_argument("--wind-model", default="uniform")
     parser.add_argument("--observation", default="core", choices=["core", "game"])
+    parser.add_argument("--cpu-devices", type=int, default=1)
+    parser.add_argument("--native-only", action="store_true")
     args = parser.parse_args()
+    from stp_env import set_cpu_devices
+
+    set_cpu_devices(args.cpu_devices)  # before JAX's first computation
     torch.set_num_threads(1)
     from stp_env.rl.train import TrainConfig, build_params
 
@@ -105,7 +113,8 @@ def main() -> None:
     params = build_params(config)
     env_kwargs = {"vehicle_policy": args.vehicle_policy, "observation": args.observation}
     common = {"scenario": args.scenario, "vehicle_policy": args.vehicle_policy, "observation": args.observation,
-              "cpu_count": os.cpu_count(), "load_avg_1min": round(os.getloadavg()[0], 2)}
+              "cpu_count": os.cpu_count(), "cpu_devices": args.cpu_devices,
+              "load_avg_1min": round(os.getloadavg()[0], 2)}
     native = collection_rate(IntruderVecEnv(args.n_envs, params=params, **env_kwargs), args.rollout_steps,
                              args.repeats, 1, 0)
     print(json.dumps({"case": "native", "n_envs": args.n_envs, **native, **common}))
@@ -115,6 +124,8 @@ def main() -> None:
         print(json.dumps({"case": "native_core", "n_envs": args.n_envs, **core, **common}))
         print(json.dumps({"case": "ratio", "game_over_core_observation": round(native["env_steps_per_s"] /
                                                                                core["env_steps_per_s"], 2)}))
+    if args.native_only:
+        return
     name, venv, n_agents, seed = peer(params, args.peer_copies, env_kwargs)
     other = collection_rate(venv, args.peer_rollout_steps, args.repeats, n_agents, seed)
     print(json.dumps({"case": name, "copies": args.peer_copies, "agents_per_copy": n_agents, **other, **common}))

@@ -509,6 +509,7 @@ def _add_train_intruder_parser(sub) -> None:
                     help="with --seeds: also sweep a training setting (a TrainConfig field, e.g. "
                          "learning_rate=1e-4,3e-4; repeat for a product), runs in OUT/FIELD=V/seed-SEED/")
     kit.add_ray(tr, "the sweep's runs (with --seeds)")
+    kit.add_cpu_devices(tr)
     kit.add_out(tr, "runs/intruder")
 
 
@@ -524,6 +525,7 @@ def _train_intruder(args) -> int:
     if (args.ray or args.ray_address or args.grid) and args.seeds is None:
         raise ValueError("--ray and --grid belong to a sweep: give the seeds with --seeds SEED [SEED ...].")
     grid = _parse_grid(args.grid or [])
+    kit.apply_cpu_devices(args)  # before JAX's first computation
     executor = kit.executor(args) if args.seeds is not None else None  # --ray without ray installed fails here
     formats = ("stdout", "csv", "tensorboard") if args.tensorboard else ("stdout", "csv")
     config = TrainConfig(scenario=args.scenario, kbar=args.kbar, algo=args.algo, total_timesteps=args.timesteps,

@@ -149,8 +149,8 @@ def add_cpu_devices(parser) -> None:
                         help="split the CPU into N devices and share every batch among them: 'auto' (the default, "
                              "or the STP_ENV_CPU_DEVICES environment variable) is one per core, about 2x faster on 2 "
                              "cores than 1; each count is another compiled program, so episodes agree in their "
-                             "outcomes, not always in their last bits; events record N and replay with it; with "
-                             "--ray, Ray's workers run the batches on one device each")
+                             "outcomes, not always in their last bits (an evaluation's events record N and replay "
+                             "with it); with --ray, Ray's workers run the batches on one device each")
 
 
 def apply_cpu_devices(args) -> None:

@@ -41,6 +41,14 @@ for b in (1, 2, 3, 7, 8):
         "alone_final": [int(f["sum"]) for f, _ in alone],
         "alone_records": [[np.asarray(r[j]).tolist() for _, r in alone] for j in range(2)],
     }
+# vmap_across_devices: any positional batch, spread over the devices; a share is not shared again
+f = lambda a, b: (a * b, jnp.sum(jax.vmap(lambda x: x + 1)(jnp.arange(3)) * a))
+inner = lambda a, b: engine.vmap_across_devices(lambda x, y: x - y)(jnp.full((4,), a), jnp.full((4,), b))
+a, b = jnp.arange(7, dtype=jnp.int32), jnp.arange(7, 14, dtype=jnp.int32)
+got, total = jax.jit(engine.vmap_across_devices(f))(a, b)
+nested = jax.jit(engine.vmap_across_devices(inner))(a, b)
+out["vmap"] = {"devices": len(got.sharding.device_set), "got": np.asarray(got).tolist(),
+               "total": np.asarray(total).tolist(), "nested": np.asarray(nested).tolist()}
 errors = []
 for n in (int(sys.argv[1]), int(sys.argv[1]) + 1):
     try:
@@ -67,6 +75,9 @@ def _run(code: str, *args, env_vars: dict | None = None) -> dict:
 def test_episodes_shared_among_three_devices_are_each_computed_once_in_order():
     got = _run(_TOY, 3)
     assert got["n_devices"] == 3
+    v = got["out"].pop("vmap")
+    assert v["devices"] == 3 and v["got"] == [i * (i + 7) for i in range(7)]
+    assert v["total"] == [6 * i for i in range(7)] and v["nested"] == [[-7] * 4] * 7
     for b, case in got["out"].items():
         b = int(b)
         # below the device count the batch stays on one device; from it on, it is spread over all three
@@ -116,6 +127,71 @@ def test_bad_device_counts_are_refused(bad):
 
 def test_the_device_count_in_effect_is_accepted():
     cpu_threads.set_cpu_devices(cpu_threads.cpu_devices())  # a no-op, also after the backend started
+
+
+_VEC_ENV = """
+import json, sys
+import jax, numpy as np
+import stp_env
+stp_env.set_cpu_devices(int(sys.argv[1]))
+from stp_env.rl import IntruderVecEnv
+env = IntruderVecEnv(6, "tiny-intruder")
+env.seed(3)
+obs = [env.reset()]
+rewards, dones = [], []
+rng = np.random.default_rng(0)
+for _ in range(130):
+    o, r, d, _ = env.step(rng.uniform(-1, 1, (6, 2)).astype(np.float32))
+    obs.append(o); rewards.append(r); dones.append(d)
+print(json.dumps({"devices": len(jax.tree.leaves(env._states)[0].sharding.device_set),
+                  "obs": np.asarray(obs).tolist(), "rewards": np.asarray(rewards).tolist(),
+                  "dones": np.asarray(dones).tolist()}))
+"""
+
+
+def test_the_training_vec_env_shares_its_batch_and_keeps_every_episode():
+    """The vectorised training environment's step (with its auto-reset) on two devices: the states stay spread over
+    both between calls, and every env's episode is the one it flies on one device (dones the same, observations and
+    rewards within float rounding)."""
+    import numpy as np
+
+    one, two = _run(_VEC_ENV, 1), _run(_VEC_ENV, 2)
+    assert one["devices"] == 1 and two["devices"] == 2
+    assert one["dones"] == two["dones"] and any(any(d) for d in one["dones"])  # an auto-reset happened
+    np.testing.assert_allclose(two["obs"], one["obs"], atol=1e-4)
+    np.testing.assert_allclose(two["rewards"], one["rewards"], atol=1e-4)
+
+
+_ATTACKER_VEC_ENV = """
+import json, sys
+import numpy as np
+import stp_env
+stp_env.set_cpu_devices(int(sys.argv[1]))
+import jax
+from stp_env.coobservation import threat
+from stp_env.coobservation.learned import make_vec_env
+from stp_env.coobservation.uav import FormationScenario
+sc = FormationScenario()
+params = sc.params(artifacts=sc.coarse_artifacts())
+tp = threat.threat_params(sc.schedule(sc.uniform_times(90.0)), sc.forbidden, sc.observation_radius)
+venv = make_vec_env(4, params, tp, (100.0, 100.0), action_repeat=5, seed=1)
+obs = [venv.reset()]
+for _ in range(20):
+    venv.step_async(np.full((4, 2), 0.3, np.float32))
+    obs.append(venv.step_wait()[0])
+print(json.dumps({"devices": len(jax.tree.leaves(venv._states)[0].sharding.device_set),
+                  "obs": np.asarray(obs).tolist()}))
+"""
+
+
+def test_the_co_observation_attackers_vec_env_shares_its_batch():
+    """The learned attacker's VecEnv takes the environment and the threat whole on every device (copied there once):
+    on two devices its states stay spread over both and its observations are those of one device."""
+    import numpy as np
+
+    one, two = _run(_ATTACKER_VEC_ENV, 1), _run(_ATTACKER_VEC_ENV, 2)
+    assert one["devices"] == 1 and two["devices"] == 2
+    np.testing.assert_allclose(two["obs"], one["obs"], atol=1e-4)
 
 
 _IMPORT_ALL = """

@@ -48,6 +48,7 @@ def add_parser(sub) -> None:
     kit.add_seed(p, "the episodes (the same for every pair)")
     kit.add_out(p, "coobservation-eval")
     kit.add_ray(p, "the batches of episodes of every (schedule, attacker) pair")
+    kit.add_cpu_devices(p)
     kit.add_progress(p)
     p.set_defaults(run=run)
 
@@ -110,6 +111,7 @@ def run(args) -> int:
 
     attackers = resolve_attackers(args.attackers)  # bad names fail before any computation
     out = check_output_dir(args.out)  # so that the results are not lost at the end
+    kit.apply_cpu_devices(args)       # before JAX's first computation
     executor = kit.executor(args)     # --ray without ray installed, or a cluster not reached, fails here
     scenario = FormationScenario(wind_model=args.wind_model)
     start = time.time()

@@ -121,7 +121,8 @@ def batch_step(keys, states, actions, params, tp, t_window, action_repeat: int, 
                residual: bool = True, margin_reward=0.0):
     """One decision of ``n`` envs with auto-reset. Returns ``(keys, states, obs, rewards, dones, terminal_obs,
     stats)``; ``stats``: ``entered``, ``detected`` of the finished episode."""
-    def one(key, ts, a):
+    def one(key, ts, a, shared):
+        params, tp = shared
         key, k_step, k_reset = jax.random.split(key, 3)
         ts, obs, r, done = step_one(k_step, ts, a, params, tp, action_repeat, gamma, shaping, residual,
                                     margin_reward)
@@ -131,17 +132,18 @@ def batch_step(keys, states, actions, params, tp, t_window, action_repeat: int, 
         pick = functools.partial(jnp.where, done)
         return key, jax.tree.map(pick, new_ts, ts), pick(new_obs, obs), r, done, obs, stats
 
-    return jax.vmap(one)(keys, states, actions)
+    return engine.vmap_across_devices(one, shared=(params, tp))(keys, states, actions)
 
 
 @jax.jit
 def batch_reset(keys, params, tp, t_window):
-    def one(key):
+    def one(key, shared):
+        params, tp = shared
         key, k = jax.random.split(key)
         ts, obs = reset_one(k, params, tp, t_window)
         return key, ts, obs
 
-    return jax.vmap(one)(keys)
+    return engine.vmap_across_devices(one, shared=(params, tp))(keys)
 
 
 def make_vec_env(n_envs: int, params, tp, t_window, *, action_repeat: int = 5, gamma: float = 0.99,

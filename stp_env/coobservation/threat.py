@@ -267,7 +267,7 @@ def rollout(key, params: EnvParams, threat: ThreatParams, attacker, n_envs: int,
                            record=(lambda ts, _: ts.sim.x[:, :2]) if record else None)
 
     keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(n_envs))
-    return jax.vmap(one)(keys)
+    return engine.vmap_across_devices(one)(keys)
 
 
 def steps_for(params: EnvParams) -> int:

@@ -65,6 +65,7 @@ def add_parser(sub) -> None:
                     help="recompute the value of a saved counterexample.json instead of searching")
     fa.add_argument("--no-figures", action="store_true", help="write no figure")
     kit.add_ray(fa, "the search's restarts")
+    kit.add_cpu_devices(fa)
     kit.add_progress(fa)
 
 
@@ -86,6 +87,7 @@ def run_cli(args) -> int:
     config = SearchConfig(method=args.method, budget=args.attacks, population=args.population,
                           restarts=args.restarts, batch=args.batch_size)
     out = check_output_dir(args.out)  # before the search, so that its result is not lost at the end
+    kit.apply_cpu_devices(args)       # before JAX's first computation
     executor = kit.executor(args)     # --ray without ray installed, or a cluster not reached, fails here
     # finished restarts wait in OUT/pieces until the counterexample is written: a killed search resumes
     outcome = run(spec, config, args.seed, progress=not args.no_progress, seeded=not args.no_game_seed,

@@ -29,6 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from stp_env.sim import engine
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.types import EnvParams
 
@@ -106,10 +107,11 @@ program as arguments. Closed over, they would be baked into it as constants (the
 megabytes), which makes XLA's compilation very slow."""
 
 
-def compiled(objective: Objective, transform=jax.vmap):
-    """``sim_jit(transform(objective))``, compiled once per call of this function. When ``objective`` is a method
-    of an attack whose ``base`` holds the environment, the :data:`TABLE_FIELDS` of ``base`` are arguments of the
-    compiled program rather than constants in it (same values, same results)."""
+def compiled(objective: Objective, transform=engine.vmap_across_devices):
+    """``sim_jit(transform(objective))`` (by default ``vmap``, the batch shared among the devices:
+    :func:`stp_env.sim.engine.vmap_across_devices`), compiled once per call of this function. When ``objective`` is
+    a method of an attack whose ``base`` holds the environment, the :data:`TABLE_FIELDS` of ``base`` are arguments of
+    the compiled program rather than constants in it (same values, same results)."""
     attack = getattr(objective, "__self__", None)
     base = getattr(attack, "base", None)
     if not isinstance(base, EnvParams):
@@ -266,7 +268,7 @@ def cross_entropy(objective: Objective, dim: int, key, config: SearchConfig, *, 
     return _combine(pieces, iters * config.population * config.restarts, np.full(dim, 0.5))
 
 
-def _objective_and_program(context: SearchContext, what: str, transform=jax.vmap):
+def _objective_and_program(context: SearchContext, what: str, transform=engine.vmap_across_devices):
     from stp_env import execution
 
     return execution.memo(context.token, what, lambda: (lambda f: (f, compiled(f, transform)))(
@@ -337,7 +339,7 @@ def gradient_ascent(objective: Objective, dim: int, key, config: SearchConfig, *
 
 
 def _value_and_grad(g):
-    return jax.vmap(jax.value_and_grad(lambda yy: g(jax.nn.sigmoid(yy))))
+    return engine.vmap_across_devices(jax.value_and_grad(lambda yy: g(jax.nn.sigmoid(yy))))
 
 
 def gradient_restart(context: SearchContext, restart) -> dict:

@@ -31,7 +31,7 @@ from stp_env import sim
 from stp_env.baselines import vehicle_policy
 from stp_env.baselines.observations import intruder_observation
 from stp_env.seeds import check_seed
-from stp_env.sim import core
+from stp_env.sim import core, engine
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.types import COLLIDED, GONE, EnvParams, EnvState
 
@@ -128,8 +128,10 @@ def env_step(key, state: EnvState, action, params: EnvParams, horizon: str, vehi
 # ------------------------------------------------------------------------------------------------ batch
 @functools.partial(sim_jit, static_argnames=("horizon", "observation"))
 def batch_reset(keys, params: EnvParams, horizon: str, observation: str = "core"):
-    """:func:`env_reset` for a batch of keys ``(n,)``."""
-    return jax.vmap(env_reset.__wrapped__, in_axes=(0, None, None, None))(keys, params, horizon, observation)
+    """:func:`env_reset` for a batch of keys ``(n,)`` (shared among the devices:
+    :func:`stp_env.sim.engine.across_devices`, ``params`` whole to each)."""
+    return engine.across_devices(
+        lambda k, p: jax.vmap(lambda kk: env_reset.__wrapped__(kk, p, horizon, observation))(k), keys, shared=params)
 
 
 @functools.partial(sim_jit, static_argnames=("horizon", "vehicle_policy", "observation"))
@@ -139,8 +141,14 @@ def batch_step(keys, states: EnvState, actions, params: EnvParams, horizon: str,
 
     Returns ``(keys, states, obs, rewards, terminated, truncated, terminal_obs, stats)``: ``obs`` are the
     observations after the auto-reset of the finished envs, ``terminal_obs`` and ``stats`` those of the state
-    the step reached (before the reset). The reset branch runs only when some env finished.
+    the step reached (before the reset). The reset branch runs only when some env finished (of the device's share,
+    when the batch is shared among devices: :func:`stp_env.sim.engine.across_devices`).
     """
+    return engine.across_devices(lambda batch, p: _batch_step(*batch, p, horizon, vehicle_policy, observation),
+                                 (keys, states, actions), shared=params)
+
+
+def _batch_step(keys, states: EnvState, actions, params: EnvParams, horizon: str, vehicle_policy, observation: str):
     step = jax.vmap(env_step.__wrapped__, in_axes=(0, 0, 0, None, None, None, None))
     keys, states, obs, rewards, terminated, truncated, stats = step(keys, states, actions, params, horizon,
                                                                     vehicle_policy, observation)
@@ -148,7 +156,7 @@ def batch_step(keys, states: EnvState, actions, params: EnvParams, horizon: str,
 
     def reset_done(operand):
         keys, states, obs = operand
-        new_keys, new_states, new_obs = batch_reset.__wrapped__(keys, params, horizon, observation)
+        new_keys, new_states, new_obs = jax.vmap(lambda k: env_reset.__wrapped__(k, params, horizon, observation))(keys)
 
         def pick(a, b):
             return jnp.where(done.reshape(done.shape + (1,) * (a.ndim - 1)), a, b)

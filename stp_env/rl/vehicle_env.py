@@ -39,7 +39,7 @@ import numpy as np
 from stp_env.baselines.vehicles import fallback_control, hj_filter, switching
 from stp_env.rl import functional as F
 from stp_env.rl.jax_vec_env import JaxVecEnv
-from stp_env.sim import core
+from stp_env.sim import core, engine
 from stp_env.sim.bounds import V_MAX
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.physics import action_to_control
@@ -177,25 +177,26 @@ def ego_obs(state, ego, params: EnvParams):
 # ------------------------------------------------------------------------------------------------ batched env
 @functools.partial(sim_jit, static_argnames=("intruder",))
 def batch_reset(keys, params: EnvParams, intruder):
-    def one(key):
+    def one(key, params):
         key, k_reset = jax.random.split(key)
         s, ego = ego_reset(k_reset, params, intruder)
         return key, s, ego, ego_obs(s, ego, params)
 
-    return jax.vmap(one)(keys)
+    return engine.vmap_across_devices(one, shared=params)(keys)
 
 
 @functools.partial(sim_jit, static_argnames=("intruder",))
 def batch_step(keys, states, egos, actions, params: EnvParams, intruder, energy, late_limit):
     """One step of ``n`` ego envs with auto-reset: ``(keys, states, egos, obs, rewards, terminated, truncated,
     terminal_obs, stats)``."""
-    def one(key, s, ego, a):
+    def one(key, s, ego, a, params):
         key, k = jax.random.split(key)
         s, r = ego_step(k, s, ego, a, params, energy)
         term, trunc = ego_done(s, ego, params, late_limit)
         return key, s, r, term, trunc, ego_obs(s, ego, params), ego_stats(s, ego, params)
 
-    keys, states, rewards, term, trunc, obs, stats = jax.vmap(one)(keys, states, egos, actions)
+    step = engine.vmap_across_devices(one, shared=params)
+    keys, states, rewards, term, trunc, obs, stats = step(keys, states, egos, actions)
     done = term | trunc
 
     def reset_done(operand):
@@ -242,9 +243,16 @@ class EgoVehicleVecEnv(JaxVecEnv):
                          gym.spaces.Box(-1.0, 1.0, (2,), np.float32))
         self._keys = self._egos = None
 
+    def _batch_params(self):
+        """``self.params`` on every device the batch is shared among (:func:`stp_env.sim.engine.replicate`), copied
+        once, not at every step."""
+        if getattr(self, "_replicated", (None,))[0] is not self.params:
+            self._replicated = (self.params, engine.replicate(self.params))
+        return self._replicated[1]
+
     def reset(self) -> np.ndarray:
         keys = jnp.asarray(self._keys_for_reset())
-        self._keys, self._states, self._egos, obs = batch_reset(keys, self.params, self.intruder)
+        self._keys, self._states, self._egos, obs = batch_reset(keys, self._batch_params(), self.intruder)
         self.reset_infos = [{} for _ in range(self.num_envs)]
         self._reset_seeds()
         self._reset_options()
@@ -255,7 +263,7 @@ class EgoVehicleVecEnv(JaxVecEnv):
             raise RuntimeError("Call reset() before step().")
         if self._actions is None:
             raise RuntimeError("Call step_async() before step_wait().")
-        out = batch_step(self._keys, self._states, self._egos, jnp.asarray(self._actions), self.params,
+        out = batch_step(self._keys, self._states, self._egos, jnp.asarray(self._actions), self._batch_params(),
                          self.intruder, self.energy, self.late_limit)
         self._keys, self._states, self._egos = out[0], out[1], out[2]
         self._actions = None
@@ -314,7 +322,7 @@ def _evaluate(keys, params: EnvParams, intruder, kind: str, weights, energy, lat
         stats["energy"] = spent * params.episode.dt
         return stats
 
-    return jax.vmap(one)(keys)
+    return engine.vmap_across_devices(one)(keys)
 
 
 def evaluate_ego(params: EnvParams, intruder, kind: str = "u*", *, mlp=None, episodes: int = 256, seed: int = 0,

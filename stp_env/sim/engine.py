@@ -22,6 +22,8 @@ keyed ``k`` resets with the first half of ``split(k)`` and steps with ``split(se
 
 from __future__ import annotations
 
+import threading
+
 import jax
 import jax.numpy as jnp
 
@@ -85,27 +87,39 @@ MESH_AXIS = "stp_env_episodes"
 """The name of the mesh axis :func:`across_devices` shares a batch along."""
 
 
+_SHARING = threading.local()
+"""``depth``: how many :func:`across_devices` calls are tracing their function in this thread (a batch inside a
+share is not shared again)."""
+
+
 def shares(n: int) -> int:
     """Among how many devices :func:`across_devices` shares a batch of ``n``: every device of JAX's default backend,
-    or one (no sharing) with a single device or fewer than one element per device. Each share is another compiled
-    program than the whole batch, so results are bit for bit the same only for the same count."""
+    or one (no sharing) with a single device, fewer than one element per device, or inside a share already. Each
+    share is another compiled program than the whole batch, so results are bit for bit the same only for the same
+    count."""
     count = len(jax.devices())
-    return count if 1 < count <= n else 1
+    return count if 1 < count <= n and not getattr(_SHARING, "depth", 0) else 1
 
 
-def across_devices(fn, batch):
+def across_devices(fn, batch, shared=None):
     """``fn(batch)`` with the batch (a pytree whose leaves have the batch on their leading axis, as do ``fn``'s
     outputs) split into equal shares, one per device of JAX's default backend, run side by side
-    (``jax.shard_map``; the devices compute independently, no communication). Everything ``fn`` closes over is
-    replicated. With one device, or fewer episodes than devices, it is ``fn(batch)``. A batch that does not divide
-    evenly is padded with copies of its last element, and the padding cut from the outputs.
+    (``jax.shard_map``; the devices compute independently, no communication). With one device, or fewer episodes
+    than devices, it is ``fn(batch)``. A batch that does not divide evenly is padded with copies of its last
+    element, and the padding cut from the outputs.
+
+    Everything ``fn`` closes over is copied to every device at each call. ``shared`` (a pytree, e.g. the
+    environment's parameters) is instead passed whole to every share, ``fn(batch, shared)``: a program called again
+    and again with the same large arguments takes them this way, put on every device once with :func:`replicate`
+    (closed over, an array placed on several devices clashes with the shares' own placement).
 
     ``fn`` must treat the batch's elements independently (a ``vmap`` over it, as the episode engine does): each
     device then computes the same arithmetic for its elements as one device would, compiled as another program (a
     batch of its share), so the last bits may differ as between batch sizes (``docs/numerics.md``)."""
     n = jax.tree.leaves(batch)[0].shape[0]
+    call = fn if shared is None else (lambda b: fn(b, shared))
     if shares(n) == 1:
-        return fn(batch)
+        return call(batch)
     devices = jax.devices()
     from jax.sharding import Mesh, PartitionSpec
 
@@ -113,6 +127,49 @@ def across_devices(fn, batch):
     if pad:
         batch = jax.tree.map(lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]), batch)
     mesh = Mesh(devices, (MESH_AXIS,))
-    out = jax.shard_map(fn, mesh=mesh, in_specs=PartitionSpec(MESH_AXIS), out_specs=PartitionSpec(MESH_AXIS),
-                        check_vma=False)(batch)
+
+    def share(*args):
+        _SHARING.depth = getattr(_SHARING, "depth", 0) + 1
+        try:
+            return fn(*args)
+        finally:
+            _SHARING.depth -= 1
+
+    split, whole = PartitionSpec(MESH_AXIS), PartitionSpec()
+    if shared is None:
+        out = jax.shard_map(share, mesh=mesh, in_specs=split, out_specs=split, check_vma=False)(batch)
+    else:
+        out = jax.shard_map(share, mesh=mesh, in_specs=(split, whole), out_specs=split, check_vma=False)(batch,
+                                                                                                           shared)
     return jax.tree.map(lambda a: a[:n], out) if pad else out
+
+
+def vmap_across_devices(fn, shared=None):
+    """``jax.vmap(fn)`` over the leading axis of every positional argument, the batch shared among the devices of
+    JAX's default backend (:func:`across_devices`): what every batched program of independent episodes or
+    environments uses (the rollouts above, the vectorised training environments, the co-observation batches, the
+    falsifier's populations), so that one device per core speeds them all. With one device it is
+    ``jax.vmap(fn)``, the same program. ``shared``: passed whole to every call, ``fn(*elements, shared)``
+    (:func:`across_devices`'s ``shared``)."""
+
+    def run(*args):
+        if shared is None:
+            return across_devices(lambda batch: jax.vmap(fn)(*batch), args)
+        return across_devices(lambda batch, s: jax.vmap(lambda *a: fn(*a, s))(*batch), args, shared=shared)
+
+    return run
+
+
+def replicate(tree):
+    """``tree``'s arrays copied onto every device of JAX's default backend when there are several (anything else
+    as it is): the ``shared`` arguments (:func:`across_devices`) a program takes call after call, e.g. an
+    environment's parameters with their tables. Left on one device, every call would copy them to the others: the
+    vectorised training environment's step ran 3x slower on two devices than on one that way."""
+    devices = jax.devices()
+    if len(devices) == 1:
+        return tree
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+    sharding = NamedSharding(Mesh(devices, (MESH_AXIS,)), PartitionSpec())
+    return jax.tree.map(lambda a: jax.device_put(a, sharding) if isinstance(a, jax.Array) else a, tree)
+
