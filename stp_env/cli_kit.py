@@ -142,15 +142,17 @@ def cpu_device_count(value: str) -> int | str:
         raise argparse.ArgumentTypeError(f"expected a positive integer or 'auto', got {value[:40]!r}") from None
 
 
-def add_cpu_devices(parser) -> None:
+def add_cpu_devices(parser, unset: int | str = "auto", note: str = "") -> None:
     """``--cpu-devices N|auto``: JAX's CPU split into ``N`` devices, each batch shared among them (default: the
-    ``STP_ENV_CPU_DEVICES`` environment variable, else ``auto``, one device per core)."""
+    ``STP_ENV_CPU_DEVICES`` environment variable, else ``unset``; ``auto``: one device per core)."""
+    default = "'auto', one per core" if unset == "auto" else str(unset)
     parser.add_argument("--cpu-devices", type=cpu_device_count, default=None, metavar="N",
-                        help="split the CPU into N devices and share every batch among them: 'auto' (the default, "
-                             "or the STP_ENV_CPU_DEVICES environment variable) is one per core, about 2x faster on 2 "
-                             "cores than 1; each count is another compiled program, so episodes agree in their "
-                             "outcomes, not always in their last bits (an evaluation's events record N and replay "
-                             "with it); with --ray, Ray's workers run the batches on one device each")
+                        help=f"split the CPU into N devices and share every batch among them ('auto': one per core); "
+                             f"default: the STP_ENV_CPU_DEVICES environment variable, else {default}{note}; each "
+                             "count is another compiled program, so episodes agree in their outcomes, not always in "
+                             "their last bits (an evaluation's events record N and replay with it); with --ray, "
+                             "Ray's workers run the batches on one device each")
+    parser.set_defaults(cpu_devices_unset=unset)
 
 
 def apply_cpu_devices(args) -> None:
@@ -166,7 +168,8 @@ def apply_cpu_devices(args) -> None:
         set_cpu_devices,
     )
 
-    requested = args.cpu_devices if args.cpu_devices is not None else default_cpu_devices()
+    unset = getattr(args, "cpu_devices_unset", "auto")
+    requested = args.cpu_devices if args.cpu_devices is not None else default_cpu_devices(unset)
     on_ray = bool(getattr(args, "ray", False) or getattr(args, "ray_address", None))
     if requested == "auto":
         if not on_ray and not _backend_started():

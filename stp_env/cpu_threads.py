@@ -108,11 +108,13 @@ def available_cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def default_cpu_devices() -> int | str:
-    """The device count :data:`DEVICES_ENV_VAR` asks for: a positive integer, or ``"auto"`` (also when unset);
-    ``ValueError`` naming the variable for anything else."""
+def default_cpu_devices(unset: int | str = "auto") -> int | str:
+    """The device count :data:`DEVICES_ENV_VAR` asks for: a positive integer, or ``"auto"``; ``unset`` when it is
+    not set. ``ValueError`` naming the variable for anything else."""
     value = os.environ.get(DEVICES_ENV_VAR, "").strip()
-    if value in ("", "auto"):
+    if not value:
+        return unset
+    if value == "auto":
         return "auto"
     try:
         n = int(value)

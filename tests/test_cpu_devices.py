@@ -257,7 +257,8 @@ import argparse, json, sys
 import jax
 from stp_env import cli_kit
 from stp_env.cpu_threads import available_cores, cpu_devices
-args = argparse.Namespace(cpu_devices=json.loads(sys.argv[1]), ray=sys.argv[2] == "ray", ray_address=None)
+args = argparse.Namespace(cpu_devices=json.loads(sys.argv[1]), ray=sys.argv[2] == "ray", ray_address=None,
+                          cpu_devices_unset=json.loads(sys.argv[3]))
 try:
     cli_kit.apply_cpu_devices(args)
     error = None
@@ -269,6 +270,8 @@ print(json.dumps({"error": error, "devices": len(jax.devices()), "cores": availa
 
 @pytest.mark.parametrize(("flag", "variable", "ray", "expected"), [
     (None, None, "", "cores"),        # the command line's default: one device per core
+    (None, None, "unset=1", 1),       # a command whose default is one device (train-intruder)
+    (None, "auto", "unset=1", "cores"),
     ("auto", "1", "", "cores"),       # the flag wins over the environment variable
     (None, "auto", "", "cores"),
     (None, "3", "", 3),
@@ -277,7 +280,8 @@ print(json.dumps({"error": error, "devices": len(jax.devices()), "cores": availa
     (None, "1", "ray", 1),
 ])
 def test_the_default_device_count_is_one_per_core_or_the_environment_variable(flag, variable, ray, expected):
-    got = _run(_DEFAULT, json.dumps(flag), ray, env_vars={cpu_threads.DEVICES_ENV_VAR: variable})
+    unset = 1 if ray == "unset=1" else "auto"
+    got = _run(_DEFAULT, json.dumps(flag), ray, json.dumps(unset), env_vars={cpu_threads.DEVICES_ENV_VAR: variable})
     assert got["error"] is None
     assert got["devices"] == (got["cores"] if expected == "cores" else expected)
 
@@ -289,7 +293,7 @@ def test_the_default_device_count_is_one_per_core_or_the_environment_variable(fl
     (2, None, "ray", "--cpu-devices shares the batches"),
 ])
 def test_bad_default_device_counts_are_one_line_errors(flag, variable, ray, message):
-    got = _run(_DEFAULT, json.dumps(flag), ray, env_vars={cpu_threads.DEVICES_ENV_VAR: variable})
+    got = _run(_DEFAULT, json.dumps(flag), ray, json.dumps("auto"), env_vars={cpu_threads.DEVICES_ENV_VAR: variable})
     assert message in got["error"] and "\n" not in got["error"]
     assert got["devices"] == 1  # nothing was set
 
@@ -300,11 +304,13 @@ def test_auto_follows_a_backend_already_started():
 
     import jax
 
-    from stp_env import cli_kit
+    from stp_env import cli, cli_kit
 
     jax.numpy.zeros(1).block_until_ready()
     before = len(jax.devices())
     cli_kit.apply_cpu_devices(argparse.Namespace(cpu_devices="auto", ray=False, ray_address=None))
+    assert cli._build_parser().parse_args(["train-intruder"]).cpu_devices_unset == 1
+    assert cli._build_parser().parse_args(["evaluate"]).cpu_devices_unset == "auto"
     assert len(jax.devices()) == before
 
 
