@@ -96,8 +96,9 @@ def cpu_devices() -> int:
 
 
 DEVICES_ENV_VAR = "STP_ENV_CPU_DEVICES"
-"""The environment variable that sets ``stp-env evaluate``'s default ``--cpu-devices``: a positive integer, or
-``auto`` (unset: ``auto``, one device per core, :func:`available_cores`)."""
+"""The environment variable that sets the default ``--cpu-devices`` of the commands that take it (``evaluate``,
+``falsify``, ``coobservation``, ``train-intruder``): a positive integer, or ``auto`` (one device per core,
+:func:`available_cores`). Unset, each command's own default applies."""
 
 
 def available_cores() -> int:

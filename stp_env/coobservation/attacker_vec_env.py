@@ -11,7 +11,6 @@ import numpy as np
 
 from stp_env.coobservation import attackers
 from stp_env.rl.jax_vec_env import JaxVecEnv
-from stp_env.sim import engine
 
 
 class AttackerVecEnv(JaxVecEnv):
@@ -27,8 +26,6 @@ class AttackerVecEnv(JaxVecEnv):
         super().__init__(n_envs, gym.spaces.Box(-2.0, 2.0, (attackers.OBS_SIZE,), np.float32),
                          gym.spaces.Box(-1.0, 1.0, (2,), np.float32))
         self.params, self.tp = params, tp
-        # on every device the batch is shared among, copied once rather than at every step
-        self._shared = engine.replicate((params, tp))
         self._batch_reset, self._batch_step = programs
         self.action_repeat, self.gamma, self.shaping, self.residual = action_repeat, gamma, shaping, residual
         self.margin_reward = float(margin_reward)
@@ -38,7 +35,8 @@ class AttackerVecEnv(JaxVecEnv):
         self._lengths = np.zeros(n_envs, int)
 
     def reset(self):
-        self._keys, self._states, obs = self._batch_reset(self._keys, *self._shared, self.window)
+        self._keys, self._states, obs = self._batch_reset(self._keys, self._on_devices("params"),
+                                                          self._on_devices("tp"), self.window)
         return np.asarray(obs)
 
     def step_async(self, actions) -> None:
@@ -48,8 +46,9 @@ class AttackerVecEnv(JaxVecEnv):
     def step_wait(self):
         if self._states is None:
             raise RuntimeError("Call reset() before step().")
-        out = self._batch_step(self._keys, self._states, self._actions, *self._shared, self.window,
-                         self.action_repeat, self.gamma, self.shaping, self.residual, self.margin_reward)
+        out = self._batch_step(self._keys, self._states, self._actions, self._on_devices("params"),
+                               self._on_devices("tp"), self.window, self.action_repeat, self.gamma, self.shaping,
+                               self.residual, self.margin_reward)
         self._keys, self._states = out[0], out[1]
         obs, rew, done, term_obs, stats = jax.device_get(out[2:])
         self._returns += rew

@@ -10,7 +10,10 @@ Subclasses (:class:`stp_env.rl.vec_env.IntruderVecEnv`, the co-observation attac
   ``set_attr`` sets a shared attribute on every env at once (``indices=None``) and refuses the per-env and the
   private ones; ``env_method`` calls the shared method once per index;
 * ``env_is_wrapped`` is ``False`` (no Gymnasium wrappers inside), ``get_images`` ``None`` per env, and ``close``
-  drops the batch.
+  drops the batch;
+* ``_on_devices(name)``: the attribute ``name`` (the environment's parameters) on every device the batch is shared
+  among (:func:`stp_env.sim.engine.replicate`), copied once and again only when the attribute is replaced, so that
+  a step does not copy the tables to the other devices.
 """
 
 from __future__ import annotations
@@ -53,6 +56,16 @@ class JaxVecEnv(VecEnv):
             if seed is not None:
                 keys[i] = np.asarray(key_for_seed(seed))
         return keys
+
+    def _on_devices(self, name: str):
+        """The attribute ``name`` on every device a shared batch runs on (see the module docstring)."""
+        from stp_env.sim import engine
+
+        value = getattr(self, name)
+        cache = self.__dict__.setdefault("_replicas", {})
+        if name not in cache or cache[name][0] is not value:
+            cache[name] = (value, engine.replicate(value))
+        return cache[name][1]
 
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = check_action(actions, (self.num_envs, *self.action_space.shape))

@@ -29,7 +29,6 @@ from stp_env.baselines.observations import check_observation, observation_size
 from stp_env.rl import functional as F
 from stp_env.rl.gym_env import build_params
 from stp_env.rl.jax_vec_env import JaxVecEnv
-from stp_env.sim import engine
 
 STAT_NAMES = ("n_forced", "collisions", "intruder_collisions", "guarantee_violations")
 INFO_NAMES = (*STAT_NAMES, "time")
@@ -62,17 +61,11 @@ class IntruderVecEnv(JaxVecEnv):
                          gym.spaces.Box(-1.0, 1.0, (2,), np.float32))
         self._keys = None
 
-    def _batch_params(self):
-        """``self.params`` on every device the batch is shared among (:func:`stp_env.sim.engine.replicate`), copied
-        once, not at every step."""
-        if getattr(self, "_replicated", (None,))[0] is not self.params:
-            self._replicated = (self.params, engine.replicate(self.params))
-        return self._replicated[1]
-
     # ---------------------------------------------------------------------------------------------- core API
     def reset(self) -> np.ndarray:
         keys = jnp.asarray(self._keys_for_reset())
-        self._keys, self._states, obs = F.batch_reset(keys, self._batch_params(), self.horizon, self.observation)
+        self._keys, self._states, obs = F.batch_reset(keys, self._on_devices("params"), self.horizon,
+                                                      self.observation)
         obs = np.asarray(obs)
         times = np.asarray(self._states.t).tolist()
         self.reset_infos = [{"kbar": self.kbar, "time": t} for t in times]
@@ -85,7 +78,7 @@ class IntruderVecEnv(JaxVecEnv):
             raise RuntimeError("Call reset() before step().")
         if self._actions is None:
             raise RuntimeError("Call step_async() before step_wait().")
-        out = F.batch_step(self._keys, self._states, self._actions, self._batch_params(), self.horizon,
+        out = F.batch_step(self._keys, self._states, self._actions, self._on_devices("params"), self.horizon,
                            self._vehicle_policy, self.observation)
         self._keys, self._states = out[0], out[1]
         self._actions = None

@@ -243,16 +243,9 @@ class EgoVehicleVecEnv(JaxVecEnv):
                          gym.spaces.Box(-1.0, 1.0, (2,), np.float32))
         self._keys = self._egos = None
 
-    def _batch_params(self):
-        """``self.params`` on every device the batch is shared among (:func:`stp_env.sim.engine.replicate`), copied
-        once, not at every step."""
-        if getattr(self, "_replicated", (None,))[0] is not self.params:
-            self._replicated = (self.params, engine.replicate(self.params))
-        return self._replicated[1]
-
     def reset(self) -> np.ndarray:
         keys = jnp.asarray(self._keys_for_reset())
-        self._keys, self._states, self._egos, obs = batch_reset(keys, self._batch_params(), self.intruder)
+        self._keys, self._states, self._egos, obs = batch_reset(keys, self._on_devices("params"), self.intruder)
         self.reset_infos = [{} for _ in range(self.num_envs)]
         self._reset_seeds()
         self._reset_options()
@@ -263,8 +256,8 @@ class EgoVehicleVecEnv(JaxVecEnv):
             raise RuntimeError("Call reset() before step().")
         if self._actions is None:
             raise RuntimeError("Call step_async() before step_wait().")
-        out = batch_step(self._keys, self._states, self._egos, jnp.asarray(self._actions), self._batch_params(),
-                         self.intruder, self.energy, self.late_limit)
+        out = batch_step(self._keys, self._states, self._egos, jnp.asarray(self._actions),
+                         self._on_devices("params"), self.intruder, self.energy, self.late_limit)
         self._keys, self._states, self._egos = out[0], out[1], out[2]
         self._actions = None
         obs, rewards, term, trunc, terminal_obs, stats = jax.device_get(out[3:])
