@@ -144,10 +144,13 @@ def coobservation_job(params, threats: dict, attackers: dict, pairs, n_episodes:
     arguments = tuple((j, b) for j in range(len(pairs)) for b in range(n_batches))
     if fingerprint is not None:
         from stp_env.evaluation.report import source_hash
+        from stp_env.sim import engine
 
+        shares = engine.shares(batch)  # another count is another program (left out at one: older runs resume)
         fingerprint = execution.digest("coobservation", fingerprint, [list(p) for p in pairs], n_episodes, batch,
                                        seed, n_steps, list(t_window), host_params,
-                                       [[k, host_threats[k]] for k in sorted(host_threats)], source_hash())
+                                       [[k, host_threats[k]] for k in sorted(host_threats)], source_hash(),
+                                       *([shares] if shares > 1 else []))
     return execution.Job(name="coobservation", function=coobservation_piece, context=context, arguments=arguments,
                          fingerprint=fingerprint,
                          units=tuple(min(batch, n_episodes - b * batch) for _, b in arguments))

@@ -209,8 +209,10 @@ def _fingerprint(kind: str, context: SearchContext) -> str:
                 attack.base]
     else:
         what = [getattr(shipped, "__module__", ""), getattr(shipped, "__qualname__", repr(shipped))]
+    shares = engine.shares(context.config.batch)  # another count is another program (left out at one)
     return execution.digest(kind, what, context.dim, context.key_data, dataclasses.asdict(context.config),
-                            context.steps, context.seeds, context.starts, source_hash())
+                            context.steps, context.seeds, context.starts, source_hash(),
+                            *([shares] if shares > 1 else []))
 
 
 def _search_job(kind: str, function, context: SearchContext, units: int, resumable: bool):
