@@ -129,9 +129,9 @@ def env_step(key, state: EnvState, action, params: EnvParams, horizon: str, vehi
 @functools.partial(sim_jit, static_argnames=("horizon", "observation"))
 def batch_reset(keys, params: EnvParams, horizon: str, observation: str = "core"):
     """:func:`env_reset` for a batch of keys ``(n,)`` (shared among the devices:
-    :func:`stp_env.sim.engine.across_devices`, ``params`` whole to each)."""
-    return engine.across_devices(
-        lambda k, p: jax.vmap(lambda kk: env_reset.__wrapped__(kk, p, horizon, observation))(k), keys, shared=params)
+    :func:`stp_env.sim.engine.vmap_across_devices`, ``params`` whole to each)."""
+    return engine.vmap_across_devices(lambda k, p: env_reset.__wrapped__(k, p, horizon, observation),
+                                      shared=params)(keys)
 
 
 @functools.partial(sim_jit, static_argnames=("horizon", "vehicle_policy", "observation"))

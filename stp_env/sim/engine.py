@@ -135,12 +135,9 @@ def across_devices(fn, batch, shared=None):
         finally:
             _SHARING.depth -= 1
 
-    split, whole = PartitionSpec(MESH_AXIS), PartitionSpec()
-    if shared is None:
-        out = jax.shard_map(share, mesh=mesh, in_specs=split, out_specs=split, check_vma=False)(batch)
-    else:
-        out = jax.shard_map(share, mesh=mesh, in_specs=(split, whole), out_specs=split, check_vma=False)(batch,
-                                                                                                           shared)
+    split = PartitionSpec(MESH_AXIS)
+    args, specs = ((batch,), (split,)) if shared is None else ((batch, shared), (split, PartitionSpec()))
+    out = jax.shard_map(share, mesh=mesh, in_specs=specs, out_specs=split, check_vma=False)(*args)
     return jax.tree.map(lambda a: a[:n], out) if pad else out
 
 
