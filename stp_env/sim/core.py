@@ -47,6 +47,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from stp_env.sim import fleet, gates, tables
 from stp_env.sim import spawn as spawn_lib
@@ -164,33 +165,35 @@ def intruder_present(state: EnvState):
     return state.intruder_status == PRESENT
 
 
-def avoidance_actions(params: EnvParams, state: EnvState):
-    """``u^A`` (eq. 15) of every vehicle against the intruder, as actions ``(N, 2)``, read whether or not the
-    vehicle flies and the intruder is present (:func:`avoid_reads` masks and gates it)."""
-    tau = state.t - state.t_appear
-    rel = relative_state(poses(params, state), state.intruder_x[None, :])
-    u = jax.vmap(lambda r: tables.avoidance_control(params, tau, r))(rel)
-    return params.vehicles.model.command_to_action(state.x, u[:, 0], u[:, 1], params.vehicles.bounds)
+def avoid_read_needed(params: EnvParams, state: EnvState, rel):
+    """Which vehicles' avoid reads can matter, ``(N,)``: a flying vehicle while the intruder is present, whose relative
+    state ``rel`` ``(N, 3)`` lies in the avoid table's box or that is avoiding. The others' ``V^A`` is ``FAR`` whether
+    read or not (:func:`stp_env.sim.tables.avoid_value` outside the box), and their ``u^A`` is applied by no one (the
+    core and the baseline filters apply it only to avoiding vehicles): they get ``FAR`` and a zero action."""
+    inside = jax.vmap(lambda r: tables.inside_avoid_box(params, r))(rel)
+    return flying(state) & intruder_present(state) & (inside | (state.mode == AVOIDING))
 
 
 def avoid_reads(params: EnvParams, state: EnvState):
     """``V^A`` ``(N,)`` and ``u^A`` as actions ``(N, 2)`` of every vehicle against the present intruder (the values
-    in ``state.avoid_value`` and ``state.avoid_action``, refreshed every inner step): ``FAR`` and zero actions for
-    vehicles not flying or while no intruder is present. The reads are skipped when no vehicle of any episode of the
-    batch needs them (:func:`stp_env.sim.gates.when_any`; exact: the masked reads give the skip's values)."""
-    relevant = flying(state) & intruder_present(state)
-    n, a = state.avoid_action.shape
+    in ``state.avoid_value`` and ``state.avoid_action``, refreshed every inner step): ``FAR`` and zero actions where
+    no read is needed (:func:`avoid_read_needed`). The needed reads are gathered over the whole batch and only they
+    are computed (:func:`stp_env.sim.gates.where_needed`; each vehicle's read is its own: the same values as reading
+    every vehicle, ``tests/test_gates.py``)."""
+    rel = relative_state(poses(params, state), state.intruder_x[None, :])
+    tau = state.t - state.t_appear
+    value_dtype, action_dtype = state.avoid_value.dtype, state.avoid_action.dtype
 
-    def read(state):
-        vals = tables.vehicle_intruder_values(params, state)
-        acts = avoidance_actions(params, state)
-        return (jnp.where(relevant, vals, tables.FAR).astype(state.avoid_value.dtype),
-                jnp.where(relevant[:, None], acts, 0.0).astype(state.avoid_action.dtype))
+    def read(vehicle, shared):
+        r, x = vehicle
+        params, tau = shared
+        value = tables.avoid_value(params, tau, r)
+        u = tables.avoidance_control(params, tau, r)
+        action = params.vehicles.model.command_to_action(x, u[0], u[1], params.vehicles.bounds)
+        return value.astype(value_dtype), action.astype(action_dtype)
 
-    def skip(state):
-        return (jnp.full((n,), tables.FAR, state.avoid_value.dtype), jnp.zeros((n, a), state.avoid_action.dtype))
-
-    return gates.when_any(relevant, read, skip, state)
+    fill = (np.asarray(tables.FAR, value_dtype), np.zeros(state.avoid_action.shape[1:], action_dtype))
+    return gates.where_needed(avoid_read_needed(params, state, rel), read, fill, (rel, state.x), (params, tau))
 
 
 def tracking_actions(params: EnvParams, state: EnvState):

@@ -14,7 +14,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env import hj
-from stp_env.sim.physics import relative_state
 
 FAR = 1.0e6  # value reported outside the avoid-region grid [m]
 
@@ -165,11 +164,18 @@ def _inside(grid, x):
     return jnp.all((x[:2] >= lo) & (x[:2] <= hi))
 
 
+def inside_avoid_box(params, x_rel):
+    """Whether the relative position of ``x_rel`` (3,) lies in the avoid table's box (bounds included): where
+    :func:`avoid_value` is read rather than ``FAR``."""
+    return _inside(params.tables.avoid_grid, x_rel)
+
+
 def avoid_value(params, tau, x_rel):
-    """``V^A(tau, t_IAT)`` at the intruder's relative state ``x_rel`` (3,); ``FAR`` outside the grid."""
+    """``V^A(tau, t_IAT)`` at the intruder's relative state ``x_rel`` (3,); ``FAR`` outside the grid
+    (:func:`inside_avoid_box`)."""
     grid = params.tables.avoid_grid
     v, _ = _avoid_read(grid, params.tables.avoid_taus, params.tables.avoid_values, tau, x_rel)
-    return jnp.where(_inside(grid, x_rel), v, FAR)
+    return jnp.where(inside_avoid_box(params, x_rel), v, FAR)
 
 
 def _avoid_input_of(params, player, tau, x_rel):
@@ -190,14 +196,6 @@ def pursuit_input(params, tau, x_rel):
     """The minimising player of eq. (14): ``(v_I, omega_I, w_x, w_y)``, the intruder's control and the worst
     combined wind ``R(-theta_i)(d_I - d_i)`` in the vehicle's body frame."""
     return _avoid_input_of(params, "intruder", tau, x_rel)
-
-
-def vehicle_intruder_values(params, state):
-    """``V^A`` of every vehicle against the intruder, shape ``(N,)`` (``FAR`` when the intruder is absent)."""
-    tau = state.t - state.t_appear
-    rel = relative_state(params.vehicles.model.pose(state.x), state.intruder_x[None, :])
-    vals = jax.vmap(lambda r: avoid_value(params, tau, r))(rel)
-    return vals
 
 
 RECOVERY_GAIN = 2.0  # [1/s] turn rate per radian of bearing error when the error has left the tracking table

@@ -266,7 +266,9 @@ class EnvState:
     intruder_memory: jax.Array    # (4,) spawn state (x, y, theta) and 0, drawn at reset (scripted intruders read it)
     intruder_distance: jax.Array  # (N,) [m] distance to the intruder (inf when absent)
     avoid_value: jax.Array        # (N,) [m] V^A(t - t_, t_IAT) of each flying vehicle (FAR when absent)
-    avoid_action: jax.Array       # (N, action_dim) u^A (eq. 15) against the intruder (action; 0 when absent)
+    avoid_action: jax.Array       # (N, action_dim) u^A (eq. 15) against the intruder (action); 0 when absent, for
+    #                               a vehicle not flying, and for one outside the avoid table's box that is not
+    #                               avoiding (no one applies it there; sim.core.avoid_read_needed)
     track_action: jax.Array       # (N, action_dim) kappa (SPP eq. 26) of each vehicle for its nominal trajectory
     tracking_error: jax.Array     # (N,) [m] distance to the nominal position (body-frame error ||e_p||)
     tracking_value: jax.Array     # (N,) [m] V of the tracking game at the error (inf outside its table)
