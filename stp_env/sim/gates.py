@@ -72,10 +72,11 @@ def where_needed(pred, fn, fill, elements, shared=()):
     whole batch are flattened together, a shared leaf batched by an enclosing ``vmap`` becoming a per-element one.
     The elements that need ``fn`` are counted: none, and ``fn`` does not run; up to one of the gathered sizes
     (:data:`TIERS` of all the elements, at least :data:`MIN_GATHER`), and they are gathered into a batch of that size,
-    computed, and scattered back; more, and every element is computed and masked. Exact when each element's result
-    does not depend on the batch it is computed in (see :data:`MIN_GATHER`): every element's result is then the same
-    whichever branch ran, so an episode does not depend on its batch-mates. Differentiable: the derivatives are
-    those of every element computed and masked (a ``custom_jvp``)."""
+    computed, and scattered back (each size at least twice the one before and at most half of all the elements:
+    below 2,048 elements nothing is gathered); more, and every element is computed and masked. Exact when each
+    element's result does not depend on the batch it is computed in (see :data:`MIN_GATHER`): every element's result
+    is then the same whichever branch ran, so an episode does not depend on its batch-mates. Differentiable: the
+    derivatives are those of every element computed and masked (a ``custom_jvp``)."""
     e_leaves, e_tree = jax.tree.flatten(elements)
     s_leaves, s_tree = jax.tree.flatten(shared)
     spec = _Spec(fn, fill, e_tree, s_tree, (False,) * len(s_leaves))
@@ -131,7 +132,10 @@ def _gathered(spec, pred, e_leaves, s_leaves):
     lead, p, flat = _flat(pred, e_leaves)
     m = p.shape[0]
     one = jax.eval_shape(spec.call, [jax.ShapeDtypeStruct(a.shape[1:], a.dtype) for a in flat], s_leaves)
-    sizes = sorted({max(MIN_GATHER, math.ceil(m * f)) for f in TIERS} - {m}) if m > MIN_GATHER else []
+    sizes = []  # each at least twice the one before and at most half of all: a branch that saves little is not
+    for size in sorted({max(MIN_GATHER, math.ceil(m * f)) for f in TIERS}):  # worth its compiled copy of fn
+        if 2 * size <= m and (not sizes or size >= 2 * sizes[-1]):
+            sizes.append(size)
 
     def none(p, flat, s_leaves):
         return spec.filled(m, one)
