@@ -120,18 +120,22 @@ def _masked(p, out, filled):
     return jax.tree.map(lambda o, f: jnp.where(p.reshape((-1,) + (1,) * (o.ndim - 1)), o, f), out, filled)
 
 
+def _one(spec, flat, s_leaves):
+    """The shapes and dtypes of ``fn``'s results for one element."""
+    return jax.eval_shape(spec.call, [jax.ShapeDtypeStruct(a.shape[1:], a.dtype) for a in flat], s_leaves)
+
+
 def _every(spec, pred, e_leaves, s_leaves):
     """Every element computed, then masked: what :func:`where_needed` equals (and how it differentiates)."""
     lead, p, flat = _flat(pred, e_leaves)
-    out = spec.map(flat, s_leaves)
-    return _unflat(lead, _masked(p, out, spec.filled(p.shape[0], jax.tree.map(lambda o: o[0], out))))
+    return _unflat(lead, _masked(p, spec.map(flat, s_leaves), spec.filled(p.shape[0], _one(spec, flat, s_leaves))))
 
 
 def _gathered(spec, pred, e_leaves, s_leaves):
     """:func:`where_needed` of a batch flattened to one axis: none, a gathered batch, or every element."""
     lead, p, flat = _flat(pred, e_leaves)
     m = p.shape[0]
-    one = jax.eval_shape(spec.call, [jax.ShapeDtypeStruct(a.shape[1:], a.dtype) for a in flat], s_leaves)
+    one = _one(spec, flat, s_leaves)
     sizes = []  # each at least twice the one before and at most half of all: a branch that saves little is not
     for size in sorted({max(MIN_GATHER, math.ceil(m * f)) for f in TIERS}):  # worth its compiled copy of fn
         if 2 * size <= m and (not sizes or size >= 2 * sizes[-1]):
