@@ -4,7 +4,10 @@
 
 Prints one JSON line. Measured in the same run:
 
-* ``mpe2_env_steps_per_s``: mpe2 ``simple_tag_v3.parallel_env()`` (4 agents), random actions (the peer).
+* ``mpe2_env_steps_per_s``: mpe2 ``simple_tag_v3.parallel_env()`` (4 agents), random actions (the peer). It and
+  the two adapter loops below take turns (``--rounds``, each time a share of the steps), so the load the machine
+  had is shared among them; ``*_over_mpe2`` is the ratio of the rates over all rounds, ``*_over_mpe2_per_round``
+  the ratio within each round.
 * ``adapter_env_steps_per_s``: :func:`stp_env.env.parallel_env` on the scenario, the vehicles driven by the
   baseline controllers (``switching``, eq. 38, computed from the core state in one jitted call per step that also
   splits the key) and a random intruder, i.e. what a user's ``env.step`` loop with baseline agents costs.
@@ -45,22 +48,29 @@ def _params(name: str):
     return scenario, sim.make_params(scenario, plan, avoid, tracking, sim.EnvConfig())
 
 
-def mpe2_rate(n_steps: int) -> float:
+def mpe2_runner():
+    """``run(n) -> seconds`` for ``n`` steps of mpe2's ``simple_tag_v3`` with random actions."""
     from mpe2 import simple_tag_v3
 
     env = simple_tag_v3.parallel_env(max_cycles=10**9)
     env.reset(seed=0)
     spaces = {a: env.action_space(a) for a in env.possible_agents}
-    start = time.perf_counter()
-    for _ in range(n_steps):
-        env.step({a: spaces[a].sample() for a in env.agents})
-    return n_steps / (time.perf_counter() - start)
+
+    def run(n_steps: int) -> float:
+        start = time.perf_counter()
+        for _ in range(n_steps):
+            env.step({a: spaces[a].sample() for a in env.agents})
+        return time.perf_counter() - start
+
+    run(20)
+    return run
 
 
-def adapter_rate(scenario, params, n_steps: int) -> float:
-    """The adapter with the vehicles' actions computed outside the step: the user's loop makes one jitted call per
-    step (the key split and ``switching`` from ``env.env_state`` together: an eager ``jax.random.split`` alone cost
-    about 100 us per step in this loop, more than the policy) and a random intruder."""
+def adapter_runner(scenario, params):
+    """``run(n) -> seconds``: the adapter with the vehicles' actions computed outside the step: the user's loop
+    makes one jitted call per step (the key split and ``switching`` from ``env.env_state`` together: an eager
+    ``jax.random.split`` alone cost about 100 us per step in this loop, more than the policy) and a random
+    intruder."""
     from stp_env.baselines import switching
     from stp_env.env import STPParallelEnv
 
@@ -75,41 +85,72 @@ def adapter_rate(scenario, params, n_steps: int) -> float:
     rng = np.random.default_rng(0)
     names = env.possible_agents
     n = params.vehicles.n
-    steps, key = 0, jax.random.key(0)
-    start = None
-    while steps < n_steps + 20:
-        if steps == 20:
-            start = time.perf_counter()
-        if not env.agents:
-            env.reset(seed=steps)
-        key, veh = act(key, env.env_state, params)
-        veh = np.asarray(veh)
-        live = set(env.agents)
-        actions = {a: (veh[i] if i < n else rng.uniform(-1, 1, 2).astype(np.float32))
-                   for i, a in enumerate(names) if a in live}
-        env.step(actions)
-        steps += 1
-    return n_steps / (time.perf_counter() - start)
+    box = {"key": jax.random.key(0), "episode": 0}
+
+    def run(n_steps: int) -> float:
+        key = box["key"]
+        start = time.perf_counter()
+        for _ in range(n_steps):
+            if not env.agents:
+                box["episode"] += 1
+                env.reset(seed=box["episode"])
+            key, veh = act(key, env.env_state, params)
+            veh = np.asarray(veh)
+            live = set(env.agents)
+            actions = {a: (veh[i] if i < n else rng.uniform(-1, 1, 2).astype(np.float32))
+                       for i, a in enumerate(names) if a in live}
+            env.step(actions)
+        box["key"] = key
+        return time.perf_counter() - start
+
+    run(20)
+    return run
 
 
-def builtin_policy_rate(scenario, params, n_steps: int) -> float:
-    """The adapter with the vehicles flown by the built-in switching controller (``vehicle_policy="switching"``:
-    one jitted call per step, the vehicles' actions ignored) and a random intruder: what training an intruder runs."""
+def builtin_policy_runner(scenario, params):
+    """``run(n) -> seconds``: the adapter with the vehicles flown by the built-in switching controller
+    (``vehicle_policy="switching"``: one jitted call per step, the vehicles' actions ignored) and a random
+    intruder: what training an intruder runs."""
     from stp_env.env import STPParallelEnv
 
     env = STPParallelEnv(scenario, params=params, max_cycles=10**9, vehicle_policy="switching")
     env.reset(seed=0)
     rng = np.random.default_rng(0)
     zero = np.zeros(2, np.float32)
-    steps, start = 0, None
-    while steps < n_steps + 20:
-        if steps == 20:
-            start = time.perf_counter()
-        if not env.agents:
-            env.reset(seed=steps)
-        env.step({a: (rng.uniform(-1, 1, 2).astype(np.float32) if a == "intruder" else zero) for a in env.agents})
-        steps += 1
-    return n_steps / (time.perf_counter() - start)
+    box = {"episode": 0}
+
+    def run(n_steps: int) -> float:
+        start = time.perf_counter()
+        for _ in range(n_steps):
+            if not env.agents:
+                box["episode"] += 1
+                env.reset(seed=box["episode"])
+            env.step({a: (rng.uniform(-1, 1, 2).astype(np.float32) if a == "intruder" else zero)
+                      for a in env.agents})
+        return time.perf_counter() - start
+
+    run(20)
+    return run
+
+
+def interleaved(runners: dict, steps: dict, rounds: int) -> dict:
+    """Each runner ``rounds`` times in turn, ``steps[name] // rounds`` steps a round: rates over all rounds and,
+    per round, each runner's rate over the first's (the machine's load changes within a run)."""
+    seconds = dict.fromkeys(runners, 0.0)
+    done = dict.fromkeys(runners, 0)
+    ratios: dict = {name: [] for name in runners}
+    first = next(iter(runners))
+    for _ in range(rounds):
+        rate = {}
+        for name, run in runners.items():
+            n = max(1, steps[name] // rounds)
+            dt = run(n)
+            seconds[name] += dt
+            done[name] += n
+            rate[name] = n / dt
+        for name in runners:
+            ratios[name].append(rate[name] / rate[first])
+    return {"rates": {name: done[name] / seconds[name] for name in runners}, "ratios": ratios}
 
 
 def core_rate(params, n_envs: int, n_steps: int) -> tuple[float, float]:
@@ -151,6 +192,8 @@ def main() -> None:
     parser.add_argument("--scenario", default="city")
     parser.add_argument("--adapter-steps", type=int, default=5000)
     parser.add_argument("--mpe-steps", type=int, default=5000)
+    parser.add_argument("--rounds", type=int, default=5,
+                        help="mpe2 and the two adapter loops take turns this many times (the steps split evenly)")
     parser.add_argument("--envs", type=int, default=1024)
     parser.add_argument("--core-steps", type=int, default=200)
     parser.add_argument("--long", type=int, default=0)
@@ -167,12 +210,15 @@ def main() -> None:
     result = {"case": "env_throughput", "scenario": args.scenario, "n_agents": params.vehicles.n + 1,
               "cpu_threads": args.cpu_threads,
               "cpu_devices": args.cpu_devices, "loadavg_1min_before": round(os.getloadavg()[0], 2)}
-    result["mpe2_env_steps_per_s"] = round(mpe2_rate(args.mpe_steps), 1)
-    result["adapter_env_steps_per_s"] = round(adapter_rate(scenario, params, args.adapter_steps), 1)
-    result["adapter_over_mpe2"] = round(result["adapter_env_steps_per_s"] / result["mpe2_env_steps_per_s"], 2)
-    result["adapter_builtin_env_steps_per_s"] = round(builtin_policy_rate(scenario, params, args.adapter_steps), 1)
-    result["adapter_builtin_over_mpe2"] = round(result["adapter_builtin_env_steps_per_s"]
-                                                / result["mpe2_env_steps_per_s"], 2)
+    runners = {"mpe2": mpe2_runner(), "adapter": adapter_runner(scenario, params),
+               "adapter_builtin": builtin_policy_runner(scenario, params)}
+    steps = {"mpe2": args.mpe_steps, "adapter": args.adapter_steps, "adapter_builtin": args.adapter_steps}
+    measured = interleaved(runners, steps, args.rounds)
+    for name in runners:
+        result[f"{name}_env_steps_per_s"] = round(measured["rates"][name], 1)
+    for name in ("adapter", "adapter_builtin"):
+        result[f"{name}_over_mpe2"] = round(measured["rates"][name] / measured["rates"]["mpe2"], 2)
+        result[f"{name}_over_mpe2_per_round"] = [round(r, 2) for r in measured["ratios"][name]]
     env_steps, agent_steps = core_rate(params, args.envs, args.core_steps)
     result.update({"core_envs": args.envs, "core_env_steps_per_s": round(env_steps),
                    "core_agent_steps_per_s": round(agent_steps),

@@ -161,7 +161,7 @@ import sys
 import time
 import types
 import warnings
-from typing import Any, ClassVar, NamedTuple
+from typing import ClassVar, NamedTuple
 
 import gymnasium
 import jax
@@ -178,6 +178,7 @@ from stp_env.seeds import prng_key
 from stp_env.sim import core
 from stp_env.sim.backends import with_backend
 from stp_env.sim.jit import sim_jit
+from stp_env.sim.packing import DeviceCarry, Layout, pack
 from stp_env.sim.rollout import intruder_decision
 from stp_env.sim.types import (
     AFTER_AVOIDANCE,
@@ -268,14 +269,6 @@ _global_state_jit = sim_jit(core.global_state)
 TRACE_COUNTS = {"step": 0}  # incremented when the step function is traced (tests check it stays at 1)
 
 
-def _count_traces(fn):
-    def wrapped(*args):
-        TRACE_COUNTS["step"] += 1
-        return fn(*args)
-
-    return wrapped
-
-
 def _advance_scripted(key, state, actions, params, vehicle_policy=None, intruder_policy=None):
     """:func:`_advance` with the vehicles and/or the intruder flown by scripted policies (their actions ignored):
     the intruder's action once per step from its own key (as in :func:`stp_env.sim.rollout`), the vehicles' policy
@@ -292,75 +285,30 @@ def _advance_scripted(key, state, actions, params, vehicle_policy=None, intruder
 
 
 # ------------------------------------------------------------------------------------------------ one transfer
-# A step's outputs are a dozen small arrays; fetched one by one, each is a device-to-host copy with its own
-# overhead (about 30 us on a CPU, the largest single cost of a town adapter step when profiled). The step therefore
-# returns them packed into one int32 array (floats bit-cast, bools and ints widened) that the host unpacks with
-# numpy views: the same values, bit for bit (tests/test_env.py compares against the unpacked step).
+# A step's outputs are fetched as one packed int32 array, and the key and state it carries to the next step stay
+# packed on the device as another (stp_env.sim.packing says why: each array in or out of a call has its own
+# cost, larger than the step's own work on a CPU).
 
 
-class Layout(NamedTuple):
-    """How :func:`pack` laid a pytree out: its structure and, per leaf, shape, dtype and number of int32 words."""
-
-    treedef: Any
-    leaves: tuple
-
-    @classmethod
-    def of(cls, tree) -> Layout:
-        """The layout of ``tree`` (arrays or ``jax.ShapeDtypeStruct`` leaves, e.g. from ``jax.eval_shape``)."""
-        leaves, treedef = jax.tree.flatten(tree)
-        out = []
-        for x in leaves:
-            dtype = np.dtype(x.dtype)
-            n = int(np.prod(x.shape, dtype=np.int64))
-            out.append((tuple(x.shape), dtype, n * max(1, dtype.itemsize // 4)))  # 1 word, 2 for 8-byte leaves
-        return cls(treedef, tuple(out))
-
-    def unpack(self, words: np.ndarray):
-        """The pytree from the host copy of :func:`pack`'s array. ``words`` is copied once; the leaves are views
-        of that copy (writable, each its own slice)."""
-        words = np.array(words, np.int32, copy=True)
-        total = sum(n for _, _, n in self.leaves)
-        if words.shape != (total,):
-            raise ValueError(f"packed step output of shape {words.shape}; the layout needs ({total},).")
-        out, i = [], 0
-        for shape, dtype, n in self.leaves:
-            chunk = words[i:i + n]
-            i += n
-            if dtype == np.bool_:
-                out.append((chunk != 0).reshape(shape))
-            elif dtype.itemsize < 4:
-                out.append(chunk.astype(dtype).reshape(shape))
-            else:
-                out.append(chunk.view(dtype).reshape(shape))
-        return jax.tree.unflatten(self.treedef, out)
+def _advance_carry(carry, actions, params, layout, vehicle_policy=None, intruder_policy=None, with_state=False):
+    """One adapter step on the packed carry: ``(carry, actions, params) -> (carry, packed output)``, where the carry
+    is :func:`pack` of ``(key, state)`` laid out as ``layout``; :func:`_advance` or, with a scripted policy,
+    :func:`_advance_scripted`. ``with_state``: also ``(key, state)`` unpacked, for a user who reads ``env_state``
+    after every step (one more output per array, instead of a second call that unpacks the carry)."""
+    TRACE_COUNTS["step"] += 1
+    key, state = layout.unpack_traced(carry)
+    if vehicle_policy is None and intruder_policy is None:
+        key, new, out = _advance(key, state, actions, params)
+    else:
+        key, new, out = _advance_scripted(key, state, actions, params, vehicle_policy=vehicle_policy,
+                                          intruder_policy=intruder_policy)
+    if with_state:
+        return pack((key, new)), pack(out), (key, new)
+    return pack((key, new)), pack(out)
 
 
-def pack(tree):
-    """Every leaf of ``tree`` as int32 words in one flat array (4- and 8-byte leaves bit-cast, narrower ones and
-    bools widened); :meth:`Layout.unpack` inverts it."""
-    parts = []
-    for x in jax.tree.leaves(tree):
-        x = jnp.ravel(x)
-        if x.dtype == jnp.bool_ or x.dtype.itemsize < 4:
-            parts.append(x.astype(jnp.int32))
-        else:
-            parts.append(jnp.ravel(jax.lax.bitcast_convert_type(x, jnp.int32)))
-    return jnp.concatenate(parts) if parts else jnp.zeros((0,), jnp.int32)
-
-
-def _packed(fn):
-    """``fn`` returning ``(key, state, output)`` with the output :func:`pack`-ed."""
-
-    @functools.wraps(fn)
-    def wrapped(*args, **kwargs):
-        key, state, out = fn(*args, **kwargs)
-        return key, state, pack(out)
-
-    return wrapped
-
-
-_advance_jit = sim_jit(_count_traces(_packed(_advance)))
-_advance_scripted_jit = sim_jit(_packed(_advance_scripted), static_argnames=("vehicle_policy", "intruder_policy"))
+_advance_carry_jit = sim_jit(_advance_carry, static_argnames=("layout", "vehicle_policy", "intruder_policy",
+                                                               "with_state"))
 
 
 def _check_vehicle_policy(policy, params) -> None:
@@ -507,8 +455,7 @@ class STPParallelEnv(ParallelEnv):
         self._in_episode = np.ones(n, bool)  # vehicles that are agents of the episode (not done at its start)
         self._observation_spaces: dict[str, gymnasium.spaces.Box] = {}
         self._action_spaces: dict[str, gymnasium.spaces.Box] = {}
-        self._key = None
-        self._state = None
+        self._carry = DeviceCarry()  # (key, state), packed on the device
         self._steps = 0
         self.agents: list[str] = []
         self._fig = None
@@ -556,7 +503,7 @@ class STPParallelEnv(ParallelEnv):
                                                                                   jnp.float32)))
         compile_note("the environment's reset", key, start_params, progress=self._progress)
         key, state, out = _start_jit(key, start_params)
-        self._key, self._state = key, state
+        self._carry.set((key, state))
         self.params = params
         self._plan = self._plan0
         self._replan_tried = np.zeros(params.vehicles.n, bool)
@@ -632,7 +579,7 @@ class STPParallelEnv(ParallelEnv):
         return np.clip(arr, -1.0, 1.0).astype(np.float32)
 
     def _parse_actions(self, actions) -> np.ndarray:
-        if self._state is None:
+        if self._carry.words is None:
             raise RuntimeError("call reset() before step().")
         if not self.agents:
             raise RuntimeError("the episode is over (every agent has terminated or been truncated); call reset() "
@@ -679,19 +626,21 @@ class STPParallelEnv(ParallelEnv):
         if self._step_layout is None:  # traced once per environment, not compiled
             advance = (functools.partial(_advance_scripted, vehicle_policy=self._vehicle_policy,
                                          intruder_policy=self._intruder_policy) if scripted else _advance)
-            self._step_layout = Layout.of(jax.eval_shape(advance, self._key, self._state, arr, self.params)[2])
+            self._step_layout = Layout.of(jax.eval_shape(advance, *self._carry.unpacked(), arr, self.params)[2])
             # the shapes of the step's arguments are fixed for the environment's life (a new plan keeps them), so
             # the compilation is announced here, at its first step, and not looked up at every step
             flown = ", ".join(f"{name} {who}" for name, who in ((self._vehicle_policy_name, "vehicles"),
                                                                 (self._intruder_name, "intruder")) if name)
-            compile_note(f"the environment's step ({flown})" if scripted else "the environment's step", self._key,
-                         self._state, arr, self.params, progress=self._progress)
-        if scripted:
-            self._key, self._state, words = _advance_scripted_jit(self._key, self._state, arr, self.params,
-                                                                  vehicle_policy=self._vehicle_policy,
-                                                                  intruder_policy=self._intruder_policy)
-        else:
-            self._key, self._state, words = _advance_jit(self._key, self._state, arr, self.params)
+            compile_note(f"the environment's step ({flown})" if scripted else "the environment's step",
+                         self._carry.words, arr, self.params, progress=self._progress)
+        # a user who read env_state since the last step (e.g. to compute the vehicles' actions) gets the state
+        # with this one's outputs; otherwise it stays packed until asked for
+        with_state = self._carry.was_read
+        if with_state:
+            compile_note("the environment's step (returning env_state)", self._carry.words, arr, self.params,
+                         progress=self._progress)
+        words = self._carry.advance(_advance_carry_jit, arr, self.params, vehicle_policy=self._vehicle_policy,
+                                    intruder_policy=self._intruder_policy, with_state=with_state)
         self._steps += 1
         out = self._step_layout.unpack(np.asarray(words))
         obs, rewards, info = self._observations(out.obs_vehicles, out.obs_intruder), out.rewards, out.info
@@ -741,7 +690,8 @@ class STPParallelEnv(ParallelEnv):
             return obs, info
         self._plan = new_plan
         self.params = assembly.with_plan(self.params, new_plan)
-        self._state = replace(self._state, mode=self._state.mode.at[jnp.asarray(idx)].set(NOMINAL))
+        key, state = self._carry.unpacked()
+        self._carry.set((key, replace(state, mode=state.mode.at[jnp.asarray(idx)].set(NOMINAL))))
         self._replanned[idx] = True
         self._sta = np.asarray(self.params.vehicles.sta, np.float64)
         self.replan_log.append({"time": t_bar, "vehicles": idx,
@@ -831,7 +781,7 @@ class STPParallelEnv(ParallelEnv):
         """The global state (``state_space``): per vehicle ``(x, y)`` scaled, ``cos, sin``, flying / finished /
         waiting / avoiding / after flags; the intruder's ``(x, y, cos, sin)``, present flag, ``tau / t_IAT``; and
         the time since the episode start over its length."""
-        if self._state is None:
+        if self._carry.words is None:
             raise RuntimeError("call reset() before state().")
         return np.asarray(_global_state_jit(self._state, self.params))
 
@@ -840,7 +790,7 @@ class STPParallelEnv(ParallelEnv):
         if self.render_mode is None:
             gymnasium.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'.")
             return None
-        if self._state is None:
+        if self._carry.words is None:
             raise RuntimeError("call reset() before render().")
         from stp_env.render import draw_frame
 
@@ -865,8 +815,19 @@ class STPParallelEnv(ParallelEnv):
 
     @property
     def env_state(self) -> sim.EnvState:
-        """The core's :class:`~stp_env.sim.EnvState` (read-only use; for parity checks and custom analysis)."""
-        return self._state
+        """The core's :class:`~stp_env.sim.EnvState` (read-only use; for parity checks and custom analysis);
+        ``None`` before the first ``reset``. Read between two steps, it comes with the next step's outputs (a loop
+        that reads it after every step makes one call per step, not two)."""
+        tree = self._carry.tree
+        return None if tree is None else tree[1]
+
+    @property
+    def _key(self):
+        return None if self._carry.words is None else self._carry.unpacked()[0]
+
+    @property
+    def _state(self):
+        return None if self._carry.words is None else self._carry.unpacked()[1]
 
 
 def parallel_env(scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, **kwargs) -> STPParallelEnv:

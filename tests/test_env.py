@@ -27,8 +27,10 @@ from pettingzoo.test import (
 import stp_env.env as stp_module
 from stp_env import sim
 from stp_env.env import TRACE_COUNTS, env, parallel_env, raw_env
+from stp_env.sim import packing
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.types import MODE_NAMES, STATUS_NAMES
+from stp_env.sim.types import replace as sim_replace
 
 
 def _enable_x64(on: bool):
@@ -357,36 +359,110 @@ def test_long_run_without_recompiling_or_growing_memory(par):
     assert rss[-1] - rss[0] < 50_000, rss  # KiB: less than 50 MB growth after warm-up
 
 
-def test_packed_step_output_is_the_unpacked_one_bit_for_bit(par):
-    """The adapter fetches a step's outputs as one packed array: unpacked, they are exactly the step's outputs."""
-    par.reset(seed=3)
+def test_packed_step_is_the_unpacked_one_bit_for_bit():
+    """The adapter keeps the key and state packed on the device (the carry) and fetches a step's outputs as one
+    packed array: unpacked, the next key and state and the outputs are exactly those of the unpacked step, over
+    steps in which the intruder pursues and vehicles avoid."""
+    # the HJ-pursuit intruder appearing on an avoid boundary forces vehicles
+    par = parallel_env(intruder="hj", spawn_mode="boundary")
+    par.reset(seed=6, options={"appear_time": float(par.params.episode.t_start) + 0.5})
     n = par.params.vehicles.n
-    acts = jnp.asarray(np.random.default_rng(1).uniform(-1, 1, (n + 1, 2)), jnp.float32)
     key, state = par._key, par._state
-    _, _, direct = sim_jit(stp_module._advance)(key, state, acts, par.params)
-    _, _, words = stp_module._advance_jit(key, state, acts, par.params)
-    layout = stp_module.Layout.of(jax.eval_shape(stp_module._advance, key, state, acts, par.params)[2])
-    unpacked = layout.unpack(np.asarray(words))
-    for a, b in zip(jax.tree.leaves(jax.device_get(direct)), jax.tree.leaves(unpacked)):
-        assert a.dtype == b.dtype and a.shape == b.shape
-        np.testing.assert_array_equal(a, b)
+    carry = packing._pack_jit((key, state))
+    layout = packing.Layout.of((key, state))
+    scripted = functools.partial(stp_module._advance_scripted, intruder_policy=par._intruder_policy)
+    direct_step = sim_jit(scripted)
+    out_layout = None
+    for _ in range(40):  # zero actions, as in the vehicle-policy test above: vehicles are forced
+        acts = jnp.zeros((n + 1, 2), jnp.float32)
+        if out_layout is None:
+            out_layout = packing.Layout.of(jax.eval_shape(scripted, key, state, acts, par.params)[2])
+        key, state, direct = direct_step(key, state, acts, par.params)
+        carry, words = stp_module._advance_carry_jit(carry, acts, par.params, layout=layout,
+                                                     intruder_policy=par._intruder_policy)
+        unpacked = out_layout.unpack(np.asarray(words))
+        for a, b in zip(jax.tree.leaves(jax.device_get(direct)), jax.tree.leaves(unpacked)):
+            assert a.dtype == b.dtype and a.shape == b.shape
+            np.testing.assert_array_equal(a, b)
+        back_key, back_state = packing._unpack_jit(carry, layout=layout)
+        np.testing.assert_array_equal(jax.random.key_data(back_key), jax.random.key_data(key))
+        for a, b in zip(jax.tree.leaves(state), jax.tree.leaves(back_state)):
+            assert a.dtype == b.dtype and a.shape == b.shape
+            if jax.dtypes.issubdtype(a.dtype, jax.dtypes.prng_key):
+                a, b = jax.random.key_data(a), jax.random.key_data(b)
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert int(state.intruder_status) != 0 and bool(np.any(np.isfinite(np.asarray(state.avoid_start))))
     with pytest.raises(ValueError, match="packed step output"):
-        layout.unpack(np.asarray(words)[:-1])
+        out_layout.unpack(np.asarray(words)[:-1])
+    with pytest.raises(ValueError, match="PRNG keys"):
+        layout.unpack(np.asarray(carry))
+
+
+def test_the_env_state_and_key_follow_the_packed_carry(par):
+    """``env_state`` is the carry unpacked, after steps and after a replanning-style state change."""
+    par.reset(seed=0)
+    before = par.env_state
+    par.step({a: np.zeros(2, np.float32) for a in par.agents})
+    after = par.env_state
+    assert after is par.env_state  # unpacked once per step
+    assert float(after.t) > float(before.t)
+    key, state = par._key, par._state
+    par._carry.set((key, sim_replace(state, t=state.t + 1.0)))
+    assert float(par.env_state.t) == float(state.t) + 1.0
+    np.testing.assert_array_equal(np.asarray(packing._unpack_jit(par._carry.words, layout=par._carry.layout)[1].t),
+                                  np.asarray(state.t) + np.float32(1.0))
+
+
+def test_a_loop_reading_env_state_gets_it_from_the_step_with_the_same_episode(par):
+    """Read between two steps, ``env_state`` comes with the next step's outputs (a second compiled variant of the
+    step): the same episode, bit for bit, as a loop that never reads it."""
+    other = parallel_env()
+    par.reset(seed=11)
+    other.reset(seed=11)
+    rng = np.random.default_rng(5)
+    for i in range(30):
+        acts = {a: rng.uniform(-1, 1, 2).astype(np.float32) for a in par.agents}
+        if i >= 3:
+            state = par.env_state  # read: the next step returns the state with its outputs
+            assert par._carry.was_read
+        got, want = par.step(acts), other.step(acts)
+        if i >= 3:
+            assert par._carry._tree is not None  # no unpacking call needed for the next read
+            assert float(par.env_state.t) > float(state.t)
+        assert got[1:4] == want[1:4]
+        for agent in got[0]:
+            np.testing.assert_array_equal(got[0][agent], want[0][agent])
+    assert not other._carry.was_read
+    for a, b in zip(jax.tree.leaves(par.env_state), jax.tree.leaves(other.env_state)):
+        if jax.dtypes.issubdtype(a.dtype, jax.dtypes.prng_key):
+            a, b = jax.random.key_data(a), jax.random.key_data(b)
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
 def test_pack_round_trips_every_dtype():
     tree = {"f32": jnp.asarray([1.5, -np.inf, np.nan], jnp.float32), "i32": jnp.asarray([[-7, 2 ** 31 - 1]]),
             "b": jnp.asarray([True, False, True]), "u8": jnp.asarray([0, 255], jnp.uint8), "s": jnp.asarray(3.25)}
-    back = stp_module.Layout.of(tree).unpack(np.asarray(jax.jit(stp_module.pack)(tree)))
+    back = packing.Layout.of(tree).unpack(np.asarray(jax.jit(packing.pack)(tree)))
     for k, v in tree.items():
         assert back[k].dtype == np.asarray(v).dtype
         np.testing.assert_array_equal(back[k], np.asarray(v))
     with _enable_x64(True):
         wide = {"f64": jnp.asarray([np.pi, -1e300], jnp.float64), "i64": jnp.asarray([-(2 ** 40), 5], jnp.int64)}
-        back = stp_module.Layout.of(wide).unpack(np.asarray(jax.jit(stp_module.pack)(wide)))
+        back = packing.Layout.of(wide).unpack(np.asarray(jax.jit(packing.pack)(wide)))
         for k, v in wide.items():
             assert back[k].dtype == np.asarray(v).dtype
             np.testing.assert_array_equal(back[k], np.asarray(v))
+        both = {**tree, **wide, "key": jax.random.split(jax.random.key(5), 3)}
+        layout = packing.Layout.of(both)
+        back = jax.jit(lambda w: layout.unpack_traced(w))(jax.jit(packing.pack)(both))
+        for k, v in both.items():
+            if k == "key":
+                np.testing.assert_array_equal(jax.random.key_data(back[k]), jax.random.key_data(v))
+            else:
+                assert back[k].dtype == v.dtype
+                np.testing.assert_array_equal(np.asarray(back[k]), np.asarray(v))
+    with pytest.raises(ValueError, match="abstract PRNG key"):
+        packing.Layout.of(jax.eval_shape(lambda: jax.random.key(0)))
 
 
 def test_episode_results_are_readable_at_the_end_whatever_agent_is_left(par):

@@ -16,6 +16,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecCheckNan, VecMonito
 from stp_env import assembly, sim
 from stp_env.baselines.learned import export_mlp, load_mlp, mlp_intruder
 from stp_env.rl import IntruderEnv, IntruderVecEnv
+from stp_env.rl import functional as F
 from stp_env.rl.train import TrainConfig, evaluate_on_vec_env, make_model, summarize
 
 N_ENVS = 4
@@ -42,6 +43,31 @@ def test_gym_env_passes_gymnasium_and_sb3_checks(params):
         env.step(np.array([np.nan, 0.0], np.float32))
     with pytest.raises(ValueError, match="shape"):
         env.step(np.zeros(3, np.float32))
+
+
+def test_gym_env_packed_step_is_the_functional_step_bit_for_bit(params):
+    """The env keeps its key and state packed on the device and fetches each step's outputs as one array
+    (stp_env.sim.packing): the same observations, rewards, ends, stats and states as the functional step."""
+    env = IntruderEnv(params=params)
+    env.reset(seed=4)
+    key, state = env._key, env.state
+    rng = np.random.default_rng(2)
+    for _ in range(50):
+        action = rng.uniform(-1, 1, 2).astype(np.float32)
+        obs, reward, terminated, truncated, info = env.step(action)
+        key, state, *want = F.env_step(key, state, action, params, env.horizon, env._vehicle_policy, env.observation)
+        w_obs, w_reward, w_term, w_trunc, w_stats = jax.device_get(want)
+        np.testing.assert_array_equal(obs, w_obs)
+        assert (reward, terminated, truncated) == (float(w_reward), bool(w_term), bool(w_trunc))
+        assert {k: info[k] for k in w_stats} == {k: (float(v) if k == "time" else int(v)) for k, v in w_stats.items()}
+        for a, b in zip(jax.tree.leaves(jax.random.key_data(key)), jax.tree.leaves(jax.random.key_data(env._key))):
+            np.testing.assert_array_equal(a, b)
+        for a, b in zip(jax.tree.leaves(state), jax.tree.leaves(env.state)):
+            if jax.dtypes.issubdtype(a.dtype, jax.dtypes.prng_key):
+                a, b = jax.random.key_data(a), jax.random.key_data(b)
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        if terminated or truncated:
+            break
 
 
 def test_vec_env_matches_dummy_vec_env_over_the_gym_env(params):

@@ -23,6 +23,7 @@ Gymnasium's ``np_random``.
 
 from __future__ import annotations
 
+import functools
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -32,6 +33,8 @@ import numpy as np
 from stp_env import assembly, sim
 from stp_env.baselines.observations import check_observation, observation_size
 from stp_env.rl import functional as F
+from stp_env.sim.jit import sim_jit
+from stp_env.sim.packing import DeviceCarry, Layout, pack
 
 
 def build_params(scenario="town", config: sim.EnvConfig | None = None, *, params=None, store=None) -> sim.EnvParams:
@@ -50,6 +53,22 @@ def check_action(action, shape) -> np.ndarray:
     if not np.all(np.isfinite(action)):
         raise ValueError("actions must be finite (no NaN or inf).")
     return action
+
+
+def _step_packed(words, action, params, layout, horizon, vehicle_policy, observation):
+    """:func:`stp_env.rl.functional.env_step` on the packed carry: ``(words, packed outputs)``."""
+    key, state = layout.unpack_traced(words)
+    key, state, *out = F.env_step.__wrapped__(key, state, action, params, horizon, vehicle_policy, observation)
+    return pack((key, state)), pack(tuple(out))
+
+
+def _output_tree(words, action, params, layout, horizon, vehicle_policy, observation):
+    """What :func:`_step_packed` packs as its output (for its :class:`~stp_env.sim.packing.Layout`)."""
+    key, state = layout.unpack_traced(words)
+    return tuple(F.env_step.__wrapped__(key, state, action, params, horizon, vehicle_policy, observation)[2:])
+
+
+_step_packed_jit = sim_jit(_step_packed, static_argnames=("layout", "horizon", "vehicle_policy", "observation"))
 
 
 class IntruderEnv(gym.Env):
@@ -80,29 +99,44 @@ class IntruderEnv(gym.Env):
         self.action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
         self.render_mode = None
         self.kbar = int(self.params.intruder.kbar)
-        self._key = None
-        self.state: sim.EnvState | None = None
+        self._carry = DeviceCarry()  # (key, state), packed on the device (stp_env.sim.packing)
+        self._out_layout = None
+
+    @property
+    def state(self) -> sim.EnvState | None:
+        """The core's state (``None`` before the first reset)."""
+        tree = self._carry.tree
+        return None if tree is None else tree[1]
+
+    @property
+    def _key(self):
+        tree = self._carry.unpacked()
+        return None if tree is None else tree[0]
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         if options:
             raise ValueError(f"IntruderEnv.reset takes no options; got {sorted(options)}.")
         key = F.key_for_seed(seed) if seed is not None else None  # checked before anything changes
         super().reset(seed=seed)
-        if key is not None:
-            self._key = key
-        elif self._key is None:
-            self._key = F.key_for_seed(int(self.np_random.integers(0, 2**32)))
-        self._key, self.state, obs = F.env_reset(self._key, self.params, self.horizon, self.observation)
-        return np.asarray(obs), {"kbar": self.kbar, "time": float(self.state.t)}
+        if key is None:
+            key = self._key
+        if key is None:
+            key = F.key_for_seed(int(self.np_random.integers(0, 2**32)))
+        key, state, obs = F.env_reset(key, self.params, self.horizon, self.observation)
+        self._carry.set((key, state))
+        return np.asarray(obs), {"kbar": self.kbar, "time": float(state.t)}
 
     def step(self, action):
-        if self.state is None:
+        if self._carry.words is None:
             raise RuntimeError("Call reset() before step().")
         action = check_action(action, (2,))
-        out = F.env_step(self._key, self.state, action, self.params, self.horizon, self._vehicle_policy,
-                         self.observation)
-        self._key, self.state = out[0], out[1]
-        obs, reward, terminated, truncated, stats = jax.device_get(out[2:])
+        static = {"horizon": self.horizon, "vehicle_policy": self._vehicle_policy, "observation": self.observation}
+        if self._out_layout is None:  # the shapes are fixed for the env's life
+            self._out_layout = Layout.of(jax.eval_shape(
+                functools.partial(_output_tree, layout=self._carry.layout, **static), self._carry.words, action,
+                self.params))
+        words = self._carry.advance(_step_packed_jit, action, self.params, **static)
+        obs, reward, terminated, truncated, stats = self._out_layout.unpack(np.asarray(words))
         info = {name: (float(value) if name == "time" else int(value)) for name, value in stats.items()}
         info["kbar"] = self.kbar
         return np.asarray(obs), float(reward), bool(terminated), bool(truncated), info
