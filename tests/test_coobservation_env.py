@@ -16,6 +16,7 @@ import pytest
 from pettingzoo.test import parallel_api_test
 
 from stp_env.coobservation import attackers, checkpoints, threat
+from stp_env.coobservation import env as coobs_env
 from stp_env.coobservation.env import parallel_env
 from stp_env.coobservation.uav import FormationScenario
 
@@ -112,6 +113,38 @@ def test_parallel_env_api_and_infos():
     assert obs["attacker"].shape == (attackers.OBS_SIZE,) and np.abs(obs["attacker"]).max() > 0
     with pytest.raises(ValueError, match="finite"):
         env.step({"attacker": np.array([np.nan, 0.0])})
+
+
+def test_the_packed_step_is_the_unpacked_one_bit_for_bit():
+    """The env keeps its key and threat state packed on the device and fetches each step's outputs and infos'
+    fields as one array (stp_env.sim.packing): the same observations, rewards and states as the unpacked step."""
+    env = parallel_env(schedule="unsecured", max_cycles=60, params=_params())
+    env.reset(seed=2, options={"compromised": 1, "compromise_time": 0.0})
+    key, ts = env._key, env.threat_state
+    n = env.scenario.n_vehicles
+    rng = np.random.default_rng(4)
+    for i in range(40):
+        att = rng.uniform(-1, 1, 2).astype(np.float32)
+        acts = {"attacker": att}
+        given = np.zeros(n, bool)
+        arr = np.zeros((n, 2), np.float32)
+        if i % 3 == 0 and "vehicle_0" in env.agents:  # sometimes a vehicle's own action, else the plan's tracker
+            arr[0] = rng.uniform(-1, 1, 2).astype(np.float32)
+            given[0] = True
+            acts["vehicle_0"] = arr[0]
+        obs, rewards, *_ = env.step(acts)
+        key, ts, out, reward, _newly = coobs_env._step_jit(key, ts, arr, given, att, True, env.params, env.threat)
+        np.testing.assert_array_equal(obs["attacker"], np.asarray(out["attacker_obs"]))
+        for agent in obs:
+            if agent != "attacker":
+                np.testing.assert_array_equal(obs[agent], np.asarray(out["vehicle_obs"])[env._index[agent]])
+        assert rewards["attacker"] == float(reward)
+        for a, b in zip(jax.tree.leaves((key, ts)), jax.tree.leaves((env._key, env.threat_state))):
+            if jnp.issubdtype(a.dtype, jax.dtypes.prng_key):
+                a, b = jax.random.key_data(a), jax.random.key_data(b)
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        if not env.agents:
+            break
 
 
 def test_training_outcome_rates_count_only_finished_episodes():

@@ -83,6 +83,7 @@ from stp_env.coobservation import attackers, threat
 from stp_env.coobservation.uav import FormationScenario
 from stp_env.seeds import prng_key
 from stp_env.sim.core import observe, vehicle_observation_size
+from stp_env.sim.packing import DeviceCarry, Layout, pack
 from stp_env.sim.types import STATUS_NAMES
 
 UNSECURED_PERIOD = 90.0  # [s]
@@ -134,7 +135,29 @@ def _reset(key, params, tp, compromised, t_compromise):
     return key, ts, _outputs(ts, params, tp)
 
 
+def _info_fields(ts):
+    """What the infos are made of (host side, :meth:`CoObservationParallelEnv._infos`)."""
+    return {"t": ts.sim.t, "status": ts.sim.status, "inside": ts.inside, "entered": ts.entered,
+            "obs_distance": ts.obs_distance, "compromised": ts.compromised, "entry_time": ts.entry_time,
+            "detect_time": ts.detect_time, "t_compromise": ts.t_compromise, "missed": ts.missed}
+
+
+def _step_packed(words, actions, given, attacker_action, attacker_given, params, tp, layout):
+    """:func:`_step` on the packed ``(key, threat state)`` (:mod:`stp_env.sim.packing`): the new carry and, packed
+    into one array, the outputs, reward, newly checked observations and the infos' fields."""
+    key, ts = layout.unpack_traced(words)
+    key, new, out, reward, newly = _step(key, ts, actions, given, attacker_action, attacker_given, params, tp)
+    return pack((key, new)), pack((out, reward, newly, _info_fields(new)))
+
+
+def _step_output_tree(words, actions, given, attacker_action, attacker_given, params, tp, layout):
+    key, ts = layout.unpack_traced(words)
+    key, new, out, reward, newly = _step(key, ts, actions, given, attacker_action, attacker_given, params, tp)
+    return out, reward, newly, _info_fields(new)
+
+
 _step_jit = jax.jit(_step)
+_step_packed_jit = jax.jit(_step_packed, static_argnames=("layout",))
 _reset_jit = jax.jit(_reset)
 
 
@@ -167,10 +190,20 @@ class CoObservationParallelEnv(ParallelEnv):
         self._observation_spaces: dict[str, gymnasium.spaces.Box] = {}
         self._action_spaces: dict[str, gymnasium.spaces.Box] = {}
         self.agents: list[str] = []
-        self._key = None
-        self._ts = None
+        self._carry = DeviceCarry()  # (key, threat state), packed on the device (stp_env.sim.packing)
+        self._out_layout = None
         self._steps = 0
         self.render_mode = None
+
+    @property
+    def _key(self):
+        tree = self._carry.unpacked()
+        return None if tree is None else tree[0]
+
+    @property
+    def _ts(self):
+        tree = self._carry.unpacked()
+        return None if tree is None else tree[1]
 
     def _check_compromise(self, compromised, compromise_time):
         """``(compromised, compromise_time)`` checked (``None`` stays ``None``: drawn per episode)."""
@@ -215,14 +248,15 @@ class CoObservationParallelEnv(ParallelEnv):
         c = int(c_draw) if c is None else c
         t_c = float(t_draw) if t_c is None else t_c
         key, ts, out = _reset_jit(key, self.params, self.threat, c, t_c)
-        out = jax.device_get(out)
-        self._key, self._ts = key, ts
+        out, checked, fields = jax.device_get((out, ts.checked, _info_fields(ts)))
+        self._carry.set((key, ts))
         self._steps = 0
         self.agents = list(self.possible_agents)
         obs = self._observations(out)
         # the observations checked at the start (the base stations at t = 0) are the reset's events
-        checked = np.asarray(jax.device_get(self._ts.checked))[:len(self.schedule)]
-        infos = self._infos(checked & (np.asarray(self.threat.obs_time)[:len(self.schedule)] < threat.NEVER))
+        checked = np.asarray(checked)[:len(self.schedule)]
+        infos = self._infos(checked & (np.asarray(self.threat.obs_time)[:len(self.schedule)] < threat.NEVER),
+                            fields)
         return obs, infos
 
     def _check_options(self, options):
@@ -240,7 +274,7 @@ class CoObservationParallelEnv(ParallelEnv):
                                       options.get("compromise_time", self.compromise_time))
 
     def step(self, actions):
-        if self._ts is None:
+        if self._carry.words is None:
             raise RuntimeError("call reset() before step().")
         if not isinstance(actions, dict):
             raise ValueError(f"actions must be a dict {{agent: action}}; got {type(actions).__name__}.")
@@ -263,13 +297,17 @@ class CoObservationParallelEnv(ParallelEnv):
             else:
                 i = self._index[agent]
                 arr[i], given[i] = np.clip(a, -1, 1), True
-        self._key, self._ts, out, reward, newly = _step_jit(self._key, self._ts, arr, given, att, att_given,
-                                                            self.params, self.threat)
+        args = (arr, given, att, att_given, self.params, self.threat)
+        if self._out_layout is None:  # the shapes are fixed for the env's life
+            self._out_layout = Layout.of(jax.eval_shape(functools.partial(_step_output_tree,
+                                                                          layout=self._carry.layout),
+                                                        self._carry.words, *args))
+        words = self._carry.advance(_step_packed_jit, *args)
         self._steps += 1
-        out, reward, newly = jax.device_get((out, reward, newly))
+        out, reward, newly, fields = self._out_layout.unpack(np.asarray(words))
         obs = self._observations(out)
-        infos = self._infos(np.asarray(newly))
-        status = np.asarray(self._ts.sim.status)
+        infos = self._infos(newly, fields)
+        status = fields["status"]
         end = bool(out["done"]) or self._steps >= self.max_cycles
         live = list(self.agents)
         terms, truncs, rews = {}, {}, {}
@@ -289,15 +327,14 @@ class CoObservationParallelEnv(ParallelEnv):
         obs["attacker"] = np.asarray(out["attacker_obs"], np.float32)
         return obs
 
-    def _infos(self, newly):
-        ts = jax.device_get(self._ts)
-        t = float(ts.sim.t)
+    def _infos(self, newly, fields):
+        """The infos from the host copy of :func:`_info_fields` and the newly checked observations."""
+        t = float(fields["t"])
         n = self.scenario.n_vehicles
-        x = np.asarray(ts.sim.x)
-        inside = np.asarray(ts.inside)
-        entered = np.asarray(ts.entered)
+        inside = np.asarray(fields["inside"])
+        entered = np.asarray(fields["entered"])
         events = {i: [] for i in range(n)}
-        dist = np.asarray(ts.obs_distance)
+        dist = np.asarray(fields["obs_distance"])
         radius = self.scenario.observation_radius
         for m in np.flatnonzero(newly):
             ob = self.schedule[m]
@@ -308,28 +345,30 @@ class CoObservationParallelEnv(ParallelEnv):
             if ob.partner is not None:
                 events[ob.partner].append({"time": float(ob.time), "observer": f"vehicle_{ob.agent}",
                                            "distance": float(dist[m]), "seen": seen})
-        del x
         infos = {}
-        status = np.asarray(ts.sim.status)
+        status = np.asarray(fields["status"])
         for i in range(n):
             infos[f"vehicle_{i}"] = {"status": STATUS_NAMES[int(status[i])], "in_forbidden": bool(inside[i]),
                                      "entered_forbidden": bool(entered[i]), "observations": events[i], "time": t}
-        c = int(ts.compromised)
-        entry = float(ts.entry_time[c]) if c >= 0 else float("inf")
-        det = float(ts.detect_time)
+        c = int(fields["compromised"])
+        entry = float(fields["entry_time"][c]) if c >= 0 else float("inf")
+        det = float(fields["detect_time"])
         infos["attacker"] = {
-            "compromised": f"vehicle_{c}" if c >= 0 else None, "active": c >= 0 and t >= float(ts.t_compromise) - 1e-6,
-            "compromise_time": float(ts.t_compromise), "entered": bool(c >= 0 and entered[c]),
+            "compromised": f"vehicle_{c}" if c >= 0 else None,
+            "active": c >= 0 and t >= float(fields["t_compromise"]) - 1e-6,
+            "compromise_time": float(fields["t_compromise"]), "entered": bool(c >= 0 and entered[c]),
             "entry_time": entry if np.isfinite(entry) else None, "detected": bool(np.isfinite(det)),
             "detection_time": det if np.isfinite(det) else None,
             "success": bool(c >= 0 and entered[c] and not np.isfinite(det)),
-            "missed_observations": int(np.asarray(ts.missed).sum()), "time": t}
+            "missed_observations": int(np.asarray(fields["missed"]).sum()), "time": t}
         return infos
 
     @property
     def threat_state(self) -> threat.ThreatState:
-        """The wrapper's :class:`~stp_env.coobservation.threat.ThreatState` (for analysis)."""
-        return self._ts
+        """The wrapper's :class:`~stp_env.coobservation.threat.ThreatState` (for analysis; unpacked from the device
+        on the first read after a step)."""
+        tree = self._carry.tree
+        return None if tree is None else tree[1]
 
     def render(self):
         gymnasium.logger.warn("coobservation_v0 has no render mode.")
