@@ -15,7 +15,9 @@ bit for bit. Prints one JSON line per scenario; ``speedup`` is the base's time o
 ``--program adapter``: instead of the batched core, ``--steps`` steps of one ``parallel_env(scenario,
 vehicle_policy="switching")`` (the vehicles flown inside the step, the intruder's actions from a seeded generator,
 auto-reset; what training an intruder runs), after 300 warm-up steps; its time is the fastest of three such loops,
-and the digest covers every observation, reward, termination and the final state.
+and the digest covers every observation, reward, termination and the final state. ``--program intruder_env`` and
+``--program coobservation_env``: the same for the single Gymnasium intruder env (``stp_env.rl.IntruderEnv``, town)
+and the co-observation env (coarse artifacts, unsecured schedule), seeded random actions.
 """
 
 from __future__ import annotations
@@ -107,11 +109,89 @@ def time_adapter(scenario: str, n_steps: int, ignore=()) -> dict:
     return {"first_s": first_s, "run_s": min(times), "digest": _digest([leaves, env.env_state], ignore)}
 
 
+def _time_loop(step, state, n_steps: int, ignore=()) -> dict:
+    """``step()`` (one env step, returning what it gave the user) 300 times recorded, then the fastest of three loops
+    of ``n_steps``; the digest covers the recorded outputs and ``state()`` after them."""
+    import numpy as np
+
+    t0 = time.perf_counter()
+    record = [step() for _ in range(300)]
+    first_s = time.perf_counter() - t0
+    leaves = [np.asarray(x, np.float64) for out in record for x in _flat_numbers(out)]
+    digest = _digest([leaves, state()], ignore)
+    times = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        for _ in range(n_steps):
+            step()
+        times.append(time.perf_counter() - t0)
+    return {"first_s": first_s, "run_s": min(times), "digest": digest}
+
+
+def _flat_numbers(x):
+    """The numbers in nested dicts, lists and tuples of arrays and scalars, in a fixed order (None and strings
+    skipped)."""
+    if isinstance(x, dict):
+        return [v for k in sorted(x, key=str) for v in _flat_numbers(x[k])]
+    if isinstance(x, (list, tuple)):
+        return [v for item in x for v in _flat_numbers(item)]
+    if x is None or isinstance(x, str):
+        return []
+    return [x]
+
+
+def time_intruder_env(n_steps: int, ignore=()) -> dict:
+    """``stp_env.rl.IntruderEnv`` on the town, seeded random actions, reset when an episode ends."""
+    import numpy as np
+
+    from stp_env.rl import IntruderEnv
+
+    env = IntruderEnv("town")
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+
+    def step():
+        out = env.step(rng.uniform(-1, 1, 2).astype(np.float32))
+        if out[2] or out[3]:
+            env.reset()
+        return out[:4]
+
+    return _time_loop(step, lambda: env.state, n_steps, ignore)
+
+
+def time_coobservation_env(n_steps: int, ignore=()) -> dict:
+    """The co-observation env (coarse artifacts, unsecured schedule, vehicle 0 compromised at once), the attacker's
+    seeded random actions, reset when the episode ends."""
+    import numpy as np
+
+    from stp_env.coobservation.env import parallel_env
+    from stp_env.coobservation.uav import FormationScenario
+
+    scenario = FormationScenario()
+    env = parallel_env(schedule="unsecured", params=scenario.params(artifacts=scenario.coarse_artifacts()),
+                       max_cycles=10**9)
+    options = {"compromised": 0, "compromise_time": 0.0}
+    env.reset(seed=0, options=options)
+    rng = np.random.default_rng(0)
+    episode = [0]
+
+    def step():
+        if not env.agents:
+            episode[0] += 1
+            env.reset(seed=episode[0], options=options)
+        return env.step({"attacker": rng.uniform(-1, 1, 2).astype(np.float32)})[:4]
+
+    return _time_loop(step, lambda: env.threat_state, n_steps, ignore)
+
+
 def run_one(scenario: str, n_envs: int, n_steps: int, ignore=(), program: str = "core") -> dict:
-    if program == "adapter":
+    if program in ("adapter", "intruder_env", "coobservation_env"):
         import stp_env
 
-        return {**time_adapter(scenario, n_steps, ignore), "package": stp_env.__file__}
+        timed = {"adapter": lambda: time_adapter(scenario, n_steps, ignore),
+                 "intruder_env": lambda: time_intruder_env(n_steps, ignore),
+                 "coobservation_env": lambda: time_coobservation_env(n_steps, ignore)}[program]()
+        return {**timed, "package": stp_env.__file__}
     sys.path.insert(0, HERE)
     import env_throughput
 
@@ -137,8 +217,11 @@ def main() -> None:
     parser.add_argument("--reps", type=int, default=3)
     parser.add_argument("--ignore", nargs="*", default=[],
                         help="state fields left out of the episodes' digest (a field one of the trees added)")
-    parser.add_argument("--program", choices=("core", "adapter"), default="core",
-                        help="the batched core's rollout, or the adapter's step loop (--envs ignored)")
+    parser.add_argument("--program", choices=("core", "adapter", "intruder_env", "coobservation_env"),
+                        default="core",
+                        help="the batched core's rollout, the adapter's step loop, or the step loop of the single "
+                             "Gymnasium intruder env (town) or of the co-observation env (--envs and, for the "
+                             "last two, --scenarios ignored)")
     parser.add_argument("--one", action="store_true", help="run one case in this process (used internally)")
     args = parser.parse_args()
     if args.one:
@@ -174,7 +257,7 @@ def main() -> None:
                 "first_call_s": {name: round(min(r["first_s"] for r in runs[name]), 1) for name in trees},
                 "speedup": round(best["base"] / best["this"], 2),
                 "same_episodes": len({r["digest"] for name in trees for r in runs[name]}) == 1,
-                "env_steps_per_s_this": round((1 if args.program == "adapter" else args.envs) * args.steps
+                "env_steps_per_s_this": round((args.envs if args.program == "core" else 1) * args.steps
                                               / best["this"]),
             }), flush=True)
 
