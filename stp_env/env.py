@@ -420,6 +420,7 @@ class STPParallelEnv(ParallelEnv):
         self._intruder_name = None if intruder is None else (intruder if isinstance(intruder, str)
                                                              else intruder_caps.__name__)
         self._step_layout = None  # Layout of the packed step output, found at the first step
+        self._noted_with_state = False  # the step variant returning env_state announced (it compiles on first use)
         self.params = params
         self._base_params = params
         self.replan = bool(replan)
@@ -647,7 +648,8 @@ class STPParallelEnv(ParallelEnv):
         # a user who read env_state since the last step (e.g. to compute the vehicles' actions) gets the state
         # with this one's outputs; otherwise it stays packed until asked for
         with_state = self._carry.was_read
-        if with_state:
+        if with_state and not self._noted_with_state:  # once per environment, not looked up at every step
+            self._noted_with_state = True
             compile_note("the environment's step (returning env_state)", self._carry.words, arr, self.params,
                          progress=self._progress)
         words = self._carry.advance(_advance_carry_jit, arr, self.params, vehicle_policy=self._vehicle_policy,

@@ -142,18 +142,18 @@ def _info_fields(ts):
             "detect_time": ts.detect_time, "t_compromise": ts.t_compromise, "missed": ts.missed}
 
 
-def _step_packed(words, actions, given, attacker_action, attacker_given, params, tp, layout):
-    """:func:`_step` on the packed ``(key, threat state)`` (:mod:`stp_env.sim.packing`): the new carry and, packed
-    into one array, the outputs, reward, newly checked observations and the infos' fields."""
-    key, ts = layout.unpack_traced(words)
-    key, new, out, reward, newly = _step(key, ts, actions, given, attacker_action, attacker_given, params, tp)
-    return pack((key, new)), pack((out, reward, newly, _info_fields(new)))
+def _step_host(key, ts, *args):
+    """:func:`_step` with what the host reads after it: ``(key, ts, (outputs, reward, newly checked observations,
+    the infos' fields))``."""
+    key, new, out, reward, newly = _step(key, ts, *args)
+    return key, new, (out, reward, newly, _info_fields(new))
 
 
-def _step_output_tree(words, actions, given, attacker_action, attacker_given, params, tp, layout):
-    key, ts = layout.unpack_traced(words)
-    key, new, out, reward, newly = _step(key, ts, actions, given, attacker_action, attacker_given, params, tp)
-    return out, reward, newly, _info_fields(new)
+def _step_packed(words, *args, layout):
+    """:func:`_step_host` on the packed ``(key, threat state)`` (:mod:`stp_env.sim.packing`): the new carry and
+    what the host reads, each packed into one array."""
+    key, new, host = _step_host(*layout.unpack_traced(words), *args)
+    return pack((key, new)), pack(host)
 
 
 _step_jit = jax.jit(_step)
@@ -299,9 +299,7 @@ class CoObservationParallelEnv(ParallelEnv):
                 arr[i], given[i] = np.clip(a, -1, 1), True
         args = (arr, given, att, att_given, self.params, self.threat)
         if self._out_layout is None:  # the shapes are fixed for the env's life
-            self._out_layout = Layout.of(jax.eval_shape(functools.partial(_step_output_tree,
-                                                                          layout=self._carry.layout),
-                                                        self._carry.words, *args))
+            self._out_layout = Layout.of(jax.eval_shape(_step_host, *self._carry.unpacked(), *args)[2])
         words = self._carry.advance(_step_packed_jit, *args)
         self._steps += 1
         out, reward, newly, fields = self._out_layout.unpack(np.asarray(words))

@@ -56,16 +56,11 @@ def check_action(action, shape) -> np.ndarray:
 
 
 def _step_packed(words, action, params, layout, horizon, vehicle_policy, observation):
-    """:func:`stp_env.rl.functional.env_step` on the packed carry: ``(words, packed outputs)``."""
+    """:func:`stp_env.rl.functional.env_step` on the packed ``(key, state)`` (:mod:`stp_env.sim.packing`): the new
+    carry and the outputs ``(obs, reward, terminated, truncated, stats)``, each packed into one array."""
     key, state = layout.unpack_traced(words)
     key, state, *out = F.env_step.__wrapped__(key, state, action, params, horizon, vehicle_policy, observation)
     return pack((key, state)), pack(tuple(out))
-
-
-def _output_tree(words, action, params, layout, horizon, vehicle_policy, observation):
-    """What :func:`_step_packed` packs as its output (for its :class:`~stp_env.sim.packing.Layout`)."""
-    key, state = layout.unpack_traced(words)
-    return tuple(F.env_step.__wrapped__(key, state, action, params, horizon, vehicle_policy, observation)[2:])
 
 
 _step_packed_jit = sim_jit(_step_packed, static_argnames=("layout", "horizon", "vehicle_policy", "observation"))
@@ -132,9 +127,9 @@ class IntruderEnv(gym.Env):
         action = check_action(action, (2,))
         static = {"horizon": self.horizon, "vehicle_policy": self._vehicle_policy, "observation": self.observation}
         if self._out_layout is None:  # the shapes are fixed for the env's life
-            self._out_layout = Layout.of(jax.eval_shape(
-                functools.partial(_output_tree, layout=self._carry.layout, **static), self._carry.words, action,
-                self.params))
+            outputs = jax.eval_shape(functools.partial(F.env_step.__wrapped__, **static), *self._carry.unpacked(),
+                                     action, self.params)[2:]
+            self._out_layout = Layout.of(tuple(outputs))
         words = self._carry.advance(_step_packed_jit, action, self.params, **static)
         obs, reward, terminated, truncated, stats = self._out_layout.unpack(np.asarray(words))
         info = {name: (float(value) if name == "time" else int(value)) for name, value in stats.items()}

@@ -1,6 +1,6 @@
 """Pytrees packed into one int32 array: how an adapter crosses the host-device boundary once per call.
 
-An adapter that steps one environment per call (the PettingZoo env, the single Gymnasium envs) pays for every
+An adapter that steps one environment per call (the PettingZoo envs, the single Gymnasium intruder env) pays for every
 array that enters or leaves a jitted call: on a CPU each output is a new device array object (about 2 us), each
 typed PRNG key also a Python wrapper (about 17 us), each fetched output its own device-to-host copy (about 30 us),
 measured on the town step whose own work is a few hundred microseconds. So a step's outputs are returned as one
@@ -12,6 +12,8 @@ slices: every value comes back bit for bit (tests/test_env.py checks a packed st
 
 from __future__ import annotations
 
+import functools
+import math
 from typing import Any, NamedTuple
 
 import jax
@@ -23,6 +25,14 @@ from stp_env.sim.jit import sim_jit
 
 def _is_key(x) -> bool:
     return jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
+
+
+@functools.cache
+def _key_data(dtype) -> tuple[tuple, np.dtype]:
+    """The trailing shape and dtype of the data of one PRNG key of ``dtype`` (traced once per key type: a trace
+    at every reset was a third of the PettingZoo env's reset)."""
+    data = jax.eval_shape(jax.random.key_data, jax.ShapeDtypeStruct((), dtype))
+    return tuple(data.shape), np.dtype(data.dtype)
 
 
 class Layout(NamedTuple):
@@ -49,13 +59,12 @@ class Layout(NamedTuple):
                 elif key_impl is None:
                     raise ValueError("an abstract PRNG key leaf has no implementation to record; pass key_impl or "
                                      "concrete keys.")
-                data = jax.eval_shape(jax.random.key_data, x)
-                key_shape = tuple(data.shape[len(x.shape):])
-                dtype, shape = np.dtype(data.dtype), tuple(x.shape)
-                n = int(np.prod(data.shape, dtype=np.int64))
+                key_shape, dtype = _key_data(x.dtype)
+                shape = tuple(x.shape)
+                n = math.prod(shape + key_shape)
             else:
                 dtype, shape = np.dtype(x.dtype), tuple(x.shape)
-                n = int(np.prod(x.shape, dtype=np.int64))
+                n = math.prod(shape)
             out.append((shape, dtype, n * max(1, dtype.itemsize // 4), key_shape))  # 1 word, 2 for 8-byte leaves
         if len(impls) > 1:
             raise ValueError(f"the tree's PRNG keys have different implementations {sorted(impls)}.")
