@@ -2,6 +2,8 @@
 ``optimal-max-k`` reproduces its decisions on held-out states, a tiny training run from that start beats the
 untrained network, the k̄ reward pays once, and the shipped learned intruders still play as recorded."""
 
+import json
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -80,6 +82,7 @@ def test_a_tiny_run_from_the_clone_beats_its_untrained_start(params, tmp_path):
     assert history[0]["timesteps"] == 0  # the clone's evaluation before PPO is recorded
     assert after["mean_n_forced"] > before["mean_n_forced"] + 0.2
     assert (tmp_path / "run" / "learning_curves.png").stat().st_size > 1000
+    assert json.loads((tmp_path / "run" / "config.json").read_text())["devices"] == 1  # the tests' one device
     from stp_env.baselines.learned import load_intruder
 
     record = load_intruder(str(tmp_path / "run"))

@@ -276,7 +276,8 @@ def train(params, tp, t_window, config: AttackerTrainConfig, out_dir, progress: 
     model.learn(config.total_timesteps, callback=_outcome_logger(), progress_bar=progress)
     meta = {"objective": "enter a forbidden zone without missing an observation",
             "config": dataclasses.asdict(config), "t_window": [float(t) for t in t_window],
-            "residual": config.residual, "residual_scale": RESIDUAL_SCALE, "imitation": imitation}
+            "residual": config.residual, "residual_scale": RESIDUAL_SCALE, "imitation": imitation,
+            "devices": engine.shares(config.n_envs)}
     write_text(json.dumps(meta, indent=1), out / "config.json")
     return export_mlp(model, out / "attacker.npz", metadata=meta)
 

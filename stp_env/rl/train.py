@@ -3,8 +3,9 @@
 
 ``train(TrainConfig(...))`` builds an :class:`~stp_env.rl.IntruderVecEnv` (the vehicles run ``switching``,
 ``u*`` with the HJ safety filter, inside the core), trains PPO (or A2C) with the given seed, and writes to
-``out_dir``: ``config.json``, SB3 logs (``progress.csv``, TensorBoard events with ``"tensorboard"`` in
-``log_formats``), ``checkpoints/`` every ``checkpoint_every`` steps, ``evaluations.csv`` (one row per evaluation,
+``out_dir``: ``config.json`` (the config and ``devices``, the count the batch was shared among), SB3 logs
+(``progress.csv``, TensorBoard events with ``"tensorboard"`` in ``log_formats``), ``checkpoints/`` every
+``checkpoint_every`` steps, ``evaluations.csv`` (one row per evaluation,
 :func:`summarize`: mean, 95 % interval and max of ``|N^RP|``, collisions, guarantee violations, episodes above k̄,
 with Clopper-Pearson bounds), ``best_model.zip`` (best mean ``|N^RP|``), ``model.zip`` and ``intruder.npz`` (the
 deterministic actor for :func:`stp_env.baselines.learned.load_intruder`). Same config, same seed, same machine: same run
@@ -36,6 +37,7 @@ from stp_env.arguments import check_int, check_real
 from stp_env.evaluation.summary import forced_summary
 from stp_env.files import write_text
 from stp_env.rl.ppo import PPOConfig, make_model
+from stp_env.sim import engine
 from stp_env.sim.types import SPAWN_MODES
 
 LOG_FORMATS = ("stdout", "csv", "tensorboard", "log", "json")
@@ -340,7 +342,10 @@ def train(config: TrainConfig, *, params: sim.EnvParams | None = None):
     out.mkdir(parents=True, exist_ok=True)
     if (out / "evaluations.csv").exists():
         (out / "evaluations.csv").unlink()
-    write_text(json.dumps(config.to_json(), indent=2), out / "config.json")
+    # the device count the training batch is shared among: another count is another compiled program (the same
+    # training only to rounding), as the evaluation records it
+    write_text(json.dumps({**config.to_json(), "devices": engine.shares(config.n_envs)}, indent=2),
+               out / "config.json")
     if params is None:
         params = build_params(config)
     env_kwargs = {"params": params, "horizon": config.horizon, "vehicle_policy": config.vehicle_policy,
