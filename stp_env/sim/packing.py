@@ -38,11 +38,12 @@ def _key_data(dtype) -> tuple[tuple, np.dtype]:
 class Layout(NamedTuple):
     """How :func:`pack` laid a pytree out: its structure and, per leaf, ``(shape, dtype, words, key_shape)``
     (``key_shape``: the trailing shape of a typed PRNG key's data, ``None`` for other leaves; ``dtype`` is then
-    the data's), and the PRNG implementation of its keys (``None`` without keys)."""
+    the data's), the PRNG implementation of its keys (``None`` without keys) and the packed array's length."""
 
     treedef: Any
     leaves: tuple
     key_impl: str | None = None
+    words: int = 0
 
     @classmethod
     def of(cls, tree, key_impl: str | None = None) -> Layout:
@@ -68,12 +69,7 @@ class Layout(NamedTuple):
             out.append((shape, dtype, n * max(1, dtype.itemsize // 4), key_shape))  # 1 word, 2 for 8-byte leaves
         if len(impls) > 1:
             raise ValueError(f"the tree's PRNG keys have different implementations {sorted(impls)}.")
-        return cls(treedef, tuple(out), impls.pop() if impls else None)
-
-    @property
-    def words(self) -> int:
-        """The length of the packed array."""
-        return sum(n for _, _, n, _ in self.leaves)
+        return cls(treedef, tuple(out), impls.pop() if impls else None, sum(n for _, _, n, _ in out))
 
     def unpack(self, words: np.ndarray):
         """The pytree from the host copy of :func:`pack`'s array. ``words`` is copied once; the leaves are views
