@@ -20,6 +20,10 @@ Prints one JSON line. Measured in the same run:
   one per core). One thread is the setting for a loop over one environment, every core the one for the batched
   core, so the adapter's and the core's figures are each read from the run with their setting
   (``cpu_threads`` in the output says which run it is).
+* ``--sync-dispatch``: JAX's CPU computations run on the calling thread, the caller waiting for each
+  (``jax_cpu_enable_async_dispatch`` off; ``cpu_async_dispatch`` in the output). By default a computation is
+  handed to XLA's thread and the caller reads its outputs when they are ready; at batch one the outputs then come
+  from another core's memory (``BENCHMARKS.md`` has what it changes).
 * ``--cpu-devices N``: JAX's CPU backend split into ``N`` devices (:func:`stp_env.set_cpu_devices`); the core's
   batch is then shared among them (:func:`stp_env.sim.engine.across_devices`), the adapter runs on the first.
 
@@ -201,14 +205,18 @@ def main() -> None:
                         help="XLA's CPU thread-pool size (default: one thread per core)")
     parser.add_argument("--cpu-devices", type=int, default=1,
                         help="JAX CPU devices the core's batch is shared among (one per core: the batch setting)")
+    parser.add_argument("--sync-dispatch", action="store_true",
+                        help="JAX's CPU computations run on the calling thread (jax_cpu_enable_async_dispatch off)")
     args = parser.parse_args()
     from stp_env import set_cpu_devices, set_cpu_threads
 
+    if args.sync_dispatch:
+        jax.config.update("jax_cpu_enable_async_dispatch", False)
     set_cpu_threads(args.cpu_threads)  # before JAX's first computation
     set_cpu_devices(args.cpu_devices)
     scenario, params = _params(args.scenario)
     result = {"case": "env_throughput", "scenario": args.scenario, "n_agents": params.vehicles.n + 1,
-              "cpu_threads": args.cpu_threads,
+              "cpu_threads": args.cpu_threads, "cpu_async_dispatch": not args.sync_dispatch,
               "cpu_devices": args.cpu_devices, "loadavg_1min_before": round(os.getloadavg()[0], 2)}
     runners = {"mpe2": mpe2_runner(), "adapter": adapter_runner(scenario, params),
                "adapter_builtin": builtin_policy_runner(scenario, params)}

@@ -178,7 +178,7 @@ from stp_env.seeds import prng_key
 from stp_env.sim import core
 from stp_env.sim.backends import with_backend
 from stp_env.sim.jit import sim_jit
-from stp_env.sim.packing import DeviceCarry, Layout, pack
+from stp_env.sim.packing import DeviceCarry, Layout, key_leaves, pack
 from stp_env.sim.rollout import intruder_decision
 from stp_env.sim.types import (
     AFTER_AVOIDANCE,
@@ -293,8 +293,9 @@ def _advance_scripted(key, state, actions, params, vehicle_policy=None, intruder
 def _advance_carry(carry, actions, params, layout, vehicle_policy=None, intruder_policy=None, with_state=False):
     """One adapter step on the packed carry: ``(carry, actions, params) -> (carry, packed output)``, where the carry
     is :func:`pack` of ``(key, state)`` laid out as ``layout``; :func:`_advance` or, with a scripted policy,
-    :func:`_advance_scripted`. ``with_state``: also ``(key, state)`` unpacked, for a user who reads ``env_state``
-    after every step (one more output per array, instead of a second call that unpacks the carry)."""
+    :func:`_advance_scripted`. ``with_state``: the output is ``(pack((output, state)), key leaves of the state)``
+    instead, for a user who reads ``env_state`` after every step (the state comes to the host with the outputs,
+    not in a second call)."""
     TRACE_COUNTS["step"] += 1
     key, state = layout.unpack_traced(carry)
     if vehicle_policy is None and intruder_policy is None:
@@ -302,13 +303,19 @@ def _advance_carry(carry, actions, params, layout, vehicle_policy=None, intruder
     else:
         key, new, out = _advance_scripted(key, state, actions, params, vehicle_policy=vehicle_policy,
                                           intruder_policy=intruder_policy)
-    if with_state:
-        return pack((key, new)), pack(out), (key, new)
+    if with_state:  # the state packed with the outputs, its PRNG key beside them (numpy cannot hold a key)
+        return pack((key, new)), (pack((out, new)), key_leaves(new))
     return pack((key, new)), pack(out)
 
 
 _advance_carry_jit = sim_jit(_advance_carry, static_argnames=("layout", "vehicle_policy", "intruder_policy",
                                                                "with_state"))
+
+
+def _clip_unit(x: np.ndarray) -> np.ndarray:
+    """``np.clip(x, -1, 1)`` of finite ``x`` as two ufuncs (the same values; ``np.clip``'s Python wrapper cost a
+    third of parsing the town's actions)."""
+    return np.minimum(np.maximum(x, -1.0), 1.0)
 
 
 def _check_vehicle_policy(policy, params) -> None:
@@ -421,6 +428,9 @@ class STPParallelEnv(ParallelEnv):
                                                              else intruder_caps.__name__)
         self._step_layout = None  # Layout of the packed step output, found at the first step
         self._noted_with_state = False  # the step variant returning env_state announced (it compiles on first use)
+        self._state_layout = None  # Layout of that variant's packed (output, state)
+        self._delivered = None  # (carry words, state on the host) when the last step delivered the state
+        self._state_read = False  # env_state was read since the last step: the next one delivers it
         self.params = params
         self._base_params = params
         self.replan = bool(replan)
@@ -505,6 +515,7 @@ class STPParallelEnv(ParallelEnv):
         compile_note("the environment's reset", key, start_params, progress=self._progress)
         key, state, out = _start_jit(key, start_params)
         self._carry.set((key, state))
+        self._state_read = False
         self.params = params
         self._plan = self._plan0
         self._replan_tried = np.zeros(params.vehicles.n, bool)
@@ -519,9 +530,8 @@ class STPParallelEnv(ParallelEnv):
         done_v = info.status >= sim.ARRIVED
         self.agents = [a for a in self.possible_agents if a == "intruder" or not done_v[self._index[a]]]
         self._in_episode = ~np.asarray(done_v, bool)
-        infos = self._infos(info)
+        infos = self._infos(info, self.agents)
         obs = {a: obs[a] for a in self.agents}
-        infos = {a: infos[a] for a in self.agents}
         if self.render_mode == "human":
             self.render()
         return obs, infos
@@ -618,7 +628,7 @@ class STPParallelEnv(ParallelEnv):
             stacked = np.asarray(values, np.float64)
             if not np.isfinite(stacked).all():
                 return False
-            arr[rows, :2] = np.clip(stacked, -1.0, 1.0)
+            arr[rows, :2] = _clip_unit(stacked)
             return True
         groups: dict[int, tuple[list, list]] = {}
         for row, a in zip(rows, values):
@@ -629,7 +639,7 @@ class STPParallelEnv(ParallelEnv):
         if not all(np.isfinite(v).all() for v in stacked.values()):
             return False
         for dim, (group_rows, _) in groups.items():
-            arr[group_rows, :dim] = np.clip(stacked[dim], -1.0, 1.0)
+            arr[group_rows, :dim] = _clip_unit(stacked[dim])
         return True
 
     def step(self, actions):
@@ -638,7 +648,9 @@ class STPParallelEnv(ParallelEnv):
         if self._step_layout is None:  # traced once per environment, not compiled
             advance = (functools.partial(_advance_scripted, vehicle_policy=self._vehicle_policy,
                                          intruder_policy=self._intruder_policy) if scripted else _advance)
-            self._step_layout = Layout.of(jax.eval_shape(advance, *self._carry.unpacked(), arr, self.params)[2])
+            _, state, out = jax.eval_shape(advance, *self._carry.unpacked(), arr, self.params)
+            self._step_layout = Layout.of(out)
+            self._state_layout = Layout.of((out, state), key_impl=self._carry.layout.key_impl)
             # the shapes of the step's arguments are fixed for the environment's life (a new plan keeps them), so
             # the compilation is announced here, at its first step, and not looked up at every step
             flown = ", ".join(f"{name} {who}" for name, who in ((self._vehicle_policy_name, "vehicles"),
@@ -647,7 +659,7 @@ class STPParallelEnv(ParallelEnv):
                          self._carry.words, arr, self.params, progress=self._progress)
         # a user who read env_state since the last step (e.g. to compute the vehicles' actions) gets the state
         # with this one's outputs; otherwise it stays packed until asked for
-        with_state = self._carry.was_read
+        with_state = self._state_read
         if with_state and not self._noted_with_state:  # once per environment, not looked up at every step
             self._noted_with_state = True
             compile_note("the environment's step (returning env_state)", self._carry.words, arr, self.params,
@@ -655,21 +667,26 @@ class STPParallelEnv(ParallelEnv):
         words = self._carry.advance(_advance_carry_jit, arr, self.params, vehicle_policy=self._vehicle_policy,
                                     intruder_policy=self._intruder_policy, with_state=with_state)
         self._steps += 1
-        out = self._step_layout.unpack(np.asarray(words))
+        self._state_read = False
+        if with_state:
+            words, keys = words
+            out, state = self._state_layout.unpack(np.asarray(words), keys=keys)
+            self._delivered = (self._carry.words, state)  # valid while the carry holds these words
+        else:
+            out = self._step_layout.unpack(np.asarray(words))
         obs, rewards, info = self._observations(out.obs_vehicles, out.obs_intruder), out.rewards, out.info
         if self.replan:
             obs, info = self._maybe_replan(obs, info)
         done_v = info.status >= sim.ARRIVED
         intruder_done = int(info.intruder_status) == GONE
         truncated_all = bool(out.truncated) or self._steps >= self.max_cycles
-        infos = self._infos(info)
         live = self.agents
+        infos = self._infos(info, live)
         rewards, done = rewards.tolist(), [*done_v.tolist(), intruder_done]  # Python scalars, indexed per agent
         index = self._index
         rew = {a: rewards[index[a]] for a in live}
         terms = {a: done[index[a]] for a in live}
         truncs = {a: truncated_all and not terms[a] for a in live}
-        infos = {a: infos[a] for a in live}
         obs = {a: obs[a] for a in live}
         self.agents = [a for a in live if not (terms[a] or truncs[a])]
         if self.render_mode == "human":
@@ -704,7 +721,9 @@ class STPParallelEnv(ParallelEnv):
         self._plan = new_plan
         self.params = assembly.with_plan(self.params, new_plan)
         key, state = self._carry.unpacked()
-        self._carry.set((key, replace(state, mode=state.mode.at[jnp.asarray(idx)].set(NOMINAL))))
+        mode = np.array(state.mode)
+        mode[idx] = NOMINAL
+        self._carry.set((key, replace(state, mode=mode)))
         self._replanned[idx] = True
         self._sta = np.asarray(self.params.vehicles.sta, np.float64)
         self.replan_log.append({"time": t_bar, "vehicles": idx,
@@ -722,7 +741,8 @@ class STPParallelEnv(ParallelEnv):
         obs["intruder"] = obs_intruder
         return obs
 
-    def _infos(self, info: StepInfo):
+    def _infos(self, info: StepInfo, live) -> dict:
+        """The infos of the agents ``live`` (in that order) from the step's :class:`StepInfo`; sets ``episode``."""
         status, mode, avoid_start = info.status.astype(int), info.mode.astype(int), info.avoid_start
         forced = np.isfinite(avoid_start)
         n_forced = int(forced.sum())
@@ -746,14 +766,34 @@ class STPParallelEnv(ParallelEnv):
             "intruder_status": INTRUDER_STATUS_NAMES[int(info.intruder_status)],
             "time": t,
         }
-        # built from Python lists (one tolist() per column): a dict per vehicle without per-element numpy scalars
+        self.episode = episode
+        # Only the live agents' dicts are built (the city's finished vehicles are most of its agents late in an
+        # episode), each from Python lists (one tolist() per column): no per-element numpy scalars
+        index = self._index
+        rows = [index[a] for a in live if a != "intruder"]
+        columns = zip(status[rows].tolist(), mode[rows].tolist(), avoid_start[rows].tolist(), forced[rows].tolist(),
+                      collided[rows].tolist(), violation[rows].tolist(), error[rows].tolist(),
+                      max_error[rows].tolist(), info.tracked[rows].tolist(), track_violation[rows].tolist(),
+                      used[rows].tolist(), self._replanned[rows].tolist(), self._sta[rows].tolist(),
+                      min_sep[rows].tolist(), new_collision[rows].tolist())
         infos = {}
-        columns = zip(self.possible_agents, status.tolist(), mode.tolist(), avoid_start.tolist(), forced.tolist(),
-                      collided.tolist(), violation.tolist(), error.tolist(), max_error.tolist(),
-                      info.tracked.tolist(), track_violation.tolist(), used.tolist(), self._replanned.tolist(),
-                      self._sta.tolist(), min_sep.tolist(), new_collision.tolist())
-        for (agent, st, md, start, frc, col, viol, err, max_err, tracked, track_viol, used_i, replanned, sta,
-             sep, new_col) in columns:
+        for agent in live:
+            if agent == "intruder":
+                infos[agent] = {
+                    "status": episode["intruder_status"],
+                    "n_forced": n_forced,
+                    "kbar": kbar,
+                    "kbar_exceeded": episode["kbar_exceeded"],
+                    "collisions": episode["collisions"],
+                    "guarantee_violations": episode["guarantee_violations"],
+                    "tracking_violations": episode["tracking_violations"],
+                    "cost": 0.0,
+                    "time": t,
+                    "episode": episode.copy(),
+                }
+                continue
+            (st, md, start, frc, col, viol, err, max_err, tracked, track_viol, used_i, replanned, sta, sep,
+             new_col) = next(columns)
             infos[agent] = {
                 "status": STATUS_NAMES[st],
                 "mode": MODE_NAMES[md],
@@ -773,21 +813,8 @@ class STPParallelEnv(ParallelEnv):
                 "min_separation": sep,
                 "cost": float(new_col),
                 "time": t,
-                "episode": dict(episode),
+                "episode": episode.copy(),
             }
-        infos["intruder"] = {
-            "status": episode["intruder_status"],
-            "n_forced": n_forced,
-            "kbar": kbar,
-            "kbar_exceeded": episode["kbar_exceeded"],
-            "collisions": episode["collisions"],
-            "guarantee_violations": episode["guarantee_violations"],
-            "tracking_violations": episode["tracking_violations"],
-            "cost": 0.0,
-            "time": t,
-            "episode": dict(episode),
-        }
-        self.episode = episode
         return infos
 
     def state(self) -> np.ndarray:
@@ -829,10 +856,13 @@ class STPParallelEnv(ParallelEnv):
     @property
     def env_state(self) -> sim.EnvState:
         """The core's :class:`~stp_env.sim.EnvState` (read-only use; for parity checks and custom analysis);
-        ``None`` before the first ``reset``. Read between two steps, it comes with the next step's outputs (a loop
+        ``None`` before the first ``reset``. Its arrays are numpy arrays on the host, its PRNG key a JAX key array
+        (all are accepted by jitted functions). Read between two steps, it comes with the next step's outputs (a loop
         that reads it after every step makes one call per step, not two)."""
-        tree = self._carry.tree
-        return None if tree is None else tree[1]
+        if self._carry.words is None:
+            return None
+        self._state_read = True
+        return self._state
 
     @property
     def _key(self):
@@ -840,7 +870,12 @@ class STPParallelEnv(ParallelEnv):
 
     @property
     def _state(self):
-        return None if self._carry.words is None else self._carry.unpacked()[1]
+        if self._carry.words is None:
+            return None
+        delivered = self._delivered
+        if delivered is not None and delivered[0] is self._carry.words:
+            return delivered[1]
+        return self._carry.unpacked()[1]
 
 
 def parallel_env(scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, **kwargs) -> STPParallelEnv:

@@ -424,15 +424,15 @@ def test_a_loop_reading_env_state_gets_it_from_the_step_with_the_same_episode(pa
         acts = {a: rng.uniform(-1, 1, 2).astype(np.float32) for a in par.agents}
         if i >= 3:
             state = par.env_state  # read: the next step returns the state with its outputs
-            assert par._carry.was_read
+            assert par._state_read
         got, want = par.step(acts), other.step(acts)
         if i >= 3:
-            assert par._carry._tree is not None  # no unpacking call needed for the next read
+            assert par._delivered[0] is par._carry.words  # no unpacking call needed for the next read
             assert float(par.env_state.t) > float(state.t)
         assert got[1:4] == want[1:4]
         for agent in got[0]:
             np.testing.assert_array_equal(got[0][agent], want[0][agent])
-    assert not other._carry.was_read
+    assert not other._state_read
     for a, b in zip(jax.tree.leaves(par.env_state), jax.tree.leaves(other.env_state)):
         if jax.dtypes.issubdtype(a.dtype, jax.dtypes.prng_key):
             a, b = jax.random.key_data(a), jax.random.key_data(b)
@@ -441,11 +441,15 @@ def test_a_loop_reading_env_state_gets_it_from_the_step_with_the_same_episode(pa
 
 def test_pack_round_trips_every_dtype():
     tree = {"f32": jnp.asarray([1.5, -np.inf, np.nan], jnp.float32), "i32": jnp.asarray([[-7, 2 ** 31 - 1]]),
-            "b": jnp.asarray([True, False, True]), "u8": jnp.asarray([0, 255], jnp.uint8), "s": jnp.asarray(3.25)}
-    back = packing.Layout.of(tree).unpack(np.asarray(jax.jit(packing.pack)(tree)))
+            "b": jnp.asarray([True, False, True, True, False]), "u8": jnp.asarray([0, 255, 7], jnp.uint8),
+            "i16": jnp.asarray([-3, 300, 2 ** 15 - 1], jnp.int16), "b0": jnp.asarray(True), "s": jnp.asarray(3.25)}
+    layout = packing.Layout.of(tree)
+    words = jax.jit(packing.pack)(tree)
+    back, traced = layout.unpack(np.asarray(words)), jax.jit(lambda w: layout.unpack_traced(w))(words)
     for k, v in tree.items():
-        assert back[k].dtype == np.asarray(v).dtype
-        np.testing.assert_array_equal(back[k], np.asarray(v))
+        for got in (back[k], traced[k]):  # on the host (views of the words) and on the device
+            assert got.dtype == np.asarray(v).dtype and got.shape == v.shape
+            np.testing.assert_array_equal(got, np.asarray(v))
     with _enable_x64(True):
         wide = {"f64": jnp.asarray([np.pi, -1e300], jnp.float64), "i64": jnp.asarray([-(2 ** 40), 5], jnp.int64)}
         back = packing.Layout.of(wide).unpack(np.asarray(jax.jit(packing.pack)(wide)))
