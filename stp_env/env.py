@@ -769,32 +769,17 @@ class STPParallelEnv(ParallelEnv):
         self.episode = episode
         # Only the live agents' dicts are built (the city's finished vehicles are most of its agents late in an
         # episode), each from Python lists (one tolist() per column): no per-element numpy scalars
-        index = self._index
-        rows = [index[a] for a in live if a != "intruder"]
-        columns = zip(status[rows].tolist(), mode[rows].tolist(), avoid_start[rows].tolist(), forced[rows].tolist(),
-                      collided[rows].tolist(), violation[rows].tolist(), error[rows].tolist(),
-                      max_error[rows].tolist(), info.tracked[rows].tolist(), track_violation[rows].tolist(),
-                      used[rows].tolist(), self._replanned[rows].tolist(), self._sta[rows].tolist(),
-                      min_sep[rows].tolist(), new_collision[rows].tolist())
-        infos = {}
-        for agent in live:
-            if agent == "intruder":
-                infos[agent] = {
-                    "status": episode["intruder_status"],
-                    "n_forced": n_forced,
-                    "kbar": kbar,
-                    "kbar_exceeded": episode["kbar_exceeded"],
-                    "collisions": episode["collisions"],
-                    "guarantee_violations": episode["guarantee_violations"],
-                    "tracking_violations": episode["tracking_violations"],
-                    "cost": 0.0,
-                    "time": t,
-                    "episode": episode.copy(),
-                }
+        live_set = set(live)
+        columns = zip(self.possible_agents, status.tolist(), mode.tolist(), avoid_start.tolist(), forced.tolist(),
+                      collided.tolist(), violation.tolist(), error.tolist(), max_error.tolist(),
+                      info.tracked.tolist(), track_violation.tolist(), used.tolist(), self._replanned.tolist(),
+                      self._sta.tolist(), min_sep.tolist(), new_collision.tolist())
+        built = {}
+        for (agent, st, md, start, frc, col, viol, err, max_err, tracked, track_viol, used_i, replanned, sta,
+             sep, new_col) in columns:
+            if agent not in live_set:
                 continue
-            (st, md, start, frc, col, viol, err, max_err, tracked, track_viol, used_i, replanned, sta, sep,
-             new_col) = next(columns)
-            infos[agent] = {
+            built[agent] = {
                 "status": STATUS_NAMES[st],
                 "mode": MODE_NAMES[md],
                 "avoid_start_time": start if frc else None,
@@ -815,7 +800,20 @@ class STPParallelEnv(ParallelEnv):
                 "time": t,
                 "episode": episode.copy(),
             }
-        return infos
+        if "intruder" in live_set:
+            built["intruder"] = {
+                "status": episode["intruder_status"],
+                "n_forced": n_forced,
+                "kbar": kbar,
+                "kbar_exceeded": episode["kbar_exceeded"],
+                "collisions": episode["collisions"],
+                "guarantee_violations": episode["guarantee_violations"],
+                "tracking_violations": episode["tracking_violations"],
+                "cost": 0.0,
+                "time": t,
+                "episode": episode.copy(),
+            }
+        return {agent: built[agent] for agent in live}
 
     def state(self) -> np.ndarray:
         """The global state (``state_space``): per vehicle ``(x, y)`` scaled, ``cos, sin``, flying / finished /
