@@ -20,6 +20,9 @@ Prints one JSON line. Measured in the same run:
   one per core). One thread is the setting for a loop over one environment, every core the one for the batched
   core, so the adapter's and the core's figures are each read from the run with their setting
   (``cpu_threads`` in the output says which run it is).
+* ``--state-reads``: a fourth runner, the built-in loop reading ``env.env_state`` before every step;
+  ``env_state_read_us_per_step`` is what the read adds to a step (the median over the rounds of the difference of
+  the two loops' step times within a round).
 * ``--sync-dispatch``: JAX's CPU computations run on the calling thread, the caller waiting for each
   (``jax_cpu_enable_async_dispatch`` off; ``cpu_async_dispatch`` in the output). By default a computation is
   handed to XLA's thread and the caller reads its outputs when they are ready; at batch one the outputs then come
@@ -111,10 +114,11 @@ def adapter_runner(scenario, params):
     return run
 
 
-def builtin_policy_runner(scenario, params):
+def builtin_policy_runner(scenario, params, read_state: bool = False):
     """``run(n) -> seconds``: the adapter with the vehicles flown by the built-in switching controller
     (``vehicle_policy="switching"``: one jitted call per step, the vehicles' actions ignored) and a random
-    intruder: what training an intruder runs."""
+    intruder: what training an intruder runs. ``read_state``: ``env.env_state`` read before every step (what a
+    loop that computes anything from the core state pays for it)."""
     from stp_env.env import STPParallelEnv
 
     env = STPParallelEnv(scenario, params=params, max_cycles=10**9, vehicle_policy="switching")
@@ -129,6 +133,8 @@ def builtin_policy_runner(scenario, params):
             if not env.agents:
                 box["episode"] += 1
                 env.reset(seed=box["episode"])
+            if read_state:
+                env.env_state  # noqa: B018 - the read is what is measured
             env.step({a: (rng.uniform(-1, 1, 2).astype(np.float32) if a == "intruder" else zero)
                       for a in env.agents})
         return time.perf_counter() - start
@@ -139,10 +145,11 @@ def builtin_policy_runner(scenario, params):
 
 def interleaved(runners: dict, steps: dict, rounds: int) -> dict:
     """Each runner ``rounds`` times in turn, ``steps[name] // rounds`` steps a round: rates over all rounds and,
-    per round, each runner's rate over the first's (the machine's load changes within a run)."""
+    per round, each runner's rate and its rate over the first's (the machine's load changes within a run)."""
     seconds = dict.fromkeys(runners, 0.0)
     done = dict.fromkeys(runners, 0)
     ratios: dict = {name: [] for name in runners}
+    round_rates: dict = {name: [] for name in runners}
     first = next(iter(runners))
     for _ in range(rounds):
         rate = {}
@@ -154,7 +161,9 @@ def interleaved(runners: dict, steps: dict, rounds: int) -> dict:
             rate[name] = n / dt
         for name in runners:
             ratios[name].append(rate[name] / rate[first])
-    return {"rates": {name: done[name] / seconds[name] for name in runners}, "ratios": ratios}
+            round_rates[name].append(rate[name])
+    return {"rates": {name: done[name] / seconds[name] for name in runners}, "ratios": ratios,
+            "round_rates": round_rates}
 
 
 def core_rate(params, n_envs: int, n_steps: int) -> tuple[float, float]:
@@ -205,6 +214,8 @@ def main() -> None:
                         help="XLA's CPU thread-pool size (default: one thread per core)")
     parser.add_argument("--cpu-devices", type=int, default=1,
                         help="JAX CPU devices the core's batch is shared among (one per core: the batch setting)")
+    parser.add_argument("--state-reads", action="store_true",
+                        help="also the built-in loop reading env.env_state before every step (a fourth runner)")
     parser.add_argument("--sync-dispatch", action="store_true",
                         help="JAX's CPU computations run on the calling thread (jax_cpu_enable_async_dispatch off)")
     args = parser.parse_args()
@@ -221,9 +232,17 @@ def main() -> None:
     runners = {"mpe2": mpe2_runner(), "adapter": adapter_runner(scenario, params),
                "adapter_builtin": builtin_policy_runner(scenario, params)}
     steps = {"mpe2": args.mpe_steps, "adapter": args.adapter_steps, "adapter_builtin": args.adapter_steps}
+    if args.state_reads:
+        runners["adapter_builtin_reading_state"] = builtin_policy_runner(scenario, params, read_state=True)
+        steps["adapter_builtin_reading_state"] = args.adapter_steps
     measured = interleaved(runners, steps, args.rounds)
     for name in runners:
         result[f"{name}_env_steps_per_s"] = round(measured["rates"][name], 1)
+    if args.state_reads:  # the read's cost per step: the two built-in loops' step times, paired within each round
+        per_round = [1e6 / r - 1e6 / b for r, b in zip(measured["round_rates"]["adapter_builtin_reading_state"],
+                                                       measured["round_rates"]["adapter_builtin"])]
+        result["env_state_read_us_per_step"] = round(float(np.median(per_round)), 1)
+        result["env_state_read_us_per_step_per_round"] = [round(x, 1) for x in per_round]
     for name in ("adapter", "adapter_builtin"):
         result[f"{name}_over_mpe2"] = round(measured["rates"][name] / measured["rates"]["mpe2"], 2)
         result[f"{name}_over_mpe2_per_round"] = [round(r, 2) for r in measured["ratios"][name]]

@@ -178,7 +178,7 @@ from stp_env.seeds import prng_key
 from stp_env.sim import core
 from stp_env.sim.backends import with_backend
 from stp_env.sim.jit import sim_jit
-from stp_env.sim.packing import DeviceCarry, Layout, key_leaves, pack
+from stp_env.sim.packing import DeviceCarry, Layout, pack
 from stp_env.sim.rollout import intruder_decision
 from stp_env.sim.types import (
     AFTER_AVOIDANCE,
@@ -293,9 +293,8 @@ def _advance_scripted(key, state, actions, params, vehicle_policy=None, intruder
 def _advance_carry(carry, actions, params, layout, vehicle_policy=None, intruder_policy=None, with_state=False):
     """One adapter step on the packed carry: ``(carry, actions, params) -> (carry, packed output)``, where the carry
     is :func:`pack` of ``(key, state)`` laid out as ``layout``; :func:`_advance` or, with a scripted policy,
-    :func:`_advance_scripted`. ``with_state``: the output is ``(pack((output, state)), key leaves of the state)``
-    instead, for a user who reads ``env_state`` after every step (the state comes to the host with the outputs,
-    not in a second call)."""
+    :func:`_advance_scripted`. ``with_state``: also ``(key, state)`` unpacked, for a user who reads ``env_state``
+    after every step (one more output per array, instead of a second call that unpacks the carry)."""
     TRACE_COUNTS["step"] += 1
     key, state = layout.unpack_traced(carry)
     if vehicle_policy is None and intruder_policy is None:
@@ -303,8 +302,8 @@ def _advance_carry(carry, actions, params, layout, vehicle_policy=None, intruder
     else:
         key, new, out = _advance_scripted(key, state, actions, params, vehicle_policy=vehicle_policy,
                                           intruder_policy=intruder_policy)
-    if with_state:  # the state packed with the outputs, its PRNG key beside them (numpy cannot hold a key)
-        return pack((key, new)), (pack((out, new)), key_leaves(new))
+    if with_state:
+        return pack((key, new)), pack(out), (key, new)
     return pack((key, new)), pack(out)
 
 
@@ -428,9 +427,6 @@ class STPParallelEnv(ParallelEnv):
                                                              else intruder_caps.__name__)
         self._step_layout = None  # Layout of the packed step output, found at the first step
         self._noted_with_state = False  # the step variant returning env_state announced (it compiles on first use)
-        self._state_layout = None  # Layout of that variant's packed (output, state)
-        self._delivered = None  # (carry words, state on the host) when the last step delivered the state
-        self._state_read = False  # env_state was read since the last step: the next one delivers it
         self.params = params
         self._base_params = params
         self.replan = bool(replan)
@@ -515,7 +511,6 @@ class STPParallelEnv(ParallelEnv):
         compile_note("the environment's reset", key, start_params, progress=self._progress)
         key, state, out = _start_jit(key, start_params)
         self._carry.set((key, state))
-        self._state_read = False
         self.params = params
         self._plan = self._plan0
         self._replan_tried = np.zeros(params.vehicles.n, bool)
@@ -648,9 +643,7 @@ class STPParallelEnv(ParallelEnv):
         if self._step_layout is None:  # traced once per environment, not compiled
             advance = (functools.partial(_advance_scripted, vehicle_policy=self._vehicle_policy,
                                          intruder_policy=self._intruder_policy) if scripted else _advance)
-            _, state, out = jax.eval_shape(advance, *self._carry.unpacked(), arr, self.params)
-            self._step_layout = Layout.of(out)
-            self._state_layout = Layout.of((out, state), key_impl=self._carry.layout.key_impl)
+            self._step_layout = Layout.of(jax.eval_shape(advance, *self._carry.unpacked(), arr, self.params)[2])
             # the shapes of the step's arguments are fixed for the environment's life (a new plan keeps them), so
             # the compilation is announced here, at its first step, and not looked up at every step
             flown = ", ".join(f"{name} {who}" for name, who in ((self._vehicle_policy_name, "vehicles"),
@@ -659,7 +652,7 @@ class STPParallelEnv(ParallelEnv):
                          self._carry.words, arr, self.params, progress=self._progress)
         # a user who read env_state since the last step (e.g. to compute the vehicles' actions) gets the state
         # with this one's outputs; otherwise it stays packed until asked for
-        with_state = self._state_read
+        with_state = self._carry.was_read
         if with_state and not self._noted_with_state:  # once per environment, not looked up at every step
             self._noted_with_state = True
             compile_note("the environment's step (returning env_state)", self._carry.words, arr, self.params,
@@ -667,13 +660,7 @@ class STPParallelEnv(ParallelEnv):
         words = self._carry.advance(_advance_carry_jit, arr, self.params, vehicle_policy=self._vehicle_policy,
                                     intruder_policy=self._intruder_policy, with_state=with_state)
         self._steps += 1
-        self._state_read = False
-        if with_state:
-            words, keys = words
-            out, state = self._state_layout.unpack(np.asarray(words), keys=keys)
-            self._delivered = (self._carry.words, state)  # valid while the carry holds these words
-        else:
-            out = self._step_layout.unpack(np.asarray(words))
+        out = self._step_layout.unpack(np.asarray(words))
         obs, rewards, info = self._observations(out.obs_vehicles, out.obs_intruder), out.rewards, out.info
         if self.replan:
             obs, info = self._maybe_replan(obs, info)
@@ -721,9 +708,7 @@ class STPParallelEnv(ParallelEnv):
         self._plan = new_plan
         self.params = assembly.with_plan(self.params, new_plan)
         key, state = self._carry.unpacked()
-        mode = np.array(state.mode)
-        mode[idx] = NOMINAL
-        self._carry.set((key, replace(state, mode=mode)))
+        self._carry.set((key, replace(state, mode=state.mode.at[jnp.asarray(idx)].set(NOMINAL))))
         self._replanned[idx] = True
         self._sta = np.asarray(self.params.vehicles.sta, np.float64)
         self.replan_log.append({"time": t_bar, "vehicles": idx,
@@ -854,13 +839,10 @@ class STPParallelEnv(ParallelEnv):
     @property
     def env_state(self) -> sim.EnvState:
         """The core's :class:`~stp_env.sim.EnvState` (read-only use; for parity checks and custom analysis);
-        ``None`` before the first ``reset``. Its arrays are numpy arrays on the host, its PRNG key a JAX key array
-        (all are accepted by jitted functions). Read between two steps, it comes with the next step's outputs (a loop
+        ``None`` before the first ``reset``. Read between two steps, it comes with the next step's outputs (a loop
         that reads it after every step makes one call per step, not two)."""
-        if self._carry.words is None:
-            return None
-        self._state_read = True
-        return self._state
+        tree = self._carry.tree
+        return None if tree is None else tree[1]
 
     @property
     def _key(self):
@@ -868,12 +850,7 @@ class STPParallelEnv(ParallelEnv):
 
     @property
     def _state(self):
-        if self._carry.words is None:
-            return None
-        delivered = self._delivered
-        if delivered is not None and delivered[0] is self._carry.words:
-            return delivered[1]
-        return self._carry.unpacked()[1]
+        return None if self._carry.words is None else self._carry.unpacked()[1]
 
 
 def parallel_env(scenario=DEFAULT_SCENARIO, config: sim.EnvConfig | None = None, **kwargs) -> STPParallelEnv:

@@ -424,15 +424,15 @@ def test_a_loop_reading_env_state_gets_it_from_the_step_with_the_same_episode(pa
         acts = {a: rng.uniform(-1, 1, 2).astype(np.float32) for a in par.agents}
         if i >= 3:
             state = par.env_state  # read: the next step returns the state with its outputs
-            assert par._state_read
+            assert par._carry.was_read
         got, want = par.step(acts), other.step(acts)
         if i >= 3:
-            assert par._delivered[0] is par._carry.words  # no unpacking call needed for the next read
+            assert par._carry._tree is not None  # no unpacking call needed for the next read
             assert float(par.env_state.t) > float(state.t)
         assert got[1:4] == want[1:4]
         for agent in got[0]:
             np.testing.assert_array_equal(got[0][agent], want[0][agent])
-    assert not other._state_read
+    assert not other._carry.was_read
     for a, b in zip(jax.tree.leaves(par.env_state), jax.tree.leaves(other.env_state)):
         if jax.dtypes.issubdtype(a.dtype, jax.dtypes.prng_key):
             a, b = jax.random.key_data(a), jax.random.key_data(b)

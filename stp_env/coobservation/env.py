@@ -365,7 +365,7 @@ class CoObservationParallelEnv(ParallelEnv):
     def threat_state(self) -> threat.ThreatState:
         """The wrapper's :class:`~stp_env.coobservation.threat.ThreatState` (for analysis; unpacked from the device
         on the first read after a step)."""
-        tree = self._carry.unpacked()
+        tree = self._carry.tree
         return None if tree is None else tree[1]
 
     def render(self):

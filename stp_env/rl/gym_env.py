@@ -100,7 +100,7 @@ class IntruderEnv(gym.Env):
     @property
     def state(self) -> sim.EnvState | None:
         """The core's state (``None`` before the first reset)."""
-        tree = self._carry.unpacked()
+        tree = self._carry.tree
         return None if tree is None else tree[1]
 
     @property

@@ -6,11 +6,8 @@ typed PRNG key also a Python wrapper (about 17 us), each fetched output its own 
 measured on the town step whose own work is a few hundred microseconds. So a step's outputs are returned as one
 packed array (:func:`pack`) that the host unpacks with numpy views (:meth:`Layout.unpack`), and what the step
 carries to the next call (the key and the state) stays on the device as another (:class:`DeviceCarry`), which the
-step unpacks inside ``jit`` (:meth:`Layout.unpack_traced`) and packs again; the host reads the carried tree, when
-asked, as numpy views of one fetched copy with only its PRNG keys fetched as device arrays
-(:meth:`DeviceCarry.unpacked`; 30 device arrays out of a call cost the town's step loop about twice as much).
-Packing only bit-casts, pads and slices: every value comes back bit for bit (tests/test_env.py checks a packed step
-against the unpacked one).
+step unpacks inside ``jit`` (:meth:`Layout.unpack_traced`) and packs again. Packing only bit-casts, pads and
+slices: every value comes back bit for bit (tests/test_env.py checks a packed step against the unpacked one).
 """
 
 from __future__ import annotations
@@ -83,25 +80,18 @@ class Layout(NamedTuple):
             raise ValueError(f"the tree's PRNG keys have different implementations {sorted(impls)}.")
         return cls(treedef, tuple(out), impls.pop() if impls else None, sum(n for _, _, n, _ in out))
 
-    def unpack(self, words: np.ndarray, keys=()):
-        """The pytree from the host copy of :func:`pack`'s array. ``words`` is copied once; the leaves are numpy
-        views of that copy (writable, each its own bytes: no conversion, so a leaf costs one array header). The
-        tree's typed PRNG keys, which numpy cannot hold, are taken from ``keys`` in order (device key arrays, e.g.
-        :func:`key_leaves` of the tree returned beside its packed words); ``ValueError`` if there are too few."""
+    def unpack(self, words: np.ndarray):
+        """The pytree from the host copy of :func:`pack`'s array. ``words`` is copied once; the leaves are views
+        of that copy (writable, each its own bytes: no conversion, so a leaf costs one array header). Trees with
+        PRNG keys are unpacked on the device (:meth:`unpack_traced`)."""
         words = np.array(words, np.int32, copy=True)
         if words.shape != (self.words,):
             raise ValueError(f"packed step output of shape {words.shape}; the layout needs ({self.words},).")
-        keys = iter(keys)
         out, offset = [], 0
         for shape, dtype, n, key_shape in self.leaves:
-            if key_shape is None:
-                out.append(np.ndarray(shape, dtype, words, offset))
-            else:
-                key = next(keys, None)
-                if key is None:
-                    raise ValueError("the tree has more PRNG keys than were given: a key cannot be unpacked on the "
-                                     "host; pass its device array in keys (key_leaves of the tree).")
-                out.append(key)
+            if key_shape is not None:
+                raise ValueError("a tree with PRNG keys is unpacked on the device (Layout.unpack_traced).")
+            out.append(np.ndarray(shape, dtype, words, offset))
             offset += 4 * n
         return jax.tree.unflatten(self.treedef, out)
 
@@ -152,47 +142,52 @@ def pack(tree):
     return jnp.concatenate(parts) if parts else jnp.zeros((0,), jnp.int32)
 
 
-def key_leaves(tree) -> tuple:
-    """The typed PRNG key leaves of ``tree``, in :meth:`Layout.unpack`'s order."""
-    return tuple(x for x in jax.tree.leaves(tree) if _is_key(x))
-
-
 _pack_jit = sim_jit(pack)
 _unpack_jit = sim_jit(lambda words, layout: layout.unpack_traced(words), static_argnames=("layout",))
-_keys_jit = sim_jit(lambda words, layout: key_leaves(layout.unpack_traced(words)), static_argnames=("layout",))
 
 
 class DeviceCarry:
     """A pytree (an environment's key and state) kept packed on the device between jitted calls.
 
     ``set(tree)`` packs a tree (after a reset, or a change made on the host); ``advance(fn, *args, **static)``
-    calls ``fn(words, *args, layout=layout, **static)``, which returns ``(words, output)``, keeps the new words and
-    returns the output; ``unpacked()`` is the tree unpacked on the host (numpy views of one copy of the words, its
-    PRNG keys as device key arrays fetched by one small call, :func:`key_leaves`), made on the first read after a
-    change and then kept (``None`` before the first ``set``)."""
+    calls ``fn(words, *args, layout=layout, **static)``, which returns ``(words, output)`` or ``(words, output,
+    tree)`` (the new tree also unpacked), keeps the new words and returns the output; ``tree`` (the user's reads)
+    and ``unpacked()`` (the caller's own) are the unpacked tree (one device call after an ``advance`` that did not
+    return it, then kept). ``was_read``: whether ``tree`` was read since the last ``advance`` or ``set``, so that a
+    caller whose user reads it after every step can have the step return it."""
 
     def __init__(self):
         self.words: jax.Array | None = None
         self.layout: Layout | None = None
         self._tree = None
+        self.was_read = False
 
     def set(self, tree) -> None:
         self.layout = Layout.of(tree)
         self.words = _pack_jit(tree)
-        self._tree = None  # unpacked from the words on the first read, as after a step: one form of the tree
+        self._tree = tree
+        self.was_read = False
 
     def advance(self, fn, *args, **static):
         if self.words is None:
             raise RuntimeError("the carry is empty: set() it (reset the environment) first.")
-        self.words, out = fn(self.words, *args, layout=self.layout, **static)
-        self._tree = None
+        result = fn(self.words, *args, layout=self.layout, **static)
+        self.words, out = result[0], result[1]
+        self._tree = result[2] if len(result) == 3 else None
+        self.was_read = False
         return out
 
+    @property
+    def tree(self):
+        """The unpacked tree, as the user reads it (sets ``was_read``); ``None`` before the first ``set``."""
+        if self.words is not None:
+            self.was_read = True
+        return self.unpacked()
+
     def unpacked(self):
+        """The unpacked tree for the caller's own use (does not set ``was_read``)."""
         if self.words is None:
             return None
         if self._tree is None:
-            layout = self.layout
-            keys = _keys_jit(self.words, layout=layout) if layout.key_impl is not None else ()
-            self._tree = layout.unpack(np.asarray(self.words), keys=keys)
+            self._tree = _unpack_jit(self.words, layout=self.layout)
         return self._tree
