@@ -23,6 +23,8 @@ Prints one JSON line. Measured in the same run:
 * ``--state-reads``: a fourth runner, the built-in loop reading ``env.env_state`` before every step;
   ``env_state_read_us_per_step`` is what the read adds to a step (the median over the rounds of the difference of
   the two loops' step times within a round).
+* ``--pin-core``: the process held to one core (``os.sched_setaffinity``, as ``taskset -c 0 python ...``), so
+  that XLA's thread and the caller share it (``cores`` in the output).
 * ``--sync-dispatch``: JAX's CPU computations run on the calling thread, the caller waiting for each
   (``jax_cpu_enable_async_dispatch`` off; ``cpu_async_dispatch`` in the output). By default a computation is
   handed to XLA's thread and the caller reads its outputs when they are ready; at batch one the outputs then come
@@ -216,6 +218,8 @@ def main() -> None:
                         help="JAX CPU devices the core's batch is shared among (one per core: the batch setting)")
     parser.add_argument("--state-reads", action="store_true",
                         help="also the built-in loop reading env.env_state before every step (a fourth runner)")
+    parser.add_argument("--pin-core", action="store_true",
+                        help="the process (and so XLA's threads) held to one core, as `taskset -c <core>` would")
     parser.add_argument("--sync-dispatch", action="store_true",
                         help="JAX's CPU computations run on the calling thread (jax_cpu_enable_async_dispatch off)")
     args = parser.parse_args()
@@ -223,11 +227,14 @@ def main() -> None:
 
     if args.sync_dispatch:
         jax.config.update("jax_cpu_enable_async_dispatch", False)
+    if args.pin_core:  # before JAX starts its threads: they inherit the process's affinity
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     set_cpu_threads(args.cpu_threads)  # before JAX's first computation
     set_cpu_devices(args.cpu_devices)
     scenario, params = _params(args.scenario)
     result = {"case": "env_throughput", "scenario": args.scenario, "n_agents": params.vehicles.n + 1,
               "cpu_threads": args.cpu_threads, "cpu_async_dispatch": not args.sync_dispatch,
+              "cores": sorted(os.sched_getaffinity(0)),
               "cpu_devices": args.cpu_devices, "loadavg_1min_before": round(os.getloadavg()[0], 2)}
     runners = {"mpe2": mpe2_runner(), "adapter": adapter_runner(scenario, params),
                "adapter_builtin": builtin_policy_runner(scenario, params)}
