@@ -29,6 +29,16 @@ MODES = ("none", "observe", "track", "avoid", "pairs", "building", "rewards", "w
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
+def _packed_step(key, state, actions, params, vehicle_policy, intruder_policy):
+    """The environment's step function with its outputs packed as it returns them (one int32 array)."""
+    import stp_env.env as env_module
+    from stp_env.sim.packing import pack
+
+    key, state, out = env_module._advance_scripted(key, state, actions, params, vehicle_policy=vehicle_policy,
+                                                   intruder_policy=intruder_policy)
+    return key, state, pack(out)
+
+
 def run_one(scenario: str, mode: str) -> dict:
     from stp_env import set_cpu_threads
 
@@ -40,6 +50,7 @@ def run_one(scenario: str, mode: str) -> dict:
     import stp_env.env as env_module
     from stp_env.sim import core
     from stp_env.sim import wind as wind_lib
+    from stp_env.sim.jit import sim_jit
 
     if mode == "observe":
         full = core.observe
@@ -75,7 +86,7 @@ def run_one(scenario: str, mode: str) -> dict:
     actions = env._parse_actions({a: zero for a in env.agents})
     key, state, params = env._key, env._state, env.params
     kwargs = {"vehicle_policy": env._vehicle_policy, "intruder_policy": None}
-    step = env_module._advance_scripted_jit
+    step = sim_jit(_packed_step, static_argnames=("vehicle_policy", "intruder_policy"))
 
     def call():
         return np.asarray(step(key, state, actions, params, **kwargs)[2])

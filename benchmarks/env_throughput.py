@@ -23,6 +23,14 @@ Prints one JSON line. Measured in the same run:
 * ``--state-reads``: a fourth runner, the built-in loop reading ``env.env_state`` before every step;
   ``env_state_read_us_per_step`` is what the read adds to a step (the median over the rounds of the difference of
   the two loops' step times within a round).
+* ``--floors``: two more runners, the device calls of each adapter loop with nothing of PettingZoo around them
+  (``outside_floor``: the user's policy call and the step returning the state; ``builtin_floor``: the step alone;
+  each output fetched as ``env.step`` fetches it). ``*_floor_over_mpe2`` is the most the matching loop could reach
+  here if the Python around its calls cost nothing: an aim above it is out of reach of the adapter's own code.
+  A third, ``outside_python``, runs the outside-actions loop with both calls answered by stored results (its
+  Python alone, ``outside_python_us_per_step``); ``outside_ceiling_over_mpe2`` adds the two per-step times: the
+  loop's rate if the calls and the Python cost what they cost alone (in the loop they cost more: the host reads
+  what the other core wrote, ``BENCHMARKS.md``).
 * ``--pin-core``: the process held to one core (``os.sched_setaffinity``, as ``taskset -c 0 python ...``), so
   that XLA's thread and the caller share it (``cores`` in the output).
 * ``--sync-dispatch``: JAX's CPU computations run on the calling thread, the caller waiting for each
@@ -48,13 +56,13 @@ import numpy as np
 
 
 def _params(name: str):
-    from stp_env import sim
+    from stp_env import assembly, sim
     from stp_env.scenarios import make
 
     scenario = make(name)
-    avoid, tracking = sim.load_artifacts(scenario, progress=False)
-    plan = sim.load_plan(scenario, tracking_bound=tracking.bound, progress=False)  # the shipped plan
-    return scenario, sim.make_params(scenario, plan, avoid, tracking, sim.EnvConfig())
+    avoid, tracking = assembly.load_artifacts(scenario, progress=False)
+    plan = assembly.load_plan(scenario, tracking_bound=tracking.bound, progress=False)  # the shipped plan
+    return scenario, assembly.make_params(scenario, plan, avoid, tracking, sim.EnvConfig())
 
 
 def mpe2_runner():
@@ -75,11 +83,13 @@ def mpe2_runner():
     return run
 
 
-def adapter_runner(scenario, params):
+def adapter_runner(scenario, params, python_only: bool = False):
     """``run(n) -> seconds``: the adapter with the vehicles' actions computed outside the step: the user's loop
     makes one jitted call per step (the key split and ``switching`` from ``env.env_state`` together: an eager
     ``jax.random.split`` alone cost about 100 us per step in this loop, more than the policy) and a random
-    intruder."""
+    intruder. ``python_only``: the same loop with both device calls (the policy and the environment's compiled
+    step) answered by results stored from a real step (the host copies the step's output as it would fetch it):
+    what the loop's Python costs around them."""
     from stp_env.baselines import switching
     from stp_env.env import STPParallelEnv
 
@@ -90,6 +100,28 @@ def adapter_runner(scenario, params):
     def act(key, state, params):
         key, sub = jax.random.split(key)
         return key, switching(sub, state, params)
+
+    if python_only:
+        from stp_env.env import _advance_carry_jit
+
+        zero = {a: np.zeros(2, np.float32) for a in env.agents}
+        stored_key, stored_veh = act(jax.random.key(0), env.env_state, params)
+        env.step(zero)  # compiles the step returning the state (the loop reads it before every step)
+        env.env_state  # noqa: B018
+        carry = env._carry
+        stored_out = np.asarray(carry.advance(_advance_carry_jit, env._parse_actions(zero), env.params,
+                                              vehicle_policy=None, intruder_policy=None, with_state=True))
+        env.env_state  # noqa: B018 - the state is kept unpacked: reads return it without a call
+
+        def advance(fn, *args, **static):  # the step's packed output, as the host would fetch it
+            carry.was_read = False
+            return stored_out
+
+        carry.advance = advance
+        stored_veh = np.asarray(stored_veh)
+
+        def act(key, state, params):  # the stored policy output stands in for the call
+            return stored_key, stored_veh
 
     rng = np.random.default_rng(0)
     names = env.possible_agents
@@ -143,6 +175,54 @@ def builtin_policy_runner(scenario, params, read_state: bool = False):
 
     run(20)
     return run
+
+
+def floor_runners(scenario, params) -> dict:
+    """``{"outside_floor": run, "builtin_floor": run}``: the device calls of the two adapter loops alone, with nothing
+    of PettingZoo around them (the ceiling a loop over the adapter can reach on this machine and jaxlib). The
+    outside-actions loop's are the user's policy call (key split and ``switching``, its output fetched) and the
+    environment's compiled step returning the state (the variant a loop that reads ``env.env_state`` runs), the
+    built-in loop's the compiled step alone; each step's packed output is fetched as ``env.step`` fetches it. The
+    carry is threaded from step to step (same-shaped inputs, so no retrace); actions are the policy's (vehicles) and
+    zero (intruder)."""
+    from stp_env import env as env_module
+    from stp_env.baselines import switching
+    from stp_env.env import STPParallelEnv
+
+    advance = env_module._advance_carry_jit
+    runners = {}
+    for name, vehicle_policy in (("outside_floor", None), ("builtin_floor", "switching")):
+        env = STPParallelEnv(scenario, params=params, max_cycles=10**9, vehicle_policy=vehicle_policy)
+        env.reset(seed=0)
+        env.step({a: np.zeros(2, np.float32) for a in env.agents})
+        box = {"env": env, "words": env._carry.words, "state": env.env_state, "key": jax.random.key(0),
+               "actions": env._parse_actions({a: np.zeros(2, np.float32) for a in env.agents})}
+
+        @jax.jit
+        def act(key, state, params):
+            key, sub = jax.random.split(key)
+            return key, switching(sub, state, params)
+
+        def run(n_steps: int, box=box, act=act, outside=vehicle_policy is None) -> float:
+            env, words, state, key, actions = box["env"], box["words"], box["state"], box["key"], box["actions"]
+            layout, policy, p, n = env._carry.layout, env._vehicle_policy, env.params, env.params.vehicles.n
+            start = time.perf_counter()
+            for _ in range(n_steps):
+                if outside:
+                    key, veh = act(key, state, p)
+                    actions[:n] = np.asarray(veh)
+                    words, out, (_, state) = advance(words, actions, p, layout=layout, vehicle_policy=None,
+                                                     intruder_policy=None, with_state=True)
+                else:
+                    words, out = advance(words, actions, p, layout=layout, vehicle_policy=policy,
+                                         intruder_policy=None, with_state=False)
+                np.asarray(out)
+            box.update(words=words, state=state, key=key)
+            return time.perf_counter() - start
+
+        run(20)
+        runners[name] = run
+    return runners
 
 
 def interleaved(runners: dict, steps: dict, rounds: int) -> dict:
@@ -218,6 +298,8 @@ def main() -> None:
                         help="JAX CPU devices the core's batch is shared among (one per core: the batch setting)")
     parser.add_argument("--state-reads", action="store_true",
                         help="also the built-in loop reading env.env_state before every step (a fourth runner)")
+    parser.add_argument("--floors", action="store_true",
+                        help="also the two loops' device calls alone, without PettingZoo (their ceilings)")
     parser.add_argument("--pin-core", action="store_true",
                         help="the process (and so XLA's threads) held to one core, as `taskset -c <core>` would")
     parser.add_argument("--sync-dispatch", action="store_true",
@@ -239,6 +321,11 @@ def main() -> None:
     runners = {"mpe2": mpe2_runner(), "adapter": adapter_runner(scenario, params),
                "adapter_builtin": builtin_policy_runner(scenario, params)}
     steps = {"mpe2": args.mpe_steps, "adapter": args.adapter_steps, "adapter_builtin": args.adapter_steps}
+    if args.floors:
+        for name, run in floor_runners(scenario, params).items():
+            runners[name], steps[name] = run, args.adapter_steps
+        runners["outside_python"], steps["outside_python"] = adapter_runner(scenario, params, python_only=True), \
+            args.adapter_steps
     if args.state_reads:
         runners["adapter_builtin_reading_state"] = builtin_policy_runner(scenario, params, read_state=True)
         steps["adapter_builtin_reading_state"] = args.adapter_steps
@@ -250,9 +337,14 @@ def main() -> None:
                                                        measured["round_rates"]["adapter_builtin"])]
         result["env_state_read_us_per_step"] = round(float(np.median(per_round)), 1)
         result["env_state_read_us_per_step_per_round"] = [round(x, 1) for x in per_round]
-    for name in ("adapter", "adapter_builtin"):
+    for name in ("adapter", "adapter_builtin", *(("outside_floor", "builtin_floor") if args.floors else ())):
         result[f"{name}_over_mpe2"] = round(measured["rates"][name] / measured["rates"]["mpe2"], 2)
         result[f"{name}_over_mpe2_per_round"] = [round(r, 2) for r in measured["ratios"][name]]
+    if args.floors:  # the outside-actions loop at best: its device calls alone plus its Python alone
+        rates = measured["rates"]
+        best = 1.0 / (1.0 / rates["outside_floor"] + 1.0 / rates["outside_python"])
+        result["outside_python_us_per_step"] = round(1e6 / rates["outside_python"], 1)
+        result["outside_ceiling_over_mpe2"] = round(best / rates["mpe2"], 2)
     env_steps, agent_steps = core_rate(params, args.envs, args.core_steps)
     result.update({"core_envs": args.envs, "core_env_steps_per_s": round(env_steps),
                    "core_agent_steps_per_s": round(agent_steps),
