@@ -30,7 +30,10 @@ Prints one JSON line. Measured in the same run:
   A third, ``outside_python``, runs the outside-actions loop with both calls answered by stored results (its
   Python alone, ``outside_python_us_per_step``); ``outside_ceiling_over_mpe2`` adds the two per-step times: the
   loop's rate if the calls and the Python cost what they cost alone (in the loop they cost more: the host reads
-  what the other core wrote, ``BENCHMARKS.md``).
+  what the other core wrote, ``BENCHMARKS.md``). ``--floor-gap-us G``: the floor runners busy-wait ``G`` us after
+  each step, standing in for the loop's Python between its calls (XLA's threads park in such a gap and the next
+  call wakes them); ``outside_ceiling_over_mpe2`` is then the outside floor's own ratio (the wait included), the
+  rate the loop reaches at best when its Python takes ``G`` us.
 * ``--pin-core``: the process held to one core (``os.sched_setaffinity``, as ``taskset -c 0 python ...``), so
   that XLA's thread and the caller share it (``cores`` in the output).
 * ``--sync-dispatch``: JAX's CPU computations run on the calling thread, the caller waiting for each
@@ -177,14 +180,22 @@ def builtin_policy_runner(scenario, params, read_state: bool = False):
     return run
 
 
-def floor_runners(scenario, params) -> dict:
+def _spin(seconds: float) -> None:
+    """Busy-wait ``seconds`` (the caller's thread stays on its core, as Python code between two calls keeps it)."""
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end:
+        pass
+
+
+def floor_runners(scenario, params, gap_us: float = 0.0) -> dict:
     """``{"outside_floor": run, "builtin_floor": run}``: the device calls of the two adapter loops alone, with nothing
     of PettingZoo around them (the ceiling a loop over the adapter can reach on this machine and jaxlib). The
     outside-actions loop's are the user's policy call (key split and ``switching``, its output fetched) and the
     environment's compiled step returning the state (the variant a loop that reads ``env.env_state`` runs), the
     built-in loop's the compiled step alone; each step's packed output is fetched as ``env.step`` fetches it. The
     carry is threaded from step to step (same-shaped inputs, so no retrace); actions are the policy's (vehicles) and
-    zero (intruder)."""
+    zero (intruder). ``gap_us``: a busy wait after each step, standing in for the Python a loop runs between its
+    calls (XLA's threads park when no call comes for a while, and the next call then wakes them)."""
     from stp_env import env as env_module
     from stp_env.baselines import switching
     from stp_env.env import STPParallelEnv
@@ -217,6 +228,8 @@ def floor_runners(scenario, params) -> dict:
                     words, out = advance(words, actions, p, layout=layout, vehicle_policy=policy,
                                          intruder_policy=None, with_state=False)
                 np.asarray(out)
+                if gap_us:
+                    _spin(gap_us * 1e-6)
             box.update(words=words, state=state, key=key)
             return time.perf_counter() - start
 
@@ -300,6 +313,8 @@ def main() -> None:
                         help="also the built-in loop reading env.env_state before every step (a fourth runner)")
     parser.add_argument("--floors", action="store_true",
                         help="also the two loops' device calls alone, without PettingZoo (their ceilings)")
+    parser.add_argument("--floor-gap-us", type=float, default=0.0,
+                        help="with --floors: a busy wait of this many us after each floor step (the loop's Python)")
     parser.add_argument("--pin-core", action="store_true",
                         help="the process (and so XLA's threads) held to one core, as `taskset -c <core>` would")
     parser.add_argument("--sync-dispatch", action="store_true",
@@ -322,7 +337,7 @@ def main() -> None:
                "adapter_builtin": builtin_policy_runner(scenario, params)}
     steps = {"mpe2": args.mpe_steps, "adapter": args.adapter_steps, "adapter_builtin": args.adapter_steps}
     if args.floors:
-        for name, run in floor_runners(scenario, params).items():
+        for name, run in floor_runners(scenario, params, args.floor_gap_us).items():
             runners[name], steps[name] = run, args.adapter_steps
         runners["outside_python"], steps["outside_python"] = adapter_runner(scenario, params, python_only=True), \
             args.adapter_steps
@@ -345,6 +360,9 @@ def main() -> None:
         best = 1.0 / (1.0 / rates["outside_floor"] + 1.0 / rates["outside_python"])
         result["outside_python_us_per_step"] = round(1e6 / rates["outside_python"], 1)
         result["outside_ceiling_over_mpe2"] = round(best / rates["mpe2"], 2)
+        if args.floor_gap_us:  # the busy wait stood in for the Python: the calls' rate with it is the ceiling
+            result["floor_gap_us"] = args.floor_gap_us
+            result["outside_ceiling_over_mpe2"] = round(rates["outside_floor"] / rates["mpe2"], 2)
     env_steps, agent_steps = core_rate(params, args.envs, args.core_steps)
     result.update({"core_envs": args.envs, "core_env_steps_per_s": round(env_steps),
                    "core_agent_steps_per_s": round(agent_steps),
