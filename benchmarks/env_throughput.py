@@ -86,6 +86,19 @@ def mpe2_runner():
     return run
 
 
+def policy_call():
+    """The user's policy call of the outside-actions loop: one jitted call per step that splits the key and computes
+    the baseline controllers (``switching``) from the core state, ``(key, state, params) -> (key, actions)``."""
+    from stp_env.baselines import switching
+
+    @jax.jit
+    def act(key, state, params):
+        key, sub = jax.random.split(key)
+        return key, switching(sub, state, params)
+
+    return act
+
+
 def adapter_runner(scenario, params, python_only: bool = False):
     """``run(n) -> seconds``: the adapter with the vehicles' actions computed outside the step: the user's loop
     makes one jitted call per step (the key split and ``switching`` from ``env.env_state`` together: an eager
@@ -93,17 +106,11 @@ def adapter_runner(scenario, params, python_only: bool = False):
     intruder. ``python_only``: the same loop with both device calls (the policy and the environment's compiled
     step) answered by results stored from a real step (the host copies the step's output as it would fetch it):
     what the loop's Python costs around them."""
-    from stp_env.baselines import switching
     from stp_env.env import STPParallelEnv
 
     env = STPParallelEnv(scenario, params=params, max_cycles=10**9)
     env.reset(seed=0)
-
-    @jax.jit
-    def act(key, state, params):
-        key, sub = jax.random.split(key)
-        return key, switching(sub, state, params)
-
+    act = policy_call()
     if python_only:
         from stp_env.env import _advance_carry_jit
 
@@ -197,7 +204,6 @@ def floor_runners(scenario, params, gap_us: float = 0.0) -> dict:
     zero (intruder). ``gap_us``: a busy wait after each step, standing in for the Python a loop runs between its
     calls (XLA's threads park when no call comes for a while, and the next call then wakes them)."""
     from stp_env import env as env_module
-    from stp_env.baselines import switching
     from stp_env.env import STPParallelEnv
 
     advance = env_module._advance_carry_jit
@@ -207,15 +213,11 @@ def floor_runners(scenario, params, gap_us: float = 0.0) -> dict:
         env.reset(seed=0)
         env.step({a: np.zeros(2, np.float32) for a in env.agents})
         box = {"env": env, "words": env._carry.words, "state": env.env_state, "key": jax.random.key(0),
-               "actions": env._parse_actions({a: np.zeros(2, np.float32) for a in env.agents})}
+               "actions": env._parse_actions({a: np.zeros(2, np.float32) for a in env.agents}), "act": policy_call()}
 
-        @jax.jit
-        def act(key, state, params):
-            key, sub = jax.random.split(key)
-            return key, switching(sub, state, params)
-
-        def run(n_steps: int, box=box, act=act, outside=vehicle_policy is None) -> float:
+        def run(n_steps: int, box=box, outside=vehicle_policy is None) -> float:
             env, words, state, key, actions = box["env"], box["words"], box["state"], box["key"], box["actions"]
+            act = box["act"]
             layout, policy, p, n = env._carry.layout, env._vehicle_policy, env.params, env.params.vehicles.n
             start = time.perf_counter()
             for _ in range(n_steps):
