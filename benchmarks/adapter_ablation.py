@@ -29,7 +29,7 @@ MODES = ("none", "observe", "track", "avoid", "pairs", "building", "rewards", "w
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
-def _packed_step(key, state, actions, params, vehicle_policy, intruder_policy):
+def packed_step(key, state, actions, params, vehicle_policy, intruder_policy=None):
     """The environment's step function with its outputs packed as it returns them (one int32 array)."""
     import stp_env.env as env_module
     from stp_env.sim.packing import pack
@@ -86,7 +86,7 @@ def run_one(scenario: str, mode: str) -> dict:
     actions = env._parse_actions({a: zero for a in env.agents})
     key, state, params = env._key, env._state, env.params
     kwargs = {"vehicle_policy": env._vehicle_policy, "intruder_policy": None}
-    step = sim_jit(_packed_step, static_argnames=("vehicle_policy", "intruder_policy"))
+    step = sim_jit(packed_step, static_argnames=("vehicle_policy", "intruder_policy"))
 
     def call():
         return np.asarray(step(key, state, actions, params, **kwargs)[2])

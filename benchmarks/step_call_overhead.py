@@ -61,12 +61,8 @@ def measure(scenario: str, k: int, profile_seconds: float = 0.0) -> dict:
         env.step({a: zero for a in env.agents})
     actions = jnp.asarray(env._parse_actions({a: zero for a in env.agents}))
     key, state = env._key, env._state
-    from stp_env.sim.packing import pack
-
-    def step(key, state, actions, params, vehicle_policy):
-        """The environment's step function with its outputs packed as it returns them (one int32 array)."""
-        key, state, out = env_module._advance_scripted(key, state, actions, params, vehicle_policy=vehicle_policy)
-        return key, state, pack(out)
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from adapter_ablation import packed_step as step  # the environment's step, its outputs packed
 
     one = sim_jit(lambda key, state, actions, params: step(key, state, actions, params, vehicle_policy=switching))
 
