@@ -442,6 +442,13 @@ def _add_train_intruder_parser(sub) -> None:
     kit.add_scenario(tr, "town")
     tr.add_argument("--kbar", type=kit.kbar, default=None,
                     help=f"k̄ of the scenario's plan (1-{kit.MAX_KBAR}; default: the scenario's own)")
+    tr.add_argument("--trainer", choices=["sb3", "jax"], default="sb3",
+                    help="sb3: Stable-Baselines3 on the batched VecEnv (the rl extra); jax: PPO in JAX on the gymnax "
+                         "view, each iteration's rollout and updates one compiled program, one device per core by "
+                         "default (the jax-rl extra; PPO from a fresh network only)")
+    tr.add_argument("--resume", action="store_true",
+                    help="with --trainer jax: continue from OUT/checkpoints/runner.npz if the same configuration "
+                         "wrote it (a longer --timesteps continues the run)")
     tr.add_argument("--algo", choices=["ppo", "a2c"], default="ppo",
                     help="the Stable-Baselines3 algorithm: ppo (proximal policy optimisation) or a2c (advantage "
                          "actor-critic)")
@@ -454,6 +461,7 @@ def _add_train_intruder_parser(sub) -> None:
                     metavar="N",
                     help="PPO minibatch: transitions per gradient step (--batch-size is the older spelling; not "
                          "the episodes of a batch as in `evaluate`)")
+    tr.add_argument("--n-epochs", type=kit.integer(1, 1000), default=10, help="PPO: passes over each rollout")
     tr.add_argument("--learning-rate", type=kit.real(1e-9, 1.0), default=3e-4, help="the optimiser's step size")
     tr.add_argument("--log-std-init", type=kit.real(-20.0, 5.0), default=0.0,
                     help="initial log standard deviation of the Gaussian actions (lower after --clone keeps PPO's "
@@ -515,10 +523,18 @@ def _add_train_intruder_parser(sub) -> None:
 
 
 def _train_intruder(args) -> int:
-    try:
-        from stp_env.rl.train import TrainConfig, train
-    except ImportError as err:
-        raise ValueError(f"train-intruder needs the rl extra (pip install 'stp-env[rl]'): {err}") from None
+    from stp_env.rl.train import TrainConfig
+    from stp_env.rl.trainers import train
+
+    missing = _missing_trainer_modules(args.trainer)
+    if missing:
+        extra = "rl" if args.trainer == "sb3" else "jax-rl"
+        raise ValueError(f"train-intruder --trainer {args.trainer} needs the {extra} extra (pip install "
+                         f"'stp-env[{extra}]'): {', '.join(missing)} not installed.")
+    if args.resume and args.trainer != "jax":
+        raise ValueError("--resume continues a --trainer jax run (SB3 runs keep checkpoints/ of their own).")
+    if args.trainer == "jax" and args.cpu_devices is None:
+        args.cpu_devices_unset = "auto"  # the JAX trainer shares its batch among the cores
 
     from stp_env.evaluation.pipeline import check_output_dir
 
@@ -531,6 +547,7 @@ def _train_intruder(args) -> int:
     formats = ("stdout", "csv", "tensorboard") if args.tensorboard else ("stdout", "csv")
     config = TrainConfig(scenario=args.scenario, kbar=args.kbar, algo=args.algo, total_timesteps=args.timesteps,
                          n_envs=args.n_envs, n_steps=args.n_steps, batch_size=args.batch_size, seed=args.seed,
+                         n_epochs=args.n_epochs, trainer=args.trainer,
                          learning_rate=args.learning_rate, log_std_init=args.log_std_init,
                          horizon=args.horizon, vehicle_policy=args.vehicle_policy, spawn_mode=args.spawn_mode,
                          wind_model=args.wind_model, backend=args.backend, control_dt=args.control_dt,
@@ -548,9 +565,16 @@ def _train_intruder(args) -> int:
         print(json.dumps({"final": {(k if isinstance(k, int) else f"{k[0]} seed {k[1]}"): h[-1]
                                     for k, h in histories.items()}, "out": f"{args.out}/sweep.json"}, default=str))
         return 0
-    _, history = train(config)
+    _, history = train(config, resume=args.resume)
     print(json.dumps({**history[-1], "out": args.out}))
     return 0
+
+
+def _missing_trainer_modules(trainer: str) -> list[str]:
+    import importlib.util
+
+    names = ("stable_baselines3", "torch") if trainer == "sb3" else ("gymnax", "optax")
+    return [name for name in names if importlib.util.find_spec(name) is None]
 
 
 def _parse_grid(items) -> dict:

@@ -64,6 +64,7 @@ LOADERS: dict[str, Loader] = {
     "study-metadata": Loader("survivability study file", 16 * MiB),
     "study-missions": Loader("survivability missions file", 1 * GiB),
     "job-piece": Loader("job piece file", 16 * GiB, 16 * GiB),
+    "jax-checkpoint": Loader("JAX training checkpoint", 16 * GiB, 16 * GiB),
 }
 """Every kind of file the package reads from outside, by the name the threat model's table gives it."""
 

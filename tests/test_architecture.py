@@ -312,6 +312,8 @@ SCANS: dict[str, str] = {
     "stp_env.falsify.harness": "a legal reference of exact Dubins motion (kinematics.dubins_step), no core",
     "stp_env.survivability.dense": "the dynamic programme over the mission's time windows",
     "stp_env.coobservation.exploration": "the exploration flows' positions over their waypoints, no core",
+    "stp_env.rl.jax_ppo": "PPO's rollout over any gymnax environment's batched step (the envs reset themselves: no "
+                          "episode to stop), its GAE, its epochs and minibatches",
 }
 
 

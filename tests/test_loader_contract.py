@@ -46,6 +46,8 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "stp_env"
 SHIPPED_INTRUDER = Path(str(resources.files("stp_env") / "data" / "intruders" / "town-kbar2.npz"))
 DEEP = "[" * 100_000
+CHECKPOINT_TEMPLATE = {"policy": [np.zeros((2, 3), np.float32)], "key": np.zeros(2, np.uint32)}
+"""A training run's state as the JAX trainer's checkpoints hold one (any pytree of arrays)."""
 
 PROPERTY = settings(max_examples=25, deadline=None, derandomize=True,
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
@@ -133,6 +135,11 @@ def _write_valid(kind: str, path: Path) -> None:
                                     "n_instances": 2}))
     elif kind == "study-missions":
         path.write_text(_missions_text())
+    elif kind == "jax-checkpoint":
+        from stp_env.rl.jax_train import save_runner
+
+        save_runner(CHECKPOINT_TEMPLATE, path, fingerprint_="fp", iteration=1, timesteps=10,
+                    logs={"progress": [{"timesteps": 10}], "evaluations": []})
     elif kind == "job-piece":
         from stp_env.execution import write_piece
 
@@ -148,7 +155,8 @@ def _target(kind: str, directory: Path) -> Path:
         return meta if kind == "artifact-metadata" else npz
     return directory / {"events": "events.json", "event-states": "events.npz", "counterexample": "cx.json",
                         "learned-policy": "policy.npz", "plan-checkpoint": "ck.npz", "study-metadata": "study.json",
-                        "study-missions": "missions.csv", "job-piece": "piece-000003.npz"}[kind]
+                        "study-missions": "missions.csv", "job-piece": "piece-000003.npz",
+                        "jax-checkpoint": "runner.npz"}[kind]
 
 
 def _load(kind: str, path: Path):
@@ -195,6 +203,10 @@ def _load(kind: str, path: Path):
         from stp_env.execution import read_piece
 
         return read_piece(path)
+    if kind == "jax-checkpoint":
+        from stp_env.rl.jax_train import load_runner
+
+        return load_runner(path, CHECKPOINT_TEMPLATE, "fp")
     raise AssertionError(kind)  # pragma: no cover
 
 
@@ -209,7 +221,7 @@ def _check_contract(kind: str, path: Path) -> None:
 
 KINDS = sorted(loaders.LOADERS)
 JSON_KINDS = {"artifact-metadata", "events", "counterexample", "study-metadata"}
-NPZ_KINDS = {"artifact-arrays", "event-states", "learned-policy", "plan-checkpoint", "job-piece"}
+NPZ_KINDS = {"artifact-arrays", "event-states", "learned-policy", "plan-checkpoint", "job-piece", "jax-checkpoint"}
 
 
 def test_valid_files_load():

@@ -92,12 +92,21 @@ def export_mlp(model, path, metadata: dict | None = None) -> Path:
     names = {"Tanh": "tanh", "ReLU": "relu"}
     if len(acts) > 1 or not acts <= set(names) or len(layers) != 2 * len(linear):
         raise ValueError(f"export_mlp supports Linear + one activation (Tanh or ReLU); got {layers}.")
+    layers = [(m.weight.detach().cpu().numpy(), m.bias.detach().cpu().numpy()) for m in [*linear, policy.action_net]]
+    return write_mlp(layers, path, names[acts.pop()] if acts else "tanh", metadata)
+
+
+def write_mlp(layers, path, activation: str = "tanh", metadata: dict | None = None) -> Path:
+    """Write an MLP's ``[(W, b), ...]`` layers (``W`` ``(out, in)``; the last one the action layer, no activation)
+    to ``path`` (``.npz``, this module's format): what :func:`export_mlp` writes for an SB3 model and the JAX trainer
+    (:mod:`stp_env.rl.jax_train`) for its own."""
+    if activation not in ACTIVATIONS:
+        raise ValueError(f"unknown activation {activation!r}; allowed: {', '.join(ACTIVATIONS)}.")
     arrays = {}
-    for i, m in enumerate([*linear, policy.action_net]):
-        arrays[f"w{i}"] = m.weight.detach().cpu().numpy().astype(np.float32)
-        arrays[f"b{i}"] = m.bias.detach().cpu().numpy().astype(np.float32)
-    meta = {"format_version": FORMAT_VERSION, "activation": names[acts.pop()] if acts else "tanh",
-            "n_layers": len(linear) + 1, **(metadata or {})}
+    for i, (w, b) in enumerate(layers):
+        arrays[f"w{i}"] = np.asarray(w, np.float32)
+        arrays[f"b{i}"] = np.asarray(b, np.float32)
+    meta = {"format_version": FORMAT_VERSION, "activation": activation, "n_layers": len(layers), **(metadata or {})}
     path = Path(path)
     if path.suffix != ".npz":  # as np.savez names it
         path = path.with_name(path.name + ".npz")

@@ -106,7 +106,7 @@ def sweep_job(config, seeds, params, grid: dict | None = None):
 def sweep_piece(context: SweepContext, argument) -> dict:
     """One training run (a piece of :func:`sweep_job`): its evaluation history as one JSON string."""
     from stp_env import execution
-    from stp_env.rl.train import train
+    from stp_env.rl.trainers import train
 
     index, seed = (int(a) for a in argument)
     config = run_config(context.config, context.points[index], seed)

@@ -41,6 +41,7 @@ from stp_env.sim import engine
 from stp_env.sim.types import SPAWN_MODES
 
 LOG_FORMATS = ("stdout", "csv", "tensorboard", "log", "json")
+TRAINERS = ("sb3", "jax")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -84,6 +85,9 @@ class TrainConfig(PPOConfig):
             evaluation, from seeds ``eval_seed, eval_seed + 1, ...`` (held out from training's ``seed + i``).
         checkpoint_every: save a checkpoint every this many env steps (0: never).
         out_dir: output folder; log_formats: SB3 logger formats.
+        trainer: ``"sb3"`` (Stable-Baselines3 on the batched VecEnv, this module) or ``"jax"`` (the PPO of
+            :mod:`stp_env.rl.jax_ppo` on the gymnax view, rollouts and updates compiled together:
+            :mod:`stp_env.rl.jax_train`; PPO only, no clone, ``torch_threads`` and ``log_formats`` unused).
     """
 
     scenario: str = "town"
@@ -110,11 +114,16 @@ class TrainConfig(PPOConfig):
     checkpoint_every: int = 500_000
     out_dir: str = "runs/intruder"
     log_formats: tuple[str, ...] = ("stdout", "csv")
+    trainer: str = "sb3"
 
     def __post_init__(self) -> None:
         from stp_env.rl.functional import check_horizon, check_vehicle_policy
 
         super().__post_init__()
+        if self.trainer not in TRAINERS:
+            raise ValueError(f"trainer {self.trainer!r} is not known; allowed: {', '.join(TRAINERS)}.")
+        if self.trainer == "jax" and (self.algo != "ppo" or self.clone is not None):
+            raise ValueError("the jax trainer runs PPO from a fresh network: algo must be 'ppo' and clone None.")
         check_horizon(self.horizon)
         check_vehicle_policy(self.vehicle_policy)
         if self.spawn_mode not in SPAWN_MODES:
@@ -328,8 +337,12 @@ def build_params(config: TrainConfig, *, store=None, progress: bool = False) -> 
 
 
 def train(config: TrainConfig, *, params: sim.EnvParams | None = None):
-    """Train an intruder (see the module docstring). ``params``: prebuilt :class:`EnvParams` (must match the
-    config's scenario and rewards; used by tests to skip the build). Returns ``(model, eval_history)``."""
+    """Train an intruder with Stable-Baselines3 (see the module docstring). ``params``: prebuilt :class:`EnvParams`
+    (must match the config's scenario and rewards; used by tests to skip the build). Returns ``(model,
+    eval_history)``. (:func:`stp_env.rl.trainers.train` runs either trainer by ``config.trainer``.)"""
+    if config.trainer != "sb3":
+        raise ValueError(f"stp_env.rl.train.train is the SB3 trainer; trainer {config.trainer!r} runs with "
+                         "stp_env.rl.trainers.train.")
     import torch
     from stable_baselines3.common.logger import configure
     from stable_baselines3.common.vec_env import VecMonitor
