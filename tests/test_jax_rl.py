@@ -5,6 +5,8 @@ the evaluator, and a resumed run continues the run it resumes (a foreign or alte
 
 from __future__ import annotations
 
+import json
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -178,9 +180,13 @@ def test_jaxmarl_log_wrapper_runs_the_game(params):
     assert episodes >= 1  # through an auto-reset
 
 
+ROLLOUT = 64 * 64
+
+
 def _tiny(out_dir, **over) -> TrainConfig:
-    fields = dict(scenario="town", trainer="jax", n_envs=32, n_steps=32, batch_size=256, n_epochs=4,
-                  total_timesteps=32 * 32 * 4, eval_every=0, eval_episodes=64, checkpoint_every=0, seed=0,
+    """The training tests' settings (the same programs in each: compiled once, then from the compilation cache)."""
+    fields = dict(scenario="town", trainer="jax", n_envs=64, n_steps=64, batch_size=1024, n_epochs=10,
+                  total_timesteps=ROLLOUT * 4, eval_every=0, eval_episodes=256, checkpoint_every=0, seed=0,
                   out_dir=str(out_dir))
     return TrainConfig(**{**fields, **over})
 
@@ -190,8 +196,7 @@ def test_tiny_training_improves_on_its_start_and_exports_what_it_flew(town, tmp_
     trained intruder forces more vehicles than its own untrained start (0.03 -> 0.13-0.14 when written)."""
     from stp_env.rl.jax_train import episode_steps, make_env, make_evaluator
 
-    config = _tiny(tmp_path / "run", n_envs=64, n_steps=64, batch_size=1024, n_epochs=10,
-                   total_timesteps=64 * 64 * 24, eval_episodes=256)
+    config = _tiny(tmp_path / "run", total_timesteps=ROLLOUT * 24)
     policy, history = train_jax(config, params=town, progress=False)
     assert len(history) == 1 and history[0]["episodes"] == 256
     env = make_env(config, town)
@@ -240,7 +245,7 @@ def test_tiny_training_improves_on_its_start_and_exports_what_it_flew(town, tmp_
 
 
 def test_resume_continues_the_run_and_refuses_foreign_checkpoints(params, tmp_path, capsys):
-    rollout = 32 * 32
+    rollout = ROLLOUT
     straight, _ = train_jax(_tiny(tmp_path / "a", total_timesteps=4 * rollout), params=params, progress=False)
     _tiny_b = _tiny(tmp_path / "b", total_timesteps=2 * rollout, checkpoint_every=rollout)
     train_jax(_tiny_b, params=params, progress=False)
@@ -271,3 +276,62 @@ def test_resume_continues_the_run_and_refuses_foreign_checkpoints(params, tmp_pa
     assert "not resumed" in capsys.readouterr().err
     _assert_trees_equal(straight, again)
 
+
+
+def test_vehicle_gymnax_env_steps_the_ego_episode():
+    """The ego vehicle's gymnax view (town, the whole episode, the ``greedy`` intruder on a vehicle's avoid boundary):
+    a reset hands over the vehicle forced first (flying, after its avoidance) and gymnax's ``step`` flies it, with
+    the ego env's numbers in ``info`` (what the self-play's vehicle training reads)."""
+    from stp_env.rl import ego
+    from stp_env.rl.gymnax_env import VehicleGymnaxEnv
+
+    params = assembly.params_for("town", sim.EnvConfig(spawn_mode="boundary", episode="full"), progress=False)
+    env = VehicleGymnaxEnv(params, INTRUDERS["greedy"].policy, late_limit=2.0)
+    key = jax.random.PRNGKey(7)
+    obs, state = jax.jit(env.reset)(key)
+    assert obs.shape == env.observation_space(params).shape and bool(env.observation_space(params).contains(obs))
+    e = int(state.ego)
+    assert e >= 0 and int(state.sim.status[e]) == sim.FLYING and int(state.sim.mode[e]) == sim.AFTER_AVOIDANCE
+    obs, state2, reward, _, _, info = jax.jit(env.step)(key, state, jnp.asarray([0.3, -0.2]))
+    assert set(info) >= {*ego.STAT_NAMES, "discount", "final_observation"}
+    assert int(state2.ego) == e and float(state2.sim.t) > float(state.sim.t) and np.isfinite(float(reward))
+
+
+_SHARDED = r"""
+import json, sys
+import stp_env
+stp_env.set_cpu_devices(int(sys.argv[1]))
+import gymnax, jax, numpy as np
+from stp_env.rl import jax_ppo
+env, env_params = gymnax.make("Pendulum-v1")
+s = jax_ppo.PPOSettings(n_envs=8, n_steps=16, batch_size=128, n_epochs=1, learning_rate=1e-3, gamma=0.99,
+                        gae_lambda=0.95, ent_coef=0.01, clip_range=0.2)
+runner = jax_ppo.init_runner(jax.random.PRNGKey(0), env, env_params, s, (16, 16), 0.0)
+step, runner = jax_ppo.compile_iteration(jax_ppo.make_iteration(env, s), runner, s.n_envs)
+for _ in range(3):
+    runner, metrics = step(runner, env_params)
+leaves = [np.asarray(x).ravel().tolist() for x in jax.tree.leaves(runner.policy)]
+print(json.dumps({"devices": len(jax.devices()), "shares": jax_ppo.data_shares(s), "policy": leaves,
+                  "obs": np.asarray(runner.obs).tolist()}))
+"""
+
+
+def test_the_update_shared_among_two_devices_is_the_update_on_one():
+    """PPO on gymnax's own Pendulum (the trainer takes any gymnax env) with one minibatch per epoch, on one CPU device
+    and split into two (each device its envs' share of the rollout and of the gradient, summed): the same
+    rollouts and the same policy after three iterations, to float32 rounding (the sums run in another order)."""
+    import os
+    import subprocess
+    import sys
+
+    def run(devices):
+        env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "STP_ENV_CPU_DEVICES")}
+        out = subprocess.run([sys.executable, "-c", _SHARDED, str(devices)], capture_output=True, text=True, env=env)
+        assert out.returncode == 0, out.stderr[-3000:]
+        return json.loads(out.stdout.strip().splitlines()[-1])
+
+    one, two = run(1), run(2)
+    assert (one["devices"], one["shares"], two["devices"], two["shares"]) == (1, 1, 2, 2)
+    np.testing.assert_allclose(np.asarray(one["obs"]), np.asarray(two["obs"]), rtol=1e-4, atol=1e-5)
+    for a, b in zip(one["policy"], two["policy"], strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-6)

@@ -21,15 +21,18 @@ are the core's :class:`stp_env.sim.EnvParams` (``default_params`` the ones the e
   ``intruder_collisions``, ``guarantee_violations``, ``time``) and ``discount`` (0 at a termination), besides the
   three entries gymnax's ``step`` adds.
 
-:meth:`IntruderGymnaxEnv.batch_step` is ``jax.vmap(env.step)`` over a batch of envs (the same transitions, floats
-to their last bits) for trainers: it computes the resets only when some env of the batch (of a device's share)
-ended, where gymnax's ``step`` under ``vmap`` computes every env's reset at every step (a reset at the intruder's
-appearance costs several steps: it places the vehicles on their plans and draws the spawn).
+:meth:`BatchedStep.batch_step` (of this env and of :class:`VehicleGymnaxEnv`, the ego vehicle's view) is
+``jax.vmap(env.step)`` over a batch of envs (the same transitions, floats to their last bits) for trainers: it
+computes the resets of the envs that ended only, where gymnax's ``step`` under ``vmap`` computes every env's reset
+at every step (a reset costs several steps: the intruder's places the vehicles on their plans and draws the spawn;
+the ego vehicle's flies a whole intruder episode).
 
 Needs the ``jax-rl`` extra (``pip install 'stp-env[jax-rl]'``: gymnax, which brings flax).
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -44,7 +47,54 @@ OBS_BOUND = 2.0
 """Every entry of an intruder observation is in ``[-2, 2]`` (:mod:`stp_env.baselines.observations`)."""
 
 
-class IntruderGymnaxEnv(environment.Environment):
+RESET_SHARE = 8
+"""The resets of a batch of ``n`` envs are computed ``ceil(n / RESET_SHARE)`` at a time, for the envs that ended."""
+
+
+class BatchedStep:
+    """What trainers call on a batch of a gymnax env's envs (a mixin of this module's environments)."""
+
+    def batch_step(self, keys, states: EnvState, actions, params: EnvParams | None = None):
+        """``jax.vmap(self.step, in_axes=(0, 0, 0, None))(keys, states, actions, params)``, with the resets computed
+        for the envs that ended only (in chunks of ``ceil(n / RESET_SHARE)``, as many chunks as it takes; none in a
+        step where no env ended), where gymnax's ``step`` under ``vmap`` computes every env's reset at every step;
+        the batch is shared among the devices of JAX's default backend (:func:`stp_env.sim.engine.across_devices`).
+        The same transitions, ends and resets (each env's reset from its own key); being another compiled program,
+        floats may differ in their last bits (``docs/numerics.md``). Jittable; call it inside the trainer's compiled
+        program."""
+        params = self._params if params is None else params
+        return engine.across_devices(lambda batch, p: self._batch_step(*batch, p), (keys, states, actions),
+                                     shared=params)
+
+    def _batch_step(self, keys, states, actions, params):
+        split = jax.vmap(jax.random.split)(keys)
+        obs_st, st, reward, terminated, info = jax.vmap(self.step_env, in_axes=(0, 0, 0, None))(
+            split[:, 0], states, actions, params)
+        truncated = jax.vmap(self.is_truncated, in_axes=(0, None))(st, params)
+        done = terminated | truncated
+        n = done.shape[0]
+        chunk = -(-n // RESET_SHARE)
+        # the ended envs' indices first, then n (no env), padded so that every chunk's slice is in range
+        ended = jnp.concatenate([jnp.nonzero(done, size=n, fill_value=n)[0], jnp.full((chunk,), n)])
+        reset_keys = split[:, 1]
+
+        def reset_chunk(carry):
+            first, obs, st = carry
+            idx = jax.lax.dynamic_slice(ended, (first,), (chunk,))
+            obs_re, st_re = jax.vmap(self.reset_env, in_axes=(0, None))(reset_keys[jnp.minimum(idx, n - 1)], params)
+
+            def put(a, b):  # index n is out of range: dropped
+                return a.at[idx].set(b, mode="drop")
+
+            return first + chunk, put(obs, obs_re), jax.tree.map(put, st, st_re)
+
+        _, obs, st_out = jax.lax.while_loop(lambda c: c[0] < jnp.sum(done), reset_chunk,
+                                            (jnp.zeros((), jnp.int32), obs_st, st))
+        info = {**info, "terminated": terminated, "truncated": truncated, "final_observation": obs_st}
+        return obs, st_out, reward, terminated, truncated, info
+
+
+class IntruderGymnaxEnv(BatchedStep, environment.Environment):
     """The intruder's gymnax environment (see the module docstring).
 
     Args:
@@ -107,33 +157,84 @@ class IntruderGymnaxEnv(environment.Environment):
     def is_truncated(self, state: EnvState, params: EnvParams):
         return F.episode_end(state, params, self.horizon)[1]
 
-    # ------------------------------------------------------------------------------------------- for trainers
-    def batch_step(self, keys, states: EnvState, actions, params: EnvParams | None = None):
-        """``jax.vmap(self.step, in_axes=(0, 0, 0, None))(keys, states, actions, params)``, with each env's reset
-        computed only in a step where some env of the batch ended; the batch is shared among the devices of JAX's
-        default backend (:func:`stp_env.sim.engine.across_devices`). The same transitions, ends and resets; being
-        another compiled program, floats may differ in their last bits (``docs/numerics.md``). Jittable; call it
-        inside the trainer's compiled program."""
-        params = self._params if params is None else params
-        return engine.across_devices(lambda batch, p: self._batch_step(*batch, p), (keys, states, actions),
-                                     shared=params)
 
-    def _batch_step(self, keys, states, actions, params):
-        split = jax.vmap(jax.random.split)(keys)
-        obs_st, st, reward, terminated, info = jax.vmap(self.step_env, in_axes=(0, 0, 0, None))(
-            split[:, 0], states, actions, params)
-        truncated = jax.vmap(self.is_truncated, in_axes=(0, None))(st, params)
-        done = terminated | truncated
+# ------------------------------------------------------------------------------------------------ the ego vehicle
+class EgoState(NamedTuple):
+    """The ego vehicle env's state: the core's state and which vehicle is the ego (-1: none was forced)."""
 
-        def with_resets(operand):
-            obs, st = operand
-            obs_re, st_re = jax.vmap(self.reset_env, in_axes=(0, None))(split[:, 1], params)
+    sim: EnvState
+    ego: jax.Array
 
-            def pick(a, b):
-                return jnp.where(done.reshape(done.shape + (1,) * (a.ndim - 1)), a, b)
 
-            return pick(obs_re, obs), jax.tree.map(pick, st_re, st)
+class VehicleGymnaxEnv(BatchedStep, environment.Environment):
+    """The after-avoidance vehicle's view (:mod:`stp_env.rl.ego`, as SB3's ``EgoVehicleVecEnv``) as a gymnax
+    environment: a reset draws an intruder episode flown on ``u*`` until the intruder leaves and hands over the
+    vehicle forced first; the agent's action, held over the step, flies it through the HJ filters; the others fly
+    ``u*``. Reward, observation and ends as that module's (``info``: its :data:`~stp_env.rl.ego.STAT_NAMES`
+    and ``discount``).
 
-        obs, st_out = jax.lax.cond(jnp.any(done), with_resets, lambda operand: operand, (obs_st, st))
-        info = {**info, "terminated": terminated, "truncated": truncated, "final_observation": obs_st}
-        return obs, st_out, reward, terminated, truncated, info
+    Args:
+        params: the core's parameters with the episode to the vehicles' targets
+            (:func:`stp_env.rl.ego.ego_params`).
+        intruder: a jittable intruder policy ``(key, state, params) -> (2,)`` (a learned one:
+            :func:`stp_env.baselines.learned.mlp_intruder`).
+        energy: weight of the energy term per second at full speed; late_limit: seconds after the ego's STA at
+            which its episode is truncated.
+    """
+
+    def __init__(self, params: EnvParams, intruder, *, energy: float = 0.002, late_limit: float = 60.0):
+        super().__init__()
+        from stp_env.rl import ego as V
+
+        if not isinstance(params, EnvParams):
+            raise ValueError(f"params must be the core's EnvParams; got {type(params).__name__}.")
+        for name, value in (("energy", energy), ("late_limit", late_limit)):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < float("inf"):
+                raise ValueError(f"{name} must be a finite number >= 0; got {value!r}.")
+        self._v = V
+        self._params = V.check_params(params)
+        self.intruder = intruder
+        self.energy, self.late_limit = float(energy), float(late_limit)
+        from stp_env.sim import core
+
+        self._obs_size = core.vehicle_observation_size(params)
+
+    @property
+    def default_params(self) -> EnvParams:
+        return self._params
+
+    @property
+    def name(self) -> str:
+        return "stp-env/EgoVehicle"
+
+    @property
+    def num_actions(self) -> int:
+        return 2
+
+    def action_space(self, params: EnvParams | None = None) -> spaces.Box:
+        return spaces.Box(-1.0, 1.0, (2,), jnp.float32)
+
+    def observation_space(self, params: EnvParams | None = None) -> spaces.Box:
+        return spaces.Box(-OBS_BOUND, OBS_BOUND, (self._obs_size,), jnp.float32)
+
+    def reset_env(self, key, params: EnvParams):
+        state, ego = self._v.ego_reset(key, params, self.intruder)
+        state = EgoState(state, ego)
+        return self.get_obs(state, params), state
+
+    def step_env(self, key, state: EgoState, action, params: EnvParams):
+        sim_state, reward = self._v.ego_step(key, state.sim, state.ego, action, params, self.energy)
+        state = EgoState(sim_state, state.ego)
+        terminated, _ = self._v.ego_done(sim_state, state.ego, params, self.late_limit)
+        info = {**self._v.ego_stats(sim_state, state.ego, params),
+                "discount": jnp.where(terminated, 0.0, 1.0).astype(jnp.float32)}
+        return self.get_obs(state, params), state, reward.astype(jnp.float32), terminated, info
+
+    def get_obs(self, state: EgoState, params: EnvParams | None = None, key=None):
+        return self._v.ego_obs(state.sim, state.ego, self._params if params is None else params)
+
+    def is_terminated(self, state: EgoState, params: EnvParams):
+        return self._v.ego_done(state.sim, state.ego, params, self.late_limit)[0]
+
+    def is_truncated(self, state: EgoState, params: EnvParams):
+        return self._v.ego_done(state.sim, state.ego, params, self.late_limit)[1]

@@ -26,10 +26,13 @@ Same configuration, same machine and device count: the same run.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import hashlib
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -207,69 +210,86 @@ def export_policy(policy, path, config: TrainConfig, kbar: int, extra: dict) -> 
         "requested_timesteps": config.total_timesteps, **extra})
 
 
-def train_jax(config: TrainConfig, *, params=None, resume: bool = False, progress: bool | None = None):
-    """Train (module docstring). ``params``: prebuilt core parameters (tests). Returns ``(policy, eval_history)``
-    with ``policy`` the final policy's parameters (:mod:`stp_env.rl.jax_ppo`)."""
+@dataclasses.dataclass(frozen=True)
+class PPORun:
+    """One training run of :mod:`stp_env.rl.jax_ppo` and what it writes (:func:`run_ppo`): the intruder's
+    (:func:`train_jax`) and a vehicle's (:mod:`stp_env.rl.self_play`) differ only in these fields.
+
+    ``evaluate(policy) -> dict``: the held-out evaluation's row; ``export(policy, path, extra)``: the policy file;
+    ``progress_fields(metrics, episodes) -> dict``: the role's columns of ``progress.csv``; ``postfix(row)``: what
+    the progress bar shows; ``stem``: the policy file's name (``OUT/<stem>.npz``, ``checkpoints/<stem>_<steps>.npz``);
+    ``initial_policy``: the policy to start from (``None``: a fresh network); ``curves(history, out)``: the figure."""
+
+    env: Any
+    env_params: Any
+    settings: jax_ppo.PPOSettings
+    net_arch: tuple
+    log_std_init: float
+    seed: int
+    out: Path
+    requested_timesteps: int
+    eval_every: int
+    checkpoint_every: int
+    fingerprint: str
+    stat_names: tuple
+    evaluate: Callable
+    export: Callable
+    progress_fields: Callable
+    postfix: Callable
+    label: str
+    stem: str
+    kbar: int | None = None
+    initial_policy: Any = None
+    curves: Callable | None = None
+
+
+def run_ppo(r: PPORun, *, resume: bool = False, show: bool = False):
+    """Train (the module docstring's loop and outputs). Returns ``(policy, eval_history)``."""
+    from tqdm.auto import tqdm
+
     from stp_env import progress as progress_lib
 
-    if config.trainer != "jax":
-        raise ValueError(f"train_jax needs trainer='jax'; got {config.trainer!r}.")
-    show = progress_lib.enabled(progress)
-    out = Path(config.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    if params is None:
-        params = build_params(config, progress=show)
-    kbar = int(params.intruder.kbar)
-    env = make_env(config, params)
-    settings = jax_ppo.PPOSettings.of(config)
-    fp = fingerprint(config)
-    write_text(json.dumps({**config.to_json(), "devices": engine.shares(config.n_envs), "fingerprint": fp},
-                          indent=2), out / "config.json")
-
-    runner = jax_ppo.init_runner(jax.random.PRNGKey(config.seed), env, params, settings, config.net_arch,
-                                 config.log_std_init)
-    iteration, start_steps = 0, 0
-    ckpt = out / "checkpoints" / RUNNER_FILE
+    s = r.settings
+    r.out.mkdir(parents=True, exist_ok=True)
+    runner = jax_ppo.init_runner(jax.random.PRNGKey(r.seed), r.env, r.env_params, s, r.net_arch, r.log_std_init)
+    if r.initial_policy is not None:
+        runner = runner._replace(policy=r.initial_policy, opt_state=jax_ppo.optimizer(s).init(r.initial_policy))
+    iteration, start_steps, meta = 0, 0, None
+    ckpt = r.out / "checkpoints" / RUNNER_FILE
     if resume and ckpt.exists():
         try:
-            runner, meta = load_runner(ckpt, runner, fp)
+            runner, meta = load_runner(ckpt, runner, r.fingerprint)
         except ValueError as err:
-            progress_lib.note(f"train-intruder: not resumed: {err}; starting afresh", True)
+            progress_lib.note(f"{r.label}: not resumed: {err}; starting afresh", True)
         else:
             iteration, start_steps = meta["iteration"], meta["timesteps"]
-            progress_lib.note(f"train-intruder: resuming from {ckpt} at {start_steps} steps", show)
-    logs = {"progress": [], "evaluations": []} if iteration == 0 else meta["logs"]
+            progress_lib.note(f"{r.label}: resuming from {ckpt} at {start_steps} steps", show)
+    logs = meta["logs"] if iteration else {"progress": [], "evaluations": []}
     for name, rows in logs.items():  # the logs as of the checkpoint (a fresh run: none)
-        _rewrite_csv(out / f"{name}.csv", rows)
+        _rewrite_csv(r.out / f"{name}.csv", rows)
     history = logs["evaluations"]
-
-    step_fn, runner = jax_ppo.compile_iteration(jax_ppo.make_iteration(env, settings, STAT_NAMES, kbar=kbar),
-                                                runner, config.n_envs)
-    whole = jax_ppo.replicated(config.n_envs)
-    env_params = params if whole is None else jax.device_put(params, whole)
-    evaluator = make_evaluator(env, STAT_NAMES)
-    eval_keys = held_out_keys(config.eval_seed, config.eval_episodes, episode_steps(config, params))
+    step_fn, runner = jax_ppo.compile_iteration(jax_ppo.make_iteration(r.env, s, r.stat_names, kbar=r.kbar),
+                                                runner, s.n_envs)
+    whole = jax_ppo.replicated(s.n_envs)
+    env_params = r.env_params if whole is None else jax.device_put(r.env_params, whole)
 
     def evaluate(policy, steps: int) -> dict:
         t0 = time.perf_counter()
-        result = {k: np.asarray(v) for k, v in evaluator(policy, params, *eval_keys).items()}
-        row = {"timesteps": steps, **summarize(result, kbar), "seconds": round(time.perf_counter() - t0, 2)}
+        row = {"timesteps": steps, **r.evaluate(policy), "seconds": round(time.perf_counter() - t0, 2)}
         row = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in row.items()}  # JSON for checkpoints
-        _append_csv(out / "evaluations.csv", row)
+        _append_csv(r.out / "evaluations.csv", row)
         history.append(row)
         return row
 
-    total = config.trained_timesteps
-    n_iterations = total // settings.rollout
-    if total != config.total_timesteps:
-        progress_lib.note(f"train-intruder: {config.total_timesteps} timesteps rounded up to {total}, whole rollouts "
-                          f"of n_envs x n_steps = {settings.rollout} steps", show)
-    next_eval = _next_multiple(start_steps, config.eval_every)
-    next_ckpt = _next_multiple(start_steps, config.checkpoint_every)
-    from tqdm.auto import tqdm
-
+    n_iterations = -(-r.requested_timesteps // s.rollout)
+    total = n_iterations * s.rollout
+    if total != r.requested_timesteps:
+        progress_lib.note(f"{r.label}: {r.requested_timesteps} timesteps rounded up to {total}, whole rollouts of "
+                          f"n_envs x n_steps = {s.rollout} steps", show)
+    next_eval = _next_multiple(start_steps, r.eval_every)
+    next_ckpt = _next_multiple(start_steps, r.checkpoint_every)
     bar = tqdm(total=total, initial=start_steps, unit="step", unit_scale=True, disable=not show,
-               desc="train-intruder (jax)", smoothing=0.1)
+               desc=f"{r.label} (jax)", smoothing=0.1)
     progress_lib.compiling_until_first_update(bar)
     train_start = time.perf_counter()
     train_seconds = 0.0
@@ -281,50 +301,90 @@ def train_jax(config: TrainConfig, *, params=None, resume: bool = False, progres
         seconds = time.perf_counter() - t0
         train_seconds += seconds
         iteration += 1
-        steps = iteration * settings.rollout
-        row = _progress_row(steps, seconds, settings.rollout, metrics, kbar)
-        _append_csv(out / "progress.csv", row)
+        steps = iteration * s.rollout
+        row = _progress_row(steps, seconds, s.rollout, metrics, r.progress_fields)
+        _append_csv(r.out / "progress.csv", row)
         logs["progress"].append(row)
-        bar.update(settings.rollout)
+        bar.update(s.rollout)
         if row["episodes"]:
-            shown = {"n_forced": row["mean_n_forced"], "reach_kbar": row["kbar_reached_rate"]}
+            shown = r.postfix(row)
         bar.set_postfix(steps_per_s=row["steps_per_s"], **shown, refresh=False)
-        if config.eval_every and steps >= next_eval and iteration < n_iterations:
-            next_eval = _next_multiple(steps, config.eval_every)
+        if r.eval_every and steps >= next_eval and iteration < n_iterations:
+            next_eval = _next_multiple(steps, r.eval_every)
             evaluate(runner.policy, steps)
-        if config.checkpoint_every and steps >= next_ckpt:
-            next_ckpt = _next_multiple(steps, config.checkpoint_every)
-            save_runner(runner, ckpt, fingerprint_=fp, iteration=iteration, timesteps=steps, logs=logs)
-            export_policy(runner.policy, out / "checkpoints" / f"intruder_{steps}.npz", config, kbar,
-                          {"total_timesteps": steps})
+        if r.checkpoint_every and steps >= next_ckpt:
+            next_ckpt = _next_multiple(steps, r.checkpoint_every)
+            save_runner(runner, ckpt, fingerprint_=r.fingerprint, iteration=iteration, timesteps=steps, logs=logs)
+            r.export(runner.policy, r.out / "checkpoints" / f"{r.stem}_{steps}.npz", {"total_timesteps": steps})
     bar.close()
-    final = evaluate(runner.policy, n_iterations * settings.rollout)
+    final = evaluate(runner.policy, total)
     final["train_seconds"] = round(time.perf_counter() - train_start, 1)
-    export_policy(runner.policy, out / "intruder.npz", config, kbar, {
-        "total_timesteps": n_iterations * settings.rollout, "final_eval": dict(final),
-        "iteration_seconds": round(train_seconds, 1)})
-    learning_curves(history, out, kbar)
+    r.export(runner.policy, r.out / f"{r.stem}.npz", {"total_timesteps": total, "final_eval": dict(final),
+                                                      "iteration_seconds": round(train_seconds, 1)})
+    if r.curves is not None:
+        r.curves(history, r.out)
     return runner.policy, history
+
+
+def train_jax(config: TrainConfig, *, params=None, resume: bool = False, progress: bool | None = None,
+              initial_policy=None):
+    """Train an intruder (module docstring). ``params``: prebuilt core parameters (tests); ``initial_policy``: the
+    policy's parameters to start from (self-play's rounds; ``None``: a fresh network). Returns ``(policy,
+    eval_history)`` with ``policy`` the final policy's parameters (:mod:`stp_env.rl.jax_ppo`)."""
+    from stp_env import progress as progress_lib
+
+    if config.trainer != "jax":
+        raise ValueError(f"train_jax needs trainer='jax'; got {config.trainer!r}.")
+    show = progress_lib.enabled(progress)
+    out = Path(config.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    if params is None:
+        params = build_params(config, progress=show)
+    kbar = int(params.intruder.kbar)
+    env = make_env(config, params)
+    fp = fingerprint(config)
+    if initial_policy is not None:  # another start is another run
+        fp = hashlib.sha256((fp + _digest(_host_leaves(initial_policy), {})).encode()).hexdigest()[:20]
+    write_text(json.dumps({**config.to_json(), "devices": engine.shares(config.n_envs), "fingerprint": fp},
+                          indent=2), out / "config.json")
+    evaluator = make_evaluator(env, STAT_NAMES)
+    eval_keys = held_out_keys(config.eval_seed, config.eval_episodes, episode_steps(config, params))
+
+    def evaluate(policy):
+        return summarize({k: np.asarray(v) for k, v in evaluator(policy, params, *eval_keys).items()}, kbar)
+
+    def progress_fields(m, per_episode):
+        return {"mean_n_forced": per_episode("n_forced_sum"), "kbar_reached_rate": per_episode("kbar_reached"),
+                "kbar_exceeded": int(m["kbar_exceeded"]), "collisions": int(m["collisions_sum"]),
+                "guarantee_violations": int(m["guarantee_violations_sum"])}
+
+    run = PPORun(env=env, env_params=params, settings=jax_ppo.PPOSettings.of(config), net_arch=config.net_arch,
+                 log_std_init=config.log_std_init, seed=config.seed, out=out,
+                 requested_timesteps=config.total_timesteps, eval_every=config.eval_every,
+                 checkpoint_every=config.checkpoint_every, fingerprint=fp, stat_names=STAT_NAMES, kbar=kbar,
+                 evaluate=evaluate, export=lambda policy, path, extra: export_policy(policy, path, config, kbar, extra),
+                 progress_fields=progress_fields,
+                 postfix=lambda row: {"n_forced": row["mean_n_forced"], "reach_kbar": row["kbar_reached_rate"]},
+                 label="train-intruder", stem="intruder", initial_policy=initial_policy,
+                 curves=lambda history, out: learning_curves(history, out, kbar))
+    return run_ppo(run, resume=resume, show=show)
 
 
 def _next_multiple(steps: int, every: int) -> int:
     return (steps // every + 1) * every if every else 0
 
 
-def _progress_row(steps: int, seconds: float, rollout: int, m: dict, kbar: int) -> dict:
+def _progress_row(steps: int, seconds: float, rollout: int, m: dict, fields) -> dict:
     episodes = m["episodes"]
 
     def per_episode(name):
         return round(m[name] / episodes, 4) if episodes else float("nan")
 
     return {"timesteps": steps, "seconds": round(seconds, 3), "steps_per_s": round(rollout / seconds),
-            "episodes": int(episodes), "mean_return": per_episode("return_sum"),
-            "mean_n_forced": per_episode("n_forced_sum"),
-            "kbar_reached_rate": per_episode("kbar_reached"), "kbar_exceeded": int(m["kbar_exceeded"]),
-            "collisions": int(m["collisions_sum"]), "guarantee_violations": int(m["guarantee_violations_sum"]),
+            "episodes": int(episodes), "mean_return": per_episode("return_sum"), **fields(m, per_episode),
             **{k: round(m[k], 6) for k in ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction",
                                            "explained_variance", "std")}}
 
 
-__all__ = ["RESUMABLE_CHANGES", "episode_steps", "export_policy", "fingerprint", "held_out_keys", "load_runner",
-           "make_env", "save_runner", "train_jax"]
+__all__ = ["RESUMABLE_CHANGES", "PPORun", "episode_steps", "export_policy", "fingerprint", "held_out_keys",
+           "load_runner", "make_env", "run_ppo", "save_runner", "train_jax"]
