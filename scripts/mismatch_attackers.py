@@ -104,6 +104,8 @@ def main(argv=None) -> int:
     ap.add_argument("--episodes", type=int, default=512)
     ap.add_argument("--seed", type=int, default=20_240_601)
     ap.add_argument("--out", type=Path, default=Path("runs/mismatch-attackers"))
+    ap.add_argument("--intruders", nargs="+", choices=[*SCRIPTED, "learned"], default=None,
+                    help="evaluate: only these (default: the scripted ones and the learned one if trained)")
     args = ap.parse_args(argv)
     for plant in args.plants:
         config = config_for(plant, args.out, args.timesteps, args.n_envs)
@@ -122,6 +124,7 @@ def main(argv=None) -> int:
                               observation="game")
         learned = Path(config.out_dir) / "intruder.npz"
         names = [*SCRIPTED, *(["learned"] if learned.exists() else [])]
+        names = [n for n in names if args.intruders is None or n in args.intruders]
         for name in names:
             if (plant, name) in done:
                 continue

@@ -28,7 +28,7 @@ TRAIN_SEED_OFFSET = 1_000_000_000
 
 
 def build(intruder: str, kbar: int = 2):
-    from stp_env.rl.vehicle_env import ego_params
+    from stp_env.rl.ego import ego_params
 
     return ego_params("crossing", kbar, intruder, progress=True)
 
@@ -72,7 +72,7 @@ def train(args) -> None:
 
 def quick_eval(path, params, intruder, args) -> dict:
     from stp_env.baselines.learned_vehicles import load_vehicle_mlp
-    from stp_env.rl.vehicle_env import evaluate_ego
+    from stp_env.rl.ego import evaluate_ego
 
     r = evaluate_ego(params, intruder, "learned", mlp=load_vehicle_mlp(str(path)), episodes=args.eval_episodes,
                      seed=args.eval_seed, energy=args.energy)
@@ -96,7 +96,7 @@ def summarize(r: dict) -> dict:
 
 def evaluate(args) -> None:
     from stp_env.baselines.learned_vehicles import load_vehicle_mlp
-    from stp_env.rl.vehicle_env import evaluate_ego
+    from stp_env.rl.ego import evaluate_ego
 
     mlp = load_vehicle_mlp(args.policy)
     for name in args.intruder:
@@ -119,7 +119,7 @@ def ship(args) -> None:
     from stp_env.baselines.learned_vehicles import load_vehicle_mlp
     from stp_env.files import atomic_open
     from stp_env.loaders import read_npz
-    from stp_env.rl.vehicle_env import replay_check
+    from stp_env.rl.ego import replay_check
 
     if not args.name.replace("-", "").isalnum():
         raise SystemExit(f"the name is letters, digits and '-'; got {args.name!r}.")

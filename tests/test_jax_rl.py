@@ -280,8 +280,9 @@ def test_resume_continues_the_run_and_refuses_foreign_checkpoints(params, tmp_pa
 
 def test_vehicle_gymnax_env_steps_the_ego_episode():
     """The ego vehicle's gymnax view (town, the whole episode, the ``greedy`` intruder on a vehicle's avoid boundary):
-    a reset hands over the vehicle forced first (flying, after its avoidance) and gymnax's ``step`` flies it, with
-    the ego env's numbers in ``info`` (what the self-play's vehicle training reads)."""
+    a reset hands over the vehicle forced first (flying, after its avoidance) and a step flies it, with the ego
+    env's numbers in ``info`` (what the self-play's vehicle training reads). (gymnax's own ``step`` and wrappers
+    are run on the intruder's view above: the same base class.)"""
     from stp_env.rl import ego
     from stp_env.rl.gymnax_env import VehicleGymnaxEnv
 
@@ -292,8 +293,8 @@ def test_vehicle_gymnax_env_steps_the_ego_episode():
     assert obs.shape == env.observation_space(params).shape and bool(env.observation_space(params).contains(obs))
     e = int(state.ego)
     assert e >= 0 and int(state.sim.status[e]) == sim.FLYING and int(state.sim.mode[e]) == sim.AFTER_AVOIDANCE
-    obs, state2, reward, _, _, info = jax.jit(env.step)(key, state, jnp.asarray([0.3, -0.2]))
-    assert set(info) >= {*ego.STAT_NAMES, "discount", "final_observation"}
+    obs, state2, reward, _, info = jax.jit(env.step_env)(key, state, jnp.asarray([0.3, -0.2]), params)
+    assert set(info) >= {*ego.STAT_NAMES, "discount"}
     assert int(state2.ego) == e and float(state2.sim.t) > float(state.sim.t) and np.isfinite(float(reward))
 
 

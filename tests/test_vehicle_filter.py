@@ -135,7 +135,8 @@ def crossing():
 def test_ego_env_starts_after_the_avoidance_and_steps(crossing):
     """Every non-empty reset hands the agent a vehicle that was forced and is now after its avoidance, flying; the
     VecEnv steps with SB3's conventions; a window-only episode is refused (the ego could not reach its target)."""
-    from stp_env.rl.vehicle_env import STAT_NAMES, EgoVehicleVecEnv
+    from stp_env.rl.ego import STAT_NAMES
+    from stp_env.rl.vehicle_env import EgoVehicleVecEnv
 
     params, intruder = crossing
     env = EgoVehicleVecEnv(8, params, intruder)
@@ -160,7 +161,7 @@ def test_flying_faster_after_the_avoidance_arrives_earlier_on_the_same_episodes(
     """An independent check of the ego evaluation: on the same held-out episodes (same egos), the fallback at
     ``U``'s top speed arrives no later than ``u*``'s fallback at the planning speed, ego by ego, and is on time at
     least as often; nobody collides and no guarantee is violated."""
-    from stp_env.rl.vehicle_env import evaluate_ego
+    from stp_env.rl.ego import evaluate_ego
 
     params, intruder = crossing
     slow = evaluate_ego(params, intruder, "u*", episodes=16, seed=11, batch=16)
@@ -180,7 +181,7 @@ def test_shipped_vehicle_policies_fly_as_recorded():
     """Every shipped learned vehicle policy replays the small batch its file records (the ego's on-time arrivals
     and delays against ``max-k`` on the crossing): the same outcomes today."""
     from stp_env.baselines.learned_vehicles import shipped_vehicle_policies
-    from stp_env.rl.vehicle_env import replay_check
+    from stp_env.rl.ego import replay_check
 
     names = shipped_vehicle_policies()
     assert names

@@ -16,9 +16,9 @@ max-k bezier3 --episodes 1000 --seed 20240601``, vehicles on ``switching`` with 
 half-widths 0.031; 0.013 for ``bezier3``); at most 1 vehicle (k̄ = 2), no collision, no guarantee violation.
 ``"crossing-kbar2"`` and ``"pinwheel-kbar3"``: clones of ``optimal-max-k`` on the ``"game"`` observation
 (:mod:`stp_env.baselines.observations`) with PPO after them, as strong as the script on 5,000 held-out episodes each
-(model cards and the evaluation: ``docs/learned_intruders.md``); ``"crossing-kbar2-scratch"``: PPO in JAX from a
-random network (no clone), as strong as the script there too. Their files record a small check that
-``tests/test_learned_intruders.py`` replays.
+(model cards and the evaluation: ``docs/learned_intruders.md``); ``"crossing-kbar2-scratch"`` and
+``"pinwheel-kbar3-scratch"``: PPO in JAX from a random network (no clone): as strong as the script on the crossing,
+stronger on the pinwheel. Their files record a small check that ``tests/test_learned_intruders.py`` replays.
 
 A file records the observation set it was trained on (``metadata["observation"]``, ``"core"`` when absent) and the
 spawn mode it was trained with; :func:`load_intruder` returns an :class:`~stp_env.baselines.intruders.Intruder`

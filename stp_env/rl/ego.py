@@ -22,19 +22,24 @@ this env is one forced vehicle's flight from the intruder's departure to its tar
 * **Observation**: the ego's row of :func:`stp_env.sim.observe` (the vehicle observation every vehicle has), so a
   policy trained here runs for every vehicle of a fleet (``learned:NAME`` vehicle policies).
 
-The SB3 env and the evaluation of learned vehicle policies (:func:`stp_env.rl.vehicle_env.evaluate_ego`) are in
-:mod:`stp_env.rl.vehicle_env`.
+:func:`evaluate_ego` flies the same episodes (same keys) with the ego on ``u*``, on a learned MLP, or on the fallback
+at the full speed of ``U`` (a hand-made comparator: what the learned policy is measured against besides ``u*``), in
+one compiled program per policy. The SB3 ``VecEnv`` is :mod:`stp_env.rl.vehicle_env`'s.
 """
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from stp_env.baselines.vehicles import fallback_control, hj_filter, switching
 from stp_env.rl import functional as F
-from stp_env.sim import core
+from stp_env.sim import core, engine
 from stp_env.sim.bounds import V_MAX
+from stp_env.sim.jit import sim_jit
 from stp_env.sim.physics import action_to_control
 from stp_env.sim.types import AFTER_AVOIDANCE, ARRIVED, COLLIDED, FLYING, PRESENT, EnvParams
 
@@ -42,6 +47,11 @@ MAX_DRAWS = 8
 """Intruder episodes drawn per reset until one forces a vehicle."""
 MAX_WINDOW_STEPS = 10_000
 """Upper bound on the steps flown while the intruder is present (``t_IAT / dt`` is far below it)."""
+EGO_POLICIES = ("u*", "learned", "fallback-vmax")
+"""What :func:`evaluate_ego` flies the ego with: ``u*`` (the fallback at the planning speed, at every inner step),
+a learned MLP (its action held over the step, as in training), or the fallback at ``U``'s top speed."""
+
+
 def check_params(params: EnvParams) -> EnvParams:
     """``params`` if its episode reaches every vehicle's STA (an ego flies to its target), else ``ValueError``."""
     if float(params.episode.t_end) < float(jnp.max(params.vehicles.sta)):
@@ -180,3 +190,81 @@ def ego_params(scenario: str = "crossing", kbar: int = 2, intruder: str = "learn
     if capabilities(intruder).needs_buffer:
         params = assembly.with_buffer(params, assembly.load_buffer(spec, kbar, progress=progress))
     return params, resolve_intruder(intruder)
+
+
+# ------------------------------------------------------------------------------------------------ evaluation
+@functools.partial(sim_jit, static_argnames=("intruder", "kind", "max_steps"))
+def _evaluate(keys, params: EnvParams, intruder, kind: str, weights, energy, late_limit, max_steps: int):
+    def one(key):
+        k_reset, k_run = jax.random.split(key)
+        s, ego = ego_reset(k_reset, params, intruder)
+        n = params.vehicles.n
+
+        def law_for(s):
+            if kind == "u*":
+                return switching
+            if kind == "fallback-vmax":
+                return ego_law(ego, fallback_vmax)
+            h = ego_obs(s, ego, params)
+            for w, b in weights[:-1]:
+                h = jnp.tanh(h @ w.T + b)
+            a = jnp.clip(h @ weights[-1][0].T + weights[-1][1], -1.0, 1.0)
+            return ego_law(ego, held(a, n))
+
+        def cond(carry):
+            s, _, i, _ = carry
+            term, trunc = ego_done(s, ego, params, late_limit)
+            return ~(term | trunc) & (i < max_steps)
+
+        def body(carry):
+            s, k, i, spent = carry
+            k, k_s = jax.random.split(k)
+            law = law_for(s)
+            e = jnp.maximum(ego, 0)
+            s2, _ = core.step(k_s, s, jnp.zeros((n + 1, 2), s.x.dtype), params, vehicle_policy=law)
+            # energy of the ego's applied speed over the step (its distance flown, to first order)
+            v = jnp.hypot(*(s2.x[e, :2] - s.x[e, :2])) / params.episode.dt
+            spent = spent + jnp.where(s.status[e] == FLYING, (v / params.vehicles.bounds[V_MAX]) ** 2, 0.0)
+            return s2, k, i + 1, spent
+
+        s, _, _, spent = jax.lax.while_loop(cond, body, (s, k_run, jnp.asarray(0, jnp.int32),
+                                                         jnp.asarray(0.0, jnp.float32)))
+        stats = ego_stats(s, ego, params)
+        stats["energy"] = spent * params.episode.dt
+        return stats
+
+    return engine.vmap_across_devices(one)(keys)
+
+
+def evaluate_ego(params: EnvParams, intruder, kind: str = "u*", *, mlp=None, episodes: int = 256, seed: int = 0,
+                 batch: int = 64, energy: float = 0.002, late_limit: float = 60.0, max_steps: int = 20_000):
+    """The ego's outcomes over ``episodes`` held-out episodes (keys ``seed, seed + 1, ...``, the same for every
+    ``kind``): a dict of arrays (``STAT_NAMES`` and ``energy``: the integral of ``(v / v_max)^2`` over the ego's
+    flight [s], its speed from its motion). ``kind``: one of :data:`EGO_POLICIES`; ``mlp``: the learned policy's
+    :class:`stp_env.baselines.learned.MLPIntruder` for ``"learned"`` (tanh layers)."""
+    if kind not in EGO_POLICIES:
+        raise ValueError(f"kind {kind!r} is not known; allowed: {', '.join(EGO_POLICIES)}.")
+    check_params(params)
+    if (kind == "learned") != (mlp is not None):
+        raise ValueError("pass mlp exactly when kind is 'learned'.")
+    if mlp is not None and mlp.activation != "tanh":
+        raise ValueError("evaluate_ego flies tanh MLPs (SB3's default).")
+    weights = (tuple((jnp.asarray(w), jnp.asarray(b)) for w, b in (*mlp.hidden, mlp.action))
+               if mlp is not None else ((jnp.zeros((2, 1)), jnp.zeros(2)),))
+    out = []
+    for start in range(0, episodes, batch):
+        count = min(batch, episodes - start)
+        keys = jnp.stack([F.key_for_seed(seed + start + i) for i in range(count)])
+        out.append(jax.device_get(_evaluate(keys, params, intruder, kind, weights, energy, late_limit, max_steps)))
+    return {k: np.concatenate([np.asarray(o[k]) for o in out]) for k in out[0]}
+
+
+def replay_check(mlp, check: dict) -> dict:
+    """The ego's outcomes with the learned ``mlp`` on ``check``'s episodes (``scenario``, ``kbar``, ``intruder``,
+    ``episodes``, ``seed``): on time and arrived per episode, and the delays [s] (``None`` where it did not arrive).
+    A shipped vehicle policy records them (``scripts/train_vehicle_policy.py ship``); the tests replay them."""
+    params, intruder = ego_params(check.get("scenario", "crossing"), check.get("kbar", 2), check["intruder"])
+    r = evaluate_ego(params, intruder, "learned", mlp=mlp, episodes=check["episodes"], seed=check["seed"],
+                     batch=check["episodes"])
+    return {"on_time": [bool(v) for v in r["on_time"]], "arrived": [bool(v) for v in r["arrived"]],
+            "delay_s": [round(float(v), 2) if np.isfinite(v) else None for v in r["delay"]]}

@@ -275,7 +275,9 @@ def run_ppo(r: PPORun, *, resume: bool = False, show: bool = False):
 
     def evaluate(policy, steps: int) -> dict:
         t0 = time.perf_counter()
-        row = {"timesteps": steps, **r.evaluate(policy), "seconds": round(time.perf_counter() - t0, 2)}
+        with progress_lib.phase(f"{r.label}: the held-out evaluation at {steps} steps", show):
+            result = r.evaluate(policy)
+        row = {"timesteps": steps, **result, "seconds": round(time.perf_counter() - t0, 2)}
         row = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in row.items()}  # JSON for checkpoints
         _append_csv(r.out / "evaluations.csv", row)
         history.append(row)

@@ -13,9 +13,11 @@ Round ``r`` (``1 .. rounds``) of :func:`self_play`:
    intruder, from round ``r - 1``'s vehicle policy (round 1: a fresh network). The trained network flies every
    vehicle of the fleet (``learned:PATH``, parameter sharing).
 3. **Evaluation**: ``stp-env evaluate``'s library on ``eval_episodes`` episodes (seed ``eval_seed``, the same
-   episodes every round) of the pair (intruder ``r``, vehicles ``r``), beside the scripted pair
-   (``optimal-max-k`` against ``u*``), once: episodes reaching k̄, above k̄, collisions, guarantee violations,
-   on-time arrivals of the due vehicles.
+   episodes every round) of the pair (intruder ``r``, vehicles ``r``), of each learned side against the other's
+   script, and of the scripted pair (``optimal-max-k`` against ``u*``) once: episodes reaching k̄, above k̄,
+   collisions, guarantee violations, on-time arrivals of the vehicles due in the window; and the vehicle forced
+   first, after its avoidance, flying the learned policy and ``u*`` on the same :data:`FORCED_EPISODES` episodes
+   against the round's intruder (:func:`evaluate_forced`): on time, collided.
 
 Everything lands in ``out_dir``: ``round-R/intruder/`` and ``round-R/vehicle/`` (each a training run's folder,
 ``intruder.npz`` / ``vehicle.npz``), ``rounds.jsonl`` (one line per evaluated pair) and ``self_play.md`` (the
@@ -123,14 +125,15 @@ def train_vehicles(config: SelfPlayConfig, round_: int, intruder_path: Path, *, 
     from stp_env.baselines.learned import write_mlp
     from stp_env.rl.ego import ego_params
     from stp_env.rl.gymnax_env import VehicleGymnaxEnv
-    from stp_env.sim import steps_for
 
     out = Path(config.out_dir) / f"round-{round_}" / "vehicle"
     params, intruder = ego_params(config.scenario, config.kbar, f"learned:{intruder_path}", progress=show)
     env = VehicleGymnaxEnv(params, intruder, energy=config.energy, late_limit=config.late_limit)
     settings = _vehicle_settings(config)
     evaluator = make_evaluator(env, EGO_STATS)
-    eval_keys = held_out_keys(1_000_000_000, 256, steps_for(params))
+    # an ego episode starts when the intruder appears and ends by the episode's end: at most this many steps
+    ego_steps = int(np.ceil(float((params.episode.t_end - params.intruder.appear_window[0]) / params.episode.dt)))
+    eval_keys = held_out_keys(1_000_000_000, 128, ego_steps + 1)
 
     def evaluate(policy):
         r = {k: np.asarray(v) for k, v in evaluator(policy, params, *eval_keys).items()}
@@ -193,6 +196,34 @@ def evaluate_pair(config: SelfPlayConfig, intruder: str, vehicles: str, label: s
     return {"pair": label, "intruder": intruder, "vehicles": vehicles, **{k: s.get(k) for k in keep}}
 
 
+FORCED_EPISODES = 256
+FORCED_SEED = 2_000_000_000
+"""The forced vehicle's held-out episodes (:func:`evaluate_forced`): keys of seeds from here, disjoint from the
+vehicle runs' own (their keys come from ``jax.random.PRNGKey(seed + 1000 + round)``)."""
+
+
+def evaluate_forced(config: SelfPlayConfig, intruder_path: Path, vehicle_path: str, *, show: bool = False) -> dict:
+    """The vehicle forced first, after its avoidance (:func:`stp_env.rl.ego.evaluate_ego`), on the same
+    :data:`FORCED_EPISODES` episodes against the round's intruder: flying the learned policy and flying ``u*``."""
+    from stp_env.baselines.learned_vehicles import load_vehicle_mlp
+    from stp_env.progress import phase
+    from stp_env.rl.ego import ego_params, evaluate_ego
+
+    params, intruder = ego_params(config.scenario, config.kbar, f"learned:{intruder_path}", progress=show)
+    out = {}
+    with phase(f"the forced vehicle's flight on {FORCED_EPISODES} episodes, learned and u*", show):
+        for name, kind, mlp in (("ego", "learned", load_vehicle_mlp(vehicle_path)), ("ego_u_star", "u*", None)):
+            r = evaluate_ego(params, intruder, kind, mlp=mlp, episodes=FORCED_EPISODES, seed=FORCED_SEED,
+                             energy=config.energy, late_limit=config.late_limit)
+            flown = ~np.asarray(r["empty"], bool)
+            n = max(int(flown.sum()), 1)
+            out.update({f"{name}_episodes": int(flown.sum()),
+                        f"{name}_on_time_rate": float(r["on_time"][flown].sum() / n),
+                        f"{name}_collisions": int(r["ego_collided"][flown].sum()),
+                        f"{name}_guarantee_violations": int(np.sum(r["guarantee_violations"]))})
+    return out
+
+
 def _intruder_start_policy(config: SelfPlayConfig, params):
     """Round 1's intruder: ``intruder_start``'s actor with a fresh critic, or ``None`` (a fresh network)."""
     if config.intruder_start is None:
@@ -235,7 +266,8 @@ def self_play(config: SelfPlayConfig, *, progress: bool | None = None) -> list[d
         vehicle_policy, _ = train_vehicles(config, r, intruder_path, initial_policy=vehicle_policy, show=show)
         vehicles = f"learned:{Path(config.out_dir) / f'round-{r}' / 'vehicle' / 'vehicle.npz'}"
         intruder = f"learned:{intruder_path}"
-        rows.append(evaluate_pair(config, intruder, vehicles, f"round {r}: learned vs learned", show=show))
+        rows.append({**evaluate_pair(config, intruder, vehicles, f"round {r}: learned vs learned", show=show),
+                     **evaluate_forced(config, intruder_path, vehicles[len("learned:"):], show=show)})
         rows.append(evaluate_pair(config, intruder, "switching", f"round {r}: learned intruder vs u*", show=show))
         rows.append(evaluate_pair(config, "optimal-max-k", vehicles, f"round {r}: optimal-max-k vs learned",
                                   show=show))
@@ -247,11 +279,15 @@ def _write(out: Path, rows: list[dict]) -> None:
     with atomic_open(out / "rounds.jsonl", "w") as fh:
         fh.write("".join(json.dumps(r, default=float) + "\n" for r in rows))
     lines = ["| pair | mean \\|N^RP\\| | episodes reaching k̄ | above k̄ | collisions | guarantee violations | "
-             "on-time arrivals (due vehicles) |", "|---|---|---|---|---|---|---|"]
+             "on-time arrivals (due vehicles) | the forced vehicle after avoiding: on time, collided |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         on_time = "n/a" if r["on_time_rate"] is None else f"{100 * r['on_time_rate']:.1f} % of {r['due']}"
+        ego = (f"learned {100 * r['ego_on_time_rate']:.1f} %, {r['ego_collisions']}; u* "
+               f"{100 * r['ego_u_star_on_time_rate']:.1f} %, {r['ego_u_star_collisions']} (of {r['ego_episodes']})"
+               if "ego_on_time_rate" in r else "")
         lines.append(f"| {r['pair']} | {r['forced_mean']:.3f} | {r['kbar_reached']} / {r['episodes']} | "
-                     f"{r['exceed']} | {r['collisions']} | {r['guarantee_violations']} | {on_time} |")
+                     f"{r['exceed']} | {r['collisions']} | {r['guarantee_violations']} | {on_time} | {ego} |")
     write_text("\n".join(lines) + "\n", out / "self_play.md")
 
 
@@ -270,8 +306,8 @@ def main(argv=None) -> int:
 
     set_cpu_devices(args.pop("cpu_devices") or available_cores())
     rows = self_play(SelfPlayConfig(**args))
-    print((Path(args["out_dir"]) / "self_play.md").read_text())
-    return 0 if rows else 1
+    print(json.dumps({"pairs": len(rows), "table": str(Path(args["out_dir"]) / "self_play.md")}))
+    return 0
 
 
 if __name__ == "__main__":
