@@ -336,3 +336,23 @@ def test_the_update_shared_among_two_devices_is_the_update_on_one():
     np.testing.assert_allclose(np.asarray(one["obs"]), np.asarray(two["obs"]), rtol=1e-4, atol=1e-5)
     for a, b in zip(one["policy"], two["policy"], strict=True):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-6)
+
+
+def test_train_intruder_trainer_jax_on_the_command_line(tmp_path):
+    """``stp-env train-intruder --trainer jax`` with the training tests' settings (their compiled programs): the run's
+    files, the last evaluation on standard output, and ``--resume`` refused for SB3 runs."""
+    from _cli import run_cli
+
+    out = tmp_path / "run"
+    code, stdout, err = run_cli(["train-intruder", "--trainer", "jax", "--scenario", "town", "--timesteps",
+                                 str(ROLLOUT), "--n-envs", "64", "--n-steps", "64", "--minibatch-size", "1024",
+                                 "--eval-every", "0", "--eval-episodes", "256", "--checkpoint-every", "0",
+                                 "--out", str(out)])
+    assert code == 0, err
+    last = json.loads(stdout.strip().splitlines()[-1])
+    assert last["episodes"] == 256 and last["out"] == str(out)
+    for name in ("config.json", "progress.csv", "evaluations.csv", "intruder.npz", "learning_curves.png"):
+        assert (out / name).is_file(), name
+    assert json.loads((out / "config.json").read_text())["trainer"] == "jax"
+    code, _, err = run_cli(["train-intruder", "--resume", "--out", str(tmp_path / "sb3")])
+    assert code != 0 and "--resume" in err
