@@ -116,3 +116,16 @@ def save_figure(fig, path, **kwargs) -> Path:
     with atomic_open(path, "wb") as fh:
         fig.savefig(fh, format=path.suffix[1:].lower() or "png", **kwargs)
     return path
+
+
+def append_csv_row(path, row: dict) -> None:
+    """Append ``row`` to the csv file ``path`` (its keys are the columns; the header first when the file is new)."""
+    import csv
+
+    path = Path(path)
+    new = not path.exists()
+    with path.open("a", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(row))
+        if new:
+            writer.writeheader()
+        writer.writerow(row)

@@ -21,7 +21,7 @@ are the core's :class:`stp_env.sim.EnvParams` (``default_params`` the ones the e
   ``intruder_collisions``, ``guarantee_violations``, ``time``) and ``discount`` (0 at a termination), besides the
   three entries gymnax's ``step`` adds.
 
-:meth:`BatchedStep.batch_step` (of this env and of :class:`VehicleGymnaxEnv`, the ego vehicle's view) is
+:meth:`GameGymnaxEnv.batch_step` (of this env and of :class:`VehicleGymnaxEnv`, the ego vehicle's view) is
 ``jax.vmap(env.step)`` over a batch of envs (the same transitions, floats to their last bits) for trainers: it
 computes the resets of the envs that ended only, where gymnax's ``step`` under ``vmap`` computes every env's reset
 at every step (a reset costs several steps: the intruder's places the vehicles on their plans and draws the spawn;
@@ -51,8 +51,28 @@ RESET_SHARE = 8
 """The resets of a batch of ``n`` envs are computed ``ceil(n / RESET_SHARE)`` at a time, for the envs that ended."""
 
 
-class BatchedStep:
-    """What trainers call on a batch of a gymnax env's envs (a mixin of this module's environments)."""
+class GameGymnaxEnv(environment.Environment):
+    """What this module's environments share: their parameters (``default_params``), a ``Box(-1, 1, (2,))`` action
+    and a ``Box(-2, 2, (m,))`` observation (``m`` set by the subclass in ``_obs_size``), and the batched step
+    trainers call."""
+
+    _params: EnvParams
+    _obs_size: int
+
+    @property
+    def default_params(self) -> EnvParams:
+        return self._params
+
+    @property
+    def num_actions(self) -> int:
+        return 2
+
+    def action_space(self, params: EnvParams | None = None) -> spaces.Box:
+        """``Box(-1, 1, (2,))``: speed and turn rate, mapped linearly onto the agent's bounds."""
+        return spaces.Box(-1.0, 1.0, (2,), jnp.float32)
+
+    def observation_space(self, params: EnvParams | None = None) -> spaces.Box:
+        return spaces.Box(-OBS_BOUND, OBS_BOUND, (self._obs_size,), jnp.float32)
 
     def batch_step(self, keys, states: EnvState, actions, params: EnvParams | None = None):
         """``jax.vmap(self.step, in_axes=(0, 0, 0, None))(keys, states, actions, params)``, with the resets computed
@@ -94,7 +114,7 @@ class BatchedStep:
         return obs, st_out, reward, terminated, truncated, info
 
 
-class IntruderGymnaxEnv(BatchedStep, environment.Environment):
+class IntruderGymnaxEnv(GameGymnaxEnv):
     """The intruder's gymnax environment (see the module docstring).
 
     Args:
@@ -120,23 +140,8 @@ class IntruderGymnaxEnv(BatchedStep, environment.Environment):
         self._obs_size = observation_size(params, observation)  # reads V^B's presence: ValueError if missing
 
     @property
-    def default_params(self) -> EnvParams:
-        return self._params
-
-    @property
     def name(self) -> str:
         return "stp-env/Intruder"
-
-    @property
-    def num_actions(self) -> int:
-        return 2
-
-    def action_space(self, params: EnvParams | None = None) -> spaces.Box:
-        """``Box(-1, 1, (2,))``: speed and turn rate, mapped linearly onto the intruder's bounds."""
-        return spaces.Box(-1.0, 1.0, (2,), jnp.float32)
-
-    def observation_space(self, params: EnvParams | None = None) -> spaces.Box:
-        return spaces.Box(-OBS_BOUND, OBS_BOUND, (self._obs_size,), jnp.float32)
 
     def reset_env(self, key, params: EnvParams):
         state = F.reset_one(key, params, self.horizon)
@@ -166,7 +171,7 @@ class EgoState(NamedTuple):
     ego: jax.Array
 
 
-class VehicleGymnaxEnv(BatchedStep, environment.Environment):
+class VehicleGymnaxEnv(GameGymnaxEnv):
     """The after-avoidance vehicle's view (:mod:`stp_env.rl.ego`, as SB3's ``EgoVehicleVecEnv``) as a gymnax
     environment: a reset draws an intruder episode flown on ``u*`` until the intruder leaves and hands over the
     vehicle forced first; the agent's action, held over the step, flies it through the HJ filters; the others fly
@@ -200,22 +205,8 @@ class VehicleGymnaxEnv(BatchedStep, environment.Environment):
         self._obs_size = core.vehicle_observation_size(params)
 
     @property
-    def default_params(self) -> EnvParams:
-        return self._params
-
-    @property
     def name(self) -> str:
         return "stp-env/EgoVehicle"
-
-    @property
-    def num_actions(self) -> int:
-        return 2
-
-    def action_space(self, params: EnvParams | None = None) -> spaces.Box:
-        return spaces.Box(-1.0, 1.0, (2,), jnp.float32)
-
-    def observation_space(self, params: EnvParams | None = None) -> spaces.Box:
-        return spaces.Box(-OBS_BOUND, OBS_BOUND, (self._obs_size,), jnp.float32)
 
     def reset_env(self, key, params: EnvParams):
         state, ego = self._v.ego_reset(key, params, self.intruder)

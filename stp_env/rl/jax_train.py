@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env.files import atomic_open, write_text
+from stp_env.files import append_csv_row, atomic_open, write_text
 from stp_env.rl import functional as F
 from stp_env.rl import jax_ppo
 from stp_env.rl.train import TrainConfig, build_params, learning_curves, summarize
@@ -175,15 +175,6 @@ def load_runner(path: Path, template, fingerprint_: str):
 
 
 # ------------------------------------------------------------------------------------------------ the run
-def _append_csv(path: Path, row: dict) -> None:
-    new = not path.exists()
-    with path.open("a", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(row))
-        if new:
-            writer.writeheader()
-        writer.writerow(row)
-
-
 def _rewrite_csv(path: Path, rows: list[dict]) -> None:
     if not rows:
         path.unlink(missing_ok=True)
@@ -279,7 +270,7 @@ def run_ppo(r: PPORun, *, resume: bool = False, show: bool = False):
             result = r.evaluate(policy)
         row = {"timesteps": steps, **result, "seconds": round(time.perf_counter() - t0, 2)}
         row = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in row.items()}  # JSON for checkpoints
-        _append_csv(r.out / "evaluations.csv", row)
+        append_csv_row(r.out / "evaluations.csv", row)
         history.append(row)
         return row
 
@@ -305,7 +296,7 @@ def run_ppo(r: PPORun, *, resume: bool = False, show: bool = False):
         iteration += 1
         steps = iteration * s.rollout
         row = _progress_row(steps, seconds, s.rollout, metrics, r.progress_fields)
-        _append_csv(r.out / "progress.csv", row)
+        append_csv_row(r.out / "progress.csv", row)
         logs["progress"].append(row)
         bar.update(s.rollout)
         if row["episodes"]:

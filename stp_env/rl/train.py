@@ -23,7 +23,6 @@ policy inside the core, so only the intruder learns); ``docs/training.md`` says 
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import math
@@ -35,7 +34,7 @@ import numpy as np
 from stp_env import assembly, sim
 from stp_env.arguments import check_int, check_real
 from stp_env.evaluation.summary import forced_summary
-from stp_env.files import write_text
+from stp_env.files import append_csv_row, write_text
 from stp_env.rl.ppo import PPOConfig, make_model
 from stp_env.sim import engine
 from stp_env.sim.types import SPAWN_MODES
@@ -258,13 +257,7 @@ def _callbacks(config: TrainConfig, eval_env, out: Path, kbar: int):
             for key, value in row.items():
                 if key != "timesteps":
                     self.logger.record(f"eval/{key}", value)
-            path = out / "evaluations.csv"
-            new = not path.exists()
-            with path.open("a", newline="") as f:
-                writer = csv.DictWriter(f, fieldnames=list(row))
-                if new:
-                    writer.writeheader()
-                writer.writerow(row)
+            append_csv_row(out / "evaluations.csv", row)
             if row["mean_n_forced"] > self.best:
                 self.best = row["mean_n_forced"]
                 self.model.save(out / "best_model")
