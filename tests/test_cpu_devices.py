@@ -4,6 +4,8 @@ on two CPU devices keeps every episode's outcome."""
 
 from __future__ import annotations
 
+import ast
+import importlib.util
 import json
 import os
 import subprocess
@@ -194,25 +196,60 @@ def test_the_co_observation_attackers_vec_env_shares_its_batch():
     np.testing.assert_allclose(two["obs"], one["obs"], atol=1e-4)
 
 
+_COMPUTING_DEPENDENCIES = ("gymnax", "jaxmarl")
+"""Dependencies that make a JAX array at import themselves (gymnax 1.0's ``frozen_lake`` module; JaxMARL imports
+gymnax): a module of this package that imports one at its top starts the backend through it, and says so in its
+docstring (set the device count before importing it)."""
+
 _IMPORT_ALL = """
-import importlib, json, pkgutil
+import importlib, importlib.abc, json, pkgutil, sys
 import stp_env
 from stp_env.cpu_threads import _backend_started
-started = None
+blocked = tuple(sys.argv[1].split(","))
+
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in blocked:
+            raise ModuleNotFoundError(f"blocked: {name}", name=name)
+        return None
+
+sys.meta_path.insert(0, Block())
+started, needs = None, {}
 for m in pkgutil.walk_packages(stp_env.__path__, "stp_env."):
-    if not m.name.endswith("__main__"):
+    if m.name.endswith("__main__"):
+        continue
+    try:
         importlib.import_module(m.name)
-        if _backend_started():
-            started = m.name
-            break
-print(json.dumps({"started": started}))
+    except ModuleNotFoundError as e:
+        if (e.name or "").split(".")[0] not in blocked:
+            raise
+        needs[m.name] = e.name.split(".")[0]
+        continue
+    if _backend_started():
+        started = m.name
+        break
+print(json.dumps({"started": started, "needs": needs}))
+"""
+
+_IMPORT_ONE = """
+import importlib, json, sys
+from stp_env.cpu_threads import _backend_started
+importlib.import_module(sys.argv[1])
+print(json.dumps({"started": _backend_started()}))
 """
 
 
 def test_importing_any_module_leaves_the_backend_unstarted():
     """The device count and the thread pools are fixed by JAX's first computation: no module may compute at import
-    (a JAX constant made at module level did), or they could not be set after ``import stp_env.evaluation``."""
-    assert _run(_IMPORT_ALL)["started"] is None
+    (a JAX constant made at module level did), or they could not be set after ``import stp_env.evaluation``. The
+    modules that import a dependency which computes at import itself are checked without it, and the dependency is
+    checked to compute (when it stops, this test says so, and the modules' docstrings should drop their warning)."""
+    got = _run(_IMPORT_ALL, ",".join(_COMPUTING_DEPENDENCIES))
+    assert got["started"] is None
+    for module, dependency in got["needs"].items():
+        assert _run(_IMPORT_ONE, dependency)["started"], f"{dependency} no longer computes at import ({module})"
+        doc = ast.get_docstring(ast.parse(open(importlib.util.find_spec(module).origin).read()))
+        assert "set_cpu_devices" in doc and dependency in doc, f"{module} does not say it starts JAX's backend"
 
 
 _EVALUATE = """

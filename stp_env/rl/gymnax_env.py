@@ -28,6 +28,8 @@ at every step (a reset costs several steps: the intruder's places the vehicles o
 the ego vehicle's flies a whole intruder episode).
 
 Needs the ``jax-rl`` extra (``pip install 'stp-env[jax-rl]'``: gymnax, which brings flax).
+Importing this module imports ``gymnax``, and gymnax makes a JAX array at import, which starts JAX's backend:
+choose the CPU device count (:func:`stp_env.set_cpu_devices`) before importing it.
 """
 
 from __future__ import annotations

@@ -23,6 +23,8 @@ environment, for multi-agent learners written in JAX (JaxMARL's IPPO/MAPPO style
   ``guarantee_violation``, ``tracking_violation`` (0 for the intruder).
 
 Needs the ``jax-rl`` extra on Python 3.11 or newer (JaxMARL's own floor).
+Importing this module imports ``jaxmarl``, and gymnax (which JaxMARL imports) makes a JAX array at import, which
+starts JAX's backend: choose the CPU device count (:func:`stp_env.set_cpu_devices`) before importing it.
 """
 
 from __future__ import annotations
