@@ -116,13 +116,14 @@ def test_the_kbar_reward_pays_once_when_kbar_is_reached(params):
 
 def test_shipped_learned_intruders_play_as_recorded():
     """Every shipped learned intruder that records a check (its scenario, settings and the forced counts of a small
-    batch of held-out episodes) forces the same counts today."""
+    batch of held-out episodes) forces the same counts today. Intruders trained on the same settings fly in one
+    environment (compiled once)."""
     from importlib import resources
 
     from stp_env.baselines.learned import load_mlp, shipped_intruders
 
     folder = resources.files("stp_env") / "data" / "intruders"
-    checked = 0
+    checked, venvs = 0, {}
     for name in shipped_intruders():
         meta = load_mlp(folder / f"{name}.npz").metadata
         check = meta.get("check")
@@ -130,14 +131,15 @@ def test_shipped_learned_intruders_play_as_recorded():
             continue
         config = TrainConfig(scenario=meta["scenario"], kbar=meta["kbar"], vehicle_policy=meta["vehicle_policy"],
                              spawn_mode=meta["spawn_mode"], wind_model=meta.get("wind_model", "uniform"),
-                         backend=meta.get("backend", "jax"), control_dt=meta.get("control_dt"),
-                         avoid_margin=meta.get("avoid_margin"),
+                             backend=meta.get("backend", "jax"), control_dt=meta.get("control_dt"),
+                             avoid_margin=meta.get("avoid_margin"),
                              observation=meta.get("observation", "core"), n_envs=check["n_envs"])
-        p = build_params(config)
-        venv = IntruderVecEnv(check["n_envs"], params=p, horizon=meta["horizon"],
-                              vehicle_policy=meta["vehicle_policy"], observation=config.observation)
+        key = (config, meta["horizon"])
+        if key not in venvs:
+            venvs[key] = IntruderVecEnv(check["n_envs"], params=build_params(config), horizon=meta["horizon"],
+                                        vehicle_policy=meta["vehicle_policy"], observation=config.observation)
         policy = load_mlp(folder / f"{name}.npz")
-        result = evaluate_on_vec_env(policy.action_numpy, venv, check["episodes"], check["seed"])
+        result = evaluate_on_vec_env(policy.action_numpy, venvs[key], check["episodes"], check["seed"])
         same = np.mean(result["n_forced"] == np.asarray(check["n_forced"]))
         assert same >= 0.95, name  # float rounding on another CPU may flip a borderline episode, not more
         checked += 1
