@@ -10,6 +10,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -247,8 +248,9 @@ def test_importing_any_module_leaves_the_backend_unstarted():
     got = _run(_IMPORT_ALL, ",".join(_COMPUTING_DEPENDENCIES))
     assert got["started"] is None
     for module, dependency in got["needs"].items():
-        assert _run(_IMPORT_ONE, dependency)["started"], f"{dependency} no longer computes at import ({module})"
-        doc = ast.get_docstring(ast.parse(open(importlib.util.find_spec(module).origin).read()))
+        if importlib.util.find_spec(dependency) is not None:  # installed (the jax-rl extra)
+            assert _run(_IMPORT_ONE, dependency)["started"], f"{dependency} no longer computes at import ({module})"
+        doc = ast.get_docstring(ast.parse(Path(importlib.util.find_spec(module).origin).read_text()))
         assert "set_cpu_devices" in doc and dependency in doc, f"{module} does not say it starts JAX's backend"
 
 
