@@ -11,7 +11,11 @@ Given ``out_dir``, every finished piece is written there at once (an ``.npz`` of
 file and moved into place; read back through :func:`stp_env.loaders.read_npz`, which unpickles nothing: a piece file
 never runs code), under a folder named by the job's fingerprint (a hash of everything the pieces depend on, the
 package's source included). A job that was killed resumes: the pieces already written are read back, and only the
-others run.
+others run. A piece file proves where it came from: it carries the job's fingerprint, its index and a digest of its
+content (:data:`PROVENANCE`), and is read back only when all three are what this job writes; anything else in its
+place (another job's or another seed's piece, a piece moved or edited, an empty file, a directory) is moved aside
+and runs again, with one warning naming the file. The digest finds a changed or misplaced piece, not a forger who
+recomputes it (``docs/threat-model.md``).
 
 Big constants (the ``EnvParams`` with its reachability tables and plans) are built once by the driver and travel
 inside the context: :func:`to_host` turns a pytree's arrays into NumPy arrays (which Ray's object store holds as
@@ -102,6 +106,12 @@ class Job:
 
 
 # ------------------------------------------------------------------------------------------------ pieces on disk
+PROVENANCE = ("__piece_fingerprint__", "__piece_index__", "__piece_digest__")
+"""The arrays every piece file carries besides its results: the job's fingerprint, the piece's index and a SHA-256
+digest of both and of every result array (:func:`piece_digest`). A piece is read back only when all three are what
+this job would write."""
+
+
 def piece_path(folder, index: int) -> Path:
     return Path(folder) / f"{PIECE_PREFIX}{index:06d}.npz"
 
@@ -115,6 +125,8 @@ def check_result(result, where: str) -> dict[str, np.ndarray]:
     for key, value in result.items():
         if not isinstance(key, str) or not key or "\n" in key:
             raise ValueError(f"{where}: a piece's array names must be non-empty one-line strings; got {key!r}.")
+        if key in PROVENANCE:
+            raise ValueError(f"{where}: the array name {key!r} is reserved for the piece's provenance.")
         array = np.asarray(value)
         if array.dtype.hasobject or array.dtype.kind not in "biufcUS":
             raise ValueError(f"{where}: array {key!r} has dtype {array.dtype}; pieces hold numbers and strings only.")
@@ -122,36 +134,85 @@ def check_result(result, where: str) -> dict[str, np.ndarray]:
     return out
 
 
-def write_piece(folder, index: int, result: dict) -> Path:
-    """``result`` (arrays) as ``piece-<index>.npz`` in ``folder``, atomically: the file is complete or absent."""
+def piece_digest(fingerprint: str, index: int, arrays: dict[str, np.ndarray]) -> str:
+    """SHA-256 hex digest of a piece: its job's fingerprint, its index and every array (name, dtype, shape, bytes)
+    in name order."""
+    h = hashlib.sha256(f"stp-env piece v1\n{fingerprint}\n{int(index)}\n".encode())
+    for key in sorted(arrays):
+        a = np.ascontiguousarray(arrays[key])
+        h.update(f"{len(key)}:{key} {a.dtype.str} {a.shape}\n".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def write_piece(folder, index: int, result: dict, fingerprint: str) -> Path:
+    """``result`` (arrays) as ``piece-<index>.npz`` in ``folder`` with its provenance (:data:`PROVENANCE`),
+    atomically: the file is complete or absent."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     path = piece_path(folder, index)
     arrays = check_result(result, str(path))
+    stamp = dict(zip(PROVENANCE, (np.array(fingerprint), np.array(int(index), np.int64),
+                                  np.array(piece_digest(fingerprint, index, arrays)))))
     with atomic_open(path, "wb") as fh:
-        np.savez(fh, **arrays)
+        np.savez(fh, **arrays, **stamp)
     return path
 
 
 def read_piece(path) -> dict[str, np.ndarray]:
-    """The arrays of a piece file (the ``job-piece`` loader of :mod:`stp_env.loaders`: nothing is unpickled);
-    a ``ValueError`` naming the file when it is not one."""
+    """The arrays of a piece file, its provenance included (the ``job-piece`` loader of :mod:`stp_env.loaders`:
+    nothing is unpickled); a ``ValueError`` naming the file when it is not one."""
     from stp_env.loaders import read_npz
 
     return read_npz(path, "job-piece")
 
 
+def verified_piece(path, fingerprint: str, index: int) -> dict[str, np.ndarray]:
+    """The results of the piece file ``path`` when it is what job ``fingerprint`` writes as piece ``index``; else a
+    ``ValueError`` saying why (not a piece file, no provenance, another job, another index, content changed)."""
+    arrays = read_piece(path)
+    missing = [k for k in PROVENANCE if k not in arrays]
+    if missing:
+        raise ValueError(f"{path}: no provenance (written by another version, or not a piece)")
+    stamp = {k: arrays.pop(k) for k in PROVENANCE}
+    their_fingerprint, their_index, their_digest = (stamp[k] for k in PROVENANCE)
+    if their_fingerprint.shape or their_fingerprint.dtype.kind != "U" or str(their_fingerprint) != fingerprint:
+        raise ValueError(f"{path}: written by another job (fingerprint {str(their_fingerprint)[:16]!r}, this job's "
+                         f"{fingerprint[:16]!r})")
+    if their_index.shape or their_index.dtype.kind not in "iu" or int(their_index) != index:
+        raise ValueError(f"{path}: holds piece {their_index!s}, not piece {index}")
+    if their_digest.shape or str(their_digest) != piece_digest(fingerprint, index, arrays):
+        raise ValueError(f"{path}: its content does not match its digest (changed after it was written)")
+    return arrays
+
+
+def _move_aside(path: Path) -> None:
+    """Rename a rejected piece out of the way (kept for inspection, never read again): ``NAME.rejected-<hex>``."""
+    try:
+        if path.exists() or path.is_symlink():
+            path.rename(path.with_name(f"{path.name}.rejected-{uuid.uuid4().hex[:8]}"))
+    except OSError:
+        pass  # a read-only folder: the piece is still recomputed; writing it back reports the folder
+
+
 def _done_pieces(job: Job, folder: Path) -> dict[int, dict]:
-    """The pieces of ``job`` already written in ``folder`` (an unreadable one is reported and run again)."""
-    done = {}
+    """The pieces of ``job`` already written in ``folder`` whose provenance is this job's (:func:`verified_piece`).
+    Every other entry in a piece's place is moved aside and runs again, with one warning for the job that names
+    each file and why."""
+    done, rejected = {}, []
     for index in range(len(job)):
         path = piece_path(folder, index)
-        if not path.exists():
+        if not (path.exists() or path.is_symlink()):
             continue
         try:
-            done[index] = read_piece(path)
+            done[index] = verified_piece(path, job.fingerprint, index)
         except ValueError as err:
-            warnings.warn(f"{err} (the piece runs again)", RuntimeWarning, stacklevel=3)
+            rejected.append(str(err))
+            _move_aside(path)
+    if rejected:
+        shown = "; ".join(rejected[:5]) + (f"; and {len(rejected) - 5} more" if len(rejected) > 5 else "")
+        warnings.warn(f"job {job.name}: {len(rejected)} piece file(s) in {folder} are not this job's and run again "
+                      f"(moved aside as *.rejected-*): {shown}", RuntimeWarning, stacklevel=3)
     return done
 
 
@@ -183,7 +244,7 @@ class Executor(abc.ABC):
         def finished(index: int, result: dict) -> None:
             result = check_result(result, f"job {job.name}, piece {index}")
             if folder is not None:
-                write_piece(folder, index, result)
+                write_piece(folder, index, result, job.fingerprint)
             results[index] = result
             if progress is not None:
                 progress(job.units[index])

@@ -143,7 +143,7 @@ def _write_valid(kind: str, path: Path) -> None:
     elif kind == "job-piece":
         from stp_env.execution import write_piece
 
-        assert write_piece(path.parent, 3, {"ep/x": np.arange(4.0), "seconds": np.float64(1.5)}) == path
+        assert write_piece(path.parent, 3, {"ep/x": np.arange(4.0), "seconds": np.float64(1.5)}, "ab" * 16) == path
     else:  # pragma: no cover
         raise AssertionError(kind)
 

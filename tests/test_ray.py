@@ -211,6 +211,25 @@ def _slow_square(context, i):
     return _square(context, i)
 
 
+def test_on_ray_a_piece_of_another_job_runs_again(ray_executor, tmp_path):
+    """The provenance check is the executor's, on Ray as in-process: a piece of another job in this job's place is
+    moved aside and computed again on a worker, with one warning naming it."""
+    job = execution.Job(name="squares", function=_square, context=None, arguments=(0, 1, 2), fingerprint="ab" * 16)
+    other = dataclasses.replace(job, fingerprint="cd" * 16, function=_cube)
+    execution.LocalExecutor().run(other, out_dir=tmp_path / "other")
+    folder = job.folder(tmp_path)
+    folder.mkdir(parents=True)
+    path = execution.piece_path(folder, 2)
+    path.write_bytes(execution.piece_path(other.folder(tmp_path / "other"), 2).read_bytes())
+    with pytest.warns(RuntimeWarning, match="piece-000002.npz: written by another job"):
+        results = ray_executor.run(job, out_dir=tmp_path)
+    assert [int(r["x"][0]) for r in results] == [0, 1, 4]
+
+
+def _cube(context, i):
+    return {"x": np.asarray([i ** 3]), "pid": np.asarray(os.getpid())}
+
+
 def test_an_evaluation_on_ray_is_the_in_process_one_bit_for_bit(ray_executor, local_evaluation):
     on_ray = runner.evaluate([TINY], executor=ray_executor, **EVALUATION)
     _same_results(local_evaluation, on_ray)
