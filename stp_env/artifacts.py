@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from stp_env import loaders
-from stp_env.files import TEMP_PREFIX, remove_stale_temporaries, writer_tag
+from stp_env.files import TEMP_PREFIX, is_regular_file, move_aside, remove_stale_temporaries, writer_tag
 
 try:  # POSIX advisory locks; elsewhere concurrent processes may compute the same artifact twice (still atomic)
     import fcntl
@@ -261,6 +261,15 @@ def _read_artifact(npz_path: Path, json_path: Path, kind: str, params: Any, key:
     return None, problem
 
 
+def _move_aside_odd_entries(*paths: Path) -> str:
+    """Move every one of ``paths`` that is there but is not a regular file (a directory, FIFO, socket or link) aside
+    (:func:`stp_env.files.move_aside`), so that the recomputed artifact can take its place; what to add to the
+    warning (empty when nothing was moved)."""
+    moved = [f"{p.name} was not a regular file, moved aside to {m.name}" for p in paths
+             if (p.exists() or p.is_symlink()) and not is_regular_file(p) and (m := move_aside(p)) is not None]
+    return "".join(f"; {m}" for m in moved)
+
+
 class ArtifactStore:
     """Directory of artifacts. ``ArtifactStore()`` uses :func:`default_cache_dir`.
 
@@ -310,8 +319,9 @@ class ArtifactStore:
             return artifact
         artifact, problem = _read_artifact(npz_path, json_path, kind, params, key)
         if artifact is None:
+            moved = _move_aside_odd_entries(npz_path, json_path)
             warnings.warn(f"Recomputing {kind} artifact {npz_path.name} (and {json_path.name}, in {self.root}): "
-                          f"{problem}.", StaleArtifactWarning, stacklevel=3)
+                          f"{problem}{moved}.", StaleArtifactWarning, stacklevel=3)
         return artifact
 
     def save(self, kind: str, params: Any, arrays: Mapping[str, np.ndarray],
@@ -347,6 +357,7 @@ class ArtifactStore:
             fd, tmp_json = _temp_file(self.root, ".json")
             with os.fdopen(fd, "w") as fh:
                 json.dump(meta, fh, indent=1, sort_keys=True)
+            _move_aside_odd_entries(npz_path, json_path)  # os.replace cannot put a file where a directory is
             os.replace(tmp_npz, npz_path)
             os.replace(tmp_json, json_path)
         finally:
@@ -385,7 +396,8 @@ class ArtifactStore:
             return
         npz_path, _, _ = self.paths(kind, params)
         lock_path = npz_path.with_suffix(".lock")
-        flags = os.O_WRONLY | os.O_CREAT | os.O_APPEND | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
+        flags = (os.O_WRONLY | os.O_CREAT | os.O_APPEND | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
+                 | getattr(os, "O_NOFOLLOW", 0))
         try:
             fd = os.open(lock_path, flags, 0o644)
         except OSError as err:
@@ -396,7 +408,9 @@ class ArtifactStore:
                 os.close(fd)
                 fd, problem = None, "is not a regular file"
         if fd is None:
-            warnings.warn(f"Computing the {kind} artifact {npz_path.name} without its lock: {lock_path} {problem}.",
+            moved = _move_aside_odd_entries(lock_path)  # the next run locks again
+            warnings.warn(f"Computing the {kind} artifact {npz_path.name} without its lock: {lock_path} {problem}"
+                          f"{moved}.",
                           StaleArtifactWarning, stacklevel=4)
             yield
             return

@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from stp_env.files import atomic_open, remove_stale_temporaries
+from stp_env.files import atomic_open, move_aside, remove_stale_temporaries
 
 RAY_HINT = "pip install 'stp-env[ray]'"
 """What installs Ray (named in the error when it is missing)."""
@@ -186,15 +186,6 @@ def verified_piece(path, fingerprint: str, index: int) -> dict[str, np.ndarray]:
     return arrays
 
 
-def _move_aside(path: Path) -> None:
-    """Rename a rejected piece out of the way (kept for inspection, never read again): ``NAME.rejected-<hex>``."""
-    try:
-        if path.exists() or path.is_symlink():
-            path.rename(path.with_name(f"{path.name}.rejected-{uuid.uuid4().hex[:8]}"))
-    except OSError:
-        pass  # a read-only folder: the piece is still recomputed; writing it back reports the folder
-
-
 def _done_pieces(job: Job, folder: Path) -> dict[int, dict]:
     """The pieces of ``job`` already written in ``folder`` whose provenance is this job's (:func:`verified_piece`).
     Every other entry in a piece's place is moved aside and runs again, with one warning for the job that names
@@ -208,7 +199,7 @@ def _done_pieces(job: Job, folder: Path) -> dict[int, dict]:
             done[index] = verified_piece(path, job.fingerprint, index)
         except ValueError as err:
             rejected.append(str(err))
-            _move_aside(path)
+            move_aside(path)
     if rejected:
         shown = "; ".join(rejected[:5]) + (f"; and {len(rejected) - 5} more" if len(rejected) > 5 else "")
         warnings.warn(f"job {job.name}: {len(rejected)} piece file(s) in {folder} are not this job's and run again "

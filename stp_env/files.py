@@ -129,3 +129,30 @@ def append_csv_row(path, row: dict) -> None:
         if new:
             writer.writeheader()
         writer.writerow(row)
+
+
+def move_aside(path) -> Path | None:
+    """Rename ``path`` (a file, directory, FIFO or link that a reader refused) to ``NAME.rejected-<hex>`` beside
+    it, so that it is never read again and a writer can put the right file in its place; nothing is deleted.
+    Returns the new path, or ``None`` when there was nothing to move or the folder is read-only."""
+    import uuid
+
+    path = Path(path)
+    if not (path.exists() or path.is_symlink()):
+        return None
+    target = path.with_name(f"{path.name}.rejected-{uuid.uuid4().hex[:8]}")
+    try:
+        path.rename(target)
+    except OSError:
+        return None
+    return target
+
+
+def is_regular_file(path) -> bool:
+    """Whether ``path`` itself (not what a link points to) is a regular file."""
+    import stat
+
+    try:
+        return stat.S_ISREG(os.lstat(path).st_mode)
+    except OSError:
+        return False

@@ -816,6 +816,42 @@ def test_a_fifo_in_the_cache_is_recomputed_not_waited_on(tmp_path, which):
     assert store.load("thing", {"n": 1}).from_cache
 
 
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+@pytest.mark.parametrize("what", ["directory", "fifo", "link", "wrong-size"])
+@pytest.mark.parametrize("which", ["npz", "json", "lock"])
+def test_a_cache_entry_of_the_wrong_kind_is_moved_aside_once_and_the_next_run_loads(tmp_path, which, what):
+    """A directory (or FIFO, link, file cut short) where an entry belongs: the run that meets it recomputes with one
+    warning, moves it aside (kept, never read again) and saves the artifact; the next run loads it quietly."""
+    store = ArtifactStore(tmp_path, shipped=None)
+    store.save("thing", {"n": 1}, {"x": np.arange(3.0)})
+    npz, meta, _ = store.paths("thing", {"n": 1})
+    path = {"npz": npz, "json": meta, "lock": npz.with_suffix(".lock")}[which]
+    if which == "lock":
+        npz.unlink()                                        # the artifact must be computed, under the lock
+    path.unlink(missing_ok=True)
+    if what == "directory":
+        path.mkdir()
+        (path / "inside").write_text("x")
+    elif what == "fifo":
+        os.mkfifo(path)
+    elif what == "link":
+        (tmp_path / "elsewhere").write_text("{}")
+        path.symlink_to(tmp_path / "elsewhere")
+    else:
+        path.write_bytes(b"PK")
+    with pytest.warns(StaleArtifactWarning) as caught:
+        art = within(30, lambda: store.load_or_compute("thing", {"n": 1}, lambda: {"x": np.arange(3.0)}), path)
+    assert not art.from_cache and np.array_equal(art.arrays["x"], np.arange(3.0))
+    assert all("\n" not in str(w.message) for w in caught)
+    assert all(p.is_file() and not p.is_symlink() for p in (npz, meta))
+    if what != "wrong-size":                                # a regular file is replaced in place
+        assert len(list(tmp_path.glob(path.name + ".rejected-*"))) == 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        again = store.load_or_compute("thing", {"n": 1}, lambda: pytest.fail("recomputed twice"))
+    assert again.from_cache
+
+
 @pytest.mark.skipif(os.name != "posix", reason="advisory locks are POSIX")
 def test_a_process_waiting_on_a_cache_lock_says_so(tmp_path, capfd):
     import fcntl
