@@ -180,8 +180,9 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
     Everything is checked against what the proofs certify before anything is built: the avoid region and the
     tracking bound must be those of the scenario's vehicle, planning set, ``R_c`` and ``t_IAT``; the tracking bound
     must be certified in closed loop; the avoid margin must be at least the certified one; every trajectory of the
-    plan must be a flight of the planning dynamics (:func:`plan_faults`). The last three are refused with one line
-    unless ``config.allow_uncertified``; the vehicles concerned then have ``certified`` false.
+    plan must be a flight of the planning dynamics (:func:`plan_faults`); the decision step ``dt`` may not be longer
+    than ``t_IAT`` (the intruder stays a whole step: Assumption 1). The last four are refused with one line unless
+    ``config.allow_uncertified``; the vehicles concerned then have ``certified`` false.
     """
     config = EnvConfig() if config is None else config
     n = scenario.n_vehicles
@@ -238,6 +239,11 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
         uncertified.append(f"avoid_margin {margin:.3f} m, below the certified {certified_margin:.3f} m (one inner step "
                            f"of the value's fastest fall, {step_fall:.3f} m, plus the table's closed-loop error "
                            f"{avoid.table_error:.3f} m and rounding)")
+    if config.dt > float(scenario.t_iat) * (1 + 1e-6):
+        # the intruder leaves at the first decision step at least t_IAT after it appeared: one step of dt > t_IAT
+        # keeps it dt seconds, longer than Assumption 1's t_IAT, for which the avoid tables and k̄ are computed
+        uncertified.append(f"dt {config.dt:g} s is longer than t_IAT {float(scenario.t_iat):g} s (the intruder "
+                           "would stay a whole step, past Assumption 1's t_IAT)")
     if uncertified and not config.allow_uncertified:
         raise ValueError("Outside what the guarantees certify: " + "; ".join(uncertified) + ". Pass "
                          "allow_uncertified=True to simulate it anyway (violations then count as assumption "

@@ -105,8 +105,9 @@ class EnvConfig:
             default). The plans, the reachability sets and the papers' controllers stay those of the scenario's
             HJ model; the plant follows their commands through ``VehicleModel.command_to_action``.
         allow_uncertified: simulate settings outside what the proofs certify (an inner period outside
-            :data:`CERTIFIED_CONTROL_DT`, an avoid margin below the certified one, a plan whose trajectories are not
-            flights of the planning dynamics ``U^p``) instead of refusing them. The vehicles concerned (all of them
+            :data:`CERTIFIED_CONTROL_DT`, an avoid margin below the certified one, a decision step ``dt`` longer
+            than the scenario's ``t_IAT``, a plan whose trajectories are not flights of the planning dynamics
+            ``U^p``) instead of refusing them. The vehicles concerned (all of them
             for a setting of the simulator) then have ``EnvParams.vehicles.certified`` false: their collisions and
             tracking violations are booked as assumption failures, not guarantee violations.
     """

@@ -35,7 +35,8 @@ One step of length ``dt`` (intruder paper Sections II and IV):
    proofs certify (``EnvParams.vehicles.certified`` false: a plan that is not a flight of ``U^p``, or an
    uncertified inner period or avoid margin, accepted only with
    ``EnvConfig.allow_uncertified``) has its assumptions failed from the start: its collisions and tracking errors
-   are not guarantee violations.
+   are not guarantee violations. A flying vehicle whose state is not finite (or every flying vehicle, while the
+   present intruder's is not) has its assumptions failed at that step: a NaN never makes an episode look clean.
 
 Waiting and finished vehicles are outside the airspace: they neither move nor collide. Actions of agents that
 cannot act (waiting, finished, an absent intruder) are ignored.
@@ -409,10 +410,16 @@ def _events(state: EnvState, sub: EnvState, closest: Closest, params: EnvParams)
     status = jnp.where(collided, COLLIDED, jnp.where(out, OUT_OF_BOUNDS, jnp.where(arrived, ARRIVED, state.status)))
     min_sep = jnp.minimum(state.min_separation, jnp.where(fly, jnp.minimum(jnp.min(dist, axis=1), d_int), jnp.inf))
     guarded_hit = hit_guarded_vehicle | hit_intruder | (hit_building & ~unguarded)
-    violation = collided & guarded_hit & sub.assumption_ok & sub.complied
+    # Fail closed: a state that is not finite (a plug-in wind or vehicle model that returned NaN or inf) is outside
+    # every assumption (bounded disturbances, the model of the motion); its comparisons above are all false, so the
+    # vehicle would otherwise look clean. Its assumptions fail, and so do every flying vehicle's while the intruder's
+    # state is not finite.
+    finite = jnp.all(jnp.isfinite(x), axis=1) & ~(present & ~jnp.all(jnp.isfinite(xi)))
+    assumption_ok = sub.assumption_ok & (~fly | finite)
+    violation = collided & guarded_hit & assumption_ok & sub.complied
 
     new_state = replace(
-        sub, t=t, step_count=state.step_count + 1, x=x, status=status.astype(jnp.int32),
+        sub, t=t, step_count=state.step_count + 1, x=x, status=status.astype(jnp.int32), assumption_ok=assumption_ok,
         min_separation=min_sep,
         arrival_time=jnp.where(arrived, t, state.arrival_time),
         collision_time=jnp.where(collided, t, state.collision_time),
