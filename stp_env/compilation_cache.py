@@ -16,18 +16,25 @@ program is written, however fast it compiled (:data:`MIN_COMPILE_TIME_S`).
 
 **Its size.** About :data:`DEFAULT_MAX_GB` GB at most (``STP_ENV_COMPILATION_CACHE_MAX_GB`` changes it, ``-1``: no
 limit): a process that turns the cache on first deletes the least recently used programs of a folder above the
-limit (:func:`prune`); the folder can exceed it by what processes compile until the next one starts.
+limit (:func:`prune`); the folder can exceed it by what processes compile until the next one starts. Any other value
+that is not a finite number of GB above 0 (``0``, ``-2``, ``nan``, ``inf``, text) is refused: a one-line warning names
+the variable, the cache is off in that process and nothing is deleted (a limit of 0 would delete every program at
+every start).
 
 **Turning it off.** ``STP_ENV_COMPILATION_CACHE=0`` (or ``off``, ``false``, ``no``) in the environment before the
 import, or :func:`configure` ``(enabled=False)`` (:func:`disable`) at run time; ``STP_ENV_COMPILATION_CACHE_DIR``
 moves it. Turned off, JAX's persistent cache is off in the process, whatever folder it had. A cache directory that
 JAX was already given (``JAX_COMPILATION_CACHE_DIR``, or ``jax.config.update("jax_compilation_cache_dir", ...)``
-before importing :mod:`stp_env`) is otherwise used as it is. Deleting the folder clears the cache (JAX writes
-entries in place: one cut short by a killed process is warned about and compiled again until then).
+before importing :mod:`stp_env`) is otherwise used as it is, once it passes the check below. Deleting the folder
+clears the cache (JAX writes entries in place: one cut short by a killed process is warned about and compiled again
+until then).
 
 **Trust.** A compiled program is machine code: whoever can write the cache folder can make this process run code
-(as whoever can write its ``site-packages``). The folder is created private (mode ``0o700``), and a folder owned by
-another user or writable by others is not used (a warning says so). See ``docs/threat-model.md``.
+(as whoever can write its ``site-packages``). Every folder that holds compiled programs goes through one check,
+:func:`private_cache_dir`: this cache's folder, a local folder JAX was given before (``JAX_COMPILATION_CACHE_DIR``)
+and a survivability study's ``OUT/jax-cache``. The folder is created private (mode ``0o700``), and a folder owned by
+another user or writable by others (sticky bit or not) is not used (a warning says so). See
+``docs/threat-model.md``.
 
 **How it is set.** When :mod:`stp_env` is imported before JAX (the usual case: every submodule imports the package
 first), the settings go into this process's environment (``JAX_COMPILATION_CACHE_DIR`` and the threshold
@@ -37,6 +44,7 @@ set with ``jax.config.update``.
 
 from __future__ import annotations
 
+import math
 import os
 import stat
 import sys
@@ -49,7 +57,7 @@ ENV_VAR = "STP_ENV_COMPILATION_CACHE"
 DIR_ENV_VAR = "STP_ENV_COMPILATION_CACHE_DIR"
 """Where the compiled programs go instead of ``<artifact cache>/xla``."""
 MAX_GB_ENV_VAR = "STP_ENV_COMPILATION_CACHE_MAX_GB"
-"""The cache's size limit in GB (default :data:`DEFAULT_MAX_GB`); ``-1``: no limit."""
+"""The cache's size limit in GB (default :data:`DEFAULT_MAX_GB`): a finite number above 0, or ``-1``: no limit."""
 DEFAULT_MAX_GB = 2.0
 """Beyond this, the least recently used programs are deleted when a process turns the cache on (:func:`prune`). A
 simulator rollout is tens of MB compiled, the environment's reset and step well under a MB (BENCHMARKS.md, "The test
@@ -105,14 +113,39 @@ def _private_dir(path: Path) -> str | None:
     return None
 
 
+def private_cache_dir(path: str | os.PathLike, what: str = "the compilation cache",
+                      advice: str | None = None) -> Path | None:
+    """``path`` when it may hold compiled programs, created private (mode ``0o700``) if missing; else ``None``, with a
+    warning that names it and says why (it cannot be created, is not a directory, belongs to another user, or others
+    can write it). The one check of every folder that holds executables (JAX loads and runs what it finds there).
+
+    ``what``: the cache, as the warning names it; ``advice``: what the warning suggests instead (default: a private
+    ``$STP_ENV_COMPILATION_CACHE_DIR``, or turning the cache off)."""
+    path = Path(path)
+    problem = _private_dir(path)
+    if problem is None:
+        return path
+    if advice is None:
+        advice = f"Set {DIR_ENV_VAR} to a private folder, or {ENV_VAR}=0 to silence this."
+    warnings.warn(f"not using {path} as {what}: {problem}; programs are compiled in every process. {advice}",
+                  stacklevel=3)
+    return None
+
+
 def max_size_bytes() -> int:
-    """The size limit in bytes (``-1``: none), from ``$STP_ENV_COMPILATION_CACHE_MAX_GB``."""
+    """The size limit in bytes (``-1``: none), from ``$STP_ENV_COMPILATION_CACHE_MAX_GB``: a finite number of GB
+    above 0, or ``-1``. Any other value is a one-line ``ValueError`` naming the variable (``0`` would delete every
+    program at every start)."""
     text = os.environ.get(MAX_GB_ENV_VAR, "").strip()
     try:
         gb = float(text) if text else DEFAULT_MAX_GB
     except ValueError:
-        raise ValueError(f"{MAX_GB_ENV_VAR}={text!r}: a size in GB (or -1: no limit) was expected.") from None
-    return -1 if gb < 0 else int(gb * 1e9)
+        gb = math.nan
+    if gb == -1:
+        return -1
+    if not (math.isfinite(gb) and gb > 0):
+        raise ValueError(f"{MAX_GB_ENV_VAR}={text!r}: a size in GB above 0 (or -1: no limit) was expected.")
+    return max(1, int(gb * 1e9))
 
 
 def prune(folder: str | os.PathLike, max_bytes: int) -> int:
@@ -270,18 +303,24 @@ def configure(enabled: bool | None = None, directory: str | os.PathLike | None =
         return None
     user = _user_directory() if directory is None else None
     if user is not None:
+        # A local folder is checked as this module's own is (a remote one, "gs://...", is JAX's to reach).
+        if "://" not in user and private_cache_dir(user, what="JAX's compilation cache") is None:
+            _apply(None)
+            return None
         _state["directory"] = user
         return Path(user)
     path = Path(directory).expanduser() if directory is not None else default_dir()
-    problem = _private_dir(path)
-    if problem is not None:
-        warnings.warn(f"not using {path} as the compilation cache: {problem}; programs are compiled in every "
-                      f"process. Set {DIR_ENV_VAR} to a private folder, or {ENV_VAR}=0 to silence this.",
-                      stacklevel=2)
+    try:
+        limit = max_size_bytes()
+    except ValueError as err:  # refused before the folder is touched: nothing is deleted
+        warnings.warn(f"not using the compilation cache: {err}", stacklevel=2)
+        _apply(None)
+        return None
+    if private_cache_dir(path) is None:
         _apply(None)
         return None
     try:
-        prune(path, max_size_bytes())
+        prune(path, limit)
     except OSError as err:  # a folder that cannot be listed is not used
         warnings.warn(f"not using {path} as the compilation cache: it cannot be read ({err}).", stacklevel=2)
         _apply(None)

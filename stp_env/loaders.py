@@ -285,15 +285,20 @@ MAX_CSV_LINE = 1 * MiB
 """The longest line a CSV file may have [characters]."""
 
 
-def read_csv_rows(path, kind: str, fields) -> list[dict[str, str]]:
+def read_csv_rows(path, kind: str, fields, *, older=(), drop_torn_tail: bool = False) -> list[dict[str, str]]:
     """The rows of a CSV file of ``kind`` with the header ``fields``, as dicts of strings; a row that does not
     have exactly those fields (e.g. a line torn by an interrupted write) is left out. :class:`LoadError` for a file
     that is not UTF-8 CSV (a line longer than :data:`MAX_CSV_LINE`, a field beyond the csv module's limit, a NUL
-    byte) or whose header is not ``fields``."""
+    byte) or whose header is not ``fields``.
+
+    ``older``: headers of earlier formats that are read too; the rows of such a file are keyed by its own header's
+    fields (the caller tells the format by the keys). ``drop_torn_tail``: also leave out a last line without its line
+    ending (cut short by an interrupted write, even where it still has the right number of fields)."""
     import io
 
     what = loader(kind).what
     fields = tuple(fields)
+    headers = [fields, *(tuple(h) for h in older)]
     with open_regular(path, kind) as fh:
         text = io.TextIOWrapper(fh, encoding="utf-8", newline="")
 
@@ -303,6 +308,8 @@ def read_csv_rows(path, kind: str, fields) -> list[dict[str, str]]:
                 number += 1
                 if len(line) > MAX_CSV_LINE:
                     raise LoadError(path, f"not {_a(what)}: line {number} is longer than {_size(MAX_CSV_LINE)}.")
+                if drop_torn_tail and not line.endswith("\n"):
+                    return  # the last line (a line without its ending is always the last one)
                 yield line
 
         reader = csv.reader(lines())
@@ -311,11 +318,12 @@ def read_csv_rows(path, kind: str, fields) -> list[dict[str, str]]:
             header = next(reader, None)
             if header is None:
                 return []
-            if tuple(header) != fields:
+            if tuple(header) not in headers:
                 raise LoadError(path, f"not {_a(what)}: its header is not {','.join(fields)}.")
+            names = tuple(header)
             for row in reader:
-                if len(row) == len(fields):
-                    rows.append(dict(zip(fields, row)))
+                if len(row) == len(names):
+                    rows.append(dict(zip(names, row)))
         except csv.Error as err:
             raise LoadError(path, f"not {_a(what)}: line {reader.line_num}: {err}.") from None
         except UnicodeDecodeError as err:

@@ -134,7 +134,15 @@ def _write_valid(kind: str, path: Path) -> None:
         path.write_text(json.dumps({"fingerprint": {"seed": 0, "policies": ["S"], "n_partial": [50]},
                                     "n_instances": 2}))
     elif kind == "study-missions":
-        path.write_text(_missions_text())
+        # a study's own file (new format, with the study.json that proves whose rows they are), so that the
+        # mutations reach the rows' fingerprint and digest checks
+        from stp_env.survivability.study import StudyConfig, write_missions, write_study_metadata
+
+        config = StudyConfig(n_instances=3, n_partial=(50,), n_unknown=(50,), policies=("S",))
+        write_study_metadata(config, path.parent)
+        write_missions(config, path, [{"n_partial": 50, "n_unknown": 50, "instance": i, "policy": "S", "outcome": "G",
+                                       "reveals": 0, "omega_switch": -1, "n_dp": 1, "windows": 9, "instance_s": 1.0,
+                                       "mission_s": 0.25} for i in range(3)])
     elif kind == "jax-checkpoint":
         from stp_env.rl.jax_train import save_runner
 

@@ -3,7 +3,6 @@ backtracking; segment robustness against an analytic blocking probability; the p
 
 from __future__ import annotations
 
-import csv
 import itertools
 import json
 import math
@@ -17,7 +16,7 @@ from stp_env.survivability.graph import build_graph, feasible_from_blocked
 from stp_env.survivability.mission import Instance, Knowledge, choose, initial_tables, make_instance, run_mission
 from stp_env.survivability.network import build_network, segment_box_distance
 from stp_env.survivability.robustness import interior_reach, segment_robustness
-from stp_env.survivability.study import FIELDS
+from stp_env.survivability.study import StudyConfig
 from stp_env.survivability.traffic import Traffic, bernstein, sample_traffic
 
 ONE_CELL = 1000.0 / 300.0       # m/s: one 1 km cell per 5-minute window
@@ -483,18 +482,18 @@ def test_exported_maskable_ppo_policy_matches_sb3_contrib_with_masks(tmp_path):
     assert [plain(o) for o in obs] != want
 
 
-def _write_missions(path, outcomes, extra=None):
-    """A study's missions file from ``{(n_p, n_u): {policy: [outcome per instance]}}``; ``extra(instance,
-    outcome)``: columns that replace the defaults (no reveal, the goal kept, 9 windows)."""
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, FIELDS)
-        w.writeheader()
-        for (p, u), per in outcomes.items():
-            for policy, outs in per.items():
-                for i, o in enumerate(outs):
-                    w.writerow({"n_partial": p, "n_unknown": u, "instance": i, "policy": policy, "outcome": o,
-                                "reveals": 0, "omega_switch": -1, "n_dp": 1, "windows": 9, "instance_s": 1.0,
-                                "mission_s": 0.25, **(extra(i, o) if extra else {})})
+def _write_missions(path, config, outcomes, extra=None):
+    """The missions file of the study ``config`` (and its ``study.json``) from ``{(n_p, n_u): {policy: [outcome per
+    instance]}}``, written as the study writes them (a report uses only rows that prove they are the study's own);
+    ``extra(instance, outcome)``: columns that replace the defaults (no reveal, the goal kept, 9 windows)."""
+    from stp_env.survivability.study import write_missions, write_study_metadata
+
+    rows = [{"n_partial": p, "n_unknown": u, "instance": i, "policy": policy, "outcome": o, "reveals": 0,
+             "omega_switch": -1, "n_dp": 1, "windows": 9, "instance_s": 1.0, "mission_s": 0.25,
+             **(extra(i, o) if extra else {})}
+            for (p, u), per in outcomes.items() for policy, outs in per.items() for i, o in enumerate(outs)]
+    write_study_metadata(config, path.parent)
+    write_missions(config, path, rows)
 
 
 def test_report_thresholds_rates_and_cli_on_a_hand_built_study(tmp_path):
@@ -509,7 +508,9 @@ def test_report_thresholds_rates_and_cli_on_a_hand_built_study(tmp_path):
         outcomes[(100, u)] = {"Nf": [g] * n_nf + [lost] * (10 - n_nf),
                               "S": [a] * 2 + [g] * (n_s - 2) + [lost] * (10 - n_s)}
         outcomes[(50, u)] = {"Nf": [g] * 5 + [lost] * 5, "S": [g] * 10}
-    _write_missions(tmp_path / "missions.csv", outcomes)
+    # The study the command line below describes (its defaults but for the scenarios and policies).
+    config = StudyConfig(n_partial=(50, 100), n_unknown=(50, 100, 150), policies=("Nf", "S"))
+    _write_missions(tmp_path / "missions.csv", config, outcomes)
     argv = ["survivability", "--out", str(tmp_path), "--report-only", "--partial", "50", "100", "--unknown", "50",
             "100", "150", "--policies", "Nf", "S", "--bootstrap", "200"]
     code, _, err = run_cli(argv)
@@ -699,10 +700,10 @@ def test_report_names_the_best_policy_on_the_diagonal_the_relative_gain_and_the_
     from stp_env.survivability.study import StudyConfig
 
     outcomes = {(50, 50): {"R": ["G"] * 30 + ["L"] * 10, "S": ["G"] * 20 + ["A"] * 16 + ["L"] * 4}}
-    _write_missions(tmp_path / "missions.csv", outcomes, lambda i, o: {
-        "reveals": i % 3, "omega_switch": -1 if o == "G" else 4, "windows": 4 if o == "L" else 9})
     config = StudyConfig(n_partial=(50,), n_unknown=(50,), n_instances=40, policies=("R", "S"),
                          mission=small())
+    _write_missions(tmp_path / "missions.csv", config, outcomes, lambda i, o: {
+        "reveals": i % 3, "omega_switch": -1 if o == "G" else 4, "windows": 4 if o == "L" else 9})
     report = build_report(config, tmp_path, n_boot=50)
     diag = report["findings"]["fig7_diagonal"][100]
     assert diag["success"]["best"] == "R" and diag["success"]["runner_up"] == "S"

@@ -94,25 +94,43 @@ def config_from_args(args):
                                              reveal=args.reveal, sense_km=args.sense_km))
 
 
+def use_study_cache(out) -> Path | None:
+    """Keep the study's compiled programs next to its results, in ``OUT/jax-cache`` (workers and restarts of a study
+    reuse them), if the folder passes the check of every folder that holds executables
+    (:func:`stp_env.compilation_cache.private_cache_dir`: created private, not another user's, not writable by
+    others); the folder used, or ``None`` (a warning says why; the process keeps the compilation cache it had).
+    ``STP_ENV_COMPILATION_CACHE=0`` turns this cache off too."""
+    from stp_env import compilation_cache
+
+    if not compilation_cache.enabled_by_environment():
+        return None
+    cache = compilation_cache.private_cache_dir(
+        Path(out) / "jax-cache", what="the study's compilation cache",
+        advice=f"Make it private (chmod 700) or remove it, or set {compilation_cache.ENV_VAR}=0 to silence this.")
+    if cache is None:
+        return None
+    import jax
+
+    jax.config.update("jax_compilation_cache_dir", str(cache))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+    return cache
+
+
 def run(args) -> int:
     """Run the subcommand (``ValueError`` for bad input: the caller prints it and exits with 2)."""
     from stp_env import cli_kit as kit
     from stp_env.survivability.report import build_report, figures
-    from stp_env.survivability.study import run_study
+    from stp_env.survivability.study import check_study_metadata, run_study
 
     config = config_from_args(args)
     if args.worker is not None:
         print("stp-env survivability: --worker I/N is deprecated and will be removed; run one study with --ray "
               "(or --ray-address ADDRESS) instead: its groups then run on every CPU of the cluster (docs/ray.md).",
               file=sys.stderr)
-    if not args.report_only:
-        import jax
-
-        # Compiled programs persist next to the results: workers and restarts of a study reuse them.
-        cache = Path(args.out) / "jax-cache"
-        cache.mkdir(parents=True, exist_ok=True)
-        jax.config.update("jax_compilation_cache_dir", str(cache))
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+    if args.report_only:
+        check_study_metadata(config, args.out)  # another configuration's study is not reported as this one
+    else:
+        use_study_cache(args.out)
         executor = kit.executor(args)  # --ray without ray installed, or a cluster not reached, fails here
         run_study(config, args.out, progress=not args.no_progress,
                   max_seconds=None if args.max_hours is None else 3600.0 * args.max_hours,
