@@ -7,7 +7,9 @@ flights and pass vacuously); its clearance from the disks of every higher-priori
 ``stp_env.planning.verify.vehicle_clearances``); the plan's fit to its scenario (vehicles, STAs, bound); each
 vehicle's arrival against its STA; the tracking bubble's distance from the domain's edge. Prints one JSON line and
 exits with status 1 if a vehicle's trajectory is faulty, comes deeper than half a planning cell into a disk (the
-tolerance the shipped plans are tested to), arrives late or never, or its bubble leaves the domain.
+tolerance the shipped plans are tested to), arrives late or never, or its bubble leaves the domain. What it cannot
+read or check (a missing path, a directory, an empty, truncated or foreign file, an archive without a plan's arrays,
+an unknown scenario) is one line on standard error naming it, and exit status 2.
 
     python scripts/check_plan.py city                                 # a shipped plan (a name of SHIPPED_PLANS)
     python scripts/check_plan.py my-plan.npz --scenario bay-area      # a plan file of a registered scenario
@@ -25,12 +27,24 @@ from pathlib import Path
 
 import numpy as np
 
+from stp_env import cli_kit
 from stp_env.assembly import SHIPPED_PLANS, plan_mismatch
+from stp_env.loaders import LoadError, read_npz
 from stp_env.planning.plan import Plan, VehiclePlan, plan_from_arrays
 from stp_env.planning.verify import domain_margin, planner_disks, trajectory_faults, vehicle_clearances
 from stp_env.scenarios import make
 
 SHOW = 10  # the deepest vehicles listed
+PROG = "check_plan.py"
+
+
+class Refused(SystemExit):
+    """A plan that cannot be read or checked: its message is one line naming the plan, its exit status 2 (1 is a
+    plan that was checked and fails)."""
+
+    def __init__(self, message: str):
+        super().__init__(" ".join(str(message).split()))
+        self.code = 2
 
 
 def read(source: str, scenario_name: str | None, tracking_bound: float | None):
@@ -40,30 +54,30 @@ def read(source: str, scenario_name: str | None, tracking_bound: float | None):
 
         name, overrides = SHIPPED_PLANS[source]
         if scenario_name is not None and scenario_name != name:
-            raise SystemExit(f"{source!r} is shipped for scenario {name!r}, not {scenario_name!r}.")
+            raise Refused(f"{source!r} is shipped for scenario {name!r}, not {scenario_name!r}.")
         return shipped_plan(source), make(name, **overrides), "shipped", None
     path = Path(source)
     if not path.is_file():
-        raise SystemExit(f"{source!r} is neither a shipped plan ({', '.join(SHIPPED_PLANS)}) nor a file.")
+        raise Refused(f"{source!r} is neither a shipped plan ({', '.join(SHIPPED_PLANS)}) nor a file.")
     if scenario_name is None:
         stem = path.name.removesuffix(".npz").removesuffix(".ckpt")
         if stem not in SHIPPED_PLANS:
-            raise SystemExit(f"{path.name}: name the scenario it was planned for (--scenario).")
+            raise Refused(f"{path.name}: name the scenario it was planned for (--scenario).")
         scenario_name, overrides = SHIPPED_PLANS[stem]
     else:
         overrides = {}
     scenario = make(scenario_name, **overrides)
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError) as err:
-        raise SystemExit(f"{path}: not a readable .npz file ({err}).") from err
+    try:  # the loader contract: a regular file within its size cap, an .npz archive, nothing unpickled
+        arrays = read_npz(path, "plan-checkpoint")
+    except LoadError as err:
+        problem = err.problem.removeprefix("not a planning checkpoint: ").rstrip(".")
+        raise Refused(f"{path}: not a readable plan file or planning checkpoint ({problem}).") from err
     if "key" in arrays:  # a planning checkpoint: the vehicles planned so far, in priority order
         from stp_env.planning.checkpoint import load
 
         if tracking_bound is None:
-            raise SystemExit(f"{path} is a planning checkpoint, which does not record the tracking bound: give "
-                             "--tracking-bound (the one the run plans with).")
+            raise Refused(f"{path} is a planning checkpoint, which does not record the tracking bound: give "
+                          "--tracking-bound (the one the run plans with).")
         planned = load(path, str(arrays["key"]))
         vehicles = tuple(VehiclePlan(index=i, priority=rank, plan=single, obstacle_lags=np.zeros(1),
                                      obstacle_radii=np.zeros(1)) for rank, (i, single) in enumerate(planned))
@@ -72,8 +86,8 @@ def read(source: str, scenario_name: str | None, tracking_bound: float | None):
         return plan, scenario, "checkpoint", path.stat().st_size
     try:
         plan = plan_from_arrays(arrays)
-    except (KeyError, ValueError) as err:
-        raise SystemExit(f"{path}: not a plan file ({err}).") from err
+    except (KeyError, ValueError, IndexError, TypeError) as err:  # missing arrays, or of other shapes and dtypes
+        raise Refused(f"{path}: not a plan file ({type(err).__name__}: {err}).") from err
     return plan, scenario, "file", path.stat().st_size
 
 
@@ -112,15 +126,23 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("plan", help="a shipped plan's name, a plan file (.npz) or a planning checkpoint")
     parser.add_argument("--scenario", help="the registered scenario it was planned for (default: from its name)")
-    parser.add_argument("--tracking-bound", type=float, help="r_e [m] of a checkpoint's run")
+    parser.add_argument("--tracking-bound", type=cli_kit.positive, help="r_e [m] of a checkpoint's run (> 0)")
     parser.add_argument("--figure", type=Path, help="draw the plan here (PNG)")
     args = parser.parse_args(argv)
-    plan, scenario, kind, size = read(args.plan, args.scenario, args.tracking_bound)
-    result = {"plan": args.plan, "kind": kind, "scenario": scenario.name, "bytes": size, **check(plan, scenario, kind)}
-    if args.figure is not None:
-        from stp_env.planning.plots import plot_plan
+    try:
+        try:
+            plan, scenario, kind, size = read(args.plan, args.scenario, args.tracking_bound)
+            result = {"plan": args.plan, "kind": kind, "scenario": scenario.name, "bytes": size,
+                      **check(plan, scenario, kind)}
+            if args.figure is not None:
+                from stp_env.planning.plots import plot_plan
 
-        result["figure"] = plot_plan(plan, scenario, str(args.figure))
+                result["figure"] = plot_plan(plan, scenario, str(args.figure))
+        except (ValueError, OSError) as err:  # an unknown scenario, a foreign checkpoint, an unwritable figure
+            raise Refused(f"{args.plan}: {err}" if args.plan not in str(err) else str(err)) from err
+    except Refused as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        raise
     print(json.dumps(result))
     return 0 if result["ok"] else 1
 

@@ -26,7 +26,13 @@ MAX_KBAR = 1000
 largest scenario has 200), and the buffer horizon ``t_BRD = t_IAT / k̄`` it sets stays at least a thousandth of
 ``t_IAT`` (10 ms at the papers' 10 s), which the solver resolves."""
 
-__all__ = ["INT32_MAX", "MAX_KBAR", "check_int", "check_kbar", "check_real", "parse_spec", "show"]
+MAX_SPEED = 1000.0
+"""The largest wind or speed [m/s] accepted anywhere (options, configurations, scenarios, events): three times the
+speed of sound, far beyond any vehicle or wind the papers model, and small enough that the solver's and the
+simulator's float32 arithmetic stays finite."""
+
+__all__ = ["INT32_MAX", "MAX_KBAR", "MAX_SPEED", "check_int", "check_kbar", "check_real", "contains_bool",
+           "parse_spec", "show"]
 
 
 def show(value) -> str:
@@ -79,6 +85,20 @@ def check_real(value, name: str, lo: float | None = None, hi: float | None = Non
     where = _range(lo, hi, lo_open, hi_open)
     raise ValueError(f"{name} must be a finite number{' ' + where if where else ''}; got {show(value)}"
                      f"{'' if ok else f' ({type(value).__name__})'}.")
+
+
+def contains_bool(value) -> bool:
+    """Whether ``value`` is a boolean, or a list, tuple or array holding one (``True`` is not the number 1 where a
+    number is expected; NumPy turns ``[True, 0.5]`` into ``[1.0, 0.5]`` without a word)."""
+    if isinstance(value, bool) or type(value).__name__ == "bool_":
+        return True
+    dtype = getattr(value, "dtype", None)
+    if dtype is not None:
+        return getattr(dtype, "kind", "") == "b" or (getattr(dtype, "kind", "") == "O" and any(
+            contains_bool(v) for v in getattr(value, "flat", ())))
+    if isinstance(value, (list, tuple)):
+        return any(contains_bool(v) for v in value)
+    return False
 
 
 def check_kbar(value, name: str = "kbar") -> int:

@@ -38,6 +38,13 @@ import time
 
 from stp_env import cli_kit as kit
 from stp_env.falsify.cli import add_parser as add_falsify_parser
+from stp_env.resources import (
+    EPISODE_BYTES,
+    MAX_N_ENVS,
+    RESULT_BYTES,
+    SOLVER_BYTES_PER_POINT,
+    check_grid,
+)
 
 
 def _check_output_file(path: str, option: str = "--out") -> None:
@@ -61,6 +68,17 @@ def _check_output_file(path: str, option: str = "--out") -> None:
         raise ValueError(f"{option} {out}: exists and is not writable.")
 
 
+def _solver_grid(text: str) -> int:
+    """``avoid-region --grid``: points per position dimension in ``[3, 1001]`` whose grid (``g x g x`` the next even
+    count) fits in the memory available at the solver's bytes per point (:func:`stp_env.resources.check_grid`)."""
+    g = kit.integer(3, 1001)(text)
+    try:
+        check_grid(text, (g, g, g + g % 2))
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err).rstrip(".")) from None
+    return g
+
+
 def _build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="stp-env", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -80,9 +98,10 @@ def _build_parser() -> argparse.ArgumentParser:
                     help="t_IAT, the longest time the intruder stays [s]")
     av.add_argument("--half-width", type=kit.real(0.0, 1e6, lo_open=True), default=320.0,
                     help="half-width of the relative-position grid box [m]")
-    av.add_argument("--grid", type=kit.integer(3, 1001), default=51,
+    av.add_argument("--grid", type=_solver_grid, default=51,
                     help="grid points per position dimension, 3-1001 (heading gets the next even count, so that "
-                         "relative heading 0 is a node)")
+                         "relative heading 0 is a node; the solver needs at least "
+                         f"{SOLVER_BYTES_PER_POINT} bytes per point, checked against the memory available)")
     av.add_argument("--accuracy", choices=["low", "medium", "high", "very_high"], default="very_high",
                     help="solver preset (scheme + time integrator)")
     kit.add_progress(av)
@@ -184,8 +203,9 @@ def _add_evaluate_parsers(sub) -> None:
                                     "the vehicles on u*, and the crossing at k̄ = 2 with the optimal-max-k "
                                     "intruder and the worst vehicles, where the bound binds.")
     _add_episode_options(ev, many=True)
-    ev.add_argument("--episodes", type=kit.positive_int, default=500,
-                    help="episodes per configuration (the default suite: 4 configurations x 500 episodes)")
+    ev.add_argument("--episodes", type=kit.in_memory(RESULT_BYTES, "episode"), default=500,
+                    help="episodes per configuration (the default suite: 4 configurations x 500 episodes; every "
+                         "episode's final state is kept, so their number is checked against the memory available)")
     kit.add_batch_size(ev, "episodes simulated in one compiled batch (memory grows with it; every batch has this "
                            "size)", default=250)
     ev.add_argument("--confidence", type=kit.probability, default=0.95,
@@ -454,7 +474,9 @@ def _add_train_intruder_parser(sub) -> None:
                          "actor-critic)")
     tr.add_argument("--timesteps", type=kit.positive_int, default=2_000_000,
                     help="total environment steps of training [steps]")
-    tr.add_argument("--n-envs", type=kit.integer(1, 1 << 20), default=64, help="environments in the batched VecEnv")
+    tr.add_argument("--n-envs", type=kit.in_memory(EPISODE_BYTES, "environment", MAX_N_ENVS), default=64,
+                    help="environments in the batched VecEnv (at most 2**20, and as many as the memory available "
+                         "holds)")
     tr.add_argument("--n-steps", type=kit.positive_int, default=128,
                     help="steps per environment per rollout [steps]")
     tr.add_argument("--minibatch-size", "--batch-size", dest="batch_size", type=kit.positive_int, default=2048,
@@ -523,9 +545,6 @@ def _add_train_intruder_parser(sub) -> None:
 
 
 def _train_intruder(args) -> int:
-    from stp_env.rl.train import TrainConfig
-    from stp_env.rl.trainers import train
-
     missing = _missing_trainer_modules(args.trainer)
     if missing:
         extra = "rl" if args.trainer == "sb3" else "jax-rl"
@@ -535,13 +554,20 @@ def _train_intruder(args) -> int:
         raise ValueError("--resume continues a --trainer jax run (SB3 runs keep checkpoints/ of their own).")
     if args.trainer == "jax" and args.cpu_devices is None:
         args.cpu_devices_unset = "auto"  # the JAX trainer shares its batch among the cores
-
-    from stp_env.evaluation.pipeline import check_output_dir
-
-    check_output_dir(args.out)
     if (args.ray or args.ray_address or args.grid) and args.seeds is None:
         raise ValueError("--ray and --grid belong to a sweep: give the seeds with --seeds SEED [SEED ...].")
-    grid = _parse_grid(args.grid or [])
+    from stp_env.rl import sweep
+
+    grid = sweep.parse_grid(args.grid or [])
+    if args.seeds is not None:
+        sweep.check_sweep_size(args.seeds, grid)
+
+    from stp_env.evaluation.pipeline import check_output_dir
+    from stp_env.rl.train import TrainConfig
+    from stp_env.rl.trainers import train
+
+    check_output_dir(args.out)
+    sweep.check_grid_fields(grid, TrainConfig)
     kit.apply_cpu_devices(args)  # before JAX's first computation
     executor = kit.executor(args) if args.seeds is not None else None  # --ray without ray installed fails here
     formats = ("stdout", "csv", "tensorboard") if args.tensorboard else ("stdout", "csv")
@@ -575,28 +601,6 @@ def _missing_trainer_modules(trainer: str) -> list[str]:
 
     names = ("stable_baselines3", "torch") if trainer == "sb3" else ("gymnax", "optax")
     return [name for name in names if importlib.util.find_spec(name) is None]
-
-
-def _parse_grid(items) -> dict:
-    """``["learning_rate=1e-4,3e-4", ...]`` as ``{"learning_rate": [0.0001, 0.0003]}`` (each value a JSON number,
-    boolean or list when it reads as one, else a string; the configuration checks them)."""
-    from stp_env.loaders import parse_json
-
-    grid = {}
-    for item in items:
-        name, sep, values = item.partition("=")
-        if not sep or not name.strip() or not values.strip():
-            raise ValueError(f"--grid takes FIELD=V1,V2,...; got {item!r}.")
-        if name in grid:
-            raise ValueError(f"--grid: {name} given twice.")
-        parsed = []
-        for text in values.split(","):
-            try:  # a number, boolean or null when it reads as one (the configuration checks the value)
-                parsed.append(parse_json(text, "--grid", "grid value"))
-            except ValueError:
-                parsed.append(text)
-        grid[name.strip()] = parsed
-    return grid
 
 
 def _select_figure_backend() -> None:

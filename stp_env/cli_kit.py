@@ -17,6 +17,7 @@ import functools
 from pathlib import Path
 
 from stp_env.arguments import INT32_MAX, MAX_KBAR, check_int, check_kbar, check_real, parse_spec
+from stp_env.resources import EPISODE_BYTES, check_count, check_memory, cpu_limit_reason, max_cpu_devices
 from stp_env.seeds import MAX_SEED, MAX_SEED_32, check_seed
 
 PACKAGE = Path(__file__).resolve().parent
@@ -64,6 +65,22 @@ def real(lo: float | None = None, hi: float | None = None, *, lo_open: bool = Fa
     return _typed(lambda v: check_real(v, "", lo, hi, lo_open=lo_open, hi_open=hi_open), "float")
 
 
+def in_memory(unit_bytes: int, unit: str, hi: int = INT32_MAX):
+    """A count in ``[1, hi]`` of things (``unit``) of at least ``unit_bytes`` each that fit in the memory available now
+    (:func:`stp_env.resources.check_memory`): a batch that could never be allocated is refused while parsing."""
+    bounded = integer(1, hi)
+
+    def parse(text: str) -> int:
+        n = bounded(text)
+        try:
+            return check_memory("", n, unit_bytes=unit_bytes, unit=unit)
+        except ValueError as err:
+            raise argparse.ArgumentTypeError(str(err).rstrip(".")) from None
+
+    parse.__name__ = "int"
+    return parse
+
+
 positive_int = integer(1)
 count = integer(0)
 positive = real(0.0, lo_open=True)
@@ -109,10 +126,12 @@ def add_seed(parser, what: str, *, default: int = 0, maximum: int = MAX_SEED) ->
                         help=f"seed of {what}: " + SEED_HELP.format(bound=bound))
 
 
-def add_batch_size(parser, what: str, *, default: int, maximum: int = INT32_MAX, aliases=()) -> None:
-    """``--batch-size`` (and older spellings ``aliases``): ``what`` one batch holds, with its unit."""
-    parser.add_argument("--batch-size", *aliases, dest="batch_size", type=integer(1, maximum), default=default,
-                        metavar="N", help=what)
+def add_batch_size(parser, what: str, *, default: int, maximum: int = INT32_MAX, aliases=(),
+                   unit_bytes: int = EPISODE_BYTES, unit: str = "episode") -> None:
+    """``--batch-size`` (and older spellings ``aliases``): ``what`` one batch holds, with its unit; at most
+    ``maximum`` and as many things (``unit``) of ``unit_bytes`` as the memory available holds (:func:`in_memory`)."""
+    parser.add_argument("--batch-size", *aliases, dest="batch_size", type=in_memory(unit_bytes, unit, maximum),
+                        default=default, metavar="N", help=what)
 
 
 def add_out(parser, default: str, what: str = "output directory") -> None:
@@ -133,13 +152,18 @@ def add_ray(parser, what: str) -> None:
 
 
 def cpu_device_count(value: str) -> int | str:
-    """``--cpu-devices``'s value: a positive integer or ``auto``."""
+    """``--cpu-devices``'s value: ``auto`` or a positive integer of at most
+    :func:`stp_env.resources.max_cpu_devices` (refused while parsing, before JAX starts)."""
     if value.strip() == "auto":
         return "auto"
     try:
-        return positive_int(value)
+        n = positive_int(value)
     except argparse.ArgumentTypeError:
         raise argparse.ArgumentTypeError(f"expected a positive integer or 'auto', got {value[:40]!r}") from None
+    try:
+        return check_count("", n, limit=max_cpu_devices(), why=cpu_limit_reason())
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err).rstrip(".")) from None
 
 
 def add_cpu_devices(parser, unset: int | str = "auto", note: str = "") -> None:
@@ -317,7 +341,7 @@ def spawn_modes() -> tuple[str, ...]:
 
 
 __all__ = ["MAX_KBAR", "HelpFormatter", "add_batch_size", "add_cache_dir", "add_out", "add_progress", "add_scenario",
-           "add_seed", "add_wind_model", "count", "describe_wind_models", "integer", "intruder_names", "kbar",
-           "nonnegative", "positive", "positive_int", "probability", "real", "scenario", "scenario_names", "seed",
-           "source_constant", "spawn_modes", "unit_interval", "vehicle_policy_names", "vehicle_policy_spec",
+           "add_seed", "add_wind_model", "count", "describe_wind_models", "in_memory", "integer", "intruder_names",
+           "kbar", "nonnegative", "positive", "positive_int", "probability", "real", "scenario", "scenario_names",
+           "seed", "source_constant", "spawn_modes", "unit_interval", "vehicle_policy_names", "vehicle_policy_spec",
            "wind_model", "wind_model_catalog"]

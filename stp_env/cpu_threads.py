@@ -26,6 +26,9 @@ from __future__ import annotations
 
 import os
 
+from stp_env import resources
+from stp_env.resources import check_count, cpu_limit_reason, max_cpu_devices, max_cpu_threads
+
 ENV_VAR = "PJRT_NPROC"
 """The environment variable XLA's CPU client reads for the size of its thread pools."""
 
@@ -60,10 +63,13 @@ def set_cpu_threads(n: int | None) -> None:
     """Give XLA's CPU runtime ``n`` threads per program (``None``: every core, XLA's default). Must come before the
     first JAX computation of the process; afterwards only the setting already in effect is accepted.
 
-    Raises ``ValueError`` for a count that is not a positive integer and ``RuntimeError`` once the backend has
-    started with a different setting (nothing is changed then)."""
+    Raises ``ValueError`` for a count that is not a positive integer, or is over this machine's limit
+    (:func:`stp_env.resources.max_cpu_threads`: a pool of thousands of threads takes minutes to start), and
+    ``RuntimeError`` once the backend has started with a different setting (nothing is changed then)."""
     if n is not None and (isinstance(n, bool) or not isinstance(n, int) or n < 1):
         raise ValueError(f"the CPU thread count must be a positive integer or None (every core); got {n!r}.")
+    if n is not None:
+        check_count("the CPU thread count", n, limit=max_cpu_threads(), why=cpu_limit_reason())
     if cpu_threads() == n:
         return
     if _backend_started():
@@ -95,23 +101,21 @@ def cpu_devices() -> int:
     return 1
 
 
+def available_cores() -> int:
+    """How many cores this process may run on (:func:`stp_env.resources.available_cores`)."""
+    return resources.available_cores()
+
+
 DEVICES_ENV_VAR = "STP_ENV_CPU_DEVICES"
 """The environment variable that sets the default ``--cpu-devices`` of the commands that take it (``evaluate``,
 ``falsify``, ``coobservation``, ``train-intruder``): a positive integer, or ``auto`` (one device per core,
 :func:`available_cores`). Unset, each command's own default applies."""
 
 
-def available_cores() -> int:
-    """How many cores this process may run on (its CPU affinity where the system reports one)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except (AttributeError, OSError):  # pragma: no cover - systems without affinity (macOS, Windows)
-        return max(1, os.cpu_count() or 1)
-
-
 def default_cpu_devices(unset: int | str = "auto") -> int | str:
-    """The device count :data:`DEVICES_ENV_VAR` asks for: a positive integer, or ``"auto"``; ``unset`` when it is
-    not set. ``ValueError`` naming the variable for anything else."""
+    """The device count :data:`DEVICES_ENV_VAR` asks for: a positive integer of at most
+    :func:`stp_env.resources.max_cpu_devices`, or ``"auto"``; ``unset`` when it is not set. ``ValueError`` naming the
+    variable for anything else."""
     value = os.environ.get(DEVICES_ENV_VAR, "").strip()
     if not value:
         return unset
@@ -123,7 +127,7 @@ def default_cpu_devices(unset: int | str = "auto") -> int | str:
         n = 0
     if n < 1:
         raise ValueError(f"{DEVICES_ENV_VAR} must be a positive integer or 'auto'; got {value!r}.")
-    return n
+    return check_count(DEVICES_ENV_VAR, n, limit=max_cpu_devices(), why=cpu_limit_reason())
 
 
 def set_cpu_devices(n: int) -> None:
@@ -140,11 +144,14 @@ def set_cpu_devices(n: int) -> None:
     same device count gives the same bits. A loop over one environment runs on the first device and is unchanged.
 
     Must come before the first JAX computation (like :func:`set_cpu_threads`); ``ValueError`` for a count that is
-    not a positive integer, ``RuntimeError`` once the backend has started with another count (nothing changed)."""
-    import jax
-
+    not a positive integer or is over this machine's limit (:func:`stp_env.resources.max_cpu_devices`: every
+    program shared among the devices compiles once per device, about 30 ms each), ``RuntimeError`` once the backend
+    has started with another count (nothing changed)."""
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise ValueError(f"the CPU device count must be a positive integer; got {n!r}.")
+    check_count("the CPU device count", n, limit=max_cpu_devices(), why=cpu_limit_reason())
+    import jax
+
     if cpu_devices() == n:
         return
     if _backend_started():

@@ -43,11 +43,12 @@ papers' Dubins vehicle): ``a[0]`` maps linearly to the speed ``[v_min, v_max]`` 
 ``[-omega_max, omega_max]`` [rad/s]. Out-of-range actions are clipped. NaN or inf, anything but real numbers
 (strings, booleans, complex), wrong shapes, and actions for unknown or finished agents raise ``ValueError`` naming
 the agent and leave the state unchanged; the AEC form checks each action at its agent's own ``step`` (the agent is
-still to act after the error). ``step`` after every agent has finished raises ``RuntimeError``: call ``reset``. A
-live agent missing from the action dict applies the zero action. With ``EnvConfig(safety_filter=True)`` (the
-default), a vehicle forced by the intruder (its relative state reached the boundary of ``V^A``, eqs. 17-18) has its
-action replaced by the avoidance control ``u^A`` (eq. 15) until the intruder leaves (eq. 38); the info
-``used_filter`` says when. ``vehicle_policy="worst"`` (or any name of
+still to act after the error), where ``None`` is the action of a finished agent only (PettingZoo's rule): a live
+agent's ``step(None)`` raises ``ValueError`` naming it. ``step`` after every agent has finished raises
+``RuntimeError``: call ``reset``. A live agent missing from the action dict applies the zero action. With
+``EnvConfig(safety_filter=True)`` (the default), a vehicle forced by the intruder (its relative state reached the
+boundary of ``V^A``, eqs. 17-18) has its action replaced by the avoidance control ``u^A`` (eq. 15) until the intruder
+leaves (eq. 38); the info ``used_filter`` says when. ``vehicle_policy="worst"`` (or any name of
 :data:`stp_env.baselines.VEHICLE_POLICIES`) flies the vehicles by that scripted policy instead of their actions
 (which are still checked, then ignored): ``"worst"`` is the buffer game's worst vehicle, under which an optimal
 intruder can reach the k̄ bound (the intruder paper's Fig. 6; scenario ``"fig6"``). ``vehicle_policy`` may also be
@@ -173,6 +174,7 @@ from pettingzoo.utils.wrappers import OrderEnforcingWrapper
 
 from stp_env import assembly, sim
 from stp_env.angles import wrap_angle
+from stp_env.arguments import contains_bool
 from stp_env.progress import compile_note
 from stp_env.seeds import prng_key
 from stp_env.sim import core
@@ -571,7 +573,7 @@ class STPParallelEnv(ParallelEnv):
             arr = np.asarray(a)
         except (TypeError, ValueError) as err:
             raise ValueError(f"action for {agent!r} is not an array of numbers ({err}).") from None
-        if arr.dtype.kind not in "iuf":
+        if arr.dtype.kind not in "iuf" or contains_bool(a):  # [True, 0.5] reads as [1.0, 0.5] in NumPy
             raise ValueError(f"action for {agent!r} must be real numbers (speed, turn rate in [-1, 1]); got "
                              f"{reprlib.repr(a)} (dtype {arr.dtype}).")
         shape = (self._action_dim(agent),)
@@ -872,7 +874,10 @@ class STPAECEnv(parallel_to_aec_wrapper):
             if action is not None:
                 raise ValueError(f"{agent!r} has finished (terminated or truncated): its step takes None; got "
                                  f"{action!r}.")
-        elif action is not None:
+        elif action is None:
+            raise ValueError(f"{agent!r} is live: its step takes an action (real numbers in [-1, 1]); None is the "
+                             "step of a finished agent only.")
+        else:
             action = self.env._check_action(agent, action)
         super().step(action)
 

@@ -85,19 +85,56 @@ def plain_file_mode() -> int:
     return 0o666 & ~umask
 
 
+class WriteError(OSError):
+    """An output that could not be written (a full disk, a quota, a read-only or missing directory): one line,
+    ``"cannot write <path>: <the system's reason>"``, with the system's ``errno``."""
+
+    def __init__(self, path, err: OSError):
+        super().__init__(err.errno, err.strerror or str(err))
+        self.path = Path(path)
+
+    def __str__(self) -> str:
+        return f"cannot write {self.path}: {self.strerror}"
+
+    def __reduce__(self):
+        return type(self), (self.path, OSError(self.errno, self.strerror))
+
+
 @contextlib.contextmanager
 def atomic_open(path, mode: str = "w", **kwargs):
     """Open a temporary file beside ``path`` for writing and move it onto ``path`` (``os.replace``) when the block
     ends without an error: ``path`` is either its old content or the complete new one, never half written. The
-    file gets the permissions of a plainly written one (:func:`plain_file_mode`)."""
+    file gets the permissions of a plainly written one (:func:`plain_file_mode`).
+
+    An ``OSError`` of the writing (creating, writing, flushing, closing or moving the file; in the block, one that
+    names no file, as a write to this one does) is a :class:`WriteError` naming ``path``: a full disk reads
+    ``cannot write OUT/x.json: No space left on device``, not a bare ``[Errno 28]``."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=TEMP_PREFIX + writer_tag(), suffix=path.suffix)
     try:
-        with os.fdopen(fd, mode, **kwargs) as fh:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=TEMP_PREFIX + writer_tag(), suffix=path.suffix)
+    except OSError as err:
+        raise WriteError(path, err) from err
+    fh = None
+    try:
+        fh = os.fdopen(fd, mode, **kwargs)
+        try:
             yield fh
-        os.chmod(tmp, plain_file_mode())
-        os.replace(tmp, path)
+        except OSError as err:
+            if err.filename is not None or isinstance(err, WriteError):
+                raise  # another file's error (a read in the block): its own message names that file
+            raise WriteError(path, err) from err
+        try:
+            fh.close()  # flushes: a full disk may only show here
+            os.chmod(tmp, plain_file_mode())
+            os.replace(tmp, path)
+        except OSError as err:
+            raise WriteError(path, err) from err
     finally:
+        if fh is None:
+            os.close(fd)
+        elif not fh.closed:
+            with contextlib.suppress(OSError):  # the block's own error is the one to report
+                fh.close()
         if os.path.exists(tmp):
             os.remove(tmp)
 
@@ -119,16 +156,20 @@ def save_figure(fig, path, **kwargs) -> Path:
 
 
 def append_csv_row(path, row: dict) -> None:
-    """Append ``row`` to the csv file ``path`` (its keys are the columns; the header first when the file is new)."""
+    """Append ``row`` to the csv file ``path`` (its keys are the columns; the header first when the file is new);
+    :class:`WriteError` naming ``path`` when it cannot be written."""
     import csv
 
     path = Path(path)
     new = not path.exists()
-    with path.open("a", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(row))
-        if new:
-            writer.writeheader()
-        writer.writerow(row)
+    try:
+        with path.open("a", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(row))
+            if new:
+                writer.writeheader()
+            writer.writerow(row)
+    except OSError as err:
+        raise WriteError(path, err) from err
 
 
 def move_aside(path) -> Path | None:

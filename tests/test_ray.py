@@ -438,7 +438,7 @@ def test_a_sweep_grid_runs_every_point_and_refuses_what_it_cannot_vary(tmp_path)
 
 
 def test_the_sweep_options_are_checked_before_anything_runs(tmp_path):
-    from stp_env.cli import _parse_grid
+    from stp_env.rl.sweep import parse_grid as _parse_grid
 
     assert _parse_grid(["learning_rate=1e-4,3e-4", "policy=a,b"]) == {"learning_rate": [1e-4, 3e-4],
                                                                         "policy": ["a", "b"]}

@@ -26,7 +26,8 @@ Agents
 ===============  ==========================================================================================
 
 Actions: ``Box(-1, 1, (2,))`` for every agent (speed in ``[0, 25] m/s`` and turn rate in ``[-2, 2] rad/s``,
-clipped; NaN, wrong shapes and unknown or finished agents raise ``ValueError`` before anything changes).
+clipped; NaN, booleans, strings, wrong shapes and unknown or finished agents raise ``ValueError`` before anything
+changes).
 Observations: vehicles get the core's vehicle row (:func:`stp_env.sim.core.observe`); the attacker gets
 :func:`stp_env.coobservation.attackers.attacker_observation` (zeros until it is active).
 
@@ -68,6 +69,7 @@ Version history: v0 (``coobservation_v0``), first release. Seeds of ``2**32`` an
 from __future__ import annotations
 
 import functools
+import reprlib
 from collections.abc import Mapping
 from typing import ClassVar
 
@@ -77,7 +79,7 @@ import jax.numpy as jnp
 import numpy as np
 from pettingzoo import ParallelEnv
 
-from stp_env.arguments import check_int, check_real
+from stp_env.arguments import check_int, check_real, contains_bool
 from stp_env.baselines import nominal_tracking
 from stp_env.coobservation import attackers, threat
 from stp_env.coobservation.uav import FormationScenario
@@ -288,7 +290,15 @@ class CoObservationParallelEnv(ParallelEnv):
                 raise ValueError(f"action for {agent!r}, which has finished; live agents: {self.agents}.")
             if a is None:
                 continue
-            a = np.asarray(a, np.float64)
+            raw = a
+            try:
+                kind = np.asarray(raw).dtype.kind
+            except (TypeError, ValueError):
+                kind = "O"
+            if kind not in "iuf" or contains_bool(raw):  # NumPy reads True as 1.0 and "1" as 1.0 without a word
+                raise ValueError(f"action for {agent!r} must be 2 real numbers (speed, turn rate in [-1, 1]), not "
+                                 f"booleans or strings; got {reprlib.repr(raw)}.")
+            a = np.asarray(raw, np.float64)
             if a.shape != (2,) or not np.all(np.isfinite(a)):
                 raise ValueError(f"action for {agent!r} must be 2 finite numbers (speed, turn rate in [-1, 1]); got "
                                  f"{a.tolist() if a.size < 10 else a.shape}.")

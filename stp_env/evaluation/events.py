@@ -18,11 +18,12 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from stp_env.arguments import INT32_MAX, check_int
+from stp_env.arguments import INT32_MAX, MAX_SPEED, check_int, check_real
 from stp_env.baselines import INTRUDERS
 from stp_env.baselines.intruders import is_plugin
 from stp_env.evaluation.config import LEARNED_PREFIX, Configuration
 from stp_env.loaders import read_json, read_npz
+from stp_env.resources import check_count, cpu_limit_reason, max_cpu_devices
 from stp_env.seeds import check_seed
 
 MAX_REPLAY_BATCH = 16384
@@ -51,7 +52,9 @@ def check_event(record, where: str = "event") -> dict:
     docstring), a seed, an index, the step count, plan length and batch size, the ``recorded`` flag, the
     optional ``airborne_only`` flag (absent in records written before it existed: the whole fleet) and the optional
     run size ``episodes`` (which finds the episode's batch; absent in older records: its consecutive indices) and the
-    optional ``devices`` its batch was shared among (absent in older records: one).
+    optional ``devices`` its batch was shared among (absent in older records: one; at most
+    :func:`stp_env.resources.max_cpu_devices`, as the replay splits this machine's CPU into as many). A ``wind`` in
+    the config is at most :data:`stp_env.arguments.MAX_SPEED`.
     Returns it unchanged; ``ValueError`` starting with ``where`` otherwise."""
     if not isinstance(record, dict):
         raise ValueError(f"{where}: a record must be a JSON object; got a {type(record).__name__}.")
@@ -69,6 +72,11 @@ def check_event(record, where: str = "event") -> dict:
                                              or is_plugin_spec(intruder)):
         raise ValueError(f"{where}: unknown intruder {intruder!r}; a saved event names a registered intruder "
                          f"({', '.join(INTRUDERS)}) or 'learned:NAME_OR_PATH'.")
+    if config.get("wind") is not None:  # the simulator's range (Configuration checks only that it is finite)
+        try:
+            check_real(config["wind"], "wind [m/s]", 0.0, MAX_SPEED)
+        except ValueError as err:
+            raise ValueError(f"{where}: bad config: {err}") from None
     try:
         Configuration(**config)
     except (TypeError, ValueError) as err:
@@ -86,7 +94,11 @@ def check_event(record, where: str = "event") -> dict:
         if record["index"] >= record["episodes"]:
             raise ValueError(f"{where}: index {record['index']} is not an episode of a run of {record['episodes']}.")
     if "devices" in record:  # absent in records written before batches were shared among devices: one
-        _int(record["devices"], "devices", where, 1, 1 << 16)
+        _int(record["devices"], "devices", where, 1)
+        try:  # the replay splits this machine's CPU into as many devices: within what it can start
+            check_count("devices", record["devices"], limit=max_cpu_devices(), why=cpu_limit_reason())
+        except ValueError as err:
+            raise ValueError(f"{where}: {err}") from None
     if not isinstance(record["recorded"], bool):
         raise ValueError(f"{where}: recorded must be true or false; got {record['recorded']!r}.")
     if not isinstance(record.get("airborne_only", False), bool):

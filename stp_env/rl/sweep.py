@@ -22,16 +22,144 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
+from stp_env.arguments import INT32_MAX, check_int, check_real
 from stp_env.files import write_text
+from stp_env.resources import (
+    EPISODE_BYTES,
+    MAX_N_ENVS,
+    check_count,
+    check_memory,
+    check_sweep,
+    cpu_limit_reason,
+    max_cpu_threads,
+)
 
 ENVIRONMENT_FIELDS = ("scenario", "kbar", "vehicle_policy", "spawn_mode", "wind_model", "backend", "control_dt",
                       "avoid_margin", "forced_reward", "collision_reward", "shaping_reward", "kbar_reward", "horizon",
                       "observation", "clone")
 """What the shipped ``EnvParams`` depend on (or the env built from them): a grid may not vary these."""
+
+
+# ---------------------------------------------------------------------------------------- the command line's grid
+def _real(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False):
+    return lambda value, name: check_real(value, name, lo, hi, lo_open=lo_open)
+
+
+def _integer(lo: int, hi: int | None = INT32_MAX):
+    return lambda value, name: check_int(value, name, lo, hi)
+
+
+GRID_CHECKS = {
+    "learning_rate": _real(1e-9, 1.0),
+    "gamma": _real(0.0, 1.0, lo_open=True),
+    "gae_lambda": _real(0.0, 1.0, lo_open=True),
+    "clip_range": _real(0.0, lo_open=True),
+    "ent_coef": _real(0.0),
+    "log_std_init": _real(-20.0, 5.0),
+    "total_timesteps": _integer(1),
+    "n_envs": lambda value, name: check_memory(name, check_int(value, name, 1, MAX_N_ENVS),
+                                               unit_bytes=EPISODE_BYTES, unit="environment"),
+    "n_steps": _integer(1),
+    "batch_size": _integer(1),
+    "n_epochs": _integer(1, 1000),
+    "torch_threads": lambda value, name: check_count(name, value, limit=max_cpu_threads(), why=cpu_limit_reason()),
+    "clone_steps": _integer(1),
+    "clone_rounds": _integer(0),
+    "clone_epochs": _integer(1),
+    "eval_every": _integer(0),
+    "eval_episodes": _integer(1),
+    "eval_seed": _integer(0, 2**32 - 1),
+    "checkpoint_every": _integer(0),
+}
+"""The range of every numeric training setting a ``--grid`` may vary (those with an option have the option's):
+``learning_rate`` in ``[1e-9, 1]``, ``gamma`` and ``gae_lambda`` in ``(0, 1]``, ``clip_range > 0``,
+``ent_coef >= 0``, counts positive integers (``clone_rounds``, ``eval_every``, ``checkpoint_every`` and
+``eval_seed`` from 0), ``n_envs`` and ``torch_threads`` within the machine (:mod:`stp_env.resources`)."""
+
+GRID_FIXED = {"seed": "--seeds sweeps the seed", "out_dir": "every run writes under --out"}
+"""Training settings a ``--grid`` cannot vary, and why (besides those the environment depends on,
+:data:`stp_env.rl.sweep.ENVIRONMENT_FIELDS`)."""
+
+
+def _hashable(value):
+    """``value`` (a JSON value) as a key under which equal values (``1`` and ``1.0``) are equal."""
+    if isinstance(value, list):
+        return tuple(_hashable(v) for v in value)
+    if isinstance(value, dict):
+        return tuple(sorted((k, _hashable(v)) for k, v in value.items()))
+    return value
+
+
+def parse_grid(items) -> dict:
+    """``["learning_rate=1e-4,3e-4", ...]`` as ``{"learning_rate": [0.0001, 0.0003]}`` (each value a JSON number,
+    boolean or list when it reads as one, else a string). Refused with one line naming the item: a name with spaces
+    around it, a field given twice, a value given twice or empty, a field a sweep cannot vary (:data:`GRID_FIXED`),
+    a numeric setting outside its range (:data:`GRID_CHECKS`); the configuration checks the other values."""
+    from stp_env.loaders import parse_json
+
+    grid: dict[str, list] = {}
+    for item in items:
+        name, sep, values = item.partition("=")
+        if not sep or not name.strip() or not values.strip():
+            raise ValueError(f"--grid takes FIELD=V1,V2,...; got {item!r}.")
+        if any(c.isspace() for c in name):
+            raise ValueError(f"--grid {item!r}: the field name {name!r} has spaces; write FIELD=V1,V2,... with the "
+                             "field's name alone.")
+        if name in grid:
+            raise ValueError(f"--grid: {name} given twice (give all its values in one --grid {name}=V1,V2,...).")
+        if name in GRID_FIXED:
+            raise ValueError(f"--grid {item!r}: a sweep cannot vary {name} ({GRID_FIXED[name]}).")
+        parsed, seen = [], set()
+        for text in values.split(","):
+            text = text.strip()
+            if not text:
+                raise ValueError(f"--grid {item!r}: an empty value.")
+            try:  # a number, boolean or null when it reads as one (the configuration checks the value)
+                value = parse_json(text, "--grid", "grid value")
+            except ValueError:
+                value = text
+            check = GRID_CHECKS.get(name)
+            if check is not None:
+                try:
+                    check(value, name)
+                except ValueError as err:
+                    raise ValueError(f"--grid {name}={text}: {err}") from None
+            key = _hashable(value)
+            if key in seen:
+                raise ValueError(f"--grid {item!r}: the value {text} is given twice.")
+            seen.add(key)
+            parsed.append(value)
+        grid[name] = parsed
+    return grid
+
+
+def check_sweep_size(seeds, grid: dict) -> None:
+    """Distinct ``--seeds``, and at most :data:`stp_env.resources.MAX_SWEEP_RUNS` runs (seeds times grid points);
+    one-line ``ValueError`` otherwise."""
+    repeated = sorted(s for s, n in Counter(seeds).items() if n > 1)
+    if repeated:
+        raise ValueError(f"--seeds: {', '.join(map(str, repeated[:5]))} given twice; every run needs its own seed.")
+    points = 1
+    for values in grid.values():
+        points *= len(values)
+    check_sweep(len(seeds) * points, f"--seeds ({len(seeds)}) times --grid ({points:,} points)")
+
+
+def check_grid_fields(grid: dict, config_type) -> None:
+    """Every ``--grid`` field a field of ``config_type`` (the training configuration) that a sweep may vary."""
+    fields = {f.name for f in dataclasses.fields(config_type)}
+    for name in grid:
+        if name not in fields:
+            raise ValueError(f"--grid: {name!r} is not a training setting; fields: "
+                             f"{', '.join(sorted(fields - set(GRID_FIXED) - set(ENVIRONMENT_FIELDS)))}.")
+        if name in ENVIRONMENT_FIELDS:
+            raise ValueError(f"--grid {name}: a sweep cannot vary {name} (the environment, built once for the whole "
+                             "sweep, depends on it).")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from stp_env.arguments import MAX_SPEED, check_real
 from stp_env.dynamics import DubinsWind
 from stp_env.scenarios.config import Scenario
 
@@ -19,8 +20,8 @@ def check_factory_args(*, n_vehicles: int | None = None, sta_spacing: float | No
     if n_vehicles is not None and (isinstance(n_vehicles, bool) or not isinstance(n_vehicles, (int, np.integer))
                                    or n_vehicles < 1):
         raise ValueError(f"n_vehicles must be an integer >= 1; got {n_vehicles!r}.")
-    if sta_spacing is not None and not (isinstance(sta_spacing, (int, float)) and math.isfinite(sta_spacing)
-                                        and sta_spacing >= 0):
+    if sta_spacing is not None and (isinstance(sta_spacing, bool) or not isinstance(sta_spacing, (int, float))
+                                    or not math.isfinite(sta_spacing) or sta_spacing < 0):
         raise ValueError(f"sta_spacing must be a finite number of seconds >= 0 (the papers use 0, 5 or 10); "
                          f"got {sta_spacing!r}.")
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
@@ -40,8 +41,10 @@ def heading(frm, to) -> float:
 
 
 def paper_vehicle(wind: float) -> DubinsWind:
-    """Vehicle bounds of the intruder and BEACLS papers (eq. 43 / 23): ``v in [0, 25] m/s``, ``|omega| <= 2 rad/s``."""
-    return DubinsWind(v_min=0.0, v_max=25.0, omega_max=2.0, wind=float(wind))
+    """Vehicle bounds of the intruder and BEACLS papers (eq. 43 / 23): ``v in [0, 25] m/s``, ``|omega| <= 2 rad/s``;
+    ``wind`` a number in ``[0, MAX_SPEED]`` m/s (:data:`stp_env.arguments.MAX_SPEED`; never a string or a boolean).
+    """
+    return DubinsWind(v_min=0.0, v_max=25.0, omega_max=2.0, wind=check_real(wind, "wind [m/s]", 0.0, MAX_SPEED))
 
 
 def paper_fields(wind: float) -> dict:
