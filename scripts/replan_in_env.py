@@ -54,7 +54,7 @@ def episode(context, ep: int) -> dict:
         _, _, _, _, step_infos = env.step(actions)
         infos.update(step_infos)
         for a, info in step_infos.items():
-            if a != "intruder" and info["status"] == "arrived" and not np.isfinite(arrival[int(a[8:])]):
+            if a != "intruder" and info["status"] == sim.ARRIVED and not np.isfinite(arrival[int(a[8:])]):
                 arrival[int(a[8:])] = info["time"]
     vehicle_infos = [infos[f"vehicle_{i}"] for i in range(n)]
     out = {name: np.array([bool(info[name]) for info in vehicle_infos])

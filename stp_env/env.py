@@ -33,8 +33,17 @@ Agents
                   (terminated), or when it collides or leaves the domain (terminated).
 ``intruder``      Appears at ``t_`` (random in ``EnvConfig.appear_window``, or ``reset(options=
                   {"appear_time": t})``) outside every vehicle's avoid region (Assumption 3), and is removed
-                  ``t_IAT`` later (terminated). Its actions are ignored before it appears.
+                  ``t_IAT`` later (terminated). Its actions are ignored before it appears. Not an agent when
+                  a script flies it (``intruder=...``).
 ================  ==========================================================================================
+
+``possible_agents`` are the agents of the episode the configuration defines, the same for every seed: the
+vehicles still to fly at its first instant (those that arrived earlier are out of the airspace for the whole
+episode) and the intruder; ``reset`` makes every one of them an agent. An agent leaves ``agents`` when it is done
+(PettingZoo's convention); with ``keep_finished=True`` it stays until the episode ends, with reward 0 and its
+actions ignored, so that every agent ends in the same step (for clients without agent death: SuperSuit's vector
+envs, TorchRL; docs/training.md). The last step of a truncated episode truncates every agent left (one that
+terminates in it too is both).
 
 Actions
 -------
@@ -57,8 +66,8 @@ checked once, abstractly, when the env is made), evaluated inside the step at ev
 named ones (the papers' controllers are in ``state.track_action`` and ``state.avoid_action``): one jitted call
 per step instead of the user's call plus the step's. Define it once: the step compiles per function object.
 ``intruder="max-k"`` (a name of :data:`stp_env.baselines.INTRUDERS`, ``"learned:NAME_OR_PATH"``, a plug-in
-``"package.module:policy"``, or the policy itself) flies the intruder by that policy the same way (the
-``intruder`` agent's actions are checked, then ignored); its record's capabilities apply
+``"package.module:policy"``, or the policy itself) flies the intruder by that policy the same way (there is then
+no ``intruder`` agent); its record's capabilities apply
 (:class:`stp_env.baselines.intruders.Intruder`): the buffer table is loaded for one that reads ``V^B``, and
 without a ``config`` or a ``spawn_mode`` it appears where it spawns by default (``"boundary"`` for ``max-k``).
 
@@ -85,14 +94,15 @@ episode stream, no truncation); booleans, floats, negative or larger seeds raise
 dict; ``{"appear_time": t}`` fixes the intruder's appearance time ``t`` [s, plan time], a real number within the
 episode ``[t_start, t_end]``; other keys are ignored with a warning. Everything is checked before anything
 changes: after a failed ``reset`` the key, state and agents are as before. An ``EnvConfig.appear_window`` that
-falls outside the episode raises ``ValueError`` when the environment is built. ``reset`` lists as ``agents`` the
-intruder and every vehicle not done at the episode's first instant (vehicles that arrived earlier are not agents
-of the episode).
+falls outside the episode raises ``ValueError`` when the environment is built. Observations and ``state()`` are
+arrays of the caller's own (writable).
 
 Infos (fresh dicts every step)
 ------------------------------
-Vehicles: ``status`` (waiting / flying / arrived / collided / out_of_bounds), ``mode`` (nominal / avoiding /
-after_avoidance), ``avoid_start_time`` (``t_i`` [s], ``None`` if never forced), ``forced``, ``n_forced``
+Numbers only (ints, floats, bools; no NaN), the same keys for every vehicle at every step, so that tensors can
+hold them. Vehicles: ``status`` (an index of ``INFO_CODES["status"]``: waiting / flying / arrived / collided /
+out_of_bounds), ``mode`` (of ``INFO_CODES["mode"]``: nominal / avoiding / after_avoidance), ``avoid_start_time``
+(``t_i`` [s], ``inf`` if never forced), ``forced``, ``n_forced``
 (``|N^RP|``, eq. 39), ``kbar``, ``collision``, ``guarantee_violation`` (a collision although the intruder
 appeared outside its avoid region and it applied ``u^A`` from ``t_i`` on; not one in which a vehicle flying the
 after-avoidance fallback takes part, see :mod:`stp_env.sim.core`), ``tracking_error`` [m] (distance to its
@@ -103,19 +113,21 @@ vehicle policy flew it, or its actions were the tracker's), ``tracking_violation
 ``stp-env evaluate`` counts it), ``used_filter``, ``min_separation`` [m], ``cost`` (1.0 in the step of a
 collision: the safety-gymnasium convention), ``time`` [s], ``sta`` (the current STA [s]: a new one after
 replanning), ``replanned``.
-Intruder: ``status`` (pending / present / gone), ``n_forced``, ``kbar``, ``kbar_exceeded``, ``collisions``,
-``guarantee_violations``, ``tracking_violations``, ``cost`` (0.0), ``time``.
-Every agent's info also holds ``episode``, the episode-level results so far (the same for every agent):
-``n_forced``, ``kbar``, ``kbar_exceeded``, ``collisions``, ``guarantee_violations``, ``tracking_violations``,
-``max_tracking_error`` [m] (over the vehicles of the episode that flew and tracked their plan, as
-``stp-env evaluate`` reports it; ``None`` if none did), ``tracking_bound`` (``r_e`` [m]), ``intruder_status``,
-``time``. The same dict is ``env.episode`` after every ``reset`` and ``step``: at the end of an episode it is
-readable whichever agents are left (the intruder leaves ``t_IAT`` after it appears, before the episode ends).
+Intruder: ``status`` (of ``INFO_CODES["intruder_status"]``: pending / present / gone), ``n_forced``, ``kbar``,
+``kbar_exceeded``, ``collisions``, ``guarantee_violations``, ``tracking_violations``, ``cost`` (0.0), ``time``.
+Every agent's info also holds the episode-level results so far (the same for every agent), each an entry
+``stp_episode_<name>`` of its own (flat, so that every value is a number: no nested dict, and not ``episode``, the
+key Stable-Baselines3's monitors own): ``n_forced``, ``kbar``, ``kbar_exceeded``, ``collisions``,
+``guarantee_violations``, ``tracking_violations``, ``max_tracking_error`` [m] (over the vehicles of the episode
+that flew and tracked their plan, as ``stp-env evaluate`` reports it; ``-inf`` if none did), ``tracking_bound``
+(``r_e`` [m]), ``intruder_status`` (a code), ``time``. ``env.episode`` is the same record to
+read, with names (``intruder_status`` ``"gone"``) and ``None`` (no tracked vehicle), after every ``reset`` and
+``step``: at the end of an episode it is there whichever agents are left.
 
 Arguments
 ---------
 ``parallel_env(scenario="town", config=None, *, max_cycles=None, render_mode=None, params=None, store=None,
-backend=None, progress=None, **config_fields)``:
+backend=None, progress=None, keep_finished=False, **config_fields)``:
 ``scenario`` is a registry name or a :class:`stp_env.scenarios.Scenario`; ``config`` an
 :class:`stp_env.sim.EnvConfig` (``dt`` [s], the inner control period ``control_dt`` [s], wind model, spawn mode,
 safety filter, episode window, rewards); any field of it can also be given by name and replaces the config's
@@ -156,6 +168,7 @@ from __future__ import annotations
 import contextvars
 import dataclasses
 import functools
+import math
 import numbers
 import reprlib
 import sys
@@ -177,7 +190,7 @@ from stp_env.angles import wrap_angle
 from stp_env.arguments import contains_bool
 from stp_env.progress import compile_note
 from stp_env.seeds import prng_key
-from stp_env.sim import core
+from stp_env.sim import core, fleet
 from stp_env.sim.backends import with_backend
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.packing import DeviceCarry, Layout, pack
@@ -196,6 +209,10 @@ from stp_env.sim.types import (
 )
 
 DEFAULT_SCENARIO = "town"
+INFO_CODES = {"status": STATUS_NAMES, "mode": MODE_NAMES, "intruder_status": INTRUDER_STATUS_NAMES}
+"""What the integer codes of the infos name: ``INFO_CODES["status"][info["status"]]`` is a vehicle's status
+(``"waiting"``, ``"flying"``, ...); the intruder's ``status`` and ``stp_episode_intruder_status`` are
+``INFO_CODES["intruder_status"]`` codes."""
 
 
 _BUILD_PROGRESS = contextvars.ContextVar("stp_env_build_progress", default=False)
@@ -358,7 +375,7 @@ class STPParallelEnv(ParallelEnv):
                  max_cycles: int | None = None, render_mode: str | None = None, params: sim.EnvParams | None = None,
                  render_avoid_regions: bool = False, store=None, replan: bool = False,
                  vehicle_policy=None, intruder=None, backend: str | None = None,
-                 progress: bool | None = None, **config_overrides):
+                 progress: bool | None = None, keep_finished: bool = False, **config_overrides):
         from stp_env import progress as progress_mod
         from stp_env.baselines import BUFFER_GAME_VEHICLE_POLICIES, VEHICLE_POLICIES
         from stp_env.baselines import vehicle_policy as resolve_vehicle_policy
@@ -371,6 +388,8 @@ class STPParallelEnv(ParallelEnv):
         elif vehicle_policy is not None:  # a name or learned:NAME_OR_PATH; ValueError before anything is built
             vehicle_policy_fn = resolve_vehicle_policy(vehicle_policy)
 
+        if not isinstance(keep_finished, bool):
+            raise ValueError(f"keep_finished must be True or False; got {keep_finished!r}.")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode {render_mode!r} is not supported; allowed: "
                              f"{self.metadata['render_modes']} or None.")
@@ -446,8 +465,17 @@ class STPParallelEnv(ParallelEnv):
         self._sta = np.asarray(params.vehicles.sta, np.float64)
         self.replan_log: list[dict] = []
         n = params.vehicles.n
-        self.possible_agents = [f"vehicle_{i}" for i in range(n)] + ["intruder"]
-        self._index = {a: i for i, a in enumerate(self.possible_agents)}
+        # The agents of an episode are the vehicles still to fly at its first instant (those that arrived before it
+        # are out of the airspace for the whole episode) and the intruder unless a script flies it: the same agents
+        # for every seed, all of them present at reset, as PettingZoo's clients expect of possible_agents.
+        self._vehicle_names = [f"vehicle_{i}" for i in range(n)]
+        self._in_episode = ~np.asarray(jax.device_get(fleet.arrived_at_start(params)), bool)
+        self.possible_agents = [a for a, take in zip(self._vehicle_names, self._in_episode) if take]
+        if intruder_policy is None:
+            self.possible_agents.append("intruder")
+        self._index = {**{a: i for i, a in enumerate(self._vehicle_names)}, "intruder": n}
+        self.keep_finished = keep_finished
+        self._finished: set[str] = set()  # agents done before the episode's end (kept as agents: keep_finished)
         default_cycles = sim.steps_for(params)
         if max_cycles is None:
             max_cycles = default_cycles
@@ -461,7 +489,6 @@ class STPParallelEnv(ParallelEnv):
         self._kbar = int(params.intruder.kbar)
         self._tracking_bound = float(params.tables.tracking_bound)
         self.episode: dict | None = None  # the episode-level results after the last reset or step (see Infos)
-        self._in_episode = np.ones(n, bool)  # vehicles that are agents of the episode (not done at its start)
         self._observation_spaces: dict[str, gymnasium.spaces.Box] = {}
         self._action_spaces: dict[str, gymnasium.spaces.Box] = {}
         self._carry = DeviceCarry()  # (key, state), packed on the device
@@ -494,7 +521,7 @@ class STPParallelEnv(ParallelEnv):
         return 2 if agent == "intruder" else self.params.vehicles.model.action_dim
 
     def _check_known(self, agent):
-        if agent not in self._index:
+        if agent not in self.possible_agents:
             raise ValueError(f"unknown agent {agent!r}; agents are {self.possible_agents}.")
 
     # ------------------------------------------------------------------------------------------ reset / step
@@ -522,11 +549,8 @@ class STPParallelEnv(ParallelEnv):
         self._steps = 0
         out = jax.device_get(out)
         obs, info = self._observations(out.obs_vehicles, out.obs_intruder), out.info
-        # Vehicles that arrived before the episode's first instant are not agents of it (they would only be
-        # terminated by the first step); the intruder always is.
-        done_v = info.status >= sim.ARRIVED
-        self.agents = [a for a in self.possible_agents if a == "intruder" or not done_v[self._index[a]]]
-        self._in_episode = ~np.asarray(done_v, bool)
+        self.agents = list(self.possible_agents)  # every agent of the episode (possible_agents, built with it)
+        self._finished = set()
         infos = self._infos(info, self.agents)
         obs = {a: obs[a] for a in self.agents}
         if self.render_mode == "human":
@@ -562,7 +586,7 @@ class STPParallelEnv(ParallelEnv):
     def _check_action(self, agent, a) -> np.ndarray | None:
         """The action of a live ``agent`` as a clipped float32 array (``None``: the zero action);
         ``ValueError`` naming the agent for anything else."""
-        if agent not in self._index:
+        if agent not in self.possible_agents:
             raise ValueError(f"action for unknown agent {agent!r}; agents are {self.possible_agents}.")
         if agent not in self.agents:
             raise ValueError(f"action for {agent!r}, which has finished (terminated or truncated); "
@@ -677,7 +701,20 @@ class STPParallelEnv(ParallelEnv):
         terms = {a: done[index[a]] for a in live}
         truncs = {a: truncated_all and not terms[a] for a in live}
         obs = {a: obs[a] for a in live}
-        self.agents = [a for a in live if not (terms[a] or truncs[a])]
+        ending = truncated_all or all(terms.values())  # no agent of the episode is left after this step
+        if self.keep_finished:
+            # a finished agent stays an agent until the episode ends (reward 0 after the step it finished in, its
+            # actions ignored by the core), so that every agent ends in the same step: what clients without agent
+            # death need (SuperSuit's vector envs, TorchRL)
+            rew.update(dict.fromkeys(self._finished, 0.0))
+            if not ending:
+                self._finished.update(a for a in live if terms[a])
+                terms, truncs = dict.fromkeys(live, False), dict.fromkeys(live, False)
+        if ending and any(truncs.values()):
+            # the last step of a truncated episode truncates every agent (one that also terminates in it is both):
+            # a client that ends an episode when all its agents are truncated (RLlib) sees the end
+            truncs = dict.fromkeys(live, True)
+        self.agents = [] if ending else [a for a in live if not (terms[a] or truncs[a])]
         if self.render_mode == "human":
             self.render()
         return obs, rew, terms, truncs, infos
@@ -724,8 +761,9 @@ class STPParallelEnv(ParallelEnv):
 
     # ------------------------------------------------------------------------------------------ conversions
     def _observations(self, obs_vehicles, obs_intruder) -> dict[str, np.ndarray]:
-        obs = dict(zip(self.possible_agents[:-1], obs_vehicles))  # one row view per vehicle
-        obs["intruder"] = obs_intruder
+        """Every agent's observation, an array of its own (writable; a client may change it in place)."""
+        obs = {name: row.copy() for name, row in zip(self._vehicle_names, obs_vehicles)}
+        obs["intruder"] = np.array(obs_intruder)
         return obs
 
     def _infos(self, info: StepInfo, live) -> dict:
@@ -748,28 +786,33 @@ class STPParallelEnv(ParallelEnv):
             "collisions": int(collided.sum()),
             "guarantee_violations": int(violation.sum()),
             "tracking_violations": int(track_violation.sum()),
-            "max_tracking_error": float(np.max(max_error[flew_tracked])) if flew_tracked.any() else None,
+            # no NaN in the infos (NaN != NaN: PettingZoo's seed tests compare infos): the maximum over no vehicle
+            "max_tracking_error": float(np.max(max_error[flew_tracked])) if flew_tracked.any() else -math.inf,
             "tracking_bound": self._tracking_bound,
-            "intruder_status": INTRUDER_STATUS_NAMES[int(info.intruder_status)],
+            "intruder_status": int(info.intruder_status),
             "time": t,
         }
-        self.episode = episode
+        # env.episode: the same record to read (names, None), the infos' one to hold in tensors (numbers)
+        self.episode = {**episode, "intruder_status": INTRUDER_STATUS_NAMES[episode["intruder_status"]],
+                        "max_tracking_error": (None if episode["max_tracking_error"] == -math.inf
+                                               else episode["max_tracking_error"])}
         # Only the live agents' dicts are built (the city's finished vehicles are most of its agents late in an
         # episode), each from Python lists (one tolist() per column): no per-element numpy scalars
         live_set = set(live)
-        columns = zip(self.possible_agents, status.tolist(), mode.tolist(), avoid_start.tolist(), forced.tolist(),
+        columns = zip(self._vehicle_names, status.tolist(), mode.tolist(), avoid_start.tolist(), forced.tolist(),
                       collided.tolist(), violation.tolist(), error.tolist(), max_error.tolist(),
                       info.tracked.tolist(), track_violation.tolist(), used.tolist(), self._replanned.tolist(),
                       self._sta.tolist(), min_sep.tolist(), new_collision.tolist())
+        record = {f"stp_episode_{k}": v for k, v in episode.items()}  # flat: a tensor per entry
         built = {}
         for (agent, st, md, start, frc, col, viol, err, max_err, tracked, track_viol, used_i, replanned, sta,
              sep, new_col) in columns:
             if agent not in live_set:
                 continue
             built[agent] = {
-                "status": STATUS_NAMES[st],
-                "mode": MODE_NAMES[md],
-                "avoid_start_time": start if frc else None,
+                "status": st,
+                "mode": md,
+                "avoid_start_time": start,  # inf: never forced (the core's own convention)
                 "forced": frc,
                 "n_forced": n_forced,
                 "kbar": kbar,
@@ -785,7 +828,7 @@ class STPParallelEnv(ParallelEnv):
                 "min_separation": sep,
                 "cost": float(new_col),
                 "time": t,
-                "episode": episode.copy(),
+                **record,
             }
         if "intruder" in live_set:
             built["intruder"] = {
@@ -798,7 +841,7 @@ class STPParallelEnv(ParallelEnv):
                 "tracking_violations": episode["tracking_violations"],
                 "cost": 0.0,
                 "time": t,
-                "episode": episode.copy(),
+                **record,
             }
         return {agent: built[agent] for agent in live}
 
@@ -808,7 +851,7 @@ class STPParallelEnv(ParallelEnv):
         the time since the episode start over its length."""
         if self._carry.words is None:
             raise RuntimeError("call reset() before state().")
-        return np.asarray(_global_state_jit(self._state, self.params))
+        return np.array(_global_state_jit(self._state, self.params))  # an array of the caller's own (writable)
 
     # ------------------------------------------------------------------------------------------ render
     def render(self):

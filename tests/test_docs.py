@@ -31,7 +31,18 @@ SMALL = {
     'assembly.params_for("town", sim.EnvConfig(spawn_mode="boundary"))': [
         ('assembly.params_for("town"', 'assembly.params_for("tiny-intruder"'), ("n_envs=1000", "n_envs=4")],
     "SearchConfig(budget=10_000)": [("SearchConfig(budget=10_000)", "SearchConfig(budget=64)")],
+    # docs/training.md, "Multi-agent clients" (tests/test_clients.py runs each route at length)
+    "parallel_api_test(parallel_env(\"town\"), num_cycles=1000)": [("num_cycles=1000", "num_cycles=100")],
+    "model.learn(total_timesteps=200_000)": [("total_timesteps=200_000", "total_timesteps=1536")],
+    "PettingZooWrapper(env=parallel_env(": [("max_cycles=300", "max_cycles=20"), ("max_steps=1000", "max_steps=50")],
+    "register_env(\"stp\"": [("train_batch_size=4000", "train_batch_size=400, minibatch_size=200, num_epochs=1"),
+                             ("range(10)", "range(1)")],
     '(61, 61, 60)': [("(61, 61, 60)", "(21, 21, 20)"), ('with_accuracy("very_high")', 'with_accuracy("low")')],
+}
+
+# blocks that need a client outside the dev extra: skipped without it (ray[rllib] pins gymnasium==1.2.2)
+OPTIONAL_CLIENTS = {
+    "from ray.rllib": ("ray.rllib.algorithms.ppo", "RLlib's dependencies are not installed: pip install 'ray[rllib]'"),
 }
 
 NOT_PYTHON = {
@@ -120,6 +131,9 @@ def test_code_block_runs(file, line, text, tmp_path, monkeypatch):
         assert any(file == f and marker in text for f, marker in NOT_PYTHON), (
             f"{file}:{line} is a literal block that is not Python; list it in NOT_PYTHON if it is meant as prose")
         return
+    for marker, (module, reason) in OPTIONAL_CLIENTS.items():
+        if marker in text:
+            pytest.importorskip(module, reason=reason)
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("STP_ENV_PROGRESS", "0")
     code = _small(text)

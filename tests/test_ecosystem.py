@@ -1,6 +1,5 @@
 """The ecosystem's entry points: Gymnasium registration of the single-agent views, a training run's directory as a
-learned intruder, honest training step counts, and what SuperSuit's vector wrappers make of the PettingZoo env
-(README.md, "Train an intruder")."""
+learned intruder and honest training step counts (the multi-agent clients: tests/test_clients.py)."""
 
 from __future__ import annotations
 
@@ -66,17 +65,3 @@ def test_training_counts_whole_rollouts(timesteps, trained):
     from stp_env.rl.train import TrainConfig
 
     assert TrainConfig(total_timesteps=timesteps, n_envs=64, n_steps=128).trained_timesteps == trained
-
-
-def test_supersuit_vector_wrappers_refuse_the_env_as_the_readme_says():
-    """README.md ("Train an intruder") says why SuperSuit's vector route does not take this env: its agents come
-    and go (vehicles that arrived before the episode are not agents; every agent leaves when done), and
-    ``black_death_v3`` fills in only the agents present at ``reset``. If this starts to work, update the README."""
-    ss = pytest.importorskip("supersuit")
-    from stp_env.env import parallel_env
-
-    env = parallel_env()  # town: 7 vehicles, 3 of which arrived before the episode's first instant
-    venv = ss.pettingzoo_env_to_vec_env_v1(ss.black_death_v3(ss.pad_observations_v0(env)))
-    with pytest.raises(AssertionError, match="agent death"):
-        venv.reset(seed=0)
-    assert len(env.agents) < len(env.possible_agents)

@@ -6,7 +6,6 @@ from __future__ import annotations
 import functools
 import itertools
 import resource
-import types
 
 import jax
 import jax.numpy as jnp
@@ -15,21 +14,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pettingzoo.test import (
-    api_test,
-    max_cycles_test,
-    parallel_api_test,
-    parallel_seed_test,
-    render_test,
-    seed_test,
     state_test,
 )
 
 import stp_env.env as stp_module
 from stp_env import sim
-from stp_env.env import TRACE_COUNTS, env, parallel_env, raw_env
+from stp_env.env import INFO_CODES, TRACE_COUNTS, env, parallel_env
 from stp_env.sim import packing
 from stp_env.sim.jit import sim_jit
-from stp_env.sim.types import MODE_NAMES, STATUS_NAMES
 from stp_env.sim.types import replace as sim_replace
 
 
@@ -48,43 +40,55 @@ def par():
     return parallel_env()
 
 
-def test_parallel_api(par):
-    parallel_api_test(par, num_cycles=200)
-
-
-def test_aec_api():
-    api_test(env(max_cycles=150), num_cycles=150)
-
-
-def test_seeds():
-    seed_test(lambda: env(max_cycles=60), num_cycles=60)
-    parallel_seed_test(lambda: parallel_env(max_cycles=60), num_cycles=60)
-
-
-def test_max_cycles():
-    # PettingZoo's check counts steps per possible agent and expects most of them live; in the default episode
-    # (the busiest window) vehicles that arrived earlier are not agents, so run the whole-plan episode, where every
-    # vehicle is still to fly or flying at the start.
-    full = sim.EnvConfig(episode="full")
-    module = types.SimpleNamespace(env=functools.partial(stp_module.env, config=full),
-                                   parallel_env=functools.partial(stp_module.parallel_env, config=full))
-    max_cycles_test(module)
-
-
-def test_vehicles_done_before_the_episode_are_not_agents():
+def test_the_agents_of_an_episode_are_its_possible_agents_all_present_at_reset():
+    """Vehicles that arrived before the episode's first instant are not possible agents (the same for every seed),
+    every possible agent is an agent at reset, and a scripted intruder is not an agent."""
     par = parallel_env()
-    par.reset(seed=0)
-    status = np.asarray(par._state.status)
-    done = [f"vehicle_{i}" for i in np.flatnonzero(status >= sim.ARRIVED)]
-    assert done, "the default episode should start after some vehicle has arrived"
-    assert set(par.agents) == set(par.possible_agents) - set(done)
+    for seed in (0, 1):
+        par.reset(seed=seed)
+        done = [f"vehicle_{i}" for i in np.flatnonzero(np.asarray(par._state.status) >= sim.ARRIVED)]
+        assert done, "the default episode should start after some vehicle has arrived"
+        assert par.agents == par.possible_agents and not set(done) & set(par.possible_agents)
+        assert len(par.possible_agents) == par.params.vehicles.n - len(done) + 1
+    scripted = parallel_env(intruder="greedy")
+    assert scripted.possible_agents == par.possible_agents[:-1] and par.possible_agents[-1] == "intruder"
+    with pytest.raises(ValueError, match="unknown agent 'intruder'"):
+        scripted.observation_space("intruder")
 
 
-def test_render_rgb_array():
-    def make(render_mode=None):
-        return raw_env(render_mode=render_mode, max_cycles=20)
+def _zeros_until_the_end(e, options):
+    """Zero actions from ``reset(seed=3, options)`` to the episode's end: every step's agents and outputs."""
+    e.reset(seed=3, options=options)
+    steps = []
+    while e.agents:
+        live = list(e.agents)
+        out = e.step({a: np.zeros(2, np.float32) for a in live})
+        steps.append((live, *out[1:4]))
+    return steps
 
-    render_test(make)
+
+def test_keep_finished_keeps_every_agent_to_the_end_and_the_last_step_truncates_every_agent():
+    """``keep_finished=True``: the intruder, done ``t_IAT`` after it appeared, stays an agent (reward 0, not
+    terminated) until the episode's last step, where every agent ends together; without it the intruder leaves when
+    done. Either way the last step of a truncated episode truncates every agent left, even one that terminates in it
+    (the intruder leaving in the very step the episode is cut: RLlib ends an episode only when all its agents are
+    terminated or all are truncated)."""
+    base = parallel_env(max_cycles=150)
+    options = {"appear_time": float(base.params.episode.t_start)}
+    removed = _zeros_until_the_end(base, options)
+    left = next(k for k, (_, _, terms, _) in enumerate(removed) if terms.get("intruder"))
+    assert 0 < left < 149 and "intruder" not in removed[left + 1][0]
+    kept = _zeros_until_the_end(parallel_env(max_cycles=150, keep_finished=True), options)
+    assert len(kept) == 150 and all(live == base.possible_agents for live, *_ in kept)
+    assert not any(any(terms.values()) or any(truncs.values()) for _, _, terms, truncs in kept[:-1])
+    assert all(rewards["intruder"] == 0.0 for _, rewards, _, _ in kept[left + 1:])
+    _, _, terms, truncs = kept[-1]
+    assert terms["intruder"] and all(truncs.values())
+    for a in base.possible_agents:  # up to the intruder's exit, the same rewards as without keep_finished
+        assert [r[a] for _, r, _, _ in kept[:left + 1]] == [r[a] for _, r, _, _ in removed[:left + 1]]
+    cut = _zeros_until_the_end(parallel_env(max_cycles=left + 1), options)  # the intruder leaves in the last step
+    _, _, terms, truncs = cut[-1]
+    assert len(cut) == left + 1 and terms["intruder"] and all(truncs.values())
 
 
 def test_state():
@@ -129,7 +133,8 @@ def test_adapter_matches_the_pure_core(par):
     n = par.params.vehicles.n
     for _ in range(120):
         acts = rng.uniform(-1, 1, (n + 1, 2)).astype(np.float32)
-        par.step({a: acts[i] for i, a in enumerate(par.possible_agents) if a in par.agents})
+        rows = {**{f"vehicle_{i}": i for i in range(n)}, "intruder": n}  # an agent's row of the core's arrays
+        par.step({a: acts[rows[a]] for a in par.agents})
         key, sub = jax.random.split(key)
         state, _ = sim_jit(sim.step)(sub, state, jnp.asarray(acts), par.params)
         np.testing.assert_allclose(np.asarray(state.x), np.asarray(par.env_state.x), rtol=1e-6, atol=1e-3)
@@ -184,8 +189,9 @@ def test_unknown_agents_are_rejected(par, name):
 
 
 def test_finished_agents_and_bad_arguments_are_rejected(par):
-    par.reset(seed=2)
-    # run the zero action until some vehicle is done
+    # the intruder appears at once, so that it leaves (t_IAT later) long before the episode ends
+    par.reset(seed=2, options={"appear_time": float(par.params.episode.t_start)})
+    # run the zero action until some agent is done
     finished = None
     for _ in range(2000):
         par.step({a: np.zeros(2, np.float32) for a in par.agents})
@@ -331,7 +337,8 @@ def test_appear_time_option_and_infos(par):
                                        "guarantee_violation", "used_filter", "min_separation", "cost"}
     for _ in range(12):
         _, _, _, _, infos = par.step({a: np.zeros(2, np.float32) for a in par.agents})
-    assert infos["intruder"]["status"] == "present"
+    assert infos["intruder"]["status"] == sim.PRESENT
+    assert INFO_CODES["intruder_status"][infos["intruder"]["status"]] == "present"
     first = infos["intruder"]
     _, _, _, _, infos2 = par.step({a: np.zeros(2, np.float32) for a in par.agents})
     assert infos2["intruder"] is not first  # fresh dicts every step
@@ -469,12 +476,23 @@ def test_pack_round_trips_every_dtype():
         packing.Layout.of(jax.eval_shape(lambda: jax.random.key(0)))
 
 
+def _same_record(info: dict, readable: dict) -> None:
+    """An info's episode record (its flat ``stp_episode_*`` numbers) is ``env.episode`` (names, ``None``) in codes."""
+    numbers = {k[len("stp_episode_"):]: v for k, v in info.items() if k.startswith("stp_episode_")}
+    assert set(numbers) == set(readable)
+    assert INFO_CODES["intruder_status"][numbers["intruder_status"]] == readable["intruder_status"]
+    assert (readable["max_tracking_error"] is None) == (numbers["max_tracking_error"] == -np.inf)
+    assert all(type(v) in (int, float, bool) for v in numbers.values()), numbers
+    for k in set(numbers) - {"intruder_status", "max_tracking_error"}:
+        assert numbers[k] == readable[k], k
+
+
 def test_episode_results_are_readable_at_the_end_whatever_agent_is_left(par):
     """The quick start reads the episode's results after the loop: the intruder has left before the last step
     (its info is gone), so they are in every agent's info and in ``env.episode``."""
     rng = np.random.default_rng(0)
     _, infos = par.reset(seed=0, options={"appear_time": float(par.params.episode.t_start) + 1.0})
-    assert infos["vehicle_0"]["episode"] == par.episode
+    _same_record(infos["vehicle_0"], par.episode)
     in_episode = [int(a.split("_")[1]) for a in par.agents if a != "intruder"]
     intruder_left_at = None
     while par.agents:
@@ -484,7 +502,7 @@ def test_episode_results_are_readable_at_the_end_whatever_agent_is_left(par):
     assert intruder_left_at is not None and "intruder" not in infos  # the case the quick start met
     assert par.episode["intruder_status"] == "gone" and par.episode["time"] > intruder_left_at
     for info in infos.values():
-        assert info["episode"] == par.episode
+        _same_record(info, par.episode)
     state = par.env_state
     assert par.episode["n_forced"] == int(np.isfinite(np.asarray(state.avoid_start)).sum())
     assert par.episode["kbar"] == int(par.params.intruder.kbar)
@@ -511,8 +529,8 @@ def test_vehicle_infos_are_the_core_state_as_python_scalars(par):
             i = int(agent.split("_")[1])
             forced = bool(np.isfinite(state.avoid_start[i]))
             expected = {
-                "status": STATUS_NAMES[int(state.status[i])], "mode": MODE_NAMES[int(state.mode[i])],
-                "avoid_start_time": float(state.avoid_start[i]) if forced else None, "forced": forced,
+                "status": int(state.status[i]), "mode": int(state.mode[i]),
+                "avoid_start_time": float(state.avoid_start[i]), "forced": forced,
                 "collision": bool(state.status[i] == sim.COLLIDED),
                 "guarantee_violation": bool(state.guarantee_violation[i]),
                 "tracking_error": float(state.tracking_error[i]),
@@ -543,7 +561,7 @@ def test_tracking_error_and_violation_in_the_infos(par):
     state = par.env_state
     error, largest = np.asarray(state.tracking_error), np.asarray(state.max_tracking_error)
     violation = np.asarray(state.tracking_violation)
-    flying = [a for a in infos if a.startswith("vehicle_") and infos[a]["status"] == "flying"]
+    flying = [a for a in infos if a.startswith("vehicle_") and infos[a]["status"] == sim.FLYING]
     assert flying
     for a in flying:
         i = int(a.split("_")[1])

@@ -162,18 +162,16 @@ def test_a_plugin_intruder_flies_in_the_environment_the_evaluator_and_the_falsif
     from stp_env.falsify.search import SearchConfig
 
     spec = f"{__name__}:CIRCLING"
-    # the environment flies it (the intruder agent's actions ignored) from where it spawns by default
+    # the environment flies it (a scripted intruder is not an agent) from where it spawns by default
     env = parallel_env(SCENARIO, intruder=spec, appear_window=(0.0, 0.0), progress=False)
-    assert env.config.spawn_mode == "boundary"
+    assert env.config.spawn_mode == "boundary" and "intruder" not in env.possible_agents
     omega = float(env.params.intruder.bounds[OMEGA_MAX])
     env.reset(seed=0)
     headings = []
     for _ in range(150):
-        if "intruder" not in env.agents:  # it left (t_IAT after it appeared)
+        if int(env._state.intruder_status) == sim.GONE or not env.agents:  # it left (t_IAT after it appeared)
             break
-        actions = {a: np.zeros(env.action_space(a).shape, np.float32) for a in env.agents}
-        actions["intruder"] = np.asarray([-1.0, -1.0], np.float32)  # a right turn, ignored
-        env.step(actions)
+        env.step({a: np.zeros(env.action_space(a).shape, np.float32) for a in env.agents})
         if int(env._state.intruder_status) == sim.PRESENT:
             headings.append(float(env._state.intruder_x[2]))
     turn = np.diff(np.unwrap(headings)) / float(env.params.episode.dt)

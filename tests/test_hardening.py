@@ -208,7 +208,7 @@ def _bad_actions():
 def test_bad_actions_raise_naming_the_agent_and_change_nothing(par, action, which):
     par.reset(seed=1)
     before = _snapshot(par)
-    agent = par.possible_agents[which]
+    agent = par.possible_agents[which % len(par.possible_agents)]
     actions = _zeros(par) | {agent: action}
     with pytest.raises(ValueError, match=repr(agent)):
         par.step(actions)

@@ -36,7 +36,7 @@ def _run(env, seed):
         traces = TRACE_COUNTS["step"] if traces is None else traces
         last.update(infos)
         for a, info in infos.items():
-            if a != "intruder" and info["status"] == "arrived" and not np.isfinite(arrival[int(a[8:])]):
+            if a != "intruder" and info["status"] == sim.ARRIVED and not np.isfinite(arrival[int(a[8:])]):
                 arrival[int(a[8:])] = info["time"]
     return last, arrival, traces
 

@@ -119,7 +119,7 @@ class IntruderEnv(gym.Env):
             key = F.key_for_seed(int(self.np_random.integers(0, 2**32)))
         key, state, obs = F.env_reset(key, self.params, self.horizon, self.observation)
         self._carry.set((key, state))
-        return np.asarray(obs), {"kbar": self.kbar, "time": float(state.t)}
+        return np.array(obs), {"kbar": self.kbar, "time": float(state.t)}
 
     def step(self, action):
         if self._carry.words is None:
@@ -134,4 +134,4 @@ class IntruderEnv(gym.Env):
         obs, reward, terminated, truncated, stats = self._out_layout.unpack(np.asarray(words))
         info = {name: (float(value) if name == "time" else int(value)) for name, value in stats.items()}
         info["kbar"] = self.kbar
-        return np.asarray(obs), float(reward), bool(terminated), bool(truncated), info
+        return np.array(obs), float(reward), bool(terminated), bool(truncated), info

@@ -13,12 +13,10 @@ deterministic actor for :func:`stp_env.baselines.learned.load_intruder`). Same c
 
 SuperSuit
 ---------
-SuperSuit's vector wrappers (``pettingzoo_env_to_vec_env_v1`` with ``black_death_v3``) do not take the PettingZoo
-env: its agents come and go (vehicles that arrived before the episode are not agents of it, the intruder and every
-vehicle leave when done), and SuperSuit 3.11's ``black_death_v3`` fills in only the agents present at ``reset``
-and never ends an episode. :class:`~stp_env.rl.IntruderVecEnv` is the batched route (the vehicles run a baseline
-policy inside the core, so only the intruder learns); ``docs/training.md`` says more, and
-``tests/test_ecosystem.py`` checks the refusal.
+SuperSuit's vector wrappers take the PettingZoo env with ``keep_finished=True`` (no agent death) and a scripted
+intruder (one observation space for the vehicles); ``docs/training.md`` ("Multi-agent clients") and
+``tests/test_clients.py``. :class:`~stp_env.rl.IntruderVecEnv` stays the batched route for the intruder (the
+vehicles run a baseline policy inside the core, so only the intruder learns).
 """
 
 from __future__ import annotations
