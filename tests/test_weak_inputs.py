@@ -258,3 +258,15 @@ def test_check_plan_as_a_program_exits_2_with_one_line(tmp_path):
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 2 and run.stdout == ""
     one_line(run.stderr, f"check_plan.py: error: {path}: not a readable plan file or planning checkpoint")
+
+
+@pytest.mark.parametrize("setting", [{"gamma": 2}, {"gamma": 0.0}, {"gae_lambda": 1.5}, {"learning_rate": 0},
+                                     {"clip_range": 0}, {"ent_coef": -0.1}, {"log_std_init": 30.0}])
+def test_ppo_settings_outside_their_ranges_are_refused_from_library_callers_too(setting):
+    """The training configuration itself checks every real setting's range (the command line's grid is one caller
+    of it): a discount of 2 trains nothing sensible and used to train."""
+    from stp_env.rl.train import TrainConfig
+
+    (name,) = setting
+    with pytest.raises(ValueError, match=name):
+        TrainConfig(**setting)

@@ -16,6 +16,13 @@ from stp_env.arguments import check_int, check_real
 ALGORITHMS = ("ppo", "a2c")
 
 
+RANGES = {"learning_rate": (0.0, 1.0, True), "gamma": (0.0, 1.0, True), "gae_lambda": (0.0, 1.0, True),
+          "ent_coef": (0.0, None, False), "clip_range": (0.0, None, True), "log_std_init": (-20.0, 5.0, False)}
+"""``(lo, hi, lo_open)`` of every real PPO setting: the learning rate in ``(0, 1]``, the discount and GAE's lambda
+in ``(0, 1]``, the entropy coefficient ``>= 0``, the clip range ``> 0``, the initial log standard deviation in
+``[-20, 5]``."""
+
+
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class PPOConfig:
     """The algorithm's settings (unknown fields are a ``TypeError``; bad values a ``ValueError``).
@@ -53,8 +60,8 @@ class PPOConfig:
         for name in ("total_timesteps", "n_envs", "n_steps", "batch_size", "n_epochs", "torch_threads"):
             check_int(getattr(self, name), name, 1, None)
         check_int(self.seed, "seed", 0, None)
-        for name in ("learning_rate", "gamma", "gae_lambda", "ent_coef", "clip_range", "log_std_init"):
-            check_real(getattr(self, name), name)
+        for name, (lo, hi, lo_open) in RANGES.items():  # the documented range of every real setting
+            check_real(getattr(self, name), name, lo, hi, lo_open=lo_open)
         object.__setattr__(self, "net_arch", tuple(self.net_arch))
         if not self.net_arch or any(isinstance(w, bool) or not isinstance(w, int) or w < 1 for w in self.net_arch):
             raise ValueError(f"net_arch must be widths >= 1; got {self.net_arch!r}.")
