@@ -25,12 +25,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env.resources import SOLVER_BYTES_PER_POINT, check_grid
-
-CHECKED_FROM_BYTES = 1 << 30
-"""Grids whose solve needs more than this [bytes] (:data:`stp_env.resources.SOLVER_BYTES_PER_POINT` per point:
-about 22 million points) are checked against the memory available when they are made."""
-
 
 @dataclasses.dataclass(frozen=True)
 class Grid:
@@ -71,8 +65,6 @@ class Grid:
         for i in periodic:
             if not 0 <= i < len(shape):
                 raise ValueError(f"Periodic dimension {i} is out of range for a {len(shape)}-D grid.")
-        if math.prod(shape) * SOLVER_BYTES_PER_POINT > CHECKED_FROM_BYTES:  # refused before any array is made
-            check_grid(f"Grid of shape {shape}", shape)
         object.__setattr__(self, "lo", lo)
         object.__setattr__(self, "hi", hi)
         object.__setattr__(self, "shape", shape)
