@@ -481,6 +481,8 @@ ALLOWED_RAW = {
     ("cli_kit.py", "_tree", "read_text"): "the package's own source (the names --help lists)",
     ("cli_kit.py", "wind_model_catalog", "read_text"): "the package's own source (the names --help lists)",
     ("cli_kit.py", "scenario_names", "read_text"): "the package's own source (the names --help lists)",
+    ("resources.py", "available_memory", "open"): "the kernel's memory report (/proc/meminfo), not a user's file",
+    ("resources.py", "_read_int", "read_text"): "the kernel's cgroup memory limit (/sys/fs/cgroup), not a user's file",
 }
 
 
