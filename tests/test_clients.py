@@ -58,48 +58,64 @@ def no_api_warnings():
 
 
 KEEP_FINISHED = pytest.mark.parametrize("options", [{}, {"keep_finished": True}], ids=["default", "keep_finished"])
+SCENARIOS = pytest.mark.parametrize("scenario", ["town", "crossing"])
+"""The default scenario (3 vehicles of 7 fly in its episode, 925 steps) and the crossing (4 of 20, 260 steps)."""
 
 
+@SCENARIOS
 @KEEP_FINISHED
-def test_pettingzoo_api_test(options):
+def test_pettingzoo_api_test(scenario, options):
     with no_api_warnings():
-        api_test(env("town", **options), num_cycles=1000)
+        api_test(env(scenario, **options), num_cycles=1000)
 
 
+@SCENARIOS
 @KEEP_FINISHED
-def test_pettingzoo_parallel_api_test_across_the_episode_end(options):
-    """1,000 cycles cross the intruder's leaving and the end of the episode (925 steps): every possible agent has
-    finished when none is left (before: "No agents present but not all possible_agents are terminated or
+def test_pettingzoo_parallel_api_test_across_the_episode_end(scenario, options):
+    """1,000 cycles cross the intruder's leaving and the end of the episode (925 or 260 steps): every possible agent
+    has finished when none is left (before: "No agents present but not all possible_agents are terminated or
     truncated", for the vehicles that had arrived before the episode)."""
-    par = parallel_env("town", **options)
+    par = parallel_env(scenario, **options)
     with no_api_warnings():
         parallel_api_test(par, num_cycles=1000)
     assert not par.agents  # the test ran to the end of the episode
 
 
-def test_pettingzoo_seed_tests():
+@SCENARIOS
+def test_pettingzoo_seed_tests(scenario):
     with no_api_warnings():
-        seed_test(lambda: env("town", max_cycles=60), num_cycles=60)
-        parallel_seed_test(lambda: parallel_env("town", max_cycles=60), num_cycles=60)
+        seed_test(lambda: env(scenario, max_cycles=60), num_cycles=60)
+        parallel_seed_test(lambda: parallel_env(scenario, max_cycles=60), num_cycles=60)
 
 
-def test_pettingzoo_max_cycles_test_on_the_default_episode():
+@SCENARIOS
+def test_pettingzoo_max_cycles_test_on_the_default_episode(scenario):
     """PettingZoo's check counts each possible agent's turns: all of them take part (before: the vehicles that had
     arrived before the default episode were possible agents that never played, and the median count failed)."""
-    module = types.SimpleNamespace(env=stp_module.env, parallel_env=stp_module.parallel_env)
+    module = types.SimpleNamespace(env=lambda **kw: stp_module.env(scenario, **kw),
+                                   parallel_env=lambda **kw: stp_module.parallel_env(scenario, **kw))
     with no_api_warnings():
         max_cycles_test(module)
 
 
-def test_pettingzoo_render_test():
+@SCENARIOS
+def test_pettingzoo_render_test(scenario):
     with no_api_warnings():
-        render_test(lambda render_mode=None: env("town", render_mode=render_mode, max_cycles=20))
+        render_test(lambda render_mode=None: env(scenario, render_mode=render_mode, max_cycles=20))
 
 
 # ------------------------------------------------------------------------------------------ SuperSuit -> SB3
 
 
-def test_supersuit_vector_env_trains_sb3_ppo_for_the_vehicles():
+# The vehicles that fly in each scenario's default episode, and the steps at which (with zero actions and seed 0)
+# the first of them arrives and the intruder leaves: each test below crosses both before the episode's end.
+FLYING = {"town": ["vehicle_0", "vehicle_1", "vehicle_6"],
+          "crossing": ["vehicle_16", "vehicle_17", "vehicle_18", "vehicle_19"]}
+FIRST_ARRIVAL = {"town": "vehicle_0", "crossing": "vehicle_16"}
+
+
+@SCENARIOS
+def test_supersuit_vector_env_trains_sb3_ppo_for_the_vehicles(scenario):
     """The vehicles as one vector env, the intruder scripted (not an agent, so every agent is a vehicle with the
     same spaces), ``keep_finished`` (no agent death): SB3's PPO runs past the episode's end, and VecMonitor's
     episode records are SB3's (before: the env's own ``episode`` info made ``KeyError: 'r'``)."""
@@ -107,11 +123,12 @@ def test_supersuit_vector_env_trains_sb3_ppo_for_the_vehicles():
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecMonitor
 
-    par = parallel_env("town", intruder="greedy", keep_finished=True)
-    assert par.possible_agents == ["vehicle_0", "vehicle_1", "vehicle_6"]
+    par = parallel_env(scenario, intruder="greedy", keep_finished=True)
+    vehicles = FLYING[scenario]
+    assert par.possible_agents == vehicles
     venv = VecMonitor(ss.concat_vec_envs_v1(ss.pettingzoo_env_to_vec_env_v1(par), 1, num_cpus=0,
                                             base_class="stable_baselines3"))
-    assert venv.num_envs == 3
+    assert venv.num_envs == len(vehicles)
     # SuperSuit 3.11's ConcatVecEnv has no seed(), which SB3's seed= (and its reset(seed=)) calls; with one copy,
     # seeding the env's first reset seeds the episodes after it (the docs seed several copies through the
     # ConcatVecEnv's reset(seed=))
@@ -119,38 +136,43 @@ def test_supersuit_vector_env_trains_sb3_ppo_for_the_vehicles():
         PPO("MlpPolicy", venv, seed=0, device="cpu")
     par.reset(seed=0)
     model = PPO("MlpPolicy", venv, n_steps=256, batch_size=256, n_epochs=1, device="cpu")
-    model.learn(total_timesteps=3000)  # 4 rollouts of 3 x 256 steps: 1,024 vector steps
-    assert model.num_timesteps == 3072
+    length = par.max_cycles - 1  # the episode window ends one step before the default max_cycles
+    rollouts = length // 256 + 1  # the first episode ends in the last of them
+    model.learn(total_timesteps=rollouts * 256 * len(vehicles))
+    assert model.num_timesteps == rollouts * 256 * len(vehicles)
     episodes = list(model.ep_info_buffer)
-    length = par.max_cycles - 1  # 925: the episode window ends one step before the default max_cycles
-    assert len(episodes) == 3 and all(e["l"] == length and np.isfinite(e["r"]) for e in episodes)
+    assert len(episodes) == len(vehicles) and all(e["l"] == length and np.isfinite(e["r"]) for e in episodes)
 
 
-def test_supersuit_vector_env_with_the_intruder_as_an_agent_needs_padding():
+@SCENARIOS
+def test_supersuit_vector_env_with_the_intruder_as_an_agent_needs_padding(scenario):
     """With the intruder an agent, the spaces differ: SuperSuit says to pad, and padded the env rolls past the
-    intruder's leaving, vehicle_0's arrival and the episode's end, every agent done in the same step."""
+    intruder's leaving, a vehicle's arrival and the episode's end, every agent done in the same step."""
     ss = pytest.importorskip("supersuit")
 
     with pytest.raises(AssertionError, match="pad_observations_v0"):
-        ss.pettingzoo_env_to_vec_env_v1(parallel_env("town", keep_finished=True))
-    par = parallel_env("town", keep_finished=True)
+        ss.pettingzoo_env_to_vec_env_v1(parallel_env(scenario, keep_finished=True))
+    par = parallel_env(scenario, keep_finished=True)
     venv = ss.pettingzoo_env_to_vec_env_v1(ss.pad_observations_v0(par))
+    n = len(par.possible_agents)
+    assert par.possible_agents == [*FLYING[scenario], "intruder"]
     obs, _ = venv.reset(seed=0)
-    assert obs.shape == (4, 40)
+    assert obs.shape == (n, 40)
+    arrival = par.possible_agents.index(FIRST_ARRIVAL[scenario])
     done_at, finished = [], {}
-    for step in range(1, 940):
-        _, _, terms, truncs, infos = venv.step(np.zeros((4, 2), np.float32))
+    end = par.max_cycles - 1
+    for step in range(1, end + 15):
+        _, _, terms, truncs, infos = venv.step(np.zeros((n, 2), np.float32))
         done = terms | truncs
         assert done.all() or not done.any()
         if done.any():
             done_at.append(step)
-        elif "intruder" not in finished and infos[3]["status"] == INFO_CODES["intruder_status"].index("gone"):
+        elif "intruder" not in finished and infos[-1]["status"] == INFO_CODES["intruder_status"].index("gone"):
             finished["intruder"] = step
-        elif "vehicle_0" not in finished and infos[0]["status"] == INFO_CODES["status"].index("arrived"):
-            finished["vehicle_0"] = step
-    end = par.max_cycles - 1
+        elif "vehicle" not in finished and infos[arrival]["status"] == INFO_CODES["status"].index("arrived"):
+            finished["vehicle"] = step
     assert done_at == [end]
-    assert sorted(finished) == ["intruder", "vehicle_0"] and max(finished.values()) < end, finished
+    assert sorted(finished) == ["intruder", "vehicle"] and max(finished.values()) < end, finished
 
 
 def test_the_intruder_alone_through_its_gymnasium_id_trains_sb3_ppo():
@@ -179,23 +201,25 @@ def test_the_intruder_alone_through_its_gymnasium_id_trains_sb3_ppo():
 # ------------------------------------------------------------------------------------------ TorchRL
 
 
-def test_torchrl_rolls_across_an_agents_finish_and_the_episode_end():
+@SCENARIOS
+def test_torchrl_rolls_across_an_agents_finish_and_the_episode_end(scenario):
     """TorchRL's wrapper (groups by name: the vehicles, the intruder) over ``keep_finished``: the infos are
     tensors, and the episode is done once, at its end, not when the intruder leaves."""
     pytest.importorskip("torchrl")
     import torch
     from torchrl.envs.libs.pettingzoo import PettingZooWrapper
 
-    par = parallel_env("tiny-intruder", keep_finished=True)
+    par = parallel_env(scenario, keep_finished=True)
     tenv = PettingZooWrapper(env=par, seed=0)
-    assert tenv.group_map == {"vehicle": ["vehicle_0", "vehicle_1"], "intruder": ["intruder"]}
+    assert tenv.group_map == {"vehicle": FLYING[scenario], "intruder": ["intruder"]}
     end = par.max_cycles - 1  # steps in an episode
     td = tenv.rollout(max_steps=end + 10, break_when_any_done=False)
     assert td.batch_size == torch.Size([end + 10])
     # done once per episode: at its end (every vehicle arrived, or the step cap), not when the intruder left
     first = torch.nonzero(td["next", "done"].squeeze(-1)).flatten().tolist()[0]
     assert first <= end - 1
-    assert td["next", "vehicle", "info", "status"].shape == (end + 10, 2)  # INFO_CODES["status"] codes
+    # INFO_CODES["status"] codes
+    assert td["next", "vehicle", "info", "status"].shape == (end + 10, len(FLYING[scenario]))
     gone = INFO_CODES["intruder_status"].index("gone")
     assert (td["next", "intruder", "info", "status"].squeeze(-1)[:first] == gone).any()  # it left midway
 
@@ -232,13 +256,14 @@ def _intruder_leaves_at(scenario: str) -> int:
     return steps
 
 
-def test_rllib_sees_the_end_when_the_intruder_leaves_in_the_last_step():
+@SCENARIOS
+def test_rllib_sees_the_end_when_the_intruder_leaves_in_the_last_step(scenario):
     """The episode truncated in the step in which the intruder terminates: every agent is truncated, so RLlib's
     ``__all__`` ends the episode (before: the vehicles truncated, the intruder terminated, ``__all__`` False in
     both, and RLlib stepped the finished env)."""
     wrapper_class = _rllib()
-    last = _intruder_leaves_at("tiny-intruder")
-    wrapper = wrapper_class(SeedZero(parallel_env("tiny-intruder", max_cycles=last)))
+    last = _intruder_leaves_at(scenario)
+    wrapper = wrapper_class(SeedZero(parallel_env(scenario, max_cycles=last)))
     wrapper.reset()
     for _ in range(last):
         _, _, terms, truncs, _ = wrapper.step({a: np.zeros(2, np.float32) for a in wrapper.par_env.agents})
@@ -267,7 +292,8 @@ def local_ray():
         ray.shutdown()
 
 
-def test_rllib_multi_agent_ppo_with_a_vehicles_and_an_intruder_policy(request):
+@SCENARIOS
+def test_rllib_multi_agent_ppo_with_a_vehicles_and_an_intruder_policy(scenario, request):
     """Two PPO iterations, a policy for the vehicles and one for the intruder, in episodes that end in the step the
     intruder leaves (the case above): RLlib ends them and trains on them."""
     wrapper_class = _rllib()
@@ -275,9 +301,9 @@ def test_rllib_multi_agent_ppo_with_a_vehicles_and_an_intruder_policy(request):
     from ray.rllib.algorithms.ppo import PPOConfig
     from ray.tune.registry import register_env
 
-    last = _intruder_leaves_at("tiny-intruder")
+    last = _intruder_leaves_at(scenario)
     register_env("stp_clients_test",
-                 lambda config: wrapper_class(SeedZero(parallel_env("tiny-intruder", max_cycles=last))))
+                 lambda config: wrapper_class(SeedZero(parallel_env(scenario, max_cycles=last))))
     config = (PPOConfig().environment("stp_clients_test")
               .multi_agent(policies={"vehicles", "intruder"},
                            policy_mapping_fn=lambda agent, *args, **kwargs: (
