@@ -112,14 +112,14 @@ def adapter_runner(scenario, params, python_only: bool = False):
     env.reset(seed=0)
     act = policy_call()
     if python_only:
-        from stp_env.env import _advance_carry_jit
+        from stp_env.sim.stepping import advance_carry_jit
 
         zero = {a: np.zeros(2, np.float32) for a in env.agents}
         stored_key, stored_veh = act(jax.random.key(0), env.env_state, params)
         env.step(zero)  # compiles the step returning the state (the loop reads it before every step)
         env.env_state  # noqa: B018
         carry = env._carry
-        stored_out = np.asarray(carry.advance(_advance_carry_jit, env._parse_actions(zero), env.params,
+        stored_out = np.asarray(carry.advance(advance_carry_jit, env._actions.parse(zero, env.agents), env.params,
                                               vehicle_policy=None, intruder_policy=None, with_state=True))
         env.env_state  # noqa: B018 - the state is kept unpacked: reads return it without a call
 
@@ -203,17 +203,18 @@ def floor_runners(scenario, params, gap_us: float = 0.0) -> dict:
     carry is threaded from step to step (same-shaped inputs, so no retrace); actions are the policy's (vehicles) and
     zero (intruder). ``gap_us``: a busy wait after each step, standing in for the Python a loop runs between its
     calls (XLA's threads park when no call comes for a while, and the next call then wakes them)."""
-    from stp_env import env as env_module
     from stp_env.env import STPParallelEnv
+    from stp_env.sim.stepping import advance_carry_jit
 
-    advance = env_module._advance_carry_jit
+    advance = advance_carry_jit
     runners = {}
     for name, vehicle_policy in (("outside_floor", None), ("builtin_floor", "switching")):
         env = STPParallelEnv(scenario, params=params, max_cycles=10**9, vehicle_policy=vehicle_policy)
         env.reset(seed=0)
         env.step({a: np.zeros(2, np.float32) for a in env.agents})
         box = {"env": env, "words": env._carry.words, "state": env.env_state, "key": jax.random.key(0),
-               "actions": env._parse_actions({a: np.zeros(2, np.float32) for a in env.agents}), "act": policy_call()}
+               "actions": env._actions.parse({a: np.zeros(2, np.float32) for a in env.agents}, env.agents),
+               "act": policy_call()}
 
         def run(n_steps: int, box=box, outside=vehicle_policy is None) -> float:
             env, words, state, key, actions = box["env"], box["words"], box["state"], box["key"], box["actions"]
@@ -278,7 +279,8 @@ def core_rate(params, n_envs: int, n_steps: int) -> tuple[float, float]:
 
 
 def long_run(scenario, params, n_steps: int) -> dict:
-    from stp_env.env import TRACE_COUNTS, STPParallelEnv
+    from stp_env.env import STPParallelEnv
+    from stp_env.sim.stepping import TRACE_COUNTS
 
     env = STPParallelEnv(scenario, params=params)
     env.reset(seed=0)

@@ -251,3 +251,25 @@ def draw_frame(env, fig=None):
                  fontsize=9)
     fig.tight_layout()
     return fig
+
+
+def show_frame(env, fig, mode: str, *, fps: float):
+    """The environment's ``render()``: its frame drawn into ``fig`` (a new one when ``None``), returned with the
+    figure as an RGB array (``"rgb_array"``) or shown in a window (``"human"``: ``None``)."""
+    fig = draw_frame(env, fig)
+    if mode == "rgb_array":
+        fig.canvas.draw()
+        return fig, np.asarray(fig.canvas.buffer_rgba())[:, :, :3].copy()
+    import matplotlib
+    import matplotlib.pyplot as plt
+
+    if matplotlib.get_backend().lower() not in ("agg", "pdf", "svg", "ps", "cairo", "template"):
+        plt.pause(1.0 / fps)
+    return fig, None
+
+
+def close_figure(fig) -> None:
+    """Closes the environment's window; ``None``, the figure it holds after."""
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)

@@ -19,9 +19,10 @@ from pettingzoo.test import (
 
 import stp_env.env as stp_module
 from stp_env import sim
-from stp_env.env import INFO_CODES, TRACE_COUNTS, env, parallel_env
-from stp_env.sim import packing
+from stp_env.env import INFO_CODES, env, parallel_env
+from stp_env.sim import packing, stepping
 from stp_env.sim.jit import sim_jit
+from stp_env.sim.stepping import TRACE_COUNTS
 from stp_env.sim.types import replace as sim_replace
 
 
@@ -231,7 +232,7 @@ def test_the_vectorised_action_check_equals_the_per_agent_one(par, values, dtype
     par.reset(seed=1)
     acts = {a: np.asarray(values[2 * i:2 * i + 2], dtype) for i, a in enumerate(par.agents) if i not in drop}
     fast = np.zeros((par.params.vehicles.n + 1, 2), np.float32)
-    assert par._parse_plain(acts, fast)
+    assert par._actions._parse_plain(acts, fast, par.agents)
     np.testing.assert_array_equal(fast, _per_agent(par, acts))
 
 
@@ -244,22 +245,20 @@ def test_the_vectorised_action_check_equals_the_per_agent_one_for_a_three_input_
         name = "three-inputs"
         action_dim = 3
 
+    from stp_env.env_checks import ActionChecker
+
     par.reset(seed=1)
-    params = par.params
-    par.params = params.replace(vehicles=dict(model=ThreeInputs()))  # the env is shared: restored below
-    try:
-        rng = np.random.default_rng(7)
-        acts = {a: rng.uniform(-3, 3, 2 if a == "intruder" else 3).astype(np.float32) for a in par.agents}
-        fast = np.zeros((par.params.vehicles.n + 1, 3), np.float32)
-        assert par._parse_plain(acts, fast)
-        reference = np.zeros_like(fast)
-        for agent, a in acts.items():
-            reference[par._index[agent], :a.shape[0]] = par._check_action(agent, a)
-        np.testing.assert_array_equal(fast, reference)
-        acts["vehicle_0"] = np.zeros(2, np.float32)  # a vehicle's action of the intruder's size: the general path
-        assert not par._parse_plain(acts, np.zeros_like(fast))
-    finally:
-        par.params = params
+    checker = ActionChecker(par.possible_agents, par._index, par.params.vehicles.n, ThreeInputs.action_dim)
+    rng = np.random.default_rng(7)
+    acts = {a: rng.uniform(-3, 3, 2 if a == "intruder" else 3).astype(np.float32) for a in par.agents}
+    fast = np.zeros((par.params.vehicles.n + 1, 3), np.float32)
+    assert checker._parse_plain(acts, fast, par.agents)
+    reference = np.zeros_like(fast)
+    for agent, a in acts.items():
+        reference[par._index[agent], :a.shape[0]] = checker.check(agent, a, par.agents)
+    np.testing.assert_array_equal(fast, reference)
+    acts["vehicle_0"] = np.zeros(2, np.float32)  # a vehicle's action of the intruder's size: the general path
+    assert not checker._parse_plain(acts, np.zeros_like(fast), par.agents)
 
 
 def _hold_still(key, state, params):
@@ -315,7 +314,7 @@ def test_anything_but_plain_float_arrays_takes_the_general_path(par, odd):
     acts = {a: np.full(2, 0.25, np.float32) for a in par.agents}
     acts["vehicle_3"] = odd
     untouched = np.full((par.params.vehicles.n + 1, 2), 9.0, np.float32)
-    assert not par._parse_plain(acts, untouched)
+    assert not par._actions._parse_plain(acts, untouched, par.agents)
     assert np.all(untouched == 9.0)
 
 
@@ -377,7 +376,7 @@ def test_packed_step_is_the_unpacked_one_bit_for_bit():
     key, state = par._key, par._state
     carry = packing._pack_jit((key, state))
     layout = packing.Layout.of((key, state))
-    scripted = functools.partial(stp_module._advance_scripted, intruder_policy=par._intruder_policy)
+    scripted = functools.partial(stepping.advance_scripted, intruder_policy=par._intruder_policy)
     direct_step = sim_jit(scripted)
     out_layout = None
     for _ in range(40):  # zero actions, as in the vehicle-policy test above: vehicles are forced
@@ -385,7 +384,7 @@ def test_packed_step_is_the_unpacked_one_bit_for_bit():
         if out_layout is None:
             out_layout = packing.Layout.of(jax.eval_shape(scripted, key, state, acts, par.params)[2])
         key, state, direct = direct_step(key, state, acts, par.params)
-        carry, words = stp_module._advance_carry_jit(carry, acts, par.params, layout=layout,
+        carry, words = stepping.advance_carry_jit(carry, acts, par.params, layout=layout,
                                                      intruder_policy=par._intruder_policy)
         unpacked = out_layout.unpack(np.asarray(words))
         for a, b in zip(jax.tree.leaves(jax.device_get(direct)), jax.tree.leaves(unpacked)):

@@ -12,8 +12,9 @@ import pytest
 from stp_env import assembly, sim
 from stp_env.baselines.intruders import intruder_policy
 from stp_env.baselines.vehicles import vehicle_policy
-from stp_env.env import TRACE_COUNTS, parallel_env
+from stp_env.env import parallel_env
 from stp_env.scenarios import make
+from stp_env.sim.stepping import TRACE_COUNTS
 
 CONFIG = sim.EnvConfig(episode="full", spawn_mode="boundary")
 

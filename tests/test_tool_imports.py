@@ -85,7 +85,7 @@ def test_the_check_finds_a_removed_name(tmp_path):
     stale.write_text("import stp_env.env as env_module\nfrom stp_env.sim import core, gone_name\n"
                      "from stp_env import sim\n"
                      "step = env_module._no_such_helper\ncore._no_such_either\nsim.load_artifacts\n"
-                     "env_module._advance_scripted\n", encoding="utf-8")
+                     "env_module.parallel_env\n", encoding="utf-8")
     found = missing_names(stale)
     assert found == ["stp_env.sim.gone_name (line 2)", "stp_env.env._no_such_helper (line 4)",
                      "stp_env.sim.core._no_such_either (line 5)", "stp_env.sim.load_artifacts (line 6)"]

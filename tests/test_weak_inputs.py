@@ -134,15 +134,14 @@ def test_a_finished_agents_step_none_is_still_the_pettingzoo_step(monkeypatch):
 
 
 def test_booleans_in_an_action_are_refused_naming_the_agent():
-    from stp_env.env import STPParallelEnv
+    from stp_env.env_checks import ActionChecker
 
-    env = STPParallelEnv.__new__(STPParallelEnv)
-    env.possible_agents = env.agents = ["vehicle_0", "intruder"]
-    env._index = {a: i for i, a in enumerate(env.possible_agents)}
+    agents = ["vehicle_0", "intruder"]
+    checker = ActionChecker(agents, {a: i for i, a in enumerate(agents)}, 1, 2)
     for bad in ([True, 0.5], (0.5, np.bool_(False)), np.array([True, False]), True):
         with pytest.raises(ValueError, match="'intruder' must be real numbers"):
-            env._check_action("intruder", bad)
-    assert env._check_action("intruder", [1, 0.5]).tolist() == [1.0, 0.5]
+            checker.check("intruder", bad, agents)
+    assert checker.check("intruder", [1, 0.5], agents).tolist() == [1.0, 0.5]
 
 
 def _coobservation_env():

@@ -22,15 +22,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env import assembly, sim
+from stp_env import assembly, requirements, sim
 from stp_env.evaluation.config import Configuration
 from stp_env.evaluation.summary import forced_summary
 from stp_env.seeds import check_seed, prng_key
 from stp_env.sim import core, engine, fleet, fleet_expand
 from stp_env.sim.bounds import WIND
 from stp_env.sim.jit import sim_jit
+from stp_env.sim.metrics import largest_tracking_error, tracked_flights
+from stp_env.sim.metrics import n_forced as count_forced
 from stp_env.sim.rollout import rollout_keys
-from stp_env.sim.types import ARRIVED, COLLIDED, OUT_OF_BOUNDS, WAITING
+from stp_env.sim.types import ARRIVED, COLLIDED, OUT_OF_BOUNDS
 
 MAX_EPISODES = 2**30  # episode indices are int32 (the last batch runs past the last episode)
 EVENT_KINDS = ("bound_exceeded", "collision", "guarantee_violation", "assumption_failed")
@@ -223,7 +225,8 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
     kth_min, kth_median = avoid_start_order_stats(ep, kbar + 1)
     per_episode_sep = np.min(ep["min_separation"], axis=1)
     # a vehicle still waiting, or already in its target at the start, has tracked nothing in the episode
-    flew_tracked = ep["tracked"] & (ep["status"] != WAITING) & ~done_at_start
+    largest_error = largest_tracking_error(ep["max_tracking_error"],
+                                           tracked_flights(ep["tracked"], ep["status"], done_at_start))
     finite = per_episode_sep[np.isfinite(per_episode_sep)]
     return {
         "label": config.label,
@@ -248,8 +251,7 @@ def summarize(config: Configuration, ep: dict, params, *, confidence: float = 0.
         "violation_upper": base["violation_upper"],
         "assumption_failures": int(np.sum(~np.all(ep["assumption_ok"], axis=1))),
         "tracking_violations": int(ep["tracking_violation"].sum()),
-        "max_tracking_error_m": (round(float(np.max(np.where(flew_tracked, ep["max_tracking_error"], 0.0))), 3)
-                                 if np.any(flew_tracked) else None),
+        "max_tracking_error_m": None if largest_error is None else round(largest_error, 3),
         "tracking_bound_m": round(float(params.tables.tracking_bound), 3),
         "due": n_due,
         "on_time_rate": float(on_time.sum() / n_due) if n_due else None,
@@ -278,10 +280,7 @@ def avoid_start_order_stats(ep: dict, n: int) -> tuple[list, list]:
 def needs_buffer(config: Configuration) -> bool:
     """Whether a policy of ``config`` plays the buffer game (reads ``V^B``): the vehicles', or the intruder's by
     its record (:func:`stp_env.baselines.intruders.capabilities`, plug-ins included)."""
-    from stp_env.baselines import BUFFER_GAME_VEHICLE_POLICIES
-    from stp_env.baselines.intruders import capabilities
-
-    return config.vehicle_policy in BUFFER_GAME_VEHICLE_POLICIES or capabilities(config.intruder).needs_buffer
+    return requirements.needs_buffer(config.vehicle_policy, config.intruder)
 
 
 def build_params(configs, *, store=None, progress: bool = True) -> list:
@@ -294,10 +293,9 @@ def build_params(configs, *, store=None, progress: bool = True) -> list:
         key = (scenario, env_config, needs_buffer(config))
         if key not in cache:
             params = assembly.params_for(scenario, env_config, store=store, progress=progress)
-            if needs_buffer(config):
-                params = assembly.with_buffer(params, assembly.load_buffer(scenario, config.kbar, store=store,
-                                                                             progress=progress))
-            cache[key] = params
+            cache[key] = requirements.with_required_tables(params, scenario, vehicle_policy=config.vehicle_policy,
+                                                           intruder=config.intruder, kbar=config.kbar, store=store,
+                                                           progress=progress)
         out.append(cache[key])
     return out
 
@@ -421,7 +419,7 @@ def evaluation_piece(context: EvaluationContext, argument) -> dict:
                             context.n_steps, record=context.record, active=context.active[c])
     keep = min(batch_size, context.episodes - first)
     ep = {k: v[:keep] for k, v in host_state(final).items()}
-    ep["n_forced"] = np.sum(np.isfinite(ep["avoid_start"]), axis=1)
+    ep["n_forced"] = count_forced(ep["avoid_start"], axis=1)
     ep["index"] = indices[:keep]
     out = {f"ep/{k}": v for k, v in ep.items()}
     if context.record:
@@ -531,7 +529,7 @@ def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_ste
                             record=record, active=simulated_vehicles(params, airborne_only))
     j = int(np.flatnonzero(indices == index)[0])
     state = {k: v[j] for k, v in host_state(final).items()}
-    state["n_forced"] = np.sum(np.isfinite(state["avoid_start"]))
+    state["n_forced"] = count_forced(state["avoid_start"])
     return state, (None if traj is None else {k: np.asarray(v[j]) for k, v in traj.items()})
 
 

@@ -135,10 +135,8 @@ def environment(spec: AttackSpec, *, progress: bool = False):
     scenario = make(spec.scenario, **overrides)
     config = sim.EnvConfig(dt=spec.dt, control_dt=spec.control_dt, wind_model=spec.wind_model)
     params = assembly.params_for(scenario, config, progress=progress)
-    if targets.needs_buffer(spec.target, dict(spec.options)):
-        from stp_env.assembly import load_buffer, with_buffer
-
-        params = with_buffer(params, load_buffer(scenario, progress=progress))
+    if targets.needs_buffer(spec.target, dict(spec.options)) and params.tables.buffer_values is None:
+        params = assembly.with_buffer(params, assembly.load_buffer(scenario, progress=progress))
     return params
 
 

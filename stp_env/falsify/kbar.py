@@ -34,8 +34,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env.baselines.intruders import capabilities, resolve_intruder
-from stp_env.baselines.vehicles import BUFFER_GAME_VEHICLE_POLICIES, VEHICLE_POLICIES
+from stp_env import requirements
+from stp_env.baselines.intruders import resolve_intruder
+from stp_env.baselines.vehicles import VEHICLE_POLICIES
 from stp_env.falsify import harness
 from stp_env.falsify.targets import register
 from stp_env.sim import core, engine, fleet
@@ -63,7 +64,7 @@ VEHICLES = ("switching", "worst")
 def plays_buffer_game(vehicles: str = "switching", intruder: str = "search") -> bool:
     """Whether the attack's vehicles or intruder read ``V^B`` (the buffer-game vehicle policies of
     :mod:`stp_env.baselines`; the intruder by its record, :func:`stp_env.baselines.intruders.capabilities`)."""
-    return vehicles in BUFFER_GAME_VEHICLE_POLICIES or (intruder != "search" and capabilities(intruder).needs_buffer)
+    return requirements.needs_buffer(vehicles, None if intruder == "search" else intruder)
 
 
 @register

@@ -181,14 +181,13 @@ def ego_params(scenario: str = "crossing", kbar: int = 2, intruder: str = "learn
     """``(params, intruder policy)`` of the ego env: ``scenario`` planned for ``kbar``, every intruder appearing on a
     vehicle's avoid boundary, the episode to the vehicles' targets (``EnvConfig(episode="full")``), ``V^B`` loaded
     when the intruder reads it."""
-    from stp_env import assembly, sim
-    from stp_env.baselines.intruders import capabilities, resolve_intruder
+    from stp_env import assembly, requirements, sim
+    from stp_env.baselines.intruders import resolve_intruder
     from stp_env.scenarios import make
 
     spec = make(scenario, kbar=kbar)
     params = assembly.params_for(spec, sim.EnvConfig(spawn_mode="boundary", episode="full"), progress=progress)
-    if capabilities(intruder).needs_buffer:
-        params = assembly.with_buffer(params, assembly.load_buffer(spec, kbar, progress=progress))
+    params = requirements.with_required_tables(params, spec, intruder=intruder, kbar=kbar, progress=progress)
     return params, resolve_intruder(intruder)
 
 

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stp_env import assembly, sim
+from stp_env import assembly, requirements, sim
 from stp_env.arguments import check_int, check_real
 from stp_env.evaluation.summary import forced_summary
 from stp_env.files import append_csv_row, write_text
@@ -314,17 +314,12 @@ def build_params(config: TrainConfig, *, store=None, progress: bool = False) -> 
     """The training environment's ``EnvParams``: the scenario's, with the relative buffer table ``V^B`` of its k̄
     when the vehicles play the buffer game (``worst``), the observation reads it (``"game"``) or the clone's
     teacher does (``optimal-max-k``)."""
-    from stp_env.baselines import BUFFER_GAME_VEHICLE_POLICIES
-    from stp_env.baselines.intruders import capabilities
-    from stp_env.baselines.observations import NEEDS_BUFFER
 
     scenario = config.scenario_object()
     params = assembly.params_for(scenario, config.env_config(), store=store, progress=progress)
-    if (config.vehicle_policy in BUFFER_GAME_VEHICLE_POLICIES or config.observation in NEEDS_BUFFER
-            or (config.clone is not None and capabilities(config.clone).needs_buffer)):
-        params = assembly.with_buffer(params, assembly.load_buffer(scenario, int(params.intruder.kbar), store=store,
-                                                                     progress=progress))
-    return params
+    return requirements.with_required_tables(params, scenario, vehicle_policy=config.vehicle_policy,
+                                             intruder=config.clone, observation=config.observation,
+                                             kbar=int(params.intruder.kbar), store=store, progress=progress)
 
 
 def train(config: TrainConfig, *, params: sim.EnvParams | None = None):
