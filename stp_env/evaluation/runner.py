@@ -486,7 +486,7 @@ def replay(seed: int, index: int, params, vehicle_policy, intruder_policy, n_ste
     Without ``episodes`` (a record written before the batches were ordered) the batch is the ``batch_size``
     consecutive indices that hold ``index``: the same program with other batch-mates, which do not change an
     episode (``tests/test_gates.py``). Another batch size is another compiled program, which XLA may vectorize
-    differently (10 of 10 town episodes of a batch of 250 replayed alone ended identically, BENCHMARKS.md). Either
+    differently (10 of 10 town episodes of a batch of 250 replayed alone ended identically). Either
     way the reachability artifacts must be the same as in the evaluation. ``devices``: among how many devices the
     evaluation shared its batches (:func:`stp_env.sim.engine.shares`, saved with each event; ``None``: not known);
     on another count the batch is another program, and a ``RuntimeWarning`` says so. ``airborne_only`` as in

@@ -43,7 +43,7 @@ def moving_disks(t, params):
     formula, bit for bit. The minimum over the vehicles is a ``scan`` that keeps one ``(L, nx, ny)`` running minimum:
     with the whole ``(J, L, nx, ny)`` array of squared distances written before its minimum, an evaluation took 11x
     as long at 199 vehicles on the bay-area grid and 17x at 49 vehicles with 17 lags on the city grid
-    (``benchmarks/disk_obstacles.py``, BENCHMARKS.md).
+    (measured when it landed).
 
     With ``bucket_rows`` ``(B, M)``, ``bucket_t0`` and ``bucket_dt`` (:func:`time_buckets`) only the ``M`` rows listed
     for ``t``'s time bucket are evaluated: every vehicle with a disk present at ``t`` is among them, so the values are
@@ -129,7 +129,7 @@ def disk_params(grid, trajectories, lags, radii, dtype=np.float32, n_slots: int 
         span: ``(lo, hi)``, the times the solver will ask about. With it, each evaluation reads only the vehicles
             that can be present in its time bucket (:func:`time_buckets`; the values are the same, bit for bit),
             unless that would be most of them. With the intruder's 17 lag disks on the city grid, 8 rows cost
-            2.4x less than 49 (``benchmarks/disk_obstacles.py``).
+            2.4x less than 49.
     """
     if not trajectories:
         raise ValueError("disk_params needs at least one trajectory.")

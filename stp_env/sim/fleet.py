@@ -24,7 +24,7 @@ step's lifecycle does.
 and flags equal; states up to rounding) and shows that leaving out a vehicle that flies is caught. Part of a fleet
 is another compiled program of the same arithmetic: a last-bit difference can flip a bang-bang control at a tie
 and part two trajectories by up to 200 m (more than 1 m in 2-6 episodes of 1,000), as another batch size does
-(``docs/numerics.md``, "Two compiled programs of the same episode"; ``benchmarks/airborne_only.py``).
+(``docs/numerics.md``, "Two compiled programs of the same episode").
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ A simulator program (a batch of episodes, one adapter step, a falsifier's object
 about 27,000 lines of optimised HLO in several hundred fusions, and most of its compile time is LLVM turning that
 into machine code (see ``docs/numerics.md``, "Compiling the simulator"). At backend optimisation level 2 that takes
 0.6 times as long as at XLA's default (3), while the compiled program runs about as fast and its outputs were the
-same bit for bit on the measured programs (``benchmarks/sim_opt_level.py``). Tests, evaluations and short
+same bit for bit on the measured programs. Tests, evaluations and short
 training runs are dominated by compiles, so the simulator's programs use :data:`SIM_COMPILER_OPTIONS`.
 
 The HJ solver and the planner keep XLA's defaults: their outputs are shipped artifacts (tables, bounds, plans) that

@@ -98,8 +98,7 @@ def avoid_value_and_gradient(grid, taus, padded, tau, x_rel):
     ``tau``, multilinear in the state, the gradient by one-cell central differences. The same function as
     :func:`stp_env.reach.avoid.avoid_table_value` and the gradient of
     :func:`stp_env.reach.avoid.avoid_table_input` up to rounding (``tests/test_block_reads.py`` compares them),
-    read with one block gather instead of 112 scalar ones: a smaller program, faster to compile and to run
-    (``python benchmarks/table_reads.py``)."""
+    read with one block gather instead of 112 scalar ones: a smaller program, faster to compile and to run."""
     if grid.ndim != 3:
         raise ValueError(f"avoid tables are 3-D; got a {grid.ndim}-D grid.")
     k = jnp.clip(jnp.searchsorted(taus, tau, side="right") - 1, 0, taus.shape[0] - 2)
@@ -153,7 +152,7 @@ def interpolate_components(grid, padded, state):
 # programs: inlined, a read would be traced again at every call site (the step reads the tables at reset, at each
 # inner control step and at the step's end, for every policy that reads them) and re-batched by every enclosing
 # ``vmap`` and ``scan``; as a nested jitted call it is traced once per shape and batched once per batching pattern
-# (``python benchmarks/table_reads.py`` measures both).
+# (measured when the block reads landed; the figures are in git history).
 _avoid_read = jax.jit(avoid_value_and_gradient, static_argnums=(0,))
 interpolate = jax.jit(hj.interpolation.interpolate, static_argnums=(0, 3))
 _tracking_read = jax.jit(interpolate_components, static_argnums=(0,))

@@ -32,7 +32,7 @@ def city_intruder(*, kbar: int = 3, n_vehicles: int = 50, wind: float = 6.0, slo
     buffer between vehicles, the vehicles leave one per 61-68 s, so with all STAs equal the 50th leaves about an hour
     before its STA and waits near its target for most of it, where the 760 m buffer disks of the vehicles planned
     before it sweep past for minutes at a time. The planner's trajectories of such waits leave their tubes on this
-    grid (BENCHMARKS.md, "Intruder-aware city"), and no such plan ships. Spaced STAs (``make("city", kbar=2,
+    grid (docs/city_intruder.md), and no such plan ships. Spaced STAs (``make("city", kbar=2,
     sta_spacing=70)``) do not fix it: the flights to the four destinations differ by up to about 130 s, so the
     vehicles' natural departures collide at the origin, each collision pushes a departure one buffer spacing
     earlier, and at 70 s the 11th vehicle had no departure within the 676 s horizon. Scheduling the departures
@@ -41,7 +41,7 @@ def city_intruder(*, kbar: int = 3, n_vehicles: int = 50, wind: float = 6.0, slo
 
     Why 150 s (:data:`CITY_INTRUDER_SLOT`): the intruder-aware planner keeps a departing vehicle outside the buffer
     disk of each vehicle that left before it, and from the one origin that holds departures 67.5 s apart at
-    ``k̄ = 2`` and 61 s at ``k̄ = 3`` (``make("city", kbar=k)``, BENCHMARKS.md). The planned flights are up to about
+    ``k̄ = 2`` and 61 s at ``k̄ = 3`` (``make("city", kbar=k)``). The planned flights are up to about
     40 s longer than the straight line (the detours around the downtown) and the flights to ``(4600, 2500)`` are
     held back further, so a vehicle's natural departure can fall within one buffer spacing of an earlier one; it then
     leaves earlier, in the first gap of two buffer spacings. With 90 s slots such gaps were rare, the held-back
