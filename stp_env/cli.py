@@ -479,10 +479,9 @@ def _add_train_intruder_parser(sub) -> None:
                          "holds)")
     tr.add_argument("--n-steps", type=kit.positive_int, default=128,
                     help="steps per environment per rollout [steps]")
-    tr.add_argument("--minibatch-size", "--batch-size", dest="batch_size", type=kit.positive_int, default=2048,
-                    metavar="N",
-                    help="PPO minibatch: transitions per gradient step (--batch-size is the older spelling; not "
-                         "the episodes of a batch as in `evaluate`)")
+    tr.add_argument("--minibatch-size", dest="batch_size", type=kit.positive_int, default=2048, metavar="N",
+                    help="PPO minibatch: transitions per gradient step (not the episodes of a batch as in "
+                         "`evaluate`)")
     tr.add_argument("--n-epochs", type=kit.integer(1, 1000), default=10, help="PPO: passes over each rollout")
     tr.add_argument("--learning-rate", type=kit.real(1e-9, 1.0), default=3e-4, help="the optimiser's step size")
     tr.add_argument("--log-std-init", type=kit.real(-20.0, 5.0), default=0.0,

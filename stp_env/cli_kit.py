@@ -126,11 +126,11 @@ def add_seed(parser, what: str, *, default: int = 0, maximum: int = MAX_SEED) ->
                         help=f"seed of {what}: " + SEED_HELP.format(bound=bound))
 
 
-def add_batch_size(parser, what: str, *, default: int, maximum: int = INT32_MAX, aliases=(),
-                   unit_bytes: int = EPISODE_BYTES, unit: str = "episode") -> None:
-    """``--batch-size`` (and older spellings ``aliases``): ``what`` one batch holds, with its unit; at most
-    ``maximum`` and as many things (``unit``) of ``unit_bytes`` as the memory available holds (:func:`in_memory`)."""
-    parser.add_argument("--batch-size", *aliases, dest="batch_size", type=in_memory(unit_bytes, unit, maximum),
+def add_batch_size(parser, what: str, *, default: int, maximum: int = INT32_MAX, unit_bytes: int = EPISODE_BYTES,
+                   unit: str = "episode") -> None:
+    """``--batch-size``: ``what`` one batch holds, with its unit; at most ``maximum`` and as many things (``unit``)
+    of ``unit_bytes`` as the memory available holds (:func:`in_memory`)."""
+    parser.add_argument("--batch-size", dest="batch_size", type=in_memory(unit_bytes, unit, maximum),
                         default=default, metavar="N", help=what)
 
 

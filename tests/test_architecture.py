@@ -46,10 +46,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
 )
 
 ALLOWED_UPWARD: dict[tuple[str, str], str] = {
-    # (importing module or package, imported module or package): why this arrow against the layers stays.
-    ("stp_env.sim", "stp_env.assembly"): "deprecated aliases: stp_env.sim.params_for / make_params / load_artifacts "
-                                         "/ ... and the module stp_env.sim.build, moved to stp_env.assembly, are "
-                                         "found there on first use (a warning names the new place)",
+    # (importing module or package, imported module or package): why this arrow against the layers stays. None
+    # today.
 }
 
 
@@ -354,23 +352,6 @@ def test_one_scan_runs_the_episodes():
                               "a loop over the core's step on stp_env.sim.engine, or classify the scan in SCANS")
     assert set(SCANS) <= set(sites), f"SCANS entries without a scan: {set(SCANS) - set(sites)}"
     assert len(sites["stp_env.sim.engine"]) == 1
-
-
-def test_the_moved_names_answer_from_their_old_places_with_a_warning():
-    from stp_env import assembly, sim
-
-    for name in sim.MOVED_TO_ASSEMBLY:
-        with pytest.warns(DeprecationWarning, match=f"stp_env.assembly.{name}"):
-            assert getattr(sim, name) is getattr(assembly, name)
-    with pytest.warns(DeprecationWarning, match="stp_env.assembly.SHIPPED_PLANS"):
-        from stp_env.sim.build import SHIPPED_PLANS
-    assert SHIPPED_PLANS is assembly.SHIPPED_PLANS
-    with pytest.warns(DeprecationWarning, match="stp_env.assembly.with_buffer"):
-        assert sim.build.with_buffer is assembly.with_buffer
-    with pytest.raises(AttributeError):
-        sim.build.no_such_name  # noqa: B018
-    with pytest.raises(AttributeError):
-        sim.no_such_name  # noqa: B018
 
 
 def test_the_bounds_row_is_read_by_the_names_it_is_built_with():

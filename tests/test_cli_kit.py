@@ -106,18 +106,19 @@ def test_every_option_has_one_help_text_with_one_default(command):
 
 def test_batch_sizes_say_what_they_count():
     """``--batch-size`` is episodes in ``evaluate`` / ``render`` / ``coobservation`` and attacks in ``falsify``; the
-    PPO minibatch of ``train-intruder`` is ``--minibatch-size`` (the old spelling still works)."""
+    PPO minibatch of ``train-intruder`` is ``--minibatch-size`` (``--batch-size``, its spelling in release 0.1, is
+    refused)."""
     helps = {c: _option_helps(c)["--batch-size"] for c in ("evaluate", "render", "coobservation", "falsify")}
     assert all("episodes" in helps[c] for c in ("evaluate", "render", "coobservation"))
     assert "attacks" in helps["falsify"]
     assert "minibatch" in _option_helps("train-intruder")["--minibatch-size"]
-    for spelling in ("--minibatch-size", "--batch-size"):
-        args, err = _parse(["train-intruder", spelling, "512"])
-        assert args is not None and args.batch_size == 512, err
+    args, err = _parse(["train-intruder", "--minibatch-size", "512"])
+    assert args is not None and args.batch_size == 512, err
+    args, err = _parse(["train-intruder", "--batch-size", "512"])
+    assert args is None and "--batch-size" in err
     for command in ("coobservation", "falsify"):
-        for spelling in ("--batch-size", "--batch"):
-            args, err = _parse([command, spelling, "64"])
-            assert args is not None and args.batch_size == 64, err
+        args, err = _parse([command, "--batch-size", "64"])
+        assert args is not None and args.batch_size == 64, err
 
 
 @pytest.mark.parametrize("command", SEEDED)

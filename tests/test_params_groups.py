@@ -14,7 +14,6 @@ from stp_env import hj
 from stp_env.dynamics import RelativeDubins
 from stp_env.sim import types
 from stp_env.sim.types import (
-    MOVED,
     EnvParams,
     EpisodeParams,
     IntruderParams,
@@ -48,29 +47,6 @@ def _params(n=2, k=4) -> EnvParams:
                            tracking_dynamics=RelativeDubins()),
         wind=WindParams(model="uniform"),
     )
-
-
-def test_every_field_of_the_flat_params_has_exactly_one_new_place():
-    """Each name of the flat EnvParams maps to an existing field of one group, and every group field is the new
-    place of one flat name (nothing lost, nothing invented)."""
-    params = _params()
-    targets = set()
-    for old, (group, field) in MOVED.items():
-        assert field in {f.name for f in dataclasses.fields(getattr(params, group))}, old
-        targets.add((group, field))
-    every = {(g.name, f.name) for g in dataclasses.fields(params) for f in dataclasses.fields(getattr(params, g.name))}
-    assert targets == every and len(MOVED) == len(every)
-
-
-def test_a_flat_name_raises_an_error_naming_its_new_place():
-    params = _params()
-    with pytest.raises(AttributeError, match=r"EnvParams\.n_vehicles is now EnvParams\.vehicles\.n"):
-        _ = params.n_vehicles
-    with pytest.raises(AttributeError, match=r"EnvParams\.t_iat is now EnvParams\.intruder\.t_iat"):
-        _ = params.t_iat
-    with pytest.raises(AttributeError, match="no attribute 'nonsense'"):
-        _ = params.nonsense
-    assert not hasattr(params, "kbar") and hasattr(params.intruder, "kbar")
 
 
 def test_replace_changes_only_the_named_fields_and_refuses_unknown_groups_and_fields():

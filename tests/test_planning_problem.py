@@ -228,17 +228,13 @@ def test_a_problem_is_frozen_and_holds_checked_read_only_arrays():
         problem.starts[0, 0] = 5.0
 
 
-def test_the_old_argument_list_is_deprecated_and_plans_the_same_problem():
+def test_plan_rtt_takes_a_problem_only():
+    """The argument list of release 0.1 is refused with the way to build the problem."""
     args = (GRID, VEHICLE, (0.5, 0.6), 0.5, 0.05, 0.2, [START], [TARGET], 0.25, [0.0])
     problem = PlanningProblem.dubins(*args, horizon=6.0)
-    with pytest.warns(DeprecationWarning, match="pass a PlanningProblem"):
-        old = plan_rtt(*args, horizon=6.0, progress=False)
-    new = plan_rtt(problem, progress=False)
-    a, b = plan_to_arrays(old), plan_to_arrays(new)
-    assert sorted(a) == sorted(b)
-    for key in a:
-        assert np.asarray(a[key]).tobytes() == np.asarray(b[key]).tobytes(), key
-    with pytest.raises(TypeError, match="takes only the keyword arguments"):
+    with pytest.raises(TypeError, match=r"PlanningProblem\.dubins\(grid, vehicle"):
+        plan_rtt(*args[:1], progress=False)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'horizon'"):
         plan_rtt(problem, horizon=6.0)
-    with pytest.raises(TypeError, match=r"plans a stp_env\.planning\.problem\.PlanningProblem; got dict"):
+    with pytest.raises(TypeError, match=r"plans a stp_env\.planning\.problem\.PlanningProblem; got dict\."):
         plan_rtt({"grid": GRID})

@@ -31,7 +31,7 @@ def add_parser(sub) -> None:
                                              "with exact bounds, detection rate and delay)",
                        formatter_class=kit.HelpFormatter, description=__doc__.split("\n\n")[1])
     p.add_argument("--episodes", type=kit.positive_int, default=10_000, help="episodes per (schedule, attacker)")
-    kit.add_batch_size(p, "episodes simulated in one batched rollout", default=1000, aliases=("--batch",))
+    kit.add_batch_size(p, "episodes simulated in one batched rollout", default=1000)
     p.add_argument("--attackers", nargs="+", default=["honest", "reckless", "opportunistic", "optimistic"],
                    help="honest, reckless, opportunistic, optimistic, learned:<attacker.npz>, or searched (the "
                         "cross-entropy search of stp_env.falsify.search, --search-budget attacks per schedule)")

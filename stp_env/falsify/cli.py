@@ -56,7 +56,7 @@ def add_parser(sub) -> None:
     fa.add_argument("--population", type=kit.positive_int, default=250,
                     help="cross-entropy samples per iteration and restart")
     fa.add_argument("--restarts", type=kit.positive_int, default=4, help="independent cross-entropy searches")
-    kit.add_batch_size(fa, "attacks simulated at once", default=1000, aliases=("--batch",))
+    kit.add_batch_size(fa, "attacks simulated at once", default=1000)
     kit.add_seed(fa, "the search")
     fa.add_argument("--no-game-seed", action="store_true",
                     help="do not start the search from the game's own worst strategies (the attack's seeds)")

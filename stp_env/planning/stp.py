@@ -81,8 +81,7 @@ the STA), at about half the cost per step of WENO5 + RK2; first-order upwinding 
 departs ~15 s earlier than needed (more dissipation, a smaller tube)."""
 
 
-def plan_rtt(problem: PlanningProblem, *args, progress: bool = True, checkpoint=None, on_vehicle=None,
-             **kwargs) -> Plan:
+def plan_rtt(problem: PlanningProblem, *, progress: bool = True, checkpoint=None, on_vehicle=None) -> Plan:
     """Plans every vehicle of ``problem`` with robust trajectory tracking (optionally intruder-aware).
 
     ``problem`` (:class:`stp_env.planning.problem.PlanningProblem`) holds what is planned: the vehicles, the planning
@@ -117,20 +116,14 @@ def plan_rtt(problem: PlanningProblem, *args, progress: bool = True, checkpoint=
             checks of a finished plan (:func:`stp_env.planning.checkpoint.check_plans`).
         on_vehicle: called as ``on_vehicle(rank, index, plan)`` after each vehicle is planned (and checkpointed).
 
-    The argument list of the Dubins planner before the problem object (``plan_rtt(grid, vehicle, planning_v,
-    planning_omega_max, tracking_bound, collision_radius, starts, targets, target_radius, stas, priorities, *,
-    horizon, ...)``) is still taken, with a :class:`DeprecationWarning`: it is
+    The Dubins planner's argument list of release 0.1 (``plan_rtt(grid, vehicle, planning_v, ...)``) is
     :meth:`PlanningProblem.dubins` of the same arguments.
     """
-    if isinstance(problem, hj.Grid):
-        warnings.warn("plan_rtt(grid, vehicle, planning_v, ...) is deprecated; pass a PlanningProblem "
-                      "(PlanningProblem.dubins takes the same arguments).", DeprecationWarning, stacklevel=2)
-        problem = PlanningProblem.dubins(problem, *args, **kwargs)
-    elif not isinstance(problem, PlanningProblem):
-        raise TypeError(f"plan_rtt plans a stp_env.planning.problem.PlanningProblem; got {type(problem).__name__}.")
-    elif args or kwargs:
-        raise TypeError("plan_rtt(problem) takes only the keyword arguments progress, checkpoint and on_vehicle; got "
-                        f"{len(args)} more positional and {sorted(kwargs)}.")
+    if not isinstance(problem, PlanningProblem):
+        hint = (" (the argument list of release 0.1: pass PlanningProblem.dubins(grid, vehicle, ...))"
+                if isinstance(problem, hj.Grid) else "")
+        raise TypeError(f"plan_rtt plans a stp_env.planning.problem.PlanningProblem; got "
+                        f"{type(problem).__name__}{hint}.")
     return _plan_problem(problem, progress=progress, checkpoint=checkpoint, on_vehicle=on_vehicle)
 
 

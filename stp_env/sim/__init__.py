@@ -10,11 +10,8 @@
   :mod:`~stp_env.sim.physics`: wind models, intruder spawning, value-table reads, kinematics.
 
 The core knows no scenario, plan or artifact: :mod:`stp_env.assembly`, the layer above it, makes ``EnvParams``
-from them (``params_for``, ``make_params``, ``load_artifacts``, ``load_plan``, ``with_plan``, ``busiest_window``,
-which this package still answers for, with a ``DeprecationWarning`` naming their new place).
+from them (``params_for``, ``make_params``, ``load_artifacts``, ``load_plan``, ``with_plan``, ``busiest_window``).
 """
-
-import warnings as _warnings
 
 from stp_env.sim.config import EnvConfig, RewardConfig
 from stp_env.sim.core import episode_over, global_state, lifecycle, observation_sizes, observe, reset, step
@@ -44,20 +41,3 @@ __all__ = [
     "global_state", "lifecycle", "n_forced", "nominal_reference", "observation_sizes", "observe", "reset", "rollout",
     "step", "steps_for",
 ]
-
-MOVED_TO_ASSEMBLY = ("busiest_window", "load_artifacts", "load_plan", "make_params", "params_for", "with_plan")
-"""Names this package had before the assembly layer (:mod:`stp_env.assembly`) took them out of the core."""
-
-
-def __getattr__(name):
-    # Deprecated aliases (tests/test_architecture.py: ALLOWED_UPWARD): the core's one import of the layer above it.
-    if name in MOVED_TO_ASSEMBLY:
-        from stp_env import assembly
-
-        _warnings.warn(f"stp_env.sim.{name} moved to stp_env.assembly.{name}.", DeprecationWarning, stacklevel=2)
-        return getattr(assembly, name)
-    if name == "build":  # ``sim.build.X``: the old module, now an alias of stp_env.assembly
-        import importlib
-
-        return importlib.import_module("stp_env.sim.build")
-    raise AttributeError(f"module 'stp_env.sim' has no attribute {name!r}")

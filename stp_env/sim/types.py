@@ -163,26 +163,6 @@ WindParams = _pytree(WindParams, meta=("model",))
 GROUPS = {"episode": EpisodeParams, "vehicles": VehicleParams, "intruder": IntruderParams, "tables": TableParams,
           "wind": WindParams}
 
-# Where each field of the flat EnvParams of earlier releases lives now: ``old name -> (group, name)``.
-MOVED = {
-    **{f: ("episode", f) for f in ("dt", "t_start", "t_end", "domain_lo", "domain_hi", "collision_radius",
-                                   "reward_weights", "safety_filter", "n_nearest", "control_substeps")},
-    **{f: ("vehicles", f) for f in ("departure", "sta", "nominal_arrival", "starts", "targets", "target_radii",
-                                    "nominal_t0", "nominal_dt", "nominal_states", "nominal_controls", "nominal_len",
-                                    "certified", "planning_v_max", "outside_waiting", "fleet_size")},
-    "n_vehicles": ("vehicles", "n"), "vehicle_bounds": ("vehicles", "bounds"), "vehicle_model": ("vehicles", "model"),
-    "vehicle_ids": ("vehicles", "ids"),
-    **{f: ("intruder", f) for f in ("t_iat", "appear_window", "spawn_radius", "spawn_boundary_probability", "kbar",
-                                    "d_sense")},
-    "intruder_bounds": ("intruder", "bounds"),
-    **{f: ("tables", f) for f in ("sdf", "sdf_grid", "avoid_taus", "avoid_values", "avoid_grid", "avoid_dynamics",
-                                  "detection_range", "avoid_margin", "avoid_fall_rate", "tracking_table",
-                                  "tracking_grid", "tracking_dynamics", "tracking_bound", "tracking_free_level",
-                                  "buffer_values", "buffer_grid")},
-    "wind_model": ("wind", "model"),
-}
-
-
 @dataclasses.dataclass(frozen=True)
 class EnvParams:
     """Constants of an environment, in five groups (see :func:`stp_env.assembly.make_params`, which fills them from
@@ -226,13 +206,6 @@ class EnvParams:
                                 f"not {type(value).__name__}")
             changes[name] = value
         return dataclasses.replace(self, **changes)
-
-    def __getattr__(self, name: str):
-        # Only called when normal lookup fails: name the new place of a field of the flat EnvParams.
-        if name in MOVED:
-            group, field = MOVED[name]
-            raise AttributeError(f"EnvParams.{name} is now EnvParams.{group}.{field}")
-        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
 
 EnvParams = _pytree(EnvParams)
