@@ -33,17 +33,38 @@ ENV_VAR = "PJRT_NPROC"
 """The environment variable XLA's CPU client reads for the size of its thread pools."""
 
 
+_PROBE_OPTION = "jax_cpu_get_local_topology_timeout_minutes"
+"""A JAX option that may only change before the backends start (JAX 0.10.2: its validator refuses a new value with a
+``RuntimeError`` once they have), read only by multi-process CPU clusters: what :func:`_backend_started` probes."""
+
+
 def _backend_started() -> bool:
-    """Whether JAX has created its backends (after which XLA's thread pools are fixed)."""
+    """Whether JAX has created its backends (after which XLA's thread pools and the device count are fixed).
+
+    JAX has no public function that says so (checked on JAX 0.10.2). Its public configuration does: an option that
+    must be set before the backends start (:data:`_PROBE_OPTION`) refuses a new value once they have, by the same
+    test JAX uses for ``jax_num_cpu_devices``. The probe sets another value and puts the old one back (a timeout that
+    only a multi-process CPU cluster reads, so that a backend started by another thread in between does no harm).
+    When the option is missing (another JAX) or refuses otherwise, the answer is the safe one: started."""
     import sys
 
     if "jax" not in sys.modules:
         return False
+    import jax
+
     try:
-        from jax._src import xla_bridge
-    except ImportError:  # pragma: no cover - JAX moved the module: assume started, the safe answer
+        current = getattr(jax.config, _PROBE_OPTION)
+    except AttributeError:  # pragma: no cover - another JAX: assume started, the safe answer
         return True
-    return bool(xla_bridge.backends_are_initialized())
+    try:
+        jax.config.update(_PROBE_OPTION, int(current) + 1)
+    except Exception:  # RuntimeError: started; anything else (another JAX): assume started, the safe answer
+        return True
+    try:
+        jax.config.update(_PROBE_OPTION, current)
+    except RuntimeError:  # pragma: no cover - another thread started the backends in between
+        return True
+    return False
 
 
 def cpu_threads() -> int | None:

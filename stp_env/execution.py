@@ -420,10 +420,24 @@ def to_device(tree):
 
 
 def _weak(value):
-    """``value`` weakly typed, as JAX types a lifted Python scalar (JAX has no public function for this)."""
-    from jax._src.lax.lax import _convert_element_type
+    """``value`` weakly typed, as JAX types a lifted Python scalar: same dtype, shape, bits and placement.
 
-    return _convert_element_type(value, value.dtype, weak_type=True)
+    JAX has no public function that sets an array's weak type (checked on JAX 0.10.2). Its public way to ask for one
+    is an abstract value, ``jax.ShapeDtypeStruct(..., weak_type=True)``: the identity traced with that argument is a
+    program whose result is weakly typed, and it is called with ``value`` (JAX checks the argument's shape and dtype,
+    not its weak type). JAX keeps the compiled identity per shape and dtype in memory (tens of microseconds a call
+    after the first)."""
+    import jax
+
+    global _IDENTITY
+    if _IDENTITY is None:
+        _IDENTITY = jax.jit(lambda x: x)
+    spec = jax.ShapeDtypeStruct(value.shape, value.dtype, weak_type=True)
+    return _IDENTITY.trace(spec).lower().compile()(value)
+
+
+_IDENTITY = None
+"""``jax.jit`` of the identity (made on first use: this module does not import JAX at its import)."""
 
 
 def digest(*parts) -> str:

@@ -22,12 +22,14 @@ os.environ.setdefault("STP_ENV_CPU_DEVICES", "1")
 
 # JAX's persistent compilation cache (stp_env/compilation_cache.py) is on in every worker, in the artifact cache
 # directory they share: a program that one worker or test file compiled is loaded by the others (most of the suite's
-# time is compiling). Exported so that the tests' child processes use the same folder.
+# time is compiling). Exported so that the tests' child processes use the same folder, with the same size limit
+# (with a limit JAX locks the folder, so that no process reads an entry another is writing).
 from stp_env import compilation_cache  # noqa: E402
 
 if compilation_cache.directory() is not None:
     os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(compilation_cache.directory()))
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", str(compilation_cache.MIN_COMPILE_TIME_S))
+    os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(jax.config.jax_compilation_cache_max_size))
 
 # JIT compilation makes the first example of a property test slow; deadlines would only measure compilation.
 settings.register_profile(

@@ -30,10 +30,9 @@ hits = []
 monitoring.register_event_listener(lambda event, **kw: hits.append(event) if event.endswith("cache_hits") else None)
 y = jax.jit(lambda x: jnp.sin(x) * factor + jnp.cumsum(x))(jnp.arange(7.0))
 from stp_env import compilation_cache
-from jax._src import lru_cache
 print(json.dumps({"hits": len(hits), "y": float(y.sum()), "dir": str(compilation_cache.directory()),
                   "jax_dir": jax.config.jax_compilation_cache_dir,
-                  "atomic": bool(getattr(lru_cache.LRUCache.put, "_atomic", False))}))
+                  "max_size": jax.config.jax_compilation_cache_max_size}))
 """
 
 
@@ -130,30 +129,42 @@ def test_the_folder_is_in_the_artifact_cache_directory(tmp_path, monkeypatch):
     assert compilation_cache.artifact_cache_dir() == artifacts.default_cache_dir()
 
 
-def test_a_folder_over_its_limit_is_pruned_least_recently_used_first(tmp_path):
+def test_jax_deletes_the_least_recently_used_entries_past_the_limit(tmp_path):
+    """The limit is JAX's own (``jax_compilation_cache_max_size``): JAX deletes the least recently used entries
+    before a write would pass it. Entries without JAX's access-time file (written without a limit, as earlier
+    versions of the package did) are dated by their modification time first, or JAX's eviction would fail on them
+    and write nothing more."""
     import time as _time
 
+    folder = tmp_path / "xla"
+    folder.mkdir(mode=0o700)
+    now = _time.time()
+    for i, name in enumerate(("old1-cache", "old2-cache")):  # old1 the least recently used
+        (folder / name).write_bytes(b"x" * 5000)
+        os.utime(folder / name, (now - 1000 + i, now - 1000 + i))
+    limit = 11_000
+    out, err = _run(_env(tmp_path, STP_ENV_COMPILATION_CACHE_MAX_GB=str(limit / 1e9)))
+    assert out["max_size"] == limit
+    entries = sorted(folder.glob("*-cache"))
+    assert not (folder / "old1-cache").exists(), err  # evicted first
+    assert any(not p.name.startswith("old") for p in entries), err  # what the process compiled was written
+    assert sum(p.stat().st_size for p in entries) <= limit
+    assert all(p.with_name(p.name[:-len("-cache")] + "-atime").exists() for p in entries)
+
+
+def test_undated_entries_are_dated_and_kept(tmp_path):
     from stp_env import compilation_cache
 
     folder = tmp_path / "xla"
-    folder.mkdir()
-    now = _time.time()
-    for i in range(10):  # ten 1 kB entries, entry 0 the least recently used
-        path = folder / f"entry{i}-cache"
-        path.write_bytes(b"x" * 1000)
-        os.utime(path, (now - 1000 + i, now - 1000 + i))
-    assert compilation_cache.prune(folder, 20_000) == 0  # under the limit: nothing
-    assert compilation_cache.prune(folder, 5_000) == 6  # down to 0.8 of the limit: 4 kB left
-    assert sorted(p.name for p in folder.iterdir()) == [f"entry{i}-cache" for i in range(6, 10)]
-    assert compilation_cache.prune(folder, -1) == 0
-
-
-def test_turning_it_on_prunes_the_folder(tmp_path):
-    folder = tmp_path / "xla"
     folder.mkdir(mode=0o700)
-    (folder / "old-cache").write_bytes(b"x" * 5000)
-    _run(_env(tmp_path, STP_ENV_COMPILATION_CACHE_MAX_GB=str(4000 / 1e9)))
-    assert not (folder / "old-cache").exists()  # pruned at the start; what the process compiled is written after
+    (folder / "old-cache").write_bytes(b"x" * 10)
+    (folder / "new-cache").write_bytes(b"y" * 10)
+    (folder / "new-atime").write_bytes((7).to_bytes(8, "little"))
+    os.utime(folder / "old-cache", ns=(1_000_000_000, 2_000_000_000))
+    assert compilation_cache.private_cache_dir(folder) == folder
+    assert int.from_bytes((folder / "old-atime").read_bytes(), "little") == 2_000_000_000
+    assert int.from_bytes((folder / "new-atime").read_bytes(), "little") == 7  # JAX's own date is left alone
+    assert (folder / "old-cache").read_bytes() == b"x" * 10
 
 
 def test_the_size_limit_is_read_from_the_environment(monkeypatch):
@@ -170,12 +181,35 @@ def test_the_size_limit_is_read_from_the_environment(monkeypatch):
         compilation_cache.max_size_bytes()
 
 
-@pytest.mark.parametrize("first", ["stp_env", "jax"])
-def test_entries_are_written_whole(tmp_path, first):
-    """Whichever is imported first, JAX's file cache writes an entry to a temporary file and renames it into place:
-    a worker reading an entry another is writing never gets a truncated executable (two test workers crashed
-    deserialising one). Nothing temporary is left behind."""
-    out, _ = _run(_env(tmp_path), first=first)
-    assert out["atomic"]
-    written = _entries(tmp_path / "xla")
-    assert written and not any(name.endswith(".tmp") for name in written)
+@pytest.mark.parametrize("gb, expected", [(None, 2_000_000_000), ("0.5", 500_000_000), ("-1", sys.maxsize)])
+def test_jax_is_given_the_limit_so_that_it_locks_the_folder(tmp_path, gb, expected):
+    """JAX's size limit comes from ``STP_ENV_COMPILATION_CACHE_MAX_GB`` (default 2 GB; ``-1``, no limit, as a limit
+    no folder reaches: JAX's own ``-1`` would write entries in place without its lock), whichever of stp_env and JAX
+    is imported first; JAX locks the folder and dates every entry."""
+    for first in ("stp_env", "jax"):
+        env = _env(tmp_path / first, **({} if gb is None else {"STP_ENV_COMPILATION_CACHE_MAX_GB": gb}))
+        out, _ = _run(env, first=first)
+        assert out["max_size"] == expected
+        folder = tmp_path / first / "xla"
+        entries = list(folder.glob("*-cache"))
+        assert entries and (folder / ".lockfile").exists()
+        assert all(p.with_name(p.name[:-len("-cache")] + "-atime").exists() for p in entries)
+
+
+def test_a_limit_jax_was_given_is_kept_unless_ours_is_set(tmp_path):
+    out, _ = _run(_env(tmp_path, JAX_COMPILATION_CACHE_MAX_SIZE="123456789"))
+    assert out["max_size"] == 123456789
+    out, _ = _run(_env(tmp_path, JAX_COMPILATION_CACHE_MAX_SIZE="123456789", STP_ENV_COMPILATION_CACHE_MAX_GB="0.5"))
+    assert out["max_size"] == 500_000_000
+
+
+def test_importing_the_package_installs_no_import_hook(tmp_path):
+    """``import stp_env`` registers its Gymnasium environments and sets JAX's cache through JAX's own settings: it
+    adds no import hook to ``sys.meta_path`` (an earlier version patched JAX's file cache from one), before or after
+    JAX is imported and compiles."""
+    code = ("import json, sys\nbefore = list(sys.meta_path)\nimport stp_env\nafter_import = list(sys.meta_path)\n"
+            "import jax, jax.numpy as jnp\njax.jit(lambda x: x + 1)(jnp.arange(3)).block_until_ready()\n"
+            "print(json.dumps({'import': after_import == before, 'compile': sys.meta_path == before}))")
+    out = subprocess.run([sys.executable, "-c", code], env=_env(tmp_path), capture_output=True, text=True,
+                         check=True, timeout=300)
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == {"import": True, "compile": True}
