@@ -52,7 +52,7 @@ from stp_env.env_infos import InfoBuilder
 from stp_env.progress import compile_note
 from stp_env.replanning import Replanner
 from stp_env.seeds import prng_key
-from stp_env.sim import core, fleet
+from stp_env.sim import fleet, observations
 from stp_env.sim.packing import DeviceCarry, Layout
 from stp_env.sim.stepping import advance, advance_carry_jit, advance_scripted, global_state_jit, start_jit
 from stp_env.sim.types import GONE, INTRUDER_STATUS_NAMES, MODE_NAMES, STATUS_NAMES
@@ -156,8 +156,8 @@ class STPParallelEnv(ParallelEnv):
         self.max_cycles = check_max_cycles(sim.steps_for(params) if max_cycles is None else max_cycles)
         self.render_mode = render_mode
         self.render_avoid_regions = render_avoid_regions
-        self._dv, self._di = core.observation_sizes(params)
-        self._state_size = core.global_state_size(params)
+        self._dv, self._di = observations.observation_sizes(params)
+        self._state_size = observations.global_state_size(params)
         self._info_builder = InfoBuilder(self._vehicle_names, self._in_episode, int(params.intruder.kbar),
                                          float(params.tables.tracking_bound))
         self.episode: dict | None = None  # the episode-level results after the last reset or step (see Infos)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from stp_env import assembly, scenarios, sim
-from stp_env.evaluation import Configuration, runner
+from stp_env.evaluation import Configuration, replays, runner
 from stp_env.sim import winds
 from stp_env.sim.winds.base import WindModel
 
@@ -42,7 +42,7 @@ def test_a_wind_model_that_returns_nan_or_inf_makes_the_episode_an_assumption_fa
     assert summary["assumption_failures"] == 2, summary
     assert summary["violation_episodes"] == 0 and summary["tracking_violations"] == 0
     assert len(result.events) == 2 and all("assumption_failed" in e["kinds"] for e in result.events)
-    final, _ = runner.replay_event(result.events[0])                   # counted, and replayable
+    final, _ = replays.replay_event(result.events[0])                   # counted, and replayable
     assert not np.all(np.asarray(final["assumption_ok"]))
 
 

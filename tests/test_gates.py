@@ -15,7 +15,7 @@ import numpy as np
 from stp_env import assembly, sim
 from stp_env.baselines import INTRUDERS, switching
 from stp_env.planning.stp import shipped_plan_for
-from stp_env.sim import core, gates
+from stp_env.sim import core, gates, status
 from stp_env.sim.physics import relative_state
 from stp_env.sim.rollout import episode_step
 from stp_env.sim.types import AVOIDING, FLYING, GONE, PENDING, PRESENT, WAITING, replace
@@ -37,7 +37,8 @@ def _ungated(criterion: bool = True):
                unittest.mock.patch.object(gates, "where_needed", _every_element)]
     if criterion:
         patches.append(unittest.mock.patch.object(
-            core, "avoid_read_needed", lambda params, state, rel: core.flying(state) & core.intruder_present(state)))
+            core, "avoid_read_needed",
+            lambda params, state, rel: status.flying(state) & status.intruder_present(state)))
     return _all(patches)
 
 

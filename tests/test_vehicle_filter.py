@@ -14,7 +14,7 @@ from stp_env import assembly, sim
 from stp_env.baselines import tube_keeping
 from stp_env.baselines.learned import load_intruder
 from stp_env.baselines.learned_vehicles import load_vehicle_mlp
-from stp_env.sim import core
+from stp_env.sim import core, observations
 from stp_env.sim.margins import tube_free_level
 
 
@@ -142,7 +142,7 @@ def test_ego_env_starts_after_the_avoidance_and_steps(crossing):
     env = EgoVehicleVecEnv(8, params, intruder)
     env.seed(5)
     obs = env.reset()
-    assert obs.shape == (8, core.vehicle_observation_size(params))
+    assert obs.shape == (8, observations.vehicle_observation_size(params))
     egos = np.asarray(env._egos)
     status, mode = np.asarray(env._states.status), np.asarray(env._states.mode)
     for i, e in enumerate(egos):
@@ -150,7 +150,7 @@ def test_ego_env_starts_after_the_avoidance_and_steps(crossing):
             assert status[i, e] == sim.types.FLYING and mode[i, e] == sim.types.AFTER_AVOIDANCE
     assert (egos >= 0).mean() >= 0.75
     obs, rewards, _, infos = env.step(np.zeros((8, 2), np.float32))
-    assert obs.shape == (8, core.vehicle_observation_size(params)) and rewards.shape == (8,)
+    assert obs.shape == (8, observations.vehicle_observation_size(params)) and rewards.shape == (8,)
     assert set(STAT_NAMES) <= set(infos[0])
     window = assembly.params_for("crossing", sim.EnvConfig(spawn_mode="boundary"), progress=False)
     with pytest.raises(ValueError, match="episode='full'"):

@@ -27,7 +27,7 @@ ROLE = "vehicle"
 def mlp_vehicles(mlp: MLPIntruder, name: str = "learned"):
     """The MLP's deterministic action on every vehicle's observation row, ``(N, 2)`` (no filter). Raises
     ``ValueError`` (at trace time) if ``params`` gives another observation size than the MLP takes."""
-    from stp_env.sim import core
+    from stp_env.sim import observations
 
     act = ACTIVATIONS[mlp.activation]
     hidden = [(jnp.asarray(w), jnp.asarray(b)) for w, b in mlp.hidden]
@@ -35,7 +35,7 @@ def mlp_vehicles(mlp: MLPIntruder, name: str = "learned"):
 
     def policy(key, state, params):
         del key
-        h = core.observe(state, params)[0]
+        h = observations.observe(state, params)[0]
         if h.shape[1] != mlp.obs_size:
             raise ValueError(f"The vehicle MLP takes {mlp.obs_size} observations but these params give "
                              f"{h.shape[1]} (n_nearest differs from training).")

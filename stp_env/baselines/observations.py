@@ -33,7 +33,7 @@ import jax
 import jax.numpy as jnp
 
 from stp_env.sim import tables
-from stp_env.sim.core import observe
+from stp_env.sim.observations import observe
 from stp_env.sim.physics import control_to_action, relative_state, wrap_angle
 from stp_env.sim.types import FLYING
 
@@ -102,7 +102,7 @@ def intruder_observation(state, params, observation: str = "core"):
 
 def observation_size(params, observation: str = "core") -> int:
     """The length of :func:`intruder_observation` for ``params``."""
-    from stp_env.sim.core import _abstract_state
+    from stp_env.sim.observations import _abstract_state
 
     check_observation(observation)
     if observation in NEEDS_BUFFER:

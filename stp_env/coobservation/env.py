@@ -28,7 +28,7 @@ Agents
 Actions: ``Box(-1, 1, (2,))`` for every agent (speed in ``[0, 25] m/s`` and turn rate in ``[-2, 2] rad/s``,
 clipped; NaN, booleans, strings, wrong shapes and unknown or finished agents raise ``ValueError`` before anything
 changes).
-Observations: vehicles get the core's vehicle row (:func:`stp_env.sim.core.observe`); the attacker gets
+Observations: vehicles get the core's vehicle row (:func:`stp_env.sim.observations.observe`); the attacker gets
 :func:`stp_env.coobservation.attackers.attacker_observation` (zeros until it is active).
 
 Rewards: the attacker gets ``+1`` when the compromised vehicle first enters a forbidden zone and ``-2`` when it
@@ -84,7 +84,7 @@ from stp_env.baselines import nominal_tracking
 from stp_env.coobservation import attackers, threat
 from stp_env.coobservation.uav import FormationScenario
 from stp_env.seeds import prng_key
-from stp_env.sim.core import observe, vehicle_observation_size
+from stp_env.sim.observations import observe, vehicle_observation_size
 from stp_env.sim.packing import DeviceCarry, Layout, pack
 from stp_env.sim.types import STATUS_NAMES
 

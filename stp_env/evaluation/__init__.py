@@ -2,8 +2,8 @@
 
 * :mod:`~stp_env.evaluation.config`: :class:`Configuration` (scenario, k̄, intruder, wind, spawn mode, vehicle
   policy) and :func:`resolve_intruder` (scripted names, or ``module:policy`` for learned intruders).
-* :mod:`~stp_env.evaluation.runner`: :func:`evaluate` (batches of episodes, one compile), :func:`summarize`,
-  :func:`replay` / :func:`replay_event` (an episode from its seed and index).
+* :mod:`~stp_env.evaluation.runner`: :func:`evaluate` (batches of episodes, one compile), :func:`summarize`;
+  :mod:`~stp_env.evaluation.replays`: :func:`replay` / :func:`replay_event` (an episode from its seed and index).
 * :mod:`~stp_env.evaluation.events`: reading saved events back as untrusted data (:func:`load_events`; a plug-in
   intruder named in a file is never imported).
 * :mod:`~stp_env.evaluation.stats`: exact Clopper-Pearson bounds.
@@ -15,15 +15,13 @@
 from stp_env.evaluation.config import Configuration, resolve_intruder, resolve_vehicle_policy
 from stp_env.evaluation.events import load_events
 from stp_env.evaluation.pipeline import run
+from stp_env.evaluation.replays import replay, replay_event, same_outcome
 from stp_env.evaluation.runner import (
     ConfigResult,
     build_params,
     evaluate,
     pad_plan,
-    replay,
-    replay_event,
     run_batch,
-    same_outcome,
     summarize,
 )
 from stp_env.evaluation.stats import (

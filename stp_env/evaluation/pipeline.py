@@ -12,7 +12,8 @@ from pathlib import Path
 
 from stp_env.evaluation import plots, report
 from stp_env.evaluation.config import resolve_vehicle_policy
-from stp_env.evaluation.runner import evaluate, replay
+from stp_env.evaluation.replays import replay
+from stp_env.evaluation.runner import evaluate
 
 
 def showcase_result(results):

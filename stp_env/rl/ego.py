@@ -37,7 +37,7 @@ import numpy as np
 
 from stp_env.baselines.vehicles import fallback_control, hj_filter, switching
 from stp_env.rl import functional as F
-from stp_env.sim import core, engine
+from stp_env.sim import core, engine, observations
 from stp_env.sim.bounds import V_MAX
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.physics import action_to_control
@@ -169,7 +169,7 @@ def ego_step(key, state, ego, action, params: EnvParams, energy):
 
 
 def ego_obs(state, ego, params: EnvParams):
-    return core.observe(state, params)[0][jnp.maximum(ego, 0)].astype(jnp.float32)
+    return observations.observe(state, params)[0][jnp.maximum(ego, 0)].astype(jnp.float32)
 
 
 STAT_NAMES = ("empty", "arrived", "on_time", "delay", "ego_collided", "ego_min_separation", "collisions",

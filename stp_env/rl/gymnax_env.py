@@ -42,7 +42,7 @@ from gymnax.environments import environment, spaces
 
 from stp_env.baselines.observations import check_observation, observation_size
 from stp_env.rl import functional as F
-from stp_env.sim import engine
+from stp_env.sim import engine, observations
 from stp_env.sim.types import EnvParams, EnvState
 
 OBS_BOUND = 2.0
@@ -202,9 +202,8 @@ class VehicleGymnaxEnv(GameGymnaxEnv):
         self._params = V.check_params(params)
         self.intruder = intruder
         self.energy, self.late_limit = float(energy), float(late_limit)
-        from stp_env.sim import core
 
-        self._obs_size = core.vehicle_observation_size(params)
+        self._obs_size = observations.vehicle_observation_size(params)
 
     @property
     def name(self) -> str:

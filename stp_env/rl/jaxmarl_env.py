@@ -33,8 +33,8 @@ import jax.numpy as jnp
 from jaxmarl.environments import spaces
 from jaxmarl.environments.multi_agent_env import MultiAgentEnv
 
-from stp_env.sim import core
-from stp_env.sim.core import observation_sizes
+from stp_env.sim import core, observations, status
+from stp_env.sim.observations import observation_sizes
 from stp_env.sim.types import COLLIDED, GONE, EnvParams, EnvState
 
 INTRUDER = "intruder"
@@ -72,7 +72,7 @@ class GameJaxMARLEnv(MultiAgentEnv):
         return self.get_obs(state), state
 
     def get_obs(self, state: EnvState) -> dict:
-        vehicle_obs, intruder_obs = core.observe(state, self.params)
+        vehicle_obs, intruder_obs = observations.observe(state, self.params)
         obs = {a: vehicle_obs[i].astype(jnp.float32) for i, a in enumerate(self.vehicles)}
         obs[INTRUDER] = intruder_obs.astype(jnp.float32)
         return obs
@@ -85,7 +85,7 @@ class GameJaxMARLEnv(MultiAgentEnv):
         state, rewards = core.step(key, state, jnp.stack(rows), self.params)
         terminated, truncated = core.episode_over(state, self.params)
         over = terminated | truncated
-        vehicle_done = core.done_vehicles(state) | over
+        vehicle_done = status.done_vehicles(state) | over
         dones = {a: vehicle_done[i] for i, a in enumerate(self.vehicles)}
         dones[INTRUDER] = (state.intruder_status == GONE) | over
         dones["__all__"] = over

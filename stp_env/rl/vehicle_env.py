@@ -22,7 +22,7 @@ from stp_env.rl.ego import (
     ego_step,
 )
 from stp_env.rl.jax_vec_env import JaxVecEnv
-from stp_env.sim import core, engine
+from stp_env.sim import engine, observations
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.types import EnvParams
 
@@ -87,7 +87,7 @@ class EgoVehicleVecEnv(JaxVecEnv):
                 raise ValueError(f"{name} must be a finite number >= 0; got {value!r}.")
         self.params, self.intruder = check_params(params), intruder
         self.energy, self.late_limit = float(energy), float(late_limit)
-        size = core.vehicle_observation_size(params)
+        size = observations.vehicle_observation_size(params)
         super().__init__(n_envs, gym.spaces.Box(-2.0, 2.0, (size,), np.float32),
                          gym.spaces.Box(-1.0, 1.0, (2,), np.float32))
         self._keys = self._egos = None

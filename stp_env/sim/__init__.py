@@ -14,7 +14,8 @@ from them (``params_for``, ``make_params``, ``load_artifacts``, ``load_plan``, `
 """
 
 from stp_env.sim.config import EnvConfig, RewardConfig
-from stp_env.sim.core import episode_over, global_state, lifecycle, observation_sizes, observe, reset, step
+from stp_env.sim.core import episode_over, lifecycle, reset, step
+from stp_env.sim.observations import global_state, observation_sizes, observe
 from stp_env.sim.reference import nominal_reference
 from stp_env.sim.rollout import rollout, steps_for
 from stp_env.sim.types import (

@@ -8,7 +8,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from stp_env.sim import core, engine, gates
+from stp_env.sim import core, engine, gates, status
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.types import EnvParams
 
@@ -27,7 +27,7 @@ def intruder_decision(intruder_policy, key, state, params: EnvParams):
     present in some episode of the batch (:func:`stp_env.sim.gates.when_any`): the core ignores an absent
     intruder's action, so the zero action of the skip changes nothing."""
     shape = jax.eval_shape(intruder_policy, key, state, params)
-    return gates.when_any(core.intruder_present(state), lambda k: intruder_policy(k, state, params),
+    return gates.when_any(status.intruder_present(state), lambda k: intruder_policy(k, state, params),
                           lambda k: jnp.zeros(shape.shape, shape.dtype), key)
 
 

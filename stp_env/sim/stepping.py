@@ -14,7 +14,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from stp_env.sim import core
+from stp_env.sim import core, observations
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.packing import pack
 from stp_env.sim.rollout import intruder_decision
@@ -62,7 +62,7 @@ def advance(key, state, actions, params):
     """One adapter step: ``step``, then everything the adapter converts to numpy."""
     key, sub = jax.random.split(key)
     new, rewards = core.step(sub, state, actions, params)
-    obs_v, obs_i = core.observe(new, params)
+    obs_v, obs_i = observations.observe(new, params)
     term, trunc = core.episode_over(new, params)
     return key, new, StepOutput(obs_v, obs_i, rewards, step_info(state, new), term, trunc)
 
@@ -70,7 +70,7 @@ def advance(key, state, actions, params):
 def start(key, params):
     key, sub = jax.random.split(key)
     state = core.reset(sub, params)
-    obs_v, obs_i = core.observe(state, params)
+    obs_v, obs_i = observations.observe(state, params)
     no = jnp.zeros((), bool)
     return key, state, StepOutput(obs_v, obs_i, jnp.zeros((params.vehicles.n + 1,), jnp.float32),
                                   step_info(state, state), no, no)
@@ -79,8 +79,8 @@ def start(key, params):
 start_jit = sim_jit(start)
 
 
-observe_jit = sim_jit(core.observe)
-global_state_jit = sim_jit(core.global_state)
+observe_jit = sim_jit(observations.observe)
+global_state_jit = sim_jit(observations.global_state)
 
 TRACE_COUNTS = {"step": 0}  # incremented when the step function is traced (tests check it stays at 1)
 
@@ -95,7 +95,7 @@ def advance_scripted(key, state, actions, params, vehicle_policy=None, intruder_
         a_i = intruder_decision(intruder_policy, k_i, state, params)
         actions = actions.at[params.vehicles.n, :2].set(a_i.astype(actions.dtype))
     new, rewards = core.step(sub, state, actions, params, vehicle_policy=vehicle_policy)
-    obs_v, obs_i = core.observe(new, params)
+    obs_v, obs_i = observations.observe(new, params)
     term, trunc = core.episode_over(new, params)
     return key, new, StepOutput(obs_v, obs_i, rewards, step_info(state, new), term, trunc)
 
