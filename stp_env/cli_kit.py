@@ -5,17 +5,16 @@ subcommand uses, and the help formatter that prints each default once.
 The types are the library's checks (:mod:`stp_env.arguments`, :func:`stp_env.seeds.check_seed`) turned into
 argparse types: a bad value exits with code 2 and one line naming the option. Building the parser, and
 ``--help``, import no JAX: the names the help texts list (wind models, scenarios, intruders, vehicle policies,
-spawn modes) are read from the source of the modules that register them (:func:`source_constant`,
-:func:`wind_model_catalog`, :func:`scenario_names`), which ``tests/test_cli_kit.py`` compares with the registries.
+spawn modes, and the installed plug-ins of each) come from :mod:`stp_env.catalog`, plain tables that the
+registries check themselves against.
 """
 
 from __future__ import annotations
 
 import argparse
-import ast
-import functools
 from pathlib import Path
 
+from stp_env import catalog
 from stp_env.arguments import INT32_MAX, MAX_KBAR, check_int, check_kbar, check_real, parse_spec
 from stp_env.resources import EPISODE_BYTES, check_count, check_memory, cpu_limit_reason, max_cpu_devices
 from stp_env.seeds import MAX_SEED, MAX_SEED_32, check_seed
@@ -250,46 +249,18 @@ def add_scenario(parser, default: str | None, what: str = "registered scenario")
 
 
 # ------------------------------------------------------------------------------------------------ catalogs
-def _tree(relative: str) -> ast.Module:
-    return ast.parse((PACKAGE / relative).read_text(encoding="utf-8"))
-
-
-@functools.cache
-def source_constant(relative: str, name: str):
-    """The value of the module-level assignment ``name = <literal>`` in the package module ``relative`` (a dict
-    gives its keys as a tuple), read from the source without importing it."""
-    for node in _tree(relative).body:
-        targets = node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(
-            node, ast.AnnAssign) else []
-        if any(isinstance(t, ast.Name) and t.id == name for t in targets):
-            if isinstance(node.value, ast.Dict):
-                return tuple(ast.literal_eval(k) for k in node.value.keys)
-            return ast.literal_eval(node.value)
-    raise LookupError(f"{relative} assigns no {name}")
-
-
-@functools.cache
 def wind_model_catalog() -> dict[str, dict]:
-    """The wind models of ``stp_env/sim/winds/`` as the registry lists them (by ``order``, then name):
-    ``{name: {"params": {field: default}, "help": text}}``, read from the source."""
-    found = []
-    for path in sorted((PACKAGE / "sim" / "winds").glob("*.py")):
-        for node in ast.parse(path.read_text(encoding="utf-8")).body:
-            if not (isinstance(node, ast.ClassDef) and any(
-                    isinstance(d, ast.Name) and d.id == "register" for d in node.decorator_list)):
-                continue
-            attrs, params = {"order": 100}, {}
-            for item in node.body:
-                if isinstance(item, ast.Assign) and len(item.targets) == 1 and isinstance(item.targets[0], ast.Name):
-                    attrs[item.targets[0].id] = ast.literal_eval(item.value)
-                elif isinstance(item, ast.AnnAssign) and isinstance(item.target, ast.Name) and item.value is not None:
-                    params[item.target.id] = ast.literal_eval(item.value)
-            found.append((attrs["order"], attrs["name"], {"params": params, "help": attrs.get("help", "")}))
-    return {name: entry for _, name, entry in sorted(found, key=lambda f: (f[0], f[1]))}
+    """The wind models as ``--help`` lists them: ``{name: {"params": {field: default}, "help": text}}``, the
+    built-ins' (:data:`stp_env.catalog.WIND_MODELS`), then the installed plug-ins' (named only: their modules are
+    not imported for ``--help``)."""
+    out = {name: {"params": dict(entry.params), "help": entry.help} for name, entry in catalog.WIND_MODELS.items()}
+    for name in catalog.names("wind_models", catalog.WIND_MODELS)[len(catalog.WIND_MODELS):]:
+        out[name] = {"params": {}, "help": "a plug-in"}
+    return out
 
 
 def describe_wind_models() -> str:
-    """:func:`stp_env.sim.winds.describe`, from the source."""
+    """:func:`stp_env.sim.winds.describe`, from the catalog."""
     out = []
     for name, entry in wind_model_catalog().items():
         params = ", ".join(f"{k}={v}" for k, v in entry["params"].items())
@@ -297,28 +268,19 @@ def describe_wind_models() -> str:
     return "; ".join(out)
 
 
-@functools.cache
 def scenario_names() -> tuple[str, ...]:
-    """The scenarios of ``stp_env/scenarios/catalog/`` (``@register("name")``), sorted, from the source."""
-    names = set()
-    for path in (PACKAGE / "scenarios" / "catalog").rglob("*.py"):
-        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-            if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
-                for d in node.decorator_list:
-                    if (isinstance(d, ast.Call) and isinstance(d.func, ast.Name) and d.func.id == "register"
-                            and d.args and isinstance(d.args[0], ast.Constant)):
-                        names.add(d.args[0].value)
-    return tuple(sorted(names))
+    """The registered scenarios (:data:`stp_env.catalog.SCENARIOS`) and the installed plug-ins', sorted."""
+    return tuple(sorted(catalog.names("scenarios", catalog.SCENARIOS)))
 
 
 def intruder_names() -> tuple[str, ...]:
-    """:data:`stp_env.baselines.INTRUDERS`' names."""
-    return source_constant("baselines/intruders.py", "INTRUDERS")
+    """The scripted intruders (:data:`stp_env.catalog.INTRUDERS`), then the installed plug-ins'."""
+    return catalog.names("intruders", catalog.INTRUDERS)
 
 
 def vehicle_policy_names() -> tuple[str, ...]:
-    """:data:`stp_env.baselines.VEHICLE_POLICIES`' names."""
-    return source_constant("baselines/vehicles.py", "VEHICLE_POLICIES")
+    """The vehicle policies (:data:`stp_env.catalog.VEHICLE_POLICIES`), then the installed plug-ins'."""
+    return catalog.names("vehicle_policies", catalog.VEHICLE_POLICIES)
 
 
 def vehicle_policy_spec(text: str) -> str:
@@ -336,12 +298,38 @@ def vehicle_policy_spec(text: str) -> str:
 
 
 def spawn_modes() -> tuple[str, ...]:
-    """:data:`stp_env.sim.types.SPAWN_MODES`."""
-    return source_constant("sim/types.py", "SPAWN_MODES")
+    """:data:`stp_env.catalog.SPAWN_MODES`."""
+    return catalog.SPAWN_MODES
 
 
-__all__ = ["MAX_KBAR", "HelpFormatter", "add_batch_size", "add_cache_dir", "add_out", "add_progress", "add_scenario",
-           "add_seed", "add_wind_model", "count", "describe_wind_models", "in_memory", "integer", "intruder_names",
-           "kbar", "nonnegative", "positive", "positive_int", "probability", "real", "scenario", "scenario_names",
-           "seed", "source_constant", "spawn_modes", "unit_interval", "vehicle_policy_names", "vehicle_policy_spec",
-           "wind_model", "wind_model_catalog"]
+__all__ = [
+    "MAX_KBAR",
+    "HelpFormatter",
+    "add_batch_size",
+    "add_cache_dir",
+    "add_out",
+    "add_progress",
+    "add_scenario",
+    "add_seed",
+    "add_wind_model",
+    "count",
+    "describe_wind_models",
+    "in_memory",
+    "integer",
+    "intruder_names",
+    "kbar",
+    "nonnegative",
+    "positive",
+    "positive_int",
+    "probability",
+    "real",
+    "scenario",
+    "scenario_names",
+    "seed",
+    "spawn_modes",
+    "unit_interval",
+    "vehicle_policy_names",
+    "vehicle_policy_spec",
+    "wind_model",
+    "wind_model_catalog",
+]

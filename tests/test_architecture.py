@@ -24,7 +24,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     # packages import each other without a cycle. A module is in the layer of the longest prefix that names it.
     ("foundation", ("stp_env.angles", "stp_env.kinematics", "stp_env.version", "stp_env.arguments", "stp_env.seeds",
                     "stp_env.loaders", "stp_env.files", "stp_env.progress", "stp_env.compilation_cache",
-                    "stp_env.cpu_threads", "stp_env.cli_kit", "stp_env.resources",
+                    "stp_env.cpu_threads", "stp_env.cli_kit", "stp_env.resources", "stp_env.catalog",
                     # the execution seam (jobs of pieces, in-process or on Ray): knows no simulator, so every
                     # layer's long jobs (the evaluator's batches, the falsifier's restarts) can run on it
                     "stp_env.execution")),

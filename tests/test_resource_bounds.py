@@ -223,8 +223,10 @@ def test_a_sweep_beyond_its_cap_is_refused_at_once():
 def test_the_command_line_refuses_a_bad_grid_before_any_work(tmp_path, monkeypatch):
     """``train-intruder --seeds 0 --grid gamma=2`` trained (a discount of 2); now it is refused before the output
     folder is made or JAX is touched."""
-    monkeypatch.setattr(cli, "_missing_trainer_modules", lambda trainer: [])
-    monkeypatch.setattr(cli.kit, "apply_cpu_devices", lambda args: pytest.fail("reached the device setting"))
+    from stp_env.rl import cli as train_cli
+
+    monkeypatch.setattr(train_cli, "_missing_trainer_modules", lambda trainer: [])
+    monkeypatch.setattr(train_cli.kit, "apply_cpu_devices", lambda args: pytest.fail("reached the device setting"))
     out = tmp_path / "sweep"
     for grid, words in ((["gamma=2"], ["gamma", "(0, 1]"]), (["scenario=town,tiny"], ["cannot vary scenario"]),
                         (["no_such_field=1,2"], ["'no_such_field' is not a training setting"])):

@@ -33,6 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from stp_env import catalog
 from stp_env.baselines.record import Intruder
 from stp_env.sim import tables
 from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN
@@ -207,7 +208,8 @@ INTRUDERS = {
 }
 """The scripted intruders by name, each an :class:`Intruder` (its policy and capabilities). A plug-in intruder
 needs no entry (``package.module:attribute``, :func:`resolve_intruder`); :func:`register_intruder` lists one by
-name in this process."""
+name in this process; an installed plug-in joins by the entry-point group ``stp_env.intruders``
+(:mod:`stp_env.catalog`)."""
 
 BUFFER_GAME_INTRUDERS = frozenset(name for name, entry in INTRUDERS.items() if entry.needs_buffer)
 """The registered intruders that read the buffer table, as names (a view of :data:`INTRUDERS`'
@@ -267,14 +269,27 @@ def resolve_intruder(spec: str, *, allow_plugins: bool = True) -> Callable:
         from stp_env.baselines.learned import load_intruder
 
         return load_intruder(spec[len(LEARNED_PREFIX):])
+    if ":" not in spec and allow_plugins and spec in catalog.plugins("intruders"):
+        return _entry_point(spec)
     if ":" not in spec:
-        raise ValueError(f"unknown intruder {spec!r}; allowed: {', '.join(INTRUDERS)}, 'learned:NAME_OR_PATH' "
+        raise ValueError(f"unknown intruder {spec!r}; allowed: {', '.join(catalog.names('intruders', INTRUDERS))}, "
+                         "'learned:NAME_OR_PATH' "
                          "(stp_env.baselines.learned.load_intruder), or 'package.module:policy' / "
                          "'package.module:factory=ARGUMENT' for any jittable intruder policy.")
     if not allow_plugins:
         raise ValueError(f"intruder {spec!r} is a plug-in spec (code to import), which is not accepted here; "
                          f"allowed: {', '.join(INTRUDERS)} or 'learned:NAME_OR_PATH'.")
     return _plugin(spec)
+
+
+@functools.cache
+def _entry_point(name: str):
+    """The intruder an installed distribution declares as ``name`` (entry-point group ``stp_env.intruders``)."""
+    policy = catalog.load_plugin("intruders", name)
+    if not callable(policy):
+        raise ValueError(f"intruder plug-in {name!r} is not callable; expected a policy (key, state, params) -> (2,) "
+                         "or its record.")
+    return policy
 
 
 @functools.cache

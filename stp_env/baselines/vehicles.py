@@ -36,7 +36,8 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
-from stp_env.sim import core, tables
+from stp_env import catalog
+from stp_env.sim import status, tables
 from stp_env.sim.bounds import OMEGA_MAX, V_MAX
 from stp_env.sim.physics import control_to_action, relative_state, wrap_angle
 from stp_env.sim.types import AFTER_AVOIDANCE, AVOIDING, FLYING, NOMINAL, PRESENT
@@ -86,7 +87,7 @@ def tube_keeping(policy):
 
     def kept(key, state, params):
         a = policy(key, state, params)
-        hold = core.on_plan(state) & ~(state.tracking_value <= params.tables.tracking_free_level)
+        hold = status.on_plan(state) & ~(state.tracking_value <= params.tables.tracking_free_level)
         return jnp.where(hold[:, None], state.track_action, a)
 
     kept.__name__ = f"tube_keeping({getattr(policy, '__name__', 'policy')})"
@@ -161,7 +162,13 @@ def vehicle_policy(name: str):
     vehicle policy inside both HJ filters (:func:`learned_vehicle_policy`)."""
     if isinstance(name, str) and name.startswith(LEARNED_PREFIX):
         return learned_vehicle_policy(name[len(LEARNED_PREFIX):])
+    if isinstance(name, str) and name not in VEHICLE_POLICIES and name in catalog.plugins("vehicle_policies"):
+        policy = catalog.load_plugin("vehicle_policies", name)  # an installed plug-in (stp_env.catalog)
+        if not callable(policy):
+            raise ValueError(f"vehicle policy plug-in {name!r} is not callable.")
+        return policy
     if name not in VEHICLE_POLICIES:
-        raise ValueError(f"vehicle_policy {name!r} is not known; allowed: {', '.join(VEHICLE_POLICIES)}, or "
+        raise ValueError(f"vehicle_policy {name!r} is not known; allowed: "
+                         f"{', '.join(catalog.names('vehicle_policies', VEHICLE_POLICIES))}, or "
                          f"'{LEARNED_PREFIX}NAME_OR_PATH' for a learned vehicle policy.")
     return VEHICLE_POLICIES[name]

@@ -12,6 +12,7 @@ import dataclasses
 import math
 from collections.abc import Callable
 
+from stp_env import catalog
 from stp_env.arguments import check_kbar
 from stp_env.baselines import INTRUDERS, vehicle_policy
 from stp_env.baselines.intruders import (  # noqa: F401  (LEARNED_PREFIX: re-exported)
@@ -31,7 +32,7 @@ BOUNDARY_INTRUDERS = tuple(name for name, entry in INTRUDERS.items() if entry.sp
 """The registered intruders that spawn on an avoid boundary by default, as names (a view of :data:`INTRUDERS`'
 ``spawn``; :func:`stp_env.baselines.intruders.capabilities` answers for any intruder, plug-ins included)."""
 
-EPISODE_CHOICES = ("window", "full")
+EPISODE_CHOICES = catalog.EPISODE_CHOICES
 
 
 resolve_vehicle_policy = vehicle_policy  # the one lookup by name (stp_env.baselines.vehicles)

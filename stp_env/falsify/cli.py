@@ -67,6 +67,7 @@ def add_parser(sub) -> None:
     kit.add_ray(fa, "the search's restarts")
     kit.add_cpu_devices(fa)
     kit.add_progress(fa)
+    fa.set_defaults(run=run_cli)
 
 
 def run_cli(args) -> int:

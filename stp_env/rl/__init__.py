@@ -16,12 +16,14 @@ The functional layer (:mod:`stp_env.rl.functional`) needs only JAX; the env clas
 
 from __future__ import annotations
 
-from stp_env.rl.functional import HORIZONS, key_for_seed
-
 __all__ = ["HORIZONS", "IntruderEnv", "IntruderVecEnv", "key_for_seed"]
 
 
 def __getattr__(name):
+    # Everything on first use: importing the package (its command line, stp_env.rl.cli, for --help) imports no JAX.
+    if name in ("HORIZONS", "key_for_seed"):
+        from stp_env.rl import functional
+        return getattr(functional, name)
     if name == "IntruderEnv":
         from stp_env.rl.gym_env import IntruderEnv
         return IntruderEnv

@@ -1,8 +1,10 @@
 """The scenario registry: ``register(name)`` (a decorator for a factory), ``make(name, **overrides)``, ``names()``.
 
-The mechanism only; the scenarios themselves are data in :mod:`stp_env.scenarios.catalog` (one module each),
-found automatically: every module of that package is imported the first time a name is looked up. A scenario
-defined elsewhere registers the same way (``@register("name")`` on its factory) once its module is imported.
+The mechanism only; the scenarios themselves are data in :mod:`stp_env.scenarios.catalog` (one module each, and a
+line in :data:`stp_env.catalog.SCENARIOS`, the names ``--help`` lists without importing them): every module of
+that package is imported the first time a name is looked up. A scenario defined elsewhere registers the same way
+(``@register("name")`` on its factory) once its module is imported, or as an installed plug-in (the entry-point
+group ``stp_env.scenarios``, :mod:`stp_env.catalog`), imported when its name is looked up.
 
 ``make(name, **overrides)``: overrides whose names are keyword parameters of the scenario's factory (for example
 ``wind``, ``sta_spacing``, ``n_vehicles``, ``seed``, ``kbar`` for ``city``) are passed to the factory, which rebuilds
@@ -17,6 +19,7 @@ import inspect
 import pkgutil
 from collections.abc import Callable
 
+from stp_env import catalog
 from stp_env.scenarios.config import Scenario
 
 CATALOG = "stp_env.scenarios.catalog"
@@ -59,9 +62,9 @@ def load_catalog() -> None:
 
 
 def names() -> tuple[str, ...]:
-    """The registered scenario names, sorted."""
+    """The registered scenario names and the installed plug-ins', sorted."""
     load_catalog()
-    return tuple(sorted(_REGISTRY))
+    return tuple(sorted(set(_REGISTRY) | set(catalog.plugins("scenarios"))))
 
 
 def factory_parameters(name: str) -> tuple[str, ...]:
@@ -71,6 +74,10 @@ def factory_parameters(name: str) -> tuple[str, ...]:
 
 def _factory(name: str) -> ScenarioFactory:
     load_catalog()
+    if name not in _REGISTRY and isinstance(name, str):
+        factory = catalog.load_plugin("scenarios", name)
+        if factory is not None and name not in _REGISTRY:  # its module may have registered it on import
+            register(name)(factory)
     try:
         return _REGISTRY[name]
     except KeyError:

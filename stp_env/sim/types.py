@@ -17,6 +17,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from stp_env import catalog
 from stp_env.dynamics import RelativeDubins
 from stp_env.hj.grid import Grid
 from stp_env.sim.vehicle_models import Dubins
@@ -32,7 +33,7 @@ MODE_NAMES = ("nominal", "avoiding", "after_avoidance")
 PENDING, PRESENT, GONE = 0, 1, 2
 INTRUDER_STATUS_NAMES = ("pending", "present", "gone")
 
-SPAWN_MODES = ("outside", "boundary", "mixed")
+SPAWN_MODES = catalog.SPAWN_MODES
 
 
 class RewardWeights(NamedTuple):

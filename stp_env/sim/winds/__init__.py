@@ -18,6 +18,7 @@ import dataclasses
 import importlib
 import pkgutil
 
+from stp_env import catalog
 from stp_env.arguments import parse_spec
 from stp_env.sim.winds.base import WindModel
 
@@ -46,9 +47,22 @@ def _load() -> None:
 
 
 def names() -> tuple[str, ...]:
-    """The registered wind models, in registration order (the papers' ``uniform`` first)."""
+    """The registered wind models, in registration order (the papers' ``uniform`` first), then the installed
+    plug-ins' (:mod:`stp_env.catalog`, imported when one is named)."""
     _load()
-    return tuple(sorted(WIND_MODELS, key=lambda name: (WIND_MODELS[name].order, name)))
+    ordered = tuple(sorted(WIND_MODELS, key=lambda name: (WIND_MODELS[name].order, name)))
+    return catalog.names("wind_models", ordered)
+
+
+def _load_plugin(name: str) -> None:
+    """Registers the installed plug-in ``name`` (a :class:`WindModel` subclass) when no model has that name."""
+    if name in WIND_MODELS or name not in catalog.plugins("wind_models"):
+        return
+    cls = catalog.load_plugin("wind_models", name)
+    if name not in WIND_MODELS:  # its module may have registered it on import
+        if not (isinstance(cls, type) and issubclass(cls, WindModel)) or cls.name != name:
+            raise ValueError(f"wind model plug-in {name!r} must be a WindModel subclass named {name!r}; got {cls!r}.")
+        register(cls)
 
 
 def describe() -> str:
@@ -56,7 +70,10 @@ def describe() -> str:
     _load()
     lines = []
     for name in names():
-        cls = WIND_MODELS[name]
+        cls = WIND_MODELS.get(name)
+        if cls is None:  # an installed plug-in, not imported
+            lines.append(f"{name}: a plug-in")
+            continue
         params = ", ".join(f"{f.name}={f.default}" for f in dataclasses.fields(cls))
         lines.append(f"{name}{f' ({params})' if params else ''}: {cls.help}")
     return "; ".join(lines)
@@ -70,6 +87,7 @@ def make(spec) -> WindModel:
     if not isinstance(spec, str):
         raise ValueError(f"wind_model must be a name ({', '.join(names())}) or a WindModel; got {spec!r}.")
     _load()
+    _load_plugin(spec.partition(":")[0].strip())
     name, kwargs = parse_spec(spec, "wind_model", names(),
                               lambda n: [f.name for f in dataclasses.fields(WIND_MODELS[n])])
     return WIND_MODELS[name](**kwargs)
