@@ -67,7 +67,9 @@ def study_slice(instances: int, levels, cores: int, factories, n_mc: int | None 
     N_p)."""
     import tempfile
 
-    from stp_env.survivability.study import StudyConfig, read_study, run_study, study_groups
+    from stp_env.survivability.config import StudyConfig
+    from stp_env.survivability.records import read_study
+    from stp_env.survivability.study import run_study, study_groups
 
     config = StudyConfig(n_partial=levels, n_unknown=levels, n_instances=instances)
     if n_mc is not None:

@@ -112,7 +112,8 @@ def case_robustness(graph, n_segments: int) -> dict:
 
 def case_instance(graph, n_instances: int, scenario) -> dict:
     from stp_env.survivability import mission
-    from stp_env.survivability.study import StudyConfig, run_instance
+    from stp_env.survivability.config import StudyConfig
+    from stp_env.survivability.study import run_instance
 
     load = os.getloadavg()[0]
     config = StudyConfig()
@@ -143,7 +144,9 @@ def case_instance(graph, n_instances: int, scenario) -> dict:
 
 
 def case_study(graph, n_instances: int, n_partial: int = 175) -> dict:
-    from stp_env.survivability.study import LEVELS, StudyConfig, run_instance
+    from stp_env.survivability.config import StudyConfig
+    from stp_env.survivability.names import LEVELS
+    from stp_env.survivability.study import run_instance
 
     load = os.getloadavg()[0]
     config = StudyConfig()

@@ -17,8 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from stp_env.survivability import analysis
-from stp_env.survivability.config import PlannerConfig, TrafficConfig
-from stp_env.survivability.study import StudyConfig, read_study, run_study
+from stp_env.survivability.config import PlannerConfig, StudyConfig, TrafficConfig
+from stp_env.survivability.records import read_study
+from stp_env.survivability.study import run_study
 
 SCENARIOS = [(100, 100), (100, 250), (250, 100)]
 

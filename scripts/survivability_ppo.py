@@ -34,7 +34,7 @@ from stp_env.survivability.config import PlannerConfig, TrafficConfig
 from stp_env.survivability.gym_env import SurvivabilityEnv
 from stp_env.survivability.learned import load_policy
 from stp_env.survivability.mission import initial_tables, make_instance, run_mission
-from stp_env.survivability.study import LEVELS
+from stp_env.survivability.names import LEVELS
 
 ROOT = Path(__file__).resolve().parents[1]
 GRID = [(p, u) for p in LEVELS for u in LEVELS]

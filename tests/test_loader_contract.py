@@ -108,7 +108,7 @@ def _single(t0=0.0, m=3):
 
 
 def _missions_text(rows=3) -> str:
-    from stp_env.survivability.study import FIELDS
+    from stp_env.survivability.records import FIELDS
 
     lines = [",".join(FIELDS)] + [f"50,50,{i},S,G,0,-1,1,9,1.0,0.25" for i in range(rows)]
     return "\n".join(lines) + "\n"
@@ -136,7 +136,8 @@ def _write_valid(kind: str, path: Path) -> None:
     elif kind == "study-missions":
         # a study's own file (new format, with the study.json that proves whose rows they are), so that the
         # mutations reach the rows' fingerprint and digest checks
-        from stp_env.survivability.study import StudyConfig, write_missions, write_study_metadata
+        from stp_env.survivability.config import StudyConfig
+        from stp_env.survivability.records import write_missions, write_study_metadata
 
         config = StudyConfig(n_instances=3, n_partial=(50,), n_unknown=(50,), policies=("S",))
         write_study_metadata(config, path.parent)
@@ -200,11 +201,11 @@ def _load(kind: str, path: Path):
 
         return checkpoint.load(path, "the-key")
     if kind == "study-metadata":
-        from stp_env.survivability.study import read_study_metadata
+        from stp_env.survivability.records import read_study_metadata
 
         return read_study_metadata(path)
     if kind == "study-missions":
-        from stp_env.survivability.study import read_missions
+        from stp_env.survivability.records import read_missions
 
         return read_missions(path)
     if kind == "job-piece":
@@ -475,12 +476,9 @@ RAW_READS = {("np", "load"), ("numpy", "load"), ("json", "load"), ("json", "load
 ALLOWED_RAW = {
     ("artifacts.py", "_code_version", "read_text"): "the package's own source (the code version)",
     ("artifacts.py", "_identity_problem", "loads"): "a round trip of parameters through JSON",
-    ("survivability/study.py", "fingerprint", "loads"): "a round trip of the configuration through JSON",
+    ("survivability/config.py", "fingerprint", "loads"): "a round trip of the configuration through JSON",
     ("planning/stp.py", "shipped_plan", "load"): "a plan shipped in the package (trusted)",
     ("evaluation/report.py", "source_hash", "read_bytes"): "the package's own source (its hash)",
-    ("cli_kit.py", "_tree", "read_text"): "the package's own source (the names --help lists)",
-    ("cli_kit.py", "wind_model_catalog", "read_text"): "the package's own source (the names --help lists)",
-    ("cli_kit.py", "scenario_names", "read_text"): "the package's own source (the names --help lists)",
     ("resources.py", "available_memory", "open"): "the kernel's memory report (/proc/meminfo), not a user's file",
     ("resources.py", "_read_int", "read_text"): "the kernel's cgroup memory limit (/sys/fs/cgroup), not a user's file",
 }
@@ -589,7 +587,8 @@ def no_study_work(monkeypatch):
                                              ('"text"', "not a survivability study file"),
                                              ('{"fingerprint": 5}', "not a survivability study file")])
 def test_a_bad_study_json_is_one_line_and_changes_nothing(tmp_path, no_study_work, content, needle):
-    from stp_env.survivability.study import StudyConfig, run_study
+    from stp_env.survivability.config import StudyConfig
+    from stp_env.survivability.study import run_study
 
     meta = tmp_path / "study.json"
     meta.write_text(content)
@@ -600,7 +599,9 @@ def test_a_bad_study_json_is_one_line_and_changes_nothing(tmp_path, no_study_wor
 
 
 def test_a_missions_field_beyond_the_csv_limit_is_one_line_and_changes_nothing(tmp_path, no_study_work):
-    from stp_env.survivability.study import StudyConfig, read_missions, run_study
+    from stp_env.survivability.config import StudyConfig
+    from stp_env.survivability.records import read_missions
+    from stp_env.survivability.study import run_study
 
     missions = tmp_path / "missions.csv"
     text = _missions_text() + "50,50,7," + "x" * 200_000 + ",G,0,-1,1,9,1.0,0.25\n"

@@ -282,22 +282,21 @@ def test_the_command_line_options_choose_the_executor(ray_executor):
                  ["coobservation", "--ray"], ["train-intruder", "--seeds", "1", "2", "--ray"]):
         assert isinstance(cli_kit.executor(parser.parse_args(argv)), execution.RayExecutor), argv
     assert isinstance(cli_kit.executor(parser.parse_args(["evaluate"])), execution.LocalExecutor)
-    text = json.dumps(vars(parser.parse_args(["falsify", "--ray-address", "10.0.0.1:6379"])))
+    text = json.dumps(vars(parser.parse_args(["falsify", "--ray-address", "10.0.0.1:6379"])), default=str)
     assert '"ray_address": "10.0.0.1:6379"' in text
 
 
 def _tiny_study():
     from test_survivability import small
 
-    from stp_env.survivability.config import PlannerConfig, TrafficConfig
-    from stp_env.survivability.study import StudyConfig
+    from stp_env.survivability.config import PlannerConfig, StudyConfig, TrafficConfig
 
     return StudyConfig(n_partial=(3, 6), n_unknown=(4, 20), n_instances=2, mission=small(),
                        traffic=TrafficConfig(reach_km=4), planner=PlannerConfig(n_mc=64, n_survival=64))
 
 
 def _missions(out):
-    from stp_env.survivability.study import read_study
+    from stp_env.survivability.records import read_study
 
     keys = ("outcome", "reveals", "omega_switch", "n_dp", "windows")
     return {(r["n_partial"], r["n_unknown"], r["instance"], r["policy"]): tuple(r[k] for k in keys)
@@ -343,11 +342,11 @@ def test_a_killed_study_resumes_from_the_groups_it_wrote(tmp_path, monkeypatch):
     assert len(calls) == 2
 
 
-def test_the_study_s_worker_option_still_works_and_names_its_replacement(tmp_path):
-    code, _, err = run_cli(["survivability", "--out", str(tmp_path), "--worker", "0/2", "--partial", "0",
-                            "--unknown", "0", "--instances", "1", "--n-mc", "256", "--no-progress", "--no-figures"])
-    assert code == 0 and "--worker I/N is deprecated" in err and "--ray" in err, err
-    assert (tmp_path / "missions-0of2.csv").exists() and not (tmp_path / "missions.csv").exists()
+def test_the_study_s_worker_option_is_gone(tmp_path):
+    """``--worker I/N`` (release 0.1) is refused: ``--ray`` runs one study on every CPU of a cluster."""
+    code, _, err = run_cli(["survivability", "--out", str(tmp_path), "--worker", "0/2"])
+    assert code == 2 and "--worker" in err, err
+    assert not any(tmp_path.iterdir())
 
 
 def _coobservation_inputs():

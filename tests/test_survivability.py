@@ -11,12 +11,11 @@ import numpy as np
 import pytest
 
 from stp_env.survivability import backtrack, dense, dp
-from stp_env.survivability.config import POLICIES, SFO, MissionConfig, PlannerConfig, TrafficConfig
+from stp_env.survivability.config import POLICIES, SFO, MissionConfig, PlannerConfig, StudyConfig, TrafficConfig
 from stp_env.survivability.graph import build_graph, feasible_from_blocked
 from stp_env.survivability.mission import Instance, Knowledge, choose, initial_tables, make_instance, run_mission
 from stp_env.survivability.network import build_network, segment_box_distance
 from stp_env.survivability.robustness import interior_reach, segment_robustness
-from stp_env.survivability.study import StudyConfig
 from stp_env.survivability.traffic import Traffic, bernstein, sample_traffic
 
 ONE_CELL = 1000.0 / 300.0       # m/s: one 1 km cell per 5-minute window
@@ -486,7 +485,7 @@ def _write_missions(path, config, outcomes, extra=None):
     """The missions file of the study ``config`` (and its ``study.json``) from ``{(n_p, n_u): {policy: [outcome per
     instance]}}``, written as the study writes them (a report uses only rows that prove they are the study's own);
     ``extra(instance, outcome)``: columns that replace the defaults (no reveal, the goal kept, 9 windows)."""
-    from stp_env.survivability.study import write_missions, write_study_metadata
+    from stp_env.survivability.records import write_missions, write_study_metadata
 
     rows = [{"n_partial": p, "n_unknown": u, "instance": i, "policy": policy, "outcome": o, "reveals": 0,
              "omega_switch": -1, "n_dp": 1, "windows": 9, "instance_s": 1.0, "mission_s": 0.25,
@@ -527,8 +526,6 @@ def test_report_thresholds_rates_and_cli_on_a_hand_built_study(tmp_path):
     assert report["timing"]["mean_instance_setup_s"] == 1.0 and report["timing"]["mean_mission_s"] == 0.25
     assert report["goal_loss"]["100,50"]["S"] == {"missions": 10, "lost": 0, "by_window": {}}
     assert (tmp_path / "results.md").exists() and (tmp_path / "fig9_survival_vs_nu.png").exists()
-    code, _, err = run_cli(["survivability", "--out", str(tmp_path), "--worker", "2/2"])
-    assert code == 2 and "0 <= I < N" in err
     code, _, err = run_cli(["survivability", "--out", str(tmp_path / "empty"), "--report-only"])
     assert code == 2 and err.count("\n") == 1 and "no completed missions" in err
 
@@ -622,11 +619,14 @@ def test_shipped_policy_is_masked_and_flies_only_valid_primitives():
 
 
 @pytest.mark.slow
-def test_study_shares_robustness_across_n_u_and_workers_split_whole_groups(tmp_path):
+def test_study_shares_robustness_across_n_u_and_reads_split_missions_files(tmp_path):
     """Instance ``i`` of scenarios with the same N_p computes its robustness once (the key check refuses another
-    seed, N_p or Monte Carlo setting); two workers split the study by (instance, N_p) groups; the missions equal
-    those flown without sharing, and a rerun adds nothing."""
-    from stp_env.survivability.study import StudyConfig, read_missions, read_study, run_instance, run_study
+    seed, N_p or Monte Carlo setting); the missions equal those flown without sharing; a study whose missions are
+    split over ``missions-IofN.csv`` files (as release 0.1's ``--worker I/N`` wrote them) is read whole, and a
+    rerun adds nothing."""
+    from stp_env.survivability.config import StudyConfig
+    from stp_env.survivability.records import read_missions, read_study
+    from stp_env.survivability.study import run_instance, run_study
 
     planner = PlannerConfig(n_mc=64, n_survival=64)
     config = StudyConfig(n_partial=(3, 6), n_unknown=(4, 20, 60), n_instances=4, mission=small(),
@@ -649,16 +649,15 @@ def test_study_shares_robustness_across_n_u_and_workers_split_whole_groups(tmp_p
     assert all(o.robustness is not base.robustness for o in others)
     assert not np.array_equal(others[0].robustness, base.robustness)          # sharing it would have been wrong
 
-    for w in (0, 1):
-        run_study(config, tmp_path, progress=False, worker=(w, 2))
+    run_study(config, tmp_path, progress=False)
+    whole = tmp_path / "missions.csv"
+    header, *lines = whole.read_text(encoding="utf-8").splitlines(keepends=True)
+    for w in (0, 1):  # the rows of every other group in each file, as two workers wrote them
+        (tmp_path / f"missions-{w}of2.csv").write_text(header + "".join(lines[w::2]), encoding="utf-8")
+    whole.unlink()
     rows = read_study(tmp_path)
     assert len(rows) == 2 * 4 * 3 * len(POLICIES)
-    owner = {}
-    for w in (0, 1):
-        for r in read_missions(tmp_path / f"missions-{w}of2.csv"):
-            owner.setdefault((r["instance"], r["n_partial"]), set()).add(w)
-    assert len(owner) == 8 and all(len(ws) == 1 for ws in owner.values())
-    assert set().union(*owner.values()) == {0, 1}
+    assert sum(len(read_missions(tmp_path / f"missions-{w}of2.csv")) for w in (0, 1)) == len(rows)
 
     keys = ("outcome", "reveals", "omega_switch", "n_dp", "windows")
     plain = {(r["n_partial"], r["n_unknown"], r["instance"], r["policy"]): tuple(r[k] for k in keys)
@@ -666,8 +665,8 @@ def test_study_shares_robustness_across_n_u_and_workers_split_whole_groups(tmp_p
     shared = {(r["n_partial"], r["n_unknown"], r["instance"], r["policy"]): tuple(r[k] for k in keys) for r in rows}
     assert shared == plain
     assert any(r["reveals"] for r in rows) and {r["outcome"] for r in rows} >= {"G", "L"}      # traffic mattered
-    run_study(config, tmp_path, progress=False, worker=(0, 2))
-    assert len(read_study(tmp_path)) == len(rows)
+    run_study(config, tmp_path, progress=False)
+    assert len(read_study(tmp_path)) == len(rows) and not whole.exists()  # nothing left to fly
 
 
 def test_a_failed_reset_changes_nothing():
@@ -696,8 +695,8 @@ def test_report_names_the_best_policy_on_the_diagonal_the_relative_gain_and_the_
     import matplotlib
 
     matplotlib.use("Agg")
+    from stp_env.survivability.config import StudyConfig
     from stp_env.survivability.report import build_report, figures
-    from stp_env.survivability.study import StudyConfig
 
     outcomes = {(50, 50): {"R": ["G"] * 30 + ["L"] * 10, "S": ["G"] * 20 + ["A"] * 16 + ["L"] * 4}}
     config = StudyConfig(n_partial=(50,), n_unknown=(50,), n_instances=40, policies=("R", "S"),

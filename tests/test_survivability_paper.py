@@ -315,7 +315,7 @@ def test_defaults_are_the_papers_and_the_earlier_model_is_a_named_variant():
     ``nf_count="goal"`` named explicitly; the earlier model (``local``, ``landing``) changes them. A study of the
     earlier model, named explicitly, has the fingerprint of a study written before the options existed (so such a
     study resumes when its options are given); the default's fingerprint names the paper's options."""
-    from stp_env.survivability.study import StudyConfig
+    from stp_env.survivability.config import StudyConfig
 
     planner = PlannerConfig(n_mc=64, n_survival=64)
     base = StudyConfig(n_partial=(6,), n_unknown=(8, 30), n_instances=3, mission=small(),

@@ -15,9 +15,10 @@ import pytest
 from _cli import run_cli
 from test_survivability import small
 
-from stp_env.survivability.config import PlannerConfig, TrafficConfig
+from stp_env.survivability.config import PlannerConfig, StudyConfig, TrafficConfig
+from stp_env.survivability.records import read_study
 from stp_env.survivability.report import build_report
-from stp_env.survivability.study import StudyConfig, read_study, run_study
+from stp_env.survivability.study import run_study
 
 KEYS = ("outcome", "reveals", "omega_switch", "n_dp", "windows")
 
@@ -73,7 +74,7 @@ def _sign(header, row: dict) -> dict:
     """``row`` with the digest its values have, where the file's format has one (the digest is no secret: what it
     proves is the row's study and values, so that a row of another index is refused by the index check)."""
     if "digest" in header:
-        from stp_env.survivability.study import FIELDS, row_digest
+        from stp_env.survivability.records import FIELDS, row_digest
 
         row["digest"] = row_digest(row["study"], [row[k] for k in FIELDS])
     return row

@@ -134,7 +134,7 @@ def test_default_is_the_segment_model_bit_for_bit(graph):
     """(a) The default flies the same missions as ``reveal="segment"`` named explicitly, and both the same as the
     loop before the option existed; ``step`` changes some; the study fingerprint leaves the default out (a study
     written before the option resumes)."""
-    from stp_env.survivability.study import StudyConfig
+    from stp_env.survivability.config import StudyConfig
 
     g = graph
     traffic = TrafficConfig(n_partial=8, n_unknown=8, reach_km=4)

@@ -3,32 +3,19 @@ and figures. Registered by :mod:`stp_env.cli` through :func:`add_parser` and :fu
 
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 from pathlib import Path
 
 
-def _worker(text: str) -> tuple[int, int]:
-    try:
-        i, n = (int(v) for v in text.split("/"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected I/N (e.g. 0/2), got {text!r}") from None
-    if not 0 <= i < n:
-        raise argparse.ArgumentTypeError(f"need 0 <= I < N, got {text}")
-    return i, n
-
-
 def add_parser(sub) -> None:
-    """Add the ``survivability`` subcommand to an argparse subparsers object (the policies and levels are read from
-    their modules' source: building the parser imports no JAX)."""
+    """Add the ``survivability`` subcommand to an argparse subparsers object (the policies and levels come from
+    :mod:`stp_env.survivability.names`: building the parser imports no JAX)."""
     from stp_env import cli_kit as kit
+    from stp_env.survivability import names
 
-    policies = kit.source_constant("survivability/config.py", "POLICIES")
-    traffic_models = kit.source_constant("survivability/config.py", "TRAFFIC_MODELS")
-    nf_counts = kit.source_constant("survivability/config.py", "NF_COUNTS")
-    reveals = kit.source_constant("survivability/config.py", "REVEAL_MODELS")
-    levels = list(kit.source_constant("survivability/study.py", "LEVELS"))
+    policies, traffic_models, nf_counts = names.POLICIES, names.TRAFFIC_MODELS, names.NF_COUNTS
+    reveals, batch_groups = names.REVEAL_MODELS, names.BATCH_GROUPS
+    levels = list(names.LEVELS)
 
     sp = sub.add_parser(
         "survivability", help="mission survivability under partially known and unknown intruders (scenario sweep)",
@@ -71,21 +58,22 @@ def add_parser(sub) -> None:
                          "and any intruder within --sense-km of the ownship)")
     sp.add_argument("--sense-km", type=kit.positive, default=None,
                     help="with --reveal radius: the sensing radius [km] (required there)")
+    sp.add_argument("--batch-groups", type=kit.integer(0, 100_000), default=batch_groups,
+                    help="groups of instances (one instance of the scenarios with the same N_p) whose missions, every "
+                         "policy's, fly in one compiled program (a piece of the study; the same missions; meant for "
+                         "an accelerator: on a CPU about half as fast); 0 (default): one mission at a time")
     sp.add_argument("--max-hours", type=kit.real(0.0, 1e6, lo_open=True), default=None,
                     help="stop after this much wall time [h] (rerun the same command to resume; default: no limit)")
     kit.add_ray(sp, "the groups of instances (one instance of the scenarios with the same N_p)")
-    sp.add_argument("--worker", type=_worker, default=None, metavar="I/N",
-                    help="deprecated (use --ray): run every N-th group of instances starting at the I-th "
-                         "(I = 0 .. N-1), so that N processes with the same options share the study")
     sp.add_argument("--bootstrap", type=kit.positive_int, default=2000, help="bootstrap resamples for thresholds")
     sp.add_argument("--report-only", action="store_true", help="only (re)write results and figures from OUT")
     sp.add_argument("--no-figures", action="store_true", help="skip the figures")
     kit.add_progress(sp)
+    sp.set_defaults(run=run)
 
 
 def config_from_args(args):
-    from stp_env.survivability.config import PlannerConfig, TrafficConfig
-    from stp_env.survivability.study import StudyConfig
+    from stp_env.survivability.config import PlannerConfig, StudyConfig, TrafficConfig
 
     return StudyConfig(n_partial=tuple(args.partial), n_unknown=tuple(args.unknown), n_instances=args.instances,
                        seed=args.seed, policies=tuple(args.policies),
@@ -119,14 +107,11 @@ def use_study_cache(out) -> Path | None:
 def run(args) -> int:
     """Run the subcommand (``ValueError`` for bad input: the caller prints it and exits with 2)."""
     from stp_env import cli_kit as kit
+    from stp_env.survivability.records import check_study_metadata
     from stp_env.survivability.report import build_report, figures
-    from stp_env.survivability.study import check_study_metadata, run_study
+    from stp_env.survivability.study import run_study
 
     config = config_from_args(args)
-    if args.worker is not None:
-        print("stp-env survivability: --worker I/N is deprecated and will be removed; run one study with --ray "
-              "(or --ray-address ADDRESS) instead: its groups then run on every CPU of the cluster (docs/ray.md).",
-              file=sys.stderr)
     if args.report_only:
         check_study_metadata(config, args.out)  # another configuration's study is not reported as this one
     else:
@@ -134,7 +119,7 @@ def run(args) -> int:
         executor = kit.executor(args)  # --ray without ray installed, or a cluster not reached, fails here
         run_study(config, args.out, progress=not args.no_progress,
                   max_seconds=None if args.max_hours is None else 3600.0 * args.max_hours,
-                  worker=args.worker or (0, 1), executor=executor)
+                  executor=executor, batch_groups=args.batch_groups)
     report = build_report(config, args.out, n_boot=args.bootstrap)
     if not args.no_figures:
         import matplotlib

@@ -8,39 +8,17 @@ on construction; ``with_overrides`` names the allowed fields when given an unkno
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 
 import numpy as np
 
+from stp_env.seeds import check_seed
 from stp_env.sim.config import _finite as _number
-
-POLICIES = ("R", "Nf", "S", "AvgR")
-"""The planning policies of the survivability paper, Section IV-B: ``pi_R`` (segment robustness), ``pi_Nf``
-(number of feasible trajectories), ``pi_S`` (survivability) and ``pi_Avg(R)`` (average trajectory robustness)."""
+from stp_env.survivability.names import LEVELS, NF_COUNTS, POLICIES, REVEAL_MODELS, TRAFFIC_MODELS
 
 EARTH_RADIUS_KM = 6371.0
 
-TRAFFIC_MODELS = ("paper", "local")
-"""Intruder traffic models (:mod:`stp_env.survivability.traffic`): ``paper`` (the default), the survivability
-paper's Section III-B model (control points anywhere in the area, control times in the mission window
-``(t_0, t_fu)``, a share of hovering degree-1 intruders, realisations using the whole tube), and ``local``, this
-project's earlier short hops around a uniform entry point with entry times spread over the endurance (the default
-of studies before the paper's model was; kept as a named variant)."""
-
-NF_COUNTS = ("goal", "landing")
-"""What ``pi_Nf``'s ``N_f`` counts (:mod:`stp_env.survivability.dp`): ``goal`` (the default), the paper's ``c.N_f``
-of Algorithm 1: the trajectories to the current terminal set ``Omega`` summed over every state of the successor's
-*cell*, or ``landing``, the project's earlier count of the trajectories from the successor *state* to any landing
-site (kept as a named variant)."""
-
-REVEAL_MODELS = ("segment", "step", "radius")
-"""When an intruder whose actual path the ownship does not know (an unknown one, or a partially known one's actual
-path) becomes known (:mod:`stp_env.survivability.mission`; the survivability paper, Section III-B: "the ownship is
-unaware of the intruder's existence until the ownship encounters a conflict with the intruder"): ``segment``, when
-its actual path blocks the segment chosen at a decision point (a look-ahead of one decision window; the default
-until the study is re-run); ``step``, when it blocks a cell the ownship occupies in the next time step (a conflict
-one step ahead, the sentence read literally); ``radius``, also when it comes within ``sense_km`` of the ownship.
-In every model a revealed intruder's whole actual path becomes known."""
 
 PAPER_HOVER_SHARE = 0.1
 """Share of hovering (degree-1) intruders in the ``paper`` traffic model when ``hover_share`` is not given. The
@@ -385,3 +363,57 @@ class PlannerConfig(_Overrides):
         if self.n_survival % 64 or self.n_survival > self.n_mc:
             raise ValueError(f"n_survival must be a multiple of 64 and at most n_mc = {self.n_mc}; got "
                              f"{self.n_survival}.")
+
+
+_ADDED_OPTIONS = (("traffic", "model", "local"), ("traffic", "hover_share", None), ("planner", "nf_count", "landing"),
+                  ("planner", "reveal", "segment"), ("planner", "sense_km", None))
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class StudyConfig(_Overrides):
+    """The scenario sweep.
+
+    Attributes:
+        n_partial, n_unknown: the scenario grid (paper: {50, ..., 300} each, 36 scenarios).
+        n_instances: traffic instances per scenario (paper: 2,500; 2,401 bound every 95 % half-width by 2 %).
+        seed: base seed of the traffic, the Monte Carlo realisations and the tie-breaking.
+        policies: which of ``R``, ``Nf``, ``S``, ``AvgR`` fly.
+        mission, traffic, planner: the configurations (``traffic.n_partial``/``n_unknown`` are set per scenario).
+    """
+
+    n_partial: tuple[int, ...] = LEVELS
+    n_unknown: tuple[int, ...] = LEVELS
+    n_instances: int = 2401
+    seed: int = 0
+    policies: tuple[str, ...] = POLICIES
+    mission: MissionConfig = dataclasses.field(default_factory=MissionConfig)
+    traffic: TrafficConfig = dataclasses.field(default_factory=TrafficConfig)
+    planner: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
+
+    def __post_init__(self) -> None:
+        for name in ("n_partial", "n_unknown"):
+            values = tuple(_integer(name, v) for v in getattr(self, name))
+            if not values or len(set(values)) != len(values):
+                raise ValueError(f"{name} must be a non-empty list of distinct integers; got {values!r}.")
+            object.__setattr__(self, name, values)
+        _integer("n_instances", self.n_instances, minimum=1)
+        object.__setattr__(self, "seed", check_seed(self.seed))  # the one seed function: [0, 2**63 - 1]
+        pols = tuple(self.policies)
+        if not pols or any(p not in POLICIES for p in pols) or len(set(pols)) != len(pols):
+            raise ValueError(f"policies must be distinct names among {', '.join(POLICIES)}; got {pols!r}.")
+        object.__setattr__(self, "policies", pols)
+
+    @property
+    def scenarios(self) -> list[tuple[int, int]]:
+        return [(p, u) for p in self.n_partial for u in self.n_unknown]
+
+    def fingerprint(self) -> dict:
+        """What must match for a study directory to be resumed (everything but ``n_instances``)."""
+        d = dataclasses.asdict(self)
+        d.pop("n_instances")
+        # Options added after studies were written are left out at their earlier behaviour, so that those studies
+        # resume with the default configuration (and a study with another option never resumes one without).
+        for group, name, earlier in _ADDED_OPTIONS:
+            if d[group].get(name) == earlier:
+                d[group].pop(name)
+        return json.loads(json.dumps(d))

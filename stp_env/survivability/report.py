@@ -10,8 +10,8 @@ from pathlib import Path
 
 from stp_env.files import atomic_open, save_figure, write_text
 from stp_env.survivability import analysis
-from stp_env.survivability.config import POLICIES
-from stp_env.survivability.study import StudyConfig, read_study
+from stp_env.survivability.config import POLICIES, StudyConfig
+from stp_env.survivability.records import read_study
 
 LABEL = {"R": "π_R", "Nf": "π_Nf", "S": "π_S", "AvgR": "π_Avg(R)"}
 COLOR = {"Nf": "tab:blue", "S": "tab:orange", "R": "tab:green", "AvgR": "tab:purple"}
