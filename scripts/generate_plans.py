@@ -38,7 +38,7 @@ from stp_env.scenarios import make
 DATA = Path(__file__).resolve().parents[1] / "stp_env" / "data" / "plans"
 SHIPPED = {name: entry for name, entry in SHIPPED_PLANS.items() if name != "fig6-kbar3"}
 """File name -> (registered scenario, overrides): :data:`stp_env.assembly.SHIPPED_PLANS` but ``fig6-kbar3``
-(``scripts/fig6_reproduction.py`` makes it)."""
+(``examples/fig6_reproduction.py`` makes it)."""
 
 
 HORIZONS = {**{f"city-case{c}": 1200.0 for c in (1, 2, 3, 4)}, **{f"city-kbar{k}": 3600.0 for k in (3, 4)},

@@ -416,7 +416,7 @@ SHIPPED_PLANS: dict[str, tuple[str, dict]] = {
 }
 """The plans ``stp_env/data/plans/<file>.npz`` may hold: file name -> (registered scenario, overrides), the plan
 being for ``make(scenario, **overrides)``. A listed file that is not there is simply not shipped
-(``scripts/generate_plans.py`` makes them; ``fig6-kbar3`` comes from ``scripts/fig6_reproduction.py``)."""
+(``scripts/generate_plans.py`` makes them; ``fig6-kbar3`` comes from ``examples/fig6_reproduction.py``)."""
 
 
 def _shipped_plan(scenario):

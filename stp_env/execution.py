@@ -32,11 +32,11 @@ from __future__ import annotations
 import abc
 import collections
 import dataclasses
+import functools
 import hashlib
 import json
 import os
 import re
-import time
 import uuid
 import warnings
 from collections.abc import Callable, Sequence
@@ -425,19 +425,19 @@ def _weak(value):
     JAX has no public function that sets an array's weak type (checked on JAX 0.10.2). Its public way to ask for one
     is an abstract value, ``jax.ShapeDtypeStruct(..., weak_type=True)``: the identity traced with that argument is a
     program whose result is weakly typed, and it is called with ``value`` (JAX checks the argument's shape and dtype,
-    not its weak type). JAX keeps the compiled identity per shape and dtype in memory (tens of microseconds a call
-    after the first)."""
+    not its weak type), compiled once per shape and dtype."""
     import jax
 
-    global _IDENTITY
-    if _IDENTITY is None:
-        _IDENTITY = jax.jit(lambda x: x)
     spec = jax.ShapeDtypeStruct(value.shape, value.dtype, weak_type=True)
-    return _IDENTITY.trace(spec).lower().compile()(value)
+    return _identity().trace(spec).lower().compile()(value)
 
 
-_IDENTITY = None
-"""``jax.jit`` of the identity (made on first use: this module does not import JAX at its import)."""
+@functools.cache
+def _identity():
+    """``jax.jit`` of the identity (made on first use: this module does not import JAX at its import)."""
+    import jax
+
+    return jax.jit(lambda x: x)
 
 
 def digest(*parts) -> str:
@@ -493,13 +493,3 @@ def forget(token: str | None) -> None:
     """Drop what :func:`memo` keeps for ``token``."""
     for key in [k for k in _MEMO if k[0] == token]:
         del _MEMO[key]
-
-
-class Timer:
-    """Seconds since it was made (what a piece reports as its own compute time)."""
-
-    def __init__(self):
-        self.start = time.perf_counter()
-
-    def seconds(self) -> float:
-        return time.perf_counter() - self.start

@@ -24,6 +24,9 @@ os.environ.setdefault("STP_ENV_CPU_DEVICES", "1")
 # directory they share: a program that one worker or test file compiled is loaded by the others (most of the suite's
 # time is compiling). Exported so that the tests' child processes use the same folder, with the same size limit
 # (with a limit JAX locks the folder, so that no process reads an entry another is writing).
+# The suite compiles about 5,000 programs (about 2 GB): with the package's default limit JAX would evict programs that
+# later test files load again, so the suite runs with a limit it does not reach (a lock is kept either way).
+os.environ.setdefault("STP_ENV_COMPILATION_CACHE_MAX_GB", "16")
 from stp_env import compilation_cache  # noqa: E402
 
 if compilation_cache.directory() is not None:

@@ -132,7 +132,7 @@ def test_tracking_gradient_read_is_the_reference_up_to_rounding():
 
 
 def test_block_reads_run_with_x64_enabled():
-    """With ``JAX_ENABLE_X64`` (``scripts/pymunk_agreement.py`` compares in float64) indices are int64: the reads
+    """With ``JAX_ENABLE_X64`` (``examples/pymunk_agreement.py`` compares in float64) indices are int64: the reads
     still trace, and agree with the float32 ones."""
     table = _table()
     x, t = _queries(200)

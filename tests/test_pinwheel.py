@@ -1,6 +1,6 @@
 """The k̄ bound reached on a planned layout: one wave of the ``pinwheel`` (three vehicles pairwise one buffer radius
 apart, the planner's disks just kept), the buffer game's helping winds (``converging``), the ``worst`` vehicles and
-the ``optimal-max-k`` intruder (``scripts/pinwheel_worst_case.py``, docs/dense.md)."""
+the ``optimal-max-k`` intruder (``examples/pinwheel_worst_case.py``, docs/dense.md)."""
 
 from __future__ import annotations
 

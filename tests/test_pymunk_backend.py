@@ -56,7 +56,7 @@ def test_kinematic_step_is_the_exact_dubins_step(substeps):
 def test_kinematic_backend_flies_the_core_episode_to_rounding():
     """Closed loop (the switching vehicles, a scripted intruder) through the whole core, in float64: the papers'
     tracker is bang-bang, so any real difference in the motion would flip a decision and show up in metres."""
-    code = ("import json, sys; sys.path.insert(0, 'scripts'); import pymunk_agreement as m; "
+    code = ("import json, sys; sys.path.insert(0, 'examples'); import pymunk_agreement as m; "
             f"print(json.dumps(m.compare({SCENARIO!r}, seed=1, n_steps=50)))")
     env = dict(os.environ, JAX_ENABLE_X64="1", JAX_PLATFORMS="cpu")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from test_survivability import small
 
-from stp_env.survivability import batch, mission
+from stp_env.survivability import batch, mission, ties
 from stp_env.survivability.config import POLICIES, PlannerConfig, StudyConfig, TrafficConfig
 from stp_env.survivability.graph import build_graph
 from stp_env.survivability.network import build_network
@@ -25,16 +25,16 @@ KEYS = ("n_partial", "n_unknown", "instance", "policy", "outcome", "reveals", "o
 
 def test_tie_streams_repeat_numpy_s_choice():
     """``Generator.choice`` of ``n`` items, call after call, equals Lemire's method on the pre-drawn 32-bit
-    outputs (``tie_streams``, ``_lemire``), for every ``n`` a state can have ties among."""
+    outputs (``tie_streams``, ``lemire``), for every ``n`` a state can have ties among."""
     seeds = [(0, i) for i in range(6)] + [(123, 4), 7]
     rng_n = np.random.default_rng(1)
     sizes = rng_n.integers(2, 26, size=(len(seeds), 40))
-    streams = jnp.asarray(batch.tie_streams(seeds))
+    streams = jnp.asarray(ties.tie_streams(seeds))
 
     @jax.jit
     def draws(stream, ns):
         def step(cursor, n):
-            pick, nxt = batch._lemire(stream, cursor, n)
+            pick, nxt = ties.lemire(stream, cursor, n)
             return nxt, pick
         return jax.lax.scan(step, jnp.int32(0), ns)[1]
 

@@ -7,7 +7,7 @@ back with numpy only and evaluate the deterministic action (the Gaussian mean, c
 intruder runs inside :func:`stp_env.sim.rollout` and the evaluation library like any scripted one.
 
 Shipped intruders (``stp_env/data/intruders/``): :func:`load_intruder` ``("town-kbar2")`` (the SB3 model is the
-``.zip`` beside it; reproduced by ``python scripts/train_intruder.py train --ship``: a clone of ``optimal-max-k`` on
+``.zip`` beside it; reproduced by ``python examples/train_intruder.py train --ship``: a clone of ``optimal-max-k`` on
 the core observation, then 524,288 PPO steps, seed 0, a 64 x 64 tanh MLP). Over 1,000 held-out ``town`` episodes
 (``stp-env evaluate --scenario town --kbar 2 --spawn-mode outside --intruder learned:town-kbar2 optimal-max-k greedy
 max-k bezier3 --episodes 1000 --seed 20240601``, vehicles on ``switching`` with the HJ filter) it forces on average

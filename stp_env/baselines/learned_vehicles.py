@@ -61,7 +61,7 @@ def load_vehicle_mlp(name_or_path: str) -> MLPIntruder:
         if name_or_path not in shipped_vehicle_policies():
             shipped = ", ".join(shipped_vehicle_policies()) or "none"
             raise ValueError(f"unknown learned vehicle policy {name_or_path!r}; shipped: {shipped} (or pass the "
-                             "path of an .npz written by scripts/train_vehicle_policy.py).")
+                             "path of an .npz written by examples/train_vehicle_policy.py).")
         path = Path(str(resources.files("stp_env") / "data" / "vehicles" / f"{name_or_path}.npz"))
     mlp = load_mlp(path)
     if mlp.metadata.get("role") != ROLE:

@@ -15,7 +15,7 @@ it where the paper's text puts it and where one layout cannot speak for many:
   are drawn again from the next sub-seed, and the number of such redraws is reported.
 
 What the generator draws is the project's own choice (the paper shows one layout and gives no distribution).
-``scripts/coobservation_layouts.py`` runs both with the ellipses and with the exact regions and writes
+``examples/coobservation_layouts.py`` runs both with the ellipses and with the exact regions and writes
 ``docs/coobservation_layouts.json`` and its figure.
 """
 

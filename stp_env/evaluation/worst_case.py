@@ -142,7 +142,7 @@ PINWHEEL_SPAWN = (math.pi / 2, 0.0, -3.0)
 """The designed attack on a ``pinwheel`` wave: ``(bearing, heading offset, appearance)``: the intruder appears on
 the avoid boundary of the wave's stream-0 vehicle straight to its left (toward the centre, where the other two are
 equally far), heading outward along that ray, 3 s before the wave's triangle (the three at their tangent points);
-``scripts/pinwheel_worst_case.py`` searches the neighbourhood."""
+``examples/pinwheel_worst_case.py`` searches the neighbourhood."""
 
 
 def pinwheel_params(kbar: int = 3, *, wind_model="converging", appear: float = PINWHEEL_SPAWN[2],

@@ -32,7 +32,7 @@ SPP paper Section IV-A (centralized control, eqs. 11-19) and Section IV-B (least
 Every higher-priority vehicle's tables have one shape and the feedback tables are traced, so one scenario compiles
 each solver loop once.
 
-Measured on the four-vehicle example (81 x 81 x 40, WENO5 + RK2, ``R_c = 0.1``; scripts/four_vehicle_methods.py):
+Measured on the four-vehicle example (81 x 81 x 40, WENO5 + RK2, ``R_c = 0.1``; examples/four_vehicle_methods.py):
 t_LDT centralized ``[-1.28, -2.17, -2.56, -2.96]``, least-restrictive ``[-1.28, -2.20, -2.65, -3.31]`` (paper:
 ``[-1.35, -1.37, -1.94, -2.04]`` and ``[-1.35, -1.97, -2.66, -3.39]``, R_c not stated). Q2 departs much earlier
 than in the paper under both methods: Q1 flies head-on toward it, and the latest feasible plan found by the BRS

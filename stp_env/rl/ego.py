@@ -261,7 +261,7 @@ def evaluate_ego(params: EnvParams, intruder, kind: str = "u*", *, mlp=None, epi
 def replay_check(mlp, check: dict) -> dict:
     """The ego's outcomes with the learned ``mlp`` on ``check``'s episodes (``scenario``, ``kbar``, ``intruder``,
     ``episodes``, ``seed``): on time and arrived per episode, and the delays [s] (``None`` where it did not arrive).
-    A shipped vehicle policy records them (``scripts/train_vehicle_policy.py ship``); the tests replay them."""
+    A shipped vehicle policy records them (``examples/train_vehicle_policy.py ship``); the tests replay them."""
     params, intruder = ego_params(check.get("scenario", "crossing"), check.get("kbar", 2), check["intruder"])
     r = evaluate_ego(params, intruder, "learned", mlp=mlp, episodes=check["episodes"], seed=check["seed"],
                      batch=check["episodes"])

@@ -34,9 +34,9 @@ results **bit for bit** those of ``run_mission``:
 * the tie-breaking consumes the same random numbers: ``run_mission`` draws ``rng.choice(ties)`` from
   ``numpy.random.default_rng(seed)``, i.e. Lemire's bounded integer on the generator's 32-bit outputs (each
   64-bit PCG64 output gives its low then its high half). The batch pre-draws those outputs on the host
-  (:func:`tie_streams`, ``STREAM`` per mission) and repeats Lemire's method, rejections included, in uint32
-  arithmetic (:func:`_lemire`). A mission that would need more outputs than it was given (never seen; it would
-  take over ``STREAM / 2`` ties) is flown again by ``run_mission``;
+  (``STREAM`` per mission) and repeats Lemire's method, rejections included, in uint32 arithmetic
+  (:mod:`stp_env.survivability.ties`). A mission that would need more outputs than it was given (never seen; it
+  would take over ``STREAM / 2`` ties) is flown again by ``run_mission``;
 * segment feasibility from the revealed intruders' occupied cells (intruder bit sets per cell) equals
   :class:`stp_env.survivability.mission.Knowledge`'s incremental update (a segment is infeasible iff one of its
   cells is occupied by a revealed intruder's actual path).
@@ -76,12 +76,11 @@ from stp_env.survivability import robustness as rob
 from stp_env.survivability.config import POLICIES, PlannerConfig
 from stp_env.survivability.graph import Graph
 from stp_env.survivability.mission import Instance, MissionResult, _known_key, initial_tables, run_mission
+from stp_env.survivability.ties import STREAM, lemire, tie_streams
 from stp_env.survivability.traffic import occupancy, sample_traffic
 
 BATCHED_REVEALS = ("segment",)
 """The reveal models (:data:`stp_env.survivability.config.REVEAL_MODELS`) flown in the compiled batch."""
-STREAM = 256
-"""32-bit generator outputs pre-drawn per mission for the tie-breaking (see the module docstring)."""
 _OUTCOMES = ("G", "A", "L")
 
 
@@ -107,47 +106,6 @@ def _graph_consts(graph: Graph) -> _Consts:
     return _Consts(jnp.asarray(graph.succ, jnp.int32), jnp.asarray(graph.seg, jnp.int32),
                    jnp.asarray(graph.term_goal), jnp.asarray(graph.term_alt), jnp.asarray(window),
                    jnp.asarray(starts[window]), jnp.asarray(seg_cells))
-
-
-def tie_streams(seeds) -> np.ndarray:
-    """``(len(seeds), STREAM)`` uint32: the first ``STREAM`` 32-bit outputs of ``numpy.random.default_rng(seed)``
-    for each seed, in the order ``Generator.choice`` consumes them (low half of each 64-bit PCG64 output, then its
-    high half)."""
-    out = np.empty((len(seeds), STREAM), np.uint32)
-    for i, seed in enumerate(seeds):
-        raw = np.random.default_rng(seed).bit_generator.random_raw(STREAM // 2).astype(np.uint64)
-        out[i, 0::2] = (raw & np.uint64(0xFFFFFFFF)).astype(np.uint32)
-        out[i, 1::2] = (raw >> np.uint64(32)).astype(np.uint32)
-    return out
-
-
-def _lemire(stream, cursor, n):
-    """Lemire's bounded integer in ``[0, n)`` (numpy's ``buffered_bounded_lemire_uint32``, what
-    ``Generator.choice`` of ``n`` items draws) from the 32-bit outputs ``stream`` read from ``cursor``; returns
-    ``(value, next cursor)``. ``n`` < 2**16 (a number of primitives). uint32 arithmetic: ``m = u n`` in 64 bits is
-    ``hi 2**32 + lo`` with ``lo = u n mod 2**32`` and ``hi = (uh n + (ul n >> 16)) >> 16`` (``u = uh 2**16 + ul``)."""
-    n = n.astype(jnp.uint32)
-    threshold = (jnp.uint32(0) - n) % n        # (2**32 - n) mod n = (UINT32_MAX - (n - 1)) mod n
-
-    def draw(c):
-        u = stream[jnp.minimum(c, stream.shape[0] - 1)]
-        lo = u * n
-        hi = ((u >> 16) * n + (((u & jnp.uint32(0xFFFF)) * n) >> 16)) >> 16
-        return lo, hi
-
-    lo, hi = draw(cursor)
-
-    def again(state):
-        c, lo, _ = state
-        return (lo < n) & (lo < threshold) & (c < stream.shape[0])
-
-    def redraw(state):
-        c, _, _ = state
-        lo, hi = draw(c + 1)
-        return c + 1, lo, hi
-
-    c, lo, hi = jax.lax.while_loop(again, redraw, (cursor, lo, hi))
-    return hi.astype(jnp.int32), c + 1
 
 
 class _State(NamedTuple):
@@ -251,7 +209,7 @@ def _run(meta, policies, exact, nf_count, beta, n_path, n_intruders, c, gc, robu
         tol = jnp.float32(1e-6) * jnp.maximum(jnp.float32(1.0), jnp.abs(best))
         ties = ok & (score >= best - tol)
         n_ties = jnp.sum(ties.astype(jnp.int32))
-        pick, cursor2 = _lemire(stream, cursor, jnp.maximum(n_ties, 1))
+        pick, cursor2 = lemire(stream, cursor, jnp.maximum(n_ties, 1))
         rank = jnp.cumsum(ties.astype(jnp.int32)) - 1
         a = jnp.where(n_ties == 1, jnp.argmax(ties), jnp.argmax(ties & (rank == pick))).astype(jnp.int32)
         chooses = ~done & ~lands & ~widen

@@ -3,7 +3,7 @@ actor exported to numpy weights (:func:`stp_env.baselines.learned.export_mlp`, a
 ``allow_pickle=False``), evaluated with numpy only: the action is the argmax of the actor's logits.
 
 The shipped policy (``stp_env/data/survivability/ppo.npz``) is trained and compared with ``pi_S`` and ``pi_Nf`` by
-``python scripts/survivability_ppo.py`` (see the script and ``docs/survivability.md``).
+``python examples/survivability_ppo.py`` (see the script and ``docs/survivability.md``).
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ def load_policy(name_or_path: str = SHIPPED, n_actions: int = 25) -> DiscretePol
         path = Path(str(resources.files("stp_env") / "data" / "survivability" / f"{SHIPPED}.npz"))
         if not path.exists():
             raise ValueError(f"no policy is shipped in this installation ({path} is missing); train one with "
-                             "'python scripts/survivability_ppo.py train --ship' or pass the path of an .npz.")
+                             "'python examples/survivability_ppo.py train --ship' or pass the path of an .npz.")
     if not path.exists():
         raise ValueError(f"{path} does not exist.")
     policy = DiscretePolicy(load_mlp(path, n_outputs=n_actions))

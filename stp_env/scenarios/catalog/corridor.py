@@ -14,7 +14,7 @@ CORRIDOR_TARGET_RADIUS = 150.0
 CORRIDOR_KBARS = (1, 2, 3, 4)
 CORRIDOR_SPACING = {1: 87.0, 2: 69.0, 3: 62.0, 4: 63.0}
 """STA spacing [s] per ``k̄``: the smallest whole second at which the straight plan keeps every follower outside
-the planner's disks around its leader (``scripts/dense_spacing.py``; one second less breaks the constraint). At
+the planner's disks around its leader (``examples/dense_spacing.py``; one second less breaks the constraint). At
 13 m/s the trail is ``13 x spacing`` m: 1131, 897, 806 and 819 m against buffer radii
 (:func:`stp_env.reach.buffer.buffer_radii`, 6 m/s wind) of 989, 760, 673 and 632 m. The gap over the radius is
 the flight time from the start to the target's edge rounding to whole samples plus the pads: a leader's disk is

@@ -18,7 +18,7 @@ CROSSING_KBARS = (1, 2, 3, 4)
 CROSSING_SPACING = {1: 108.0, 2: 83.0, 3: 74.0, 4: 74.0}
 """STA spacing [s] between consecutive vehicles (alternating streams) per ``k̄``: the smallest whole second at
 which the straight plan keeps every vehicle outside the planner's disks around the higher-priority ones
-(``scripts/dense_spacing.py``; one second less breaks the constraint). Two vehicles of different streams that pass
+(``examples/dense_spacing.py``; one second less breaks the constraint). Two vehicles of different streams that pass
 the crossing ``s`` seconds apart at speed ``v`` come as close as ``v s / sqrt(2)``, so the spacing is about
 ``sqrt(2)`` times the buffer radius's flight time (``k̄ = 1``: 108 s, ``sqrt(2) x 989 / 13 = 107.6 s``)."""
 

@@ -20,7 +20,7 @@ derived here from that description:
   forced head-on turns back along the line to flee and collides with the next one coming in (measured: ``Q2``
   and ``Q3`` collided 2.2 s after ``Q2``'s avoid start, before ``Q3`` could be forced). The paper's vehicles fly
   to different targets, not in trail. Off the line the hops are not straight, so their ``x`` come from the
-  simulated worst case (``scripts/fig6_placement.py``, bisection on the vehicle's distance): ``Q3`` is forced at
+  simulated worst case (``examples/fig6_placement.py``, bisection on the vehicle's distance): ``Q3`` is forced at
   ``2 t_BRD``, and ``Q4`` is the closest it can be placed on its row without being forced (or colliding) before
   the intruder leaves.
 * Calm air (``wind = 0``): the paper's times are those of the worst case, and with winds the simulator draws random
@@ -30,7 +30,7 @@ derived here from that description:
 
 The plan is built directly, not by the STP planner: straight-line references at 13 m/s (``omega = 0``), departing
 ``FIG6_LEAD`` seconds before the intruder appears (:func:`fig6_plan`, shipped as ``data/plans/fig6-kbar3.npz`` by
-``scripts/fig6_reproduction.py``). The spacing is the tightest the worst case allows for ``k̄ = 3``; the planner's
+``examples/fig6_reproduction.py``). The spacing is the tightest the worst case allows for ``k̄ = 3``; the planner's
 disk buffers (:func:`stp_env.reach.buffer.buffer_radii`) add the tracking bubbles and the rotation-invariant
 footprint of ``V^B`` on top, so it would space the vehicles further apart.
 """
@@ -60,7 +60,7 @@ the level ``V^A(0, t_IAT) = FIG6_MARGIN + 0.25 m`` straight ahead of ``Q1`` (hea
 margin, so Assumption 3 holds, and ``Q1`` is forced within the first inner steps, ``t_1 = 0``."""
 FIG6_TRAIL = ((292.85, 0.0), (427.81, -150.0), (681.08, 150.0))
 """Positions [m] of ``Q2``, ``Q3``, ``Q4`` when the intruder appears (at the origin): ``Q2`` from
-:func:`derive_q2_offset` on the default calm-air avoid region, ``Q3`` and ``Q4`` from ``scripts/fig6_placement.py``
+:func:`derive_q2_offset` on the default calm-air avoid region, ``Q3`` and ``Q4`` from ``examples/fig6_placement.py``
 (``docs/fig6_placement.json``)."""
 
 

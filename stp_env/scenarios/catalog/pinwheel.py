@@ -12,7 +12,7 @@ is ``sqrt(3) sqrt(rho^2 + v^2 t^2)`` from the other two). With ``sqrt(3) rho`` e
 radius, the triangle is as tight as the disk allows, and an intruder that appears on one vehicle's boundary
 facing the centre has the other two at equal distances ahead of it. There the ``worst`` vehicles and the
 ``optimal-max-k`` intruder force all three under the buffer game's helping winds (``--wind-model converging``), and
-two under the papers' random ones (``docs/dense.md``, ``scripts/pinwheel_worst_case.py``).
+two under the papers' random ones (``docs/dense.md``, ``examples/pinwheel_worst_case.py``).
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ PINWHEEL_KBARS = (1, 2, 3, 4)
 PINWHEEL_RADIUS = {1: 571.0, 2: 439.0, 3: 389.0, 4: 387.0}
 """Radius ``rho`` [m] of the circle the routes are tangent to, per ``k̄``: the smallest whole metre at which the
 straight plan keeps every vehicle of a wave outside the planner's disks around the higher-priority ones
-(``python scripts/dense_spacing.py --scenarios pinwheel``; one metre less breaks the constraint). The triangle's
+(``python examples/dense_spacing.py --scenarios pinwheel``; one metre less breaks the constraint). The triangle's
 side ``sqrt(3) rho`` is then the buffer radius plus under 2 m (989.0, 760.4 and 673.8 m for ``k̄ = 1, 2, 3``); for
 ``k̄ = 4`` the intruder-aware lag disks reach further than the 631.7 m buffer disk (side 670.3 m)."""
 PINWHEEL_SPACING = {1: 134.0, 2: 114.0, 3: 106.0, 4: 107.0}
