@@ -327,14 +327,14 @@ def test_replaying_an_event_never_imports_what_it_names(tmp_path, monkeypatch):
     module is not imported and the command is not run."""
     from types import SimpleNamespace
 
-    from stp_env.evaluation import runner
+    from stp_env.evaluation import replays
 
     marker = tmp_path / "pwned"
     params = SimpleNamespace(vehicles=SimpleNamespace(nominal_states=np.zeros((1, 100, 3))),
                              episode=SimpleNamespace(t_start=jnp.asarray(0.0), t_end=jnp.asarray(9.9),
                                                      dt=jnp.asarray(0.1)))
-    monkeypatch.setattr(runner, "build_params", lambda *a, **k: [params])
-    monkeypatch.setattr(runner, "replay", lambda *a, **k: pytest.fail("replayed an event naming code"))
+    monkeypatch.setattr(replays, "build_params", lambda *a, **k: [params])
+    monkeypatch.setattr(replays, "replay", lambda *a, **k: pytest.fail("replayed an event naming code"))
     with pytest.raises(ValueError) as err:
         replay_event(_event(f"os:system=touch {marker}"))
     assert not marker.exists()
@@ -344,7 +344,7 @@ def test_replaying_an_event_never_imports_what_it_names(tmp_path, monkeypatch):
 def test_a_plugin_spec_typed_on_the_command_line_is_used(tmp_path, monkeypatch):
     """The user may replay such an event by typing the spec: then it is theirs, not the file's."""
     from stp_env.baselines import hover
-    from stp_env.evaluation import runner
+    from stp_env.evaluation import replays
 
     spec = "stp_env.baselines.intruders:hover"
     events = tmp_path / "events.json"
@@ -355,7 +355,7 @@ def test_a_plugin_spec_typed_on_the_command_line_is_used(tmp_path, monkeypatch):
         seen["policy"] = intruder_policy
         raise ValueError("stop here")
 
-    monkeypatch.setattr(runner, "prepare_event", fake_prepare)
+    monkeypatch.setattr(replays, "prepare_event", fake_prepare)
     code, _, stderr = _cli(["render", "--events", str(events), "--intruder", spec, "--out", str(tmp_path / "a.gif")])
     assert code == 2 and "stop here" in stderr and seen["policy"] is hover
     code, _, stderr = _cli(["render", "--events", str(events), "--intruder", "hj", "--out", str(tmp_path / "a.gif")])

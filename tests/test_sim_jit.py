@@ -16,7 +16,7 @@ from stp_env.sim.jit import SIM_COMPILER_OPTIONS, sim_jit
 ROOT = pathlib.Path(stp_env.__file__).parent
 
 # modules whose compiled programs run the simulator's step (every jit in them goes through sim_jit)
-SIM_PROGRAM_MODULES = ("sim/rollout.py", "env.py", "evaluation/runner.py", "evaluation/worst_case.py",
+SIM_PROGRAM_MODULES = ("sim/rollout.py", "sim/stepping.py", "evaluation/runner.py", "evaluation/worst_case.py",
                        "rl/functional.py", "falsify/search.py", "coobservation/threat.py")
 # modules whose outputs are shipped artifacts that must reproduce bit for bit: XLA's defaults only
 DEFAULT_OPTION_MODULES = ("hj/solver.py", "planning/brs.py", "planning/single.py", "reach/tracking.py")
