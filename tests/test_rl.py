@@ -212,7 +212,8 @@ def test_train_config_spawn_mode_and_the_buffer_of_worst_vehicles(monkeypatch):
     calls = []
     monkeypatch.setattr(assembly, "params_for",
                         lambda scenario, config, **kw: types.SimpleNamespace(
-                            intruder=types.SimpleNamespace(kbar=scenario.kbar)))
+                            intruder=types.SimpleNamespace(kbar=scenario.kbar),
+                            tables=types.SimpleNamespace(buffer_values=None)))
     monkeypatch.setattr(assembly, "load_buffer", lambda scenario, kbar, **kw: calls.append(kbar) or "V^B")
     monkeypatch.setattr(assembly, "with_buffer", lambda params, buffer: (params, buffer))
     assert train_module.build_params(TrainConfig(scenario="town", kbar=3, vehicle_policy="worst"))[1] == "V^B"
