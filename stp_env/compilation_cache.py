@@ -57,6 +57,7 @@ set with ``jax.config.update`` and JAX's cache is reset (``jax.experimental.comp
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import math
 import os
@@ -151,10 +152,9 @@ def private_cache_dir(path: str | os.PathLike, what: str = "the compilation cach
     path = Path(path)
     problem = _private_dir(path)
     if problem is None:
-        try:
+        # a folder that cannot be listed: JAX itself warns when it cannot read or write an entry
+        with contextlib.suppress(OSError):
             _date_undated_entries(path)
-        except OSError:  # a folder that cannot be listed: JAX warns when it cannot read or write an entry
-            pass
         return path
     if advice is None:
         advice = f"Set {DIR_ENV_VAR} to a private folder, or {ENV_VAR}=0 to silence this."
