@@ -56,7 +56,7 @@ def time_rollout(params, n_envs: int, n_steps: int, record: bool = False, ignore
     import jax
 
     from stp_env import sim
-    from stp_env.baselines import INTRUDERS, switching
+    from stp_env.policies import INTRUDERS, switching
 
     def go(seed):
         return jax.block_until_ready(sim.rollout(jax.random.key(seed), params, switching, INTRUDERS["hj"], n_envs,

@@ -89,7 +89,7 @@ def mpe2_runner():
 def policy_call():
     """The user's policy call of the outside-actions loop: one jitted call per step that splits the key and computes
     the baseline controllers (``switching``) from the core state, ``(key, state, params) -> (key, actions)``."""
-    from stp_env.baselines import switching
+    from stp_env.policies import switching
 
     @jax.jit
     def act(key, state, params):
@@ -266,7 +266,7 @@ def interleaved(runners: dict, steps: dict, rounds: int) -> dict:
 
 def core_rate(params, n_envs: int, n_steps: int) -> tuple[float, float]:
     from stp_env import sim
-    from stp_env.baselines import INTRUDERS, switching
+    from stp_env.policies import INTRUDERS, switching
 
     out = sim.rollout(jax.random.key(0), params, switching, INTRUDERS["hj"], n_envs, n_steps)
     jax.block_until_ready(out)

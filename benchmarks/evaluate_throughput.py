@@ -35,8 +35,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env import sim
-from stp_env.baselines import INTRUDERS, switching
 from stp_env.evaluation import Configuration, build_params, evaluate
+from stp_env.policies import INTRUDERS, switching
 
 
 def episodes_digest(episodes: dict, ignore=()) -> str:

@@ -31,8 +31,8 @@ def main() -> int:
 
     from stp_env import assembly, sim
     from stp_env.assembly import load_buffer, with_buffer
-    from stp_env.baselines import optimal_max_k, worst
     from stp_env.evaluation.worst_case import reproduce
+    from stp_env.policies import optimal_max_k, worst
     from stp_env.scenarios import make
     from stp_env.scenarios.catalog.fig6 import FIG6_LEAD, FIG6_SPEED, fig6_plan
 

@@ -5,7 +5,7 @@ plan as stp_env/data/plans/fig6-kbar3.npz.
 
     python examples/fig6_reproduction.py [--orders]
 
-``--orders`` also plays every order of ``Q2``-``Q4`` with :func:`stp_env.baselines.ordered_max_k` under the worst
+``--orders`` also plays every order of ``Q2``-``Q4`` with :func:`stp_env.policies.ordered_max_k` under the worst
 vehicles (a brute-force check that the greedy order of ``optimal-max-k`` forces the most; one compilation each).
 """
 
@@ -135,9 +135,9 @@ def main() -> int:
     args = ap.parse_args()
 
     from stp_env import assembly
-    from stp_env.baselines import optimal_max_k, ordered_max_k, switching, worst
     from stp_env.evaluation.worst_case import FIG6_PAPER_TIMES, FIG7_PAPER_TIMES, fig6_params, reproduce
     from stp_env.planning.stp import plan_to_arrays
+    from stp_env.policies import optimal_max_k, ordered_max_k, switching, worst
     from stp_env.reach.buffer import position_radius
     from stp_env.scenarios import make
     from stp_env.scenarios.catalog.fig6 import fig6_plan

@@ -17,7 +17,7 @@ import json
 import sys
 import time
 
-from stp_env.baselines import INTRUDERS
+from stp_env.policies import INTRUDERS
 from stp_env.rl.imitation import agreement, clone_intruder, intruder_demonstrations, scripted_predict
 from stp_env.rl.ppo import make_model
 from stp_env.rl.train import TrainConfig, build_params, evaluate_on_vec_env, summarize

@@ -38,8 +38,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env.baselines import INTRUDERS
 from stp_env.evaluation.stats import clopper_pearson_interval
+from stp_env.policies import INTRUDERS
 from stp_env.rl.imitation import scripted_predict
 from stp_env.rl.train import TrainConfig, build_params, evaluate_on_vec_env, train
 from stp_env.rl.vec_env import IntruderVecEnv
@@ -129,7 +129,7 @@ def main(argv=None) -> int:
             if (plant, name) in done:
                 continue
             if name == "learned":
-                from stp_env.baselines.learned import load_mlp
+                from stp_env.policies.learned import load_mlp
 
                 predict = load_mlp(learned).action_numpy
             else:

@@ -25,10 +25,10 @@ import jax
 import numpy as np
 
 from stp_env import sim
-from stp_env.baselines.intruders import intruder_policy
-from stp_env.baselines.vehicles import vehicle_policy
 from stp_env.env import parallel_env
 from stp_env.evaluation.summary import forced_summary
+from stp_env.policies.intruders import intruder_policy
+from stp_env.policies.vehicles import vehicle_policy
 
 
 def episode(context, ep: int) -> dict:

@@ -48,7 +48,7 @@ def train(args) -> None:
     from stable_baselines3.common.monitor import Monitor
     from tqdm.auto import tqdm
 
-    from stp_env.baselines.learned import export_mlp
+    from stp_env.policies.learned import export_mlp
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -22,9 +22,9 @@ import numpy as np
 
 from stp_env import assembly, hj, sim
 from stp_env.assembly import load_buffer, with_buffer
-from stp_env.baselines import intruder_policy, vehicle_policy
 from stp_env.evaluation.worst_case import reproduce
 from stp_env.planning.verify import obstacle_margin, planner_disks, straight_plan
+from stp_env.policies import intruder_policy, vehicle_policy
 from stp_env.scenarios import make
 
 LEADER_ALONG = 1500.0  # [m] the leader's distance down the route when the intruder appears

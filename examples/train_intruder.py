@@ -26,7 +26,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from stp_env.baselines import INTRUDERS
+from stp_env.policies import INTRUDERS
 from stp_env.rl.train import TrainConfig, train
 
 # forced_reward 5: one forced vehicle outweighs the shaping of a whole approach (shaping_reward * d_sense = 3.7).

@@ -37,7 +37,7 @@ def train(args) -> None:
     import torch
     from stable_baselines3 import PPO
 
-    from stp_env.baselines.learned import export_mlp
+    from stp_env.policies.learned import export_mlp
     from stp_env.rl.vehicle_env import EgoVehicleVecEnv
 
     out = Path(args.out)
@@ -71,7 +71,7 @@ def train(args) -> None:
 
 
 def quick_eval(path, params, intruder, args) -> dict:
-    from stp_env.baselines.learned_vehicles import load_vehicle_mlp
+    from stp_env.policies.learned_vehicles import load_vehicle_mlp
     from stp_env.rl.ego import evaluate_ego
 
     r = evaluate_ego(params, intruder, "learned", mlp=load_vehicle_mlp(str(path)), episodes=args.eval_episodes,
@@ -95,7 +95,7 @@ def summarize(r: dict) -> dict:
 
 
 def evaluate(args) -> None:
-    from stp_env.baselines.learned_vehicles import load_vehicle_mlp
+    from stp_env.policies.learned_vehicles import load_vehicle_mlp
     from stp_env.rl.ego import evaluate_ego
 
     mlp = load_vehicle_mlp(args.policy)
@@ -116,9 +116,9 @@ CHECK = {"scenario": "crossing", "kbar": 2, "intruder": "max-k", "episodes": 16,
 def ship(args) -> None:
     from importlib import resources
 
-    from stp_env.baselines.learned_vehicles import load_vehicle_mlp
     from stp_env.files import atomic_open
     from stp_env.loaders import read_npz
+    from stp_env.policies.learned_vehicles import load_vehicle_mlp
     from stp_env.rl.ego import replay_check
 
     if not args.name.replace("-", "").isalnum():

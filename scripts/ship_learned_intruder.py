@@ -6,7 +6,7 @@ check (the forced counts of a small batch of held-out episodes on the run's own 
 
 The run's settings (scenario, k̄, vehicle policy, spawn mode, wind model, observation set) are read from its
 ``intruder.npz`` metadata; the check runs :func:`stp_env.rl.train.evaluate_on_vec_env` with the numpy copy of the
-policy (:meth:`stp_env.baselines.learned.MLPIntruder.action_numpy`), as the test does. Nothing is written unless
+policy (:meth:`stp_env.policies.learned.MLPIntruder.action_numpy`), as the test does. Nothing is written unless
 the whole check ran; the file is written atomically.
 """
 
@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from stp_env.baselines.learned import load_mlp
 from stp_env.files import atomic_open
 from stp_env.loaders import read_npz
+from stp_env.policies.learned import load_mlp
 from stp_env.progress import note
 from stp_env.rl.train import TrainConfig, build_params, evaluate_on_vec_env
 from stp_env.rl.vec_env import IntruderVecEnv

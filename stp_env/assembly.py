@@ -456,7 +456,7 @@ def params_for(scenario, config: EnvConfig | None = None, *, store=None, progres
 def with_buffer(params: EnvParams, buffer) -> EnvParams:
     """``params`` with the relative buffer region ``V^B(0, t_BRD)`` (a :class:`stp_env.reach.buffer.RelativeBuffer`
     computed for the same avoid region), which the buffer-game policies read (the ``worst`` vehicles and the
-    ``optimal-max-k`` intruder of :mod:`stp_env.baselines`)."""
+    ``optimal-max-k`` intruder of :mod:`stp_env.policies`)."""
     grid = buffer.config.grid
     if tuple(np.shape(buffer.values)) != tuple(grid.shape):
         raise ValueError(f"the buffer values have shape {np.shape(buffer.values)}, its grid {grid.shape}.")

@@ -11,7 +11,7 @@ imported for ``--help``); the registry imports it when the name is looked up:
 
 * ``stp_env.scenarios``: a scenario factory (keyword-only parameters with defaults), as ``@register`` takes it;
 * ``stp_env.intruders``: a jittable intruder policy ``(key, state, params) -> (2,)`` or its record
-  (:class:`stp_env.baselines.record.Policy`);
+  (:class:`stp_env.policies.record.Policy`);
 * ``stp_env.vehicle_policies``: a jittable vehicle policy ``(key, state, params) -> (N, action_dim)``;
 * ``stp_env.wind_models``: a :class:`stp_env.sim.winds.base.WindModel` subclass.
 
@@ -37,10 +37,10 @@ SCENARIOS = {
 """Built-in scenario -> its module in :mod:`stp_env.scenarios.catalog`."""
 
 INTRUDERS = ("hover", "random", "bezier2", "bezier3", "greedy", "hj", "max-k", "optimal-max-k")
-"""Built-in scripted intruders (:data:`stp_env.baselines.INTRUDERS`), in its order."""
+"""Built-in scripted intruders (:data:`stp_env.policies.INTRUDERS`), in its order."""
 
 VEHICLE_POLICIES = ("switching", "nominal", "worst")
-"""Built-in vehicle policies (:data:`stp_env.baselines.VEHICLE_POLICIES`), in its order."""
+"""Built-in vehicle policies (:data:`stp_env.policies.VEHICLE_POLICIES`), in its order."""
 
 
 class WindEntry(NamedTuple):

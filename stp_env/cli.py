@@ -160,7 +160,7 @@ def _add_episode_options(p, *, many: bool) -> None:
                                                                 "outside the default suite)" if many else ""))
     p.add_argument("--intruder", nargs=nargs, default=None,
                    help=f"intruder policy: one of {', '.join(kit.intruder_names())}; 'learned:NAME_OR_PATH' for a "
-                        "learned intruder (a shipped name or an .npz from stp_env.baselines.learned.export_mlp); or "
+                        "learned intruder (a shipped name or an .npz from stp_env.policies.learned.export_mlp); or "
                         "'package.module:policy' / 'package.module:factory=ARG' for any jittable policy "
                         "(key, state, params) -> (2,)" + ("" if many else
                         " (default: max-k; with --events: the record's intruder, and a plug-in spec in the record "

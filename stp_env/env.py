@@ -85,8 +85,8 @@ class STPParallelEnv(ParallelEnv):
                  progress: bool | None = None, keep_finished: bool = False, **config_overrides):
         from stp_env import progress as progress_mod
         from stp_env import requirements
-        from stp_env.baselines import vehicle_policy as resolve_vehicle_policy
-        from stp_env.baselines.intruders import capabilities, resolve_intruder
+        from stp_env.policies import vehicle_policy as resolve_vehicle_policy
+        from stp_env.policies.intruders import capabilities, resolve_intruder
         from stp_env.scenarios import Scenario, make
 
         vehicle_policy_fn = None

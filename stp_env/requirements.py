@@ -1,6 +1,6 @@
 """Which tables a run reads beyond the scenario's own, decided in one place for the environment, the evaluator and
-the falsifier: the policies' records say what they read (:class:`stp_env.baselines.record` ``needs_buffer``;
-an intruder's by :func:`stp_env.baselines.intruders.capabilities`, plug-ins included), and
+the falsifier: the policies' records say what they read (:class:`stp_env.policies.record` ``needs_buffer``;
+an intruder's by :func:`stp_env.policies.intruders.capabilities`, plug-ins included), and
 :func:`with_required_tables` loads it into the run's ``EnvParams``.
 
 Today one such table exists: the relative buffer region ``V^B`` of the buffer game (the ``worst`` vehicles, the
@@ -13,12 +13,12 @@ from stp_env import assembly
 
 
 def needs_buffer(vehicle_policy=None, intruder=None, observation: str | None = None) -> bool:
-    """Whether the vehicles' policy (a name of :data:`stp_env.baselines.VEHICLE_POLICIES`, a resolved policy or
+    """Whether the vehicles' policy (a name of :data:`stp_env.policies.VEHICLE_POLICIES`, a resolved policy or
     ``None``), the intruder (a spec, a record, a policy or ``None``: the agent) or a learner's ``observation``
-    (:data:`stp_env.baselines.observations.NEEDS_BUFFER`) plays the buffer game (reads ``V^B``)."""
-    from stp_env.baselines import BUFFER_GAME_VEHICLE_POLICIES, VEHICLE_POLICIES
-    from stp_env.baselines.intruders import capabilities
-    from stp_env.baselines.observations import NEEDS_BUFFER
+    (:data:`stp_env.policies.observations.NEEDS_BUFFER`) plays the buffer game (reads ``V^B``)."""
+    from stp_env.policies import BUFFER_GAME_VEHICLE_POLICIES, VEHICLE_POLICIES
+    from stp_env.policies.intruders import capabilities
+    from stp_env.policies.observations import NEEDS_BUFFER
 
     if observation is not None and observation in NEEDS_BUFFER:
         return True

@@ -33,7 +33,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("store", ("stp_env.artifacts",)),
     ("sets", ("stp_env.reach",)),
     ("core", ("stp_env.sim",)),
-    ("policies", ("stp_env.baselines",)),
+    ("policies", ("stp_env.policies",)),
     ("planning", ("stp_env.planning",)),
     ("scenarios", ("stp_env.scenarios",)),
     ("assembly", ("stp_env.assembly", "stp_env.requirements")),

@@ -61,7 +61,7 @@ def test_the_names_help_lists_are_the_registries():
     """The catalog's tables (what ``--help`` lists) are the registries' names, the wind models' parameters and
     help included (each registry also checks its names against the catalog when it is imported)."""
     from stp_env import scenarios
-    from stp_env.baselines import INTRUDERS, VEHICLE_POLICIES
+    from stp_env.policies import INTRUDERS, VEHICLE_POLICIES
     from stp_env.sim import winds
 
     assert cli_kit.describe_wind_models() == winds.describe()

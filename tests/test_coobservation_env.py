@@ -159,7 +159,7 @@ def test_training_outcome_rates_count_only_finished_episodes():
 def _zero_mlp(path, **meta):
     import json
 
-    from stp_env.baselines.learned import FORMAT_VERSION
+    from stp_env.policies.learned import FORMAT_VERSION
 
     arrays = {"w0": np.zeros((4, attackers.OBS_SIZE), np.float32), "b0": np.zeros(4, np.float32),
               "w1": np.zeros((2, 4), np.float32), "b1": np.zeros(2, np.float32)}
@@ -190,8 +190,8 @@ def test_teacher_residuals_reproduce_the_teachers_commands_and_cloning_fits_them
     import torch
     from stable_baselines3.common.policies import ActorCriticPolicy
 
-    from stp_env.baselines import nominal_tracking
     from stp_env.coobservation import learned
+    from stp_env.policies import nominal_tracking
 
     params, threats, _ = _setup()
     tp = threats["unsecured"]

@@ -97,7 +97,7 @@ import jax, numpy as np
 import stp_env
 stp_env.set_cpu_devices(int(sys.argv[1]))
 from stp_env import assembly, sim
-from stp_env.baselines import INTRUDERS, switching
+from stp_env.policies import INTRUDERS, switching
 from stp_env.scenarios import make
 scenario = make("town")
 avoid, tracking = assembly.load_artifacts(scenario, progress=False)

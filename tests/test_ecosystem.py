@@ -43,8 +43,8 @@ def _shipped_policy() -> str:
 
 
 def test_a_training_runs_directory_is_a_learned_intruder(tmp_path):
-    from stp_env.baselines.learned import load_intruder
     from stp_env.evaluation import resolve_intruder
+    from stp_env.policies.learned import load_intruder
 
     run = tmp_path / "run"
     run.mkdir()

@@ -129,18 +129,18 @@ def test_clopper_pearson_rejects_bad_input(args):
 
 # ------------------------------------------------------------------------------------------------ intruders
 def test_resolve_intruder_names_and_import_specs():
-    from stp_env.baselines import INTRUDERS
+    from stp_env.policies import INTRUDERS
 
     assert resolve_intruder("max-k") is INTRUDERS["max-k"]
-    from stp_env.baselines.intruders import hover
+    from stp_env.policies.intruders import hover
 
     # the module's attribute itself: here the bare function, whose record INTRUDERS lists
-    assert resolve_intruder("stp_env.baselines.intruders:hover") is hover is INTRUDERS["hover"].policy
+    assert resolve_intruder("stp_env.policies.intruders:hover") is hover is INTRUDERS["hover"].policy
     # a factory called with the text after '=' (how a checkpoint loader is passed its path)
     assert resolve_intruder("stp_env.evaluation.config:resolve_intruder=greedy") is INTRUDERS["greedy"]
     for bad, message in (("nope", "unknown intruder"), ("learned:no-such-intruder", "unknown intruder"),
                          ("no_such_module_xyz:policy", "cannot import"),
-                         ("stp_env.baselines.intruders:nope", "has no attribute")):
+                         ("stp_env.policies.intruders:nope", "has no attribute")):
         with pytest.raises(ValueError, match=message):
             resolve_intruder(bad)
 

@@ -17,7 +17,13 @@ import numpy as np
 import pytest
 
 from stp_env import assembly, scenarios, sim
-from stp_env.baselines.intruders import (
+from stp_env.env import parallel_env
+from stp_env.evaluation.config import Configuration
+from stp_env.evaluation.runner import needs_buffer
+from stp_env.falsify import harness
+from stp_env.falsify.kbar import plays_buffer_game
+from stp_env.falsify.targets import register as register_target
+from stp_env.policies.intruders import (
     BUFFER_GAME_INTRUDERS,
     INTRUDERS,
     Intruder,
@@ -25,13 +31,7 @@ from stp_env.baselines.intruders import (
     register_intruder,
     resolve_intruder,
 )
-from stp_env.baselines.vehicles import nominal_tracking
-from stp_env.env import parallel_env
-from stp_env.evaluation.config import Configuration
-from stp_env.evaluation.runner import needs_buffer
-from stp_env.falsify import harness
-from stp_env.falsify.kbar import plays_buffer_game
-from stp_env.falsify.targets import register as register_target
+from stp_env.policies.vehicles import nominal_tracking
 from stp_env.sim import winds
 from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN, WIND
 from stp_env.sim.jit import sim_jit

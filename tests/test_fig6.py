@@ -118,8 +118,8 @@ def test_fig6_placement_is_derived_from_the_tables(fig6_setup):
 def test_fig6_worst_vehicles_reach_kbar(fig6_setup):
     """Fig. 6: the worst vehicles against the optimal max-k intruder: Q1-Q3 forced at 0, t_BRD, 2 t_BRD (within one
     step), Q4 untouched; never more than k̄."""
-    from stp_env.baselines import optimal_max_k, worst
     from stp_env.evaluation.worst_case import FIG6_PAPER_TIMES, reproduce
+    from stp_env.policies import optimal_max_k, worst
 
     _, _, params = fig6_setup
     run = reproduce(params, worst, optimal_max_k, n_steps=160)

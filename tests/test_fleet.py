@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from stp_env import sim
-from stp_env.baselines.intruders import _simulated_rows
 from stp_env.evaluation import Configuration, build_params
 from stp_env.evaluation.replays import same_outcome
 from stp_env.evaluation.runner import host_state, run_batch, simulated_vehicles
+from stp_env.policies.intruders import _simulated_rows
 from stp_env.sim import fleet
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.types import VEHICLE_FIELDS, WAITING

@@ -13,8 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env import assembly, sim
-from stp_env.baselines import INTRUDERS, switching
 from stp_env.planning.stp import shipped_plan_for
+from stp_env.policies import INTRUDERS, switching
 from stp_env.sim import core, gates, status
 from stp_env.sim.physics import relative_state
 from stp_env.sim.rollout import episode_step

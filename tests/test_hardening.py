@@ -343,10 +343,10 @@ def test_replaying_an_event_never_imports_what_it_names(tmp_path, monkeypatch):
 
 def test_a_plugin_spec_typed_on_the_command_line_is_used(tmp_path, monkeypatch):
     """The user may replay such an event by typing the spec: then it is theirs, not the file's."""
-    from stp_env.baselines import hover
     from stp_env.evaluation import replays
+    from stp_env.policies import hover
 
-    spec = "stp_env.baselines.intruders:hover"
+    spec = "stp_env.policies.intruders:hover"
     events = tmp_path / "events.json"
     events.write_text(json.dumps([_event(spec)]))
     seen = {}
@@ -426,7 +426,7 @@ def _policy_arrays():
 
 # ---- case 4: NaN weights are rejected at load, naming the file
 def test_nan_weights_are_rejected_at_load_naming_the_file(tmp_path, no_work):
-    from stp_env.baselines.learned import load_intruder
+    from stp_env.policies.learned import load_intruder
 
     arrays = _policy_arrays()
     arrays["w1"][3, 4] = np.nan
@@ -460,7 +460,7 @@ def _write_policy(path, **changes):
     ({"w2": np.zeros((3, 64), np.float32), "b2": np.zeros(3, np.float32)}, "has 3 outputs"),
 ])
 def test_learned_policy_files_are_checked(tmp_path, changes, needle):
-    from stp_env.baselines.learned import load_mlp
+    from stp_env.policies.learned import load_mlp
 
     path = tmp_path / "policy.npz"
     _write_policy(path, **changes)

@@ -17,9 +17,9 @@ gymnax = pytest.importorskip("gymnax")
 from gymnax.wrappers.purerl import FlattenObservationWrapper, LogWrapper  # noqa: E402
 
 from stp_env import assembly, sim  # noqa: E402
-from stp_env.baselines import INTRUDERS  # noqa: E402
-from stp_env.baselines.learned import load_intruder, load_mlp  # noqa: E402
 from stp_env.evaluation.runner import episode_key, run_batch  # noqa: E402
+from stp_env.policies import INTRUDERS  # noqa: E402
+from stp_env.policies.learned import load_intruder, load_mlp  # noqa: E402
 from stp_env.rl import jax_ppo  # noqa: E402
 from stp_env.rl.gymnax_env import IntruderGymnaxEnv  # noqa: E402
 from stp_env.rl.jax_train import held_out_keys, load_runner, save_runner, train_jax  # noqa: E402

@@ -11,9 +11,9 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from stp_env.baselines import INTRUDERS
-from stp_env.baselines.intruders import HEADING_GAIN
-from stp_env.baselines.observations import CANDIDATE_FEATURES, N_CANDIDATES, observation_size
+from stp_env.policies import INTRUDERS
+from stp_env.policies.intruders import HEADING_GAIN
+from stp_env.policies.observations import CANDIDATE_FEATURES, N_CANDIDATES, observation_size
 from stp_env.rl.imitation import agreement, clone_intruder, intruder_demonstrations, teacher_actions
 from stp_env.rl.ppo import make_model
 from stp_env.rl.train import TrainConfig, build_params, evaluate_on_vec_env, summarize, train
@@ -83,7 +83,7 @@ def test_a_tiny_run_from_the_clone_beats_its_untrained_start(params, tmp_path):
     assert after["mean_n_forced"] > before["mean_n_forced"] + 0.2
     assert (tmp_path / "run" / "learning_curves.png").stat().st_size > 1000
     assert json.loads((tmp_path / "run" / "config.json").read_text())["devices"] == 1  # the tests' one device
-    from stp_env.baselines.learned import load_intruder
+    from stp_env.policies.learned import load_intruder
 
     record = load_intruder(str(tmp_path / "run"))
     assert record.needs_buffer and record.spawn == "boundary"
@@ -120,7 +120,7 @@ def test_shipped_learned_intruders_play_as_recorded():
     environment (compiled once)."""
     from importlib import resources
 
-    from stp_env.baselines.learned import load_mlp, shipped_intruders
+    from stp_env.policies.learned import load_mlp, shipped_intruders
 
     folder = resources.files("stp_env") / "data" / "intruders"
     checked, venvs = 0, {}

@@ -193,7 +193,7 @@ def _load(kind: str, path: Path):
 
         return load(path)
     if kind == "learned-policy":
-        from stp_env.baselines.learned import load_mlp
+        from stp_env.policies.learned import load_mlp
 
         return load_mlp(path)
     if kind == "plan-checkpoint":
@@ -539,9 +539,9 @@ def _reads(call: ast.Call) -> bool:
 def test_deep_nesting_in_every_json_loader_is_one_line(tmp_path):
     """``[`` x 100,000 was a ``RecursionError`` in the cache's metadata (every run), events files, counterexamples,
     learned-policy metadata and the survivability study's ``study.json``."""
-    from stp_env.baselines.learned import load_mlp
     from stp_env.evaluation.events import load_events
     from stp_env.falsify.counterexample import load
+    from stp_env.policies.learned import load_mlp
 
     store = ArtifactStore(tmp_path / "cache", shipped=None)
     store.save("thing", {"n": 1}, {"x": np.arange(3.0)})

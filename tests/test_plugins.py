@@ -105,7 +105,7 @@ def test_named_plugins_run(tmp_path):
         import json
         import numpy as np
         from stp_env import scenarios
-        from stp_env.baselines.intruders import resolve_intruder
+        from stp_env.policies.intruders import resolve_intruder
         from stp_env.env import parallel_env
         from stp_env.sim import winds
 

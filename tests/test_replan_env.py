@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from stp_env import assembly, sim
-from stp_env.baselines.intruders import intruder_policy
-from stp_env.baselines.vehicles import vehicle_policy
 from stp_env.env import parallel_env
+from stp_env.policies.intruders import intruder_policy
+from stp_env.policies.vehicles import vehicle_policy
 from stp_env.scenarios import make
 from stp_env.sim.stepping import TRACE_COUNTS
 

@@ -14,7 +14,7 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, VecCheckNan, VecMonitor
 
 from stp_env import assembly, sim
-from stp_env.baselines.learned import export_mlp, load_mlp, mlp_intruder
+from stp_env.policies.learned import export_mlp, load_mlp, mlp_intruder
 from stp_env.rl import IntruderEnv, IntruderVecEnv
 from stp_env.rl import functional as F
 from stp_env.rl.train import TrainConfig, evaluate_on_vec_env, make_model, summarize
@@ -178,7 +178,7 @@ def test_shipped_intruder_matches_its_sb3_model(params):
 
     from stable_baselines3 import PPO
 
-    from stp_env.baselines.learned import load_intruder, shipped_intruders
+    from stp_env.policies.learned import load_intruder, shipped_intruders
     from stp_env.rl import functional
 
     assert "town-kbar2" in shipped_intruders()

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from stp_env import assembly, sim
-from stp_env.baselines import INTRUDERS, mixture, mixture_index, nominal_tracking, switching
 from stp_env.planning.stp import shipped_plan_for
+from stp_env.policies import INTRUDERS, mixture, mixture_index, nominal_tracking, switching
 from stp_env.scenarios import make
 from stp_env.sim import fleet
 from stp_env.sim.jit import sim_jit

@@ -430,7 +430,7 @@ def test_exported_ppo_policy_matches_sb3(tmp_path):
     import torch
     from stable_baselines3 import PPO
 
-    from stp_env.baselines.learned import export_mlp
+    from stp_env.policies.learned import export_mlp
     from stp_env.survivability.gym_env import SurvivabilityEnv
     from stp_env.survivability.learned import load_policy
 
@@ -455,7 +455,7 @@ def test_exported_maskable_ppo_policy_matches_sb3_contrib_with_masks(tmp_path):
     import torch
     from sb3_contrib import MaskablePPO
 
-    from stp_env.baselines.learned import export_mlp
+    from stp_env.policies.learned import export_mlp
     from stp_env.survivability.gym_env import N_ACTION_FEATURES, N_STATE_FEATURES, SurvivabilityEnv
     from stp_env.survivability.learned import load_policy
 

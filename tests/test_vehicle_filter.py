@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from stp_env import assembly, sim
-from stp_env.baselines import tube_keeping
-from stp_env.baselines.learned import load_intruder
-from stp_env.baselines.learned_vehicles import load_vehicle_mlp
+from stp_env.policies import tube_keeping
+from stp_env.policies.learned import load_intruder
+from stp_env.policies.learned_vehicles import load_vehicle_mlp
 from stp_env.sim import core, observations
 from stp_env.sim.margins import tube_free_level
 
@@ -118,7 +118,7 @@ def test_loaders_refuse_the_other_role(tmp_path):
         load_vehicle_mlp(intruder)
     with pytest.raises(ValueError, match="unknown learned vehicle policy"):
         load_vehicle_mlp("no-such-policy")
-    from stp_env.baselines import vehicle_policy
+    from stp_env.policies import vehicle_policy
 
     with pytest.raises(ValueError, match="not a vehicle policy"):
         vehicle_policy("learned:" + intruder)
@@ -180,7 +180,7 @@ def test_flying_faster_after_the_avoidance_arrives_earlier_on_the_same_episodes(
 def test_shipped_vehicle_policies_fly_as_recorded():
     """Every shipped learned vehicle policy replays the small batch its file records (the ego's on-time arrivals
     and delays against ``max-k`` on the crossing): the same outcomes today."""
-    from stp_env.baselines.learned_vehicles import shipped_vehicle_policies
+    from stp_env.policies.learned_vehicles import shipped_vehicle_policies
     from stp_env.rl.ego import replay_check
 
     names = shipped_vehicle_policies()

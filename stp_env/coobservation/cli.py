@@ -62,7 +62,7 @@ def resolve_attackers(names):
         if name == SEARCHED:
             continue  # not a policy: the search runs per schedule (evaluation.run_searched)
         if name.startswith("learned:"):
-            path = Path(name.split(":", 1)[1])  # read under the loader contract (stp_env.baselines.learned.load_mlp)
+            path = Path(name.split(":", 1)[1])  # read under the loader contract (stp_env.policies.learned.load_mlp)
             from stp_env.coobservation.learned import mlp_attacker
 
             out[name] = mlp_attacker(path, name="learned")

@@ -80,9 +80,9 @@ import numpy as np
 from pettingzoo import ParallelEnv
 
 from stp_env.arguments import check_int, check_real, contains_bool
-from stp_env.baselines import nominal_tracking
 from stp_env.coobservation import attackers, threat
 from stp_env.coobservation.uav import FormationScenario
+from stp_env.policies import nominal_tracking
 from stp_env.seeds import prng_key
 from stp_env.sim.observations import observe, vehicle_observation_size
 from stp_env.sim.packing import DeviceCarry, Layout, pack

@@ -23,7 +23,7 @@ observation, trained on the batched JAX wrapper, and exported to a small ``.npz`
 * :func:`train` (PPO, modest budgets; optionally started from a scripted ``teacher`` by behaviour cloning,
   :func:`demonstrations` and :func:`stp_env.rl.imitation.imitate`, since the reward of an entry is rare under
   random exploration)
-  writes ``attacker.npz`` with :func:`stp_env.baselines.learned.export_mlp`;
+  writes ``attacker.npz`` with :func:`stp_env.policies.learned.export_mlp`;
   :func:`mlp_attacker` turns it into a jittable attacker for :func:`stp_env.coobservation.threat.rollout`.
 """
 
@@ -38,9 +38,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env.baselines import nominal_tracking
 from stp_env.coobservation import attackers, threat
 from stp_env.files import write_text
+from stp_env.policies import nominal_tracking
 from stp_env.rl.imitation import imitate
 from stp_env.rl.ppo import PPOConfig, make_model
 from stp_env.sim import engine
@@ -252,7 +252,7 @@ def train(params, tp, t_window, config: AttackerTrainConfig, out_dir, progress: 
     import torch
     from stable_baselines3.common.logger import configure
 
-    from stp_env.baselines.learned import export_mlp
+    from stp_env.policies.learned import export_mlp
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -286,7 +286,7 @@ def mlp_attacker(path, name: str = "learned"):
     """The exported MLP as a jittable attacker ``(key, state, params, threat, planned) -> (2,)`` (the deterministic
     action, through :func:`command`: a residual policy corrects ``planned``, the tracker's action; files without
     the ``residual`` entry are direct policies)."""
-    from stp_env.baselines.learned import load_mlp
+    from stp_env.policies.learned import load_mlp
 
     mlp = load_mlp(path)
     if mlp.obs_size != attackers.OBS_SIZE:

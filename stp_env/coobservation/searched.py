@@ -40,10 +40,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env.baselines import nominal_tracking
 from stp_env.coobservation import threat as threat_lib
 from stp_env.coobservation.attackers import after_entry, next_observation, observer_disks, steer
 from stp_env.falsify import search as search_lib
+from stp_env.policies import nominal_tracking
 from stp_env.sim import engine
 from stp_env.sim.bounds import V_MAX, WIND
 from stp_env.sim.types import EnvParams

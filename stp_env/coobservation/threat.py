@@ -32,9 +32,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env.baselines import nominal_tracking
 from stp_env.coobservation.admm import polygon_halfplanes
 from stp_env.coobservation.schedule import Observation
+from stp_env.policies import nominal_tracking
 from stp_env.sim import core, engine
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.types import COLLIDED, FLYING, OUT_OF_BOUNDS, EnvParams, EnvState, replace

@@ -2,7 +2,7 @@
 
 A :class:`Configuration` fixes everything that shapes an episode distribution: the scenario and its k̄, the wind
 bound and wind model, where the intruder spawns, the intruder and the vehicles' policy. Policies are jittable
-functions ``(key, state, params) -> actions`` (:mod:`stp_env.baselines`); a learned intruder enters the same way
+functions ``(key, state, params) -> actions`` (:mod:`stp_env.policies`); a learned intruder enters the same way
 (see :func:`resolve_intruder`).
 """
 
@@ -14,8 +14,8 @@ from collections.abc import Callable
 
 from stp_env import catalog
 from stp_env.arguments import check_kbar
-from stp_env.baselines import INTRUDERS, vehicle_policy
-from stp_env.baselines.intruders import (  # noqa: F401  (LEARNED_PREFIX: re-exported)
+from stp_env.policies import INTRUDERS, vehicle_policy
+from stp_env.policies.intruders import (  # noqa: F401  (LEARNED_PREFIX: re-exported)
     LEARNED_PREFIX,
     capabilities,
     resolve_intruder,
@@ -25,17 +25,17 @@ from stp_env.sim.backends import vehicle_model as backend_model
 from stp_env.sim.types import SPAWN_MODES
 
 SPAWN_CHOICES = ("auto", *SPAWN_MODES)
-"""``auto``: the intruder's own default (its :class:`~stp_env.baselines.intruders.Intruder` record's ``spawn``):
+"""``auto``: the intruder's own default (its :class:`~stp_env.policies.intruders.Intruder` record's ``spawn``):
 ``boundary`` for ``max-k`` and ``optimal-max-k`` (the strategy of the intruder paper's Figs. 6-7 starts on a
 vehicle's avoid boundary), ``outside`` for every other registered intruder and for a bare policy."""
 BOUNDARY_INTRUDERS = tuple(name for name, entry in INTRUDERS.items() if entry.spawn == "boundary")
 """The registered intruders that spawn on an avoid boundary by default, as names (a view of :data:`INTRUDERS`'
-``spawn``; :func:`stp_env.baselines.intruders.capabilities` answers for any intruder, plug-ins included)."""
+``spawn``; :func:`stp_env.policies.intruders.capabilities` answers for any intruder, plug-ins included)."""
 
 EPISODE_CHOICES = catalog.EPISODE_CHOICES
 
 
-resolve_vehicle_policy = vehicle_policy  # the one lookup by name (stp_env.baselines.vehicles)
+resolve_vehicle_policy = vehicle_policy  # the one lookup by name (stp_env.policies.vehicles)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

@@ -2,8 +2,8 @@
 :func:`stp_env.evaluation.report.write_events`), as untrusted data.
 
 An events file is meant to be shared, so it is data and never a way to run code: a record's intruder must be a
-registered scripted intruder (:data:`stp_env.baselines.INTRUDERS`) or a learned one (``learned:NAME_OR_PATH``, a
-shipped intruder or an ``.npz`` exported by :func:`stp_env.baselines.learned.export_mlp`, read with
+registered scripted intruder (:data:`stp_env.policies.INTRUDERS`) or a learned one (``learned:NAME_OR_PATH``, a
+shipped intruder or an ``.npz`` exported by :func:`stp_env.policies.learned.export_mlp`, read with
 ``allow_pickle=False``). A plug-in spec ``package.module:attribute`` is code: it is never imported because a file
 names it. Replaying such a record needs the policy from the caller (``replay_event(..., intruder_policy=...)``, or
 ``stp-env render --events FILE --intruder SPEC`` with the same spec typed on the command line); otherwise it is
@@ -19,10 +19,10 @@ import dataclasses
 from pathlib import Path
 
 from stp_env.arguments import INT32_MAX, MAX_SPEED, check_int, check_real
-from stp_env.baselines import INTRUDERS
-from stp_env.baselines.intruders import is_plugin
 from stp_env.evaluation.config import LEARNED_PREFIX, Configuration
 from stp_env.loaders import read_json, read_npz
+from stp_env.policies import INTRUDERS
+from stp_env.policies.intruders import is_plugin
 from stp_env.resources import check_count, cpu_limit_reason, max_cpu_devices
 from stp_env.seeds import check_seed
 

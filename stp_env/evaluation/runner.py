@@ -279,7 +279,7 @@ def avoid_start_order_stats(ep: dict, n: int) -> tuple[list, list]:
 
 def needs_buffer(config: Configuration) -> bool:
     """Whether a policy of ``config`` plays the buffer game (reads ``V^B``): the vehicles', or the intruder's by
-    its record (:func:`stp_env.baselines.intruders.capabilities`, plug-ins included)."""
+    its record (:func:`stp_env.policies.intruders.capabilities`, plug-ins included)."""
     return requirements.needs_buffer(config.vehicle_policy, config.intruder)
 
 

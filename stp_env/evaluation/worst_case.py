@@ -175,7 +175,7 @@ def pinwheel_run(kbar: int = 3, bearing: float = PINWHEEL_SPAWN[0], heading_offs
     avoid boundary (:func:`boundary_spawn`) and by default the ``worst`` vehicles play against ``optimal-max-k``;
     returns :func:`reproduce`'s summary. ``setup`` reuses a :func:`pinwheel_params` result, which must have been made
 with the same ``kbar``, ``wind_model`` and ``appear`` (they are not read again)."""
-    from stp_env.baselines import optimal_max_k, worst
+    from stp_env.policies import optimal_max_k, worst
 
     params, avoid, plan = pinwheel_params(kbar, wind_model=wind_model, appear=appear, store=store) \
         if setup is None else setup

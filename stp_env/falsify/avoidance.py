@@ -34,10 +34,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env.baselines.intruders import hj_pursuit
-from stp_env.baselines.vehicles import VEHICLE_POLICIES
 from stp_env.falsify import harness
 from stp_env.falsify.targets import register
+from stp_env.policies.intruders import hj_pursuit
+from stp_env.policies.vehicles import VEHICLE_POLICIES
 from stp_env.sim import core
 from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN, WIND
 from stp_env.sim.physics import control_to_action

@@ -18,11 +18,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env.arguments import INT32_MAX, check_int, check_kbar, check_real, show
-from stp_env.baselines.intruders import is_plugin
 from stp_env.falsify import targets
 from stp_env.falsify.search import SearchConfig, search
 from stp_env.files import atomic_open
 from stp_env.loaders import read_json
+from stp_env.policies.intruders import is_plugin
 from stp_env.seeds import prng_key
 
 TARGETS = tuple(targets.BUILT_IN)

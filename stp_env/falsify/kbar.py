@@ -35,10 +35,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env import requirements
-from stp_env.baselines.intruders import resolve_intruder
-from stp_env.baselines.vehicles import VEHICLE_POLICIES
 from stp_env.falsify import harness
 from stp_env.falsify.targets import register
+from stp_env.policies.intruders import resolve_intruder
+from stp_env.policies.vehicles import VEHICLE_POLICIES
 from stp_env.sim import core, engine, fleet
 from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN
 from stp_env.sim.physics import control_to_action, rotate, wrap_angle
@@ -47,7 +47,7 @@ from stp_env.sim.spawn import radius_on_level
 from stp_env.sim.types import FLYING, EnvParams, replace
 
 SCRIPTED = ("max-k", "hj", "optimal-max-k")
-"""The scripted intruders of the papers' pursuit; any intruder :func:`stp_env.baselines.intruders.resolve_intruder`
+"""The scripted intruders of the papers' pursuit; any intruder :func:`stp_env.policies.intruders.resolve_intruder`
 takes flies here too (a registered name, ``learned:NAME_OR_PATH`` or a plug-in ``package.module:attribute``)."""
 FLEETS = ("airborne", "whole")
 
@@ -63,7 +63,7 @@ VEHICLES = ("switching", "worst")
 
 def plays_buffer_game(vehicles: str = "switching", intruder: str = "search") -> bool:
     """Whether the attack's vehicles or intruder read ``V^B`` (the buffer-game vehicle policies of
-    :mod:`stp_env.baselines`; the intruder by its record, :func:`stp_env.baselines.intruders.capabilities`)."""
+    :mod:`stp_env.policies`; the intruder by its record, :func:`stp_env.policies.intruders.capabilities`)."""
     return requirements.needs_buffer(vehicles, None if intruder == "search" else intruder)
 
 

@@ -22,10 +22,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env.baselines.vehicles import nominal_tracking
 from stp_env.falsify import harness
 from stp_env.falsify.targets import register
 from stp_env.kinematics import dubins_step, relative_state, rotate
+from stp_env.policies.vehicles import nominal_tracking
 from stp_env.sim import core, engine, tables
 from stp_env.sim.bounds import WIND
 from stp_env.sim.types import EnvParams, replace

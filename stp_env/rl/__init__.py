@@ -7,7 +7,7 @@
 * :mod:`stp_env.rl.train`: ``TrainConfig`` and ``train`` (PPO by default), the evaluation callback;
   :mod:`stp_env.rl.ppo`: the PPO settings every training configuration shares, and the model they make;
   :mod:`stp_env.rl.jax_vec_env`: the base of the batched JAX ``VecEnv``s.
-* :mod:`stp_env.baselines.learned`: a trained MLP as a jittable intruder policy
+* :mod:`stp_env.policies.learned`: a trained MLP as a jittable intruder policy
   ``(key, state, params) -> (2,)`` (``load_intruder("town-kbar2")`` for the shipped one).
 
 The functional layer (:mod:`stp_env.rl.functional`) needs only JAX; the env classes need ``gymnasium`` and

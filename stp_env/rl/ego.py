@@ -2,17 +2,17 @@
 :mod:`stp_env.rl.vehicle_env` and the gymnax view (:class:`stp_env.rl.gymnax_env.VehicleGymnaxEnv`) both step.
 
 Where a vehicle policy may differ from ``u*`` (eq. 38) without breaking a guarantee: on its plan only inside the
-tracking tube's free set (:func:`stp_env.baselines.tube_keeping`; on the crossing at 6 m/s wind it is empty: the
+tracking tube's free set (:func:`stp_env.policies.tube_keeping`; on the crossing at 6 m/s wind it is empty: the
 tracking value is flat below ``V(0)``, so the tube leaves no room and the filter is ``kappa``), never while forced
 (``u^A``), and after the intruder has left, where the paper replans the forced vehicles (Algorithm 4) and ``u*``'s
-stand-in flies to the target at the planning speed (:func:`stp_env.baselines.fallback_control`). So an episode of
+stand-in flies to the target at the planning speed (:func:`stp_env.policies.fallback_control`). So an episode of
 this env is one forced vehicle's flight from the intruder's departure to its target:
 
 * **Reset**: an intruder episode is drawn as :func:`stp_env.rl.functional.reset_one` draws one (reset at the
   intruder's appearance), every vehicle flies ``u*`` and the intruder its policy until the intruder leaves; the
   *ego* is the vehicle forced first. A draw that forced no vehicle is redrawn (up to :data:`MAX_DRAWS` times; then
   the episode is *empty*: it ends at its first step with reward 0 and ``info["empty"]``).
-* **Step**: the ego flies the agent's action, held over the step, through :func:`stp_env.baselines.hj_filter`
+* **Step**: the ego flies the agent's action, held over the step, through :func:`stp_env.policies.hj_filter`
   (after the avoidance that is the action itself); the other vehicles fly ``u*``. The episode ends when the ego is
   done (arrived, collided, out of the domain: terminated), or at ``STA + late_limit`` or the episode's end
   (truncated).
@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env.baselines.vehicles import fallback_control, hj_filter, switching
+from stp_env.policies.vehicles import fallback_control, hj_filter, switching
 from stp_env.rl import functional as F
 from stp_env.sim import core, engine, observations
 from stp_env.sim.bounds import V_MAX
@@ -124,7 +124,7 @@ def held(action, n):
 
 
 def fallback_vmax(key, state, params):
-    """The fallback of :func:`stp_env.baselines.fallback_control` at ``U``'s top speed (not the planning speed)."""
+    """The fallback of :func:`stp_env.policies.fallback_control` at ``U``'s top speed (not the planning speed)."""
     del key
     return fallback_control(state, params, speed=params.vehicles.bounds[V_MAX])
 
@@ -182,7 +182,7 @@ def ego_params(scenario: str = "crossing", kbar: int = 2, intruder: str = "learn
     vehicle's avoid boundary, the episode to the vehicles' targets (``EnvConfig(episode="full")``), ``V^B`` loaded
     when the intruder reads it."""
     from stp_env import assembly, requirements, sim
-    from stp_env.baselines.intruders import resolve_intruder
+    from stp_env.policies.intruders import resolve_intruder
     from stp_env.scenarios import make
 
     spec = make(scenario, kbar=kbar)
@@ -240,7 +240,7 @@ def evaluate_ego(params: EnvParams, intruder, kind: str = "u*", *, mlp=None, epi
     """The ego's outcomes over ``episodes`` held-out episodes (keys ``seed, seed + 1, ...``, the same for every
     ``kind``): a dict of arrays (``STAT_NAMES`` and ``energy``: the integral of ``(v / v_max)^2`` over the ego's
     flight [s], its speed from its motion). ``kind``: one of :data:`EGO_POLICIES`; ``mlp``: the learned policy's
-    :class:`stp_env.baselines.learned.MLPIntruder` for ``"learned"`` (tanh layers)."""
+    :class:`stp_env.policies.learned.MLPIntruder` for ``"learned"`` (tanh layers)."""
     if kind not in EGO_POLICIES:
         raise ValueError(f"kind {kind!r} is not known; allowed: {', '.join(EGO_POLICIES)}.")
     check_params(params)

@@ -1,6 +1,6 @@
 """The intruder's single-agent view of the simulation core, as pure JAX functions (one env and a batch).
 
-The vehicles are driven by a baseline policy (:data:`stp_env.baselines.VEHICLE_POLICIES`, ``switching`` =
+The vehicles are driven by a baseline policy (:data:`stp_env.policies.VEHICLE_POLICIES`, ``switching`` =
 ``u*`` of eq. 38 by default) inside the step; the only action from outside is the intruder's ``(2,)``.
 
 Horizons (what one intruder episode is):
@@ -28,8 +28,8 @@ import jax
 import jax.numpy as jnp
 
 from stp_env import sim
-from stp_env.baselines import vehicle_policy
-from stp_env.baselines.observations import intruder_observation
+from stp_env.policies import vehicle_policy
+from stp_env.policies.observations import intruder_observation
 from stp_env.seeds import check_seed
 from stp_env.sim import core, engine
 from stp_env.sim.jit import sim_jit
@@ -53,7 +53,7 @@ def check_horizon(horizon: str) -> str:
     return horizon
 
 
-check_vehicle_policy = vehicle_policy  # the one lookup by name (stp_env.baselines.vehicles)
+check_vehicle_policy = vehicle_policy  # the one lookup by name (stp_env.policies.vehicles)
 
 
 def reset_one(key, params: EnvParams, horizon: str) -> EnvState:
@@ -101,7 +101,7 @@ def episode_stats(state: EnvState):
 
 
 def intruder_obs(state: EnvState, params: EnvParams, observation: str = "core"):
-    """The intruder's observation of set ``observation`` (:mod:`stp_env.baselines.observations`)."""
+    """The intruder's observation of set ``observation`` (:mod:`stp_env.policies.observations`)."""
     return intruder_observation(state, params, observation)
 
 

@@ -5,7 +5,7 @@ observation       ``Box(-2, 2, (8 + 7K,), float32)``: :func:`stp_env.sim.observe
                   position, heading, ``tau / t_IAT``, time to appear, ``|N^RP| / N``, then the ``K`` nearest
                   flying vehicles in its body frame with their avoid values ``V^A`` and forced flags);
                   ``observation="game"`` appends the buffer game's features (31 more,
-                  :mod:`stp_env.baselines.observations`)
+                  :mod:`stp_env.policies.observations`)
 action            ``Box(-1, 1, (2,), float32)``: speed in ``[v_min, v_max]`` and turn rate in
                   ``[-omega_max, omega_max]`` of the intruder (clipped; NaN or a wrong shape is a ``ValueError``)
 reward            the core's intruder reward (:class:`stp_env.sim.RewardConfig`: ``forced`` per vehicle newly
@@ -31,7 +31,7 @@ import jax
 import numpy as np
 
 from stp_env import assembly, sim
-from stp_env.baselines.observations import check_observation, observation_size
+from stp_env.policies.observations import check_observation, observation_size
 from stp_env.rl import functional as F
 from stp_env.sim.jit import sim_jit
 from stp_env.sim.packing import DeviceCarry, Layout, pack
@@ -73,9 +73,9 @@ class IntruderEnv(gym.Env):
         scenario: registry name or :class:`stp_env.scenarios.Scenario` (default ``"town"``).
         config: :class:`stp_env.sim.EnvConfig` (rewards, wind, spawn, safety filter).
         horizon: ``"intruder"`` or ``"episode"``.
-        vehicle_policy: a name in :data:`stp_env.baselines.VEHICLE_POLICIES` (``"switching"``: ``u*``, eq. 38).
+        vehicle_policy: a name in :data:`stp_env.policies.VEHICLE_POLICIES` (``"switching"``: ``u*``, eq. 38).
         params: prebuilt :class:`stp_env.sim.EnvParams` (instead of scenario and config).
-        observation: the intruder's observation set (:mod:`stp_env.baselines.observations`: ``"core"``, or
+        observation: the intruder's observation set (:mod:`stp_env.policies.observations`: ``"core"``, or
             ``"game"`` with the buffer game's features, which needs ``V^B`` in the params).
     """
 

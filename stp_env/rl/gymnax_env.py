@@ -40,13 +40,13 @@ import jax
 import jax.numpy as jnp
 from gymnax.environments import environment, spaces
 
-from stp_env.baselines.observations import check_observation, observation_size
+from stp_env.policies.observations import check_observation, observation_size
 from stp_env.rl import functional as F
 from stp_env.sim import engine, observations
 from stp_env.sim.types import EnvParams, EnvState
 
 OBS_BOUND = 2.0
-"""Every entry of an intruder observation is in ``[-2, 2]`` (:mod:`stp_env.baselines.observations`)."""
+"""Every entry of an intruder observation is in ``[-2, 2]`` (:mod:`stp_env.policies.observations`)."""
 
 
 RESET_SHARE = 8
@@ -124,7 +124,7 @@ class IntruderGymnaxEnv(GameGymnaxEnv):
             :func:`stp_env.assembly.params_for`); ``default_params``.
         horizon: ``"intruder"`` (the episode runs from the intruder's appearance to its departure) or
             ``"episode"`` (the core's whole episode).
-        vehicle_policy: a name of :data:`stp_env.baselines.VEHICLE_POLICIES` (``"switching"``: ``u*`` with the HJ
+        vehicle_policy: a name of :data:`stp_env.policies.VEHICLE_POLICIES` (``"switching"``: ``u*`` with the HJ
             filter; ``"worst"``: the buffer game's worst vehicles, which read ``V^B``).
         observation: the intruder's observation set (``"core"`` or ``"game"``, which reads ``V^B``).
     """
@@ -184,7 +184,7 @@ class VehicleGymnaxEnv(GameGymnaxEnv):
         params: the core's parameters with the episode to the vehicles' targets
             (:func:`stp_env.rl.ego.ego_params`).
         intruder: a jittable intruder policy ``(key, state, params) -> (2,)`` (a learned one:
-            :func:`stp_env.baselines.learned.mlp_intruder`).
+            :func:`stp_env.policies.learned.mlp_intruder`).
         energy: weight of the energy term per second at full speed; late_limit: seconds after the ego's STA at
             which its episode is truncated.
     """

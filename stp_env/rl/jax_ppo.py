@@ -17,8 +17,8 @@ algorithm and can be compared step for step:
   ``ent_coef``, global gradient norm clipped at 0.5, Adam (``eps = 1e-5``) at ``learning_rate``.
 
 The actor's layers are stored as the exported files store them (``W`` is ``(out, in)``,
-:mod:`stp_env.baselines.learned`), and :func:`actor_mean` is the same arithmetic as
-:func:`stp_env.baselines.learned.mlp_intruder`: the deterministic policy the trainer evaluates is the one
+:mod:`stp_env.policies.learned`), and :func:`actor_mean` is the same arithmetic as
+:func:`stp_env.policies.learned.mlp_intruder`: the deterministic policy the trainer evaluates is the one
 ``learned:`` flies.
 
 The environment: ``env.batch_step(keys, states, actions, params)`` when it has one
@@ -60,7 +60,7 @@ def init_mlp(key, sizes, gains) -> list:
 
 def mlp(layers, x):
     """The MLP on one input ``x`` ``(in,)``: tanh hidden layers, a linear last layer (``W @ h + b``, as
-    :func:`stp_env.baselines.learned.mlp_intruder` evaluates it)."""
+    :func:`stp_env.policies.learned.mlp_intruder` evaluates it)."""
     h = x
     for w, b in layers[:-1]:
         h = jnp.tanh(w @ h + b)

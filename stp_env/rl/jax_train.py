@@ -17,7 +17,7 @@ is one compiled call, and the host only reports between them. It writes to ``out
   started again with ``resume=True`` (``--resume``) continues from the checkpoint if it was written by the same
   configuration (its fingerprint; ``total_timesteps`` and the reporting settings may differ) and its content is
   intact (a digest of its arrays), else it starts afresh and says why;
-* ``intruder.npz`` (the deterministic actor, :func:`stp_env.baselines.learned.write_mlp`: ``learned:OUT`` flies it
+* ``intruder.npz`` (the deterministic actor, :func:`stp_env.policies.learned.write_mlp`: ``learned:OUT`` flies it
   in ``stp-env evaluate``, ``render``, ``falsify`` and the PettingZoo env) and ``learning_curves.png``.
 
 Same configuration, same machine and device count: the same run.
@@ -191,7 +191,7 @@ def policy_layers(policy) -> list:
 
 
 def export_policy(policy, path, config: TrainConfig, kbar: int, extra: dict) -> Path:
-    from stp_env.baselines.learned import write_mlp
+    from stp_env.policies.learned import write_mlp
 
     return write_mlp(policy_layers(policy), path, "tanh", {
         "scenario": config.scenario, "kbar": kbar, "horizon": config.horizon, "seed": config.seed,

@@ -4,7 +4,7 @@ Round ``r`` (``1 .. rounds``) of :func:`self_play`:
 
 1. **Intruder**: :func:`stp_env.rl.jax_train.train_jax` against the vehicles of round ``r - 1`` (round 1: ``u*``,
    the papers' ``switching`` controller), every vehicle flying that policy inside both HJ filters (eq. 38 while
-   forced, the tube-keeping filter on its plan; :func:`stp_env.baselines.hj_filter`), the intruder appearing on a
+   forced, the tube-keeping filter on its plan; :func:`stp_env.policies.hj_filter`), the intruder appearing on a
    vehicle's avoid boundary and seeing the game observation; it starts from round ``r - 1``'s intruder (round 1:
    a fresh network, or ``intruder_start``'s actor).
 2. **Vehicles**: PPO on the ego vehicle's gymnax view (:class:`stp_env.rl.gymnax_env.VehicleGymnaxEnv`: the
@@ -122,7 +122,7 @@ def train_vehicles(config: SelfPlayConfig, round_: int, intruder_path: Path, *, 
                    show: bool = False):
     """Round ``round_``'s vehicle training against the intruder in ``intruder_path``: ``(policy, history)``, and
     ``round-R/vehicle/vehicle.npz``."""
-    from stp_env.baselines.learned import write_mlp
+    from stp_env.policies.learned import write_mlp
     from stp_env.rl.ego import ego_params
     from stp_env.rl.gymnax_env import VehicleGymnaxEnv
 
@@ -205,7 +205,7 @@ vehicle runs' own (their keys come from ``jax.random.PRNGKey(seed + 1000 + round
 def evaluate_forced(config: SelfPlayConfig, intruder_path: Path, vehicle_path: str, *, show: bool = False) -> dict:
     """The vehicle forced first, after its avoidance (:func:`stp_env.rl.ego.evaluate_ego`), on the same
     :data:`FORCED_EPISODES` episodes against the round's intruder: flying the learned policy and flying ``u*``."""
-    from stp_env.baselines.learned_vehicles import load_vehicle_mlp
+    from stp_env.policies.learned_vehicles import load_vehicle_mlp
     from stp_env.progress import phase
     from stp_env.rl.ego import ego_params, evaluate_ego
 
@@ -228,7 +228,7 @@ def _intruder_start_policy(config: SelfPlayConfig, params):
     """Round 1's intruder: ``intruder_start``'s actor with a fresh critic, or ``None`` (a fresh network)."""
     if config.intruder_start is None:
         return None
-    from stp_env.baselines.learned import load_mlp
+    from stp_env.policies.learned import load_mlp
     from stp_env.rl.jax_train import make_env
 
     mlp = load_mlp(config.intruder_start)

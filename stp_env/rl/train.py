@@ -8,7 +8,7 @@
 ``checkpoint_every`` steps, ``evaluations.csv`` (one row per evaluation,
 :func:`summarize`: mean, 95 % interval and max of ``|N^RP|``, collisions, guarantee violations, episodes above k̄,
 with Clopper-Pearson bounds), ``best_model.zip`` (best mean ``|N^RP|``), ``model.zip`` and ``intruder.npz`` (the
-deterministic actor for :func:`stp_env.baselines.learned.load_intruder`). Same config, same seed, same machine: same run
+deterministic actor for :func:`stp_env.policies.learned.load_intruder`). Same config, same seed, same machine: same run
 (torch uses ``torch_threads`` CPU threads; JAX keys come from :func:`stp_env.rl.key_for_seed`).
 
 SuperSuit
@@ -67,10 +67,10 @@ class TrainConfig(PPOConfig):
             the potential jumped by up to ``d_sense`` when a vehicle was forced, and with ``forced_reward = 1`` the
             intruder learned to approach and not force); kbar_reward: once when ``|N^RP|`` reaches k̄ (the k̄-th
             forced vehicle, on top of its ``forced_reward``).
-        observation: the intruder's observation set (:mod:`stp_env.baselines.observations`): ``"core"`` (the
+        observation: the intruder's observation set (:mod:`stp_env.policies.observations`): ``"core"`` (the
             nearest vehicles' relative states, ``V^A`` and forced flags) or ``"game"`` (and the buffer game's
             features: the unforced vehicles ranked by ``V^B``, the hop heading toward each; loads ``V^B``).
-        clone: ``None`` or a scripted intruder (:data:`stp_env.baselines.INTRUDERS`) to start from: its actions
+        clone: ``None`` or a scripted intruder (:data:`stp_env.policies.INTRUDERS`) to start from: its actions
             are cloned on ``clone_steps`` steps of every training env, then ``clone_rounds`` DAgger rounds, and the
             critic is fitted to its returns, before PPO (:mod:`stp_env.rl.imitation`); clone_epochs: passes over
             the data per fit.
@@ -136,8 +136,8 @@ class TrainConfig(PPOConfig):
             raise ValueError(f"unknown log formats {unknown}; allowed: {', '.join(LOG_FORMATS)}.")
         for name in ("forced_reward", "collision_reward", "shaping_reward", "kbar_reward"):
             check_real(getattr(self, name), name)
-        from stp_env.baselines import INTRUDERS
-        from stp_env.baselines.observations import check_observation
+        from stp_env.policies import INTRUDERS
+        from stp_env.policies.observations import check_observation
 
         check_observation(self.observation)
         from stp_env.sim import winds
@@ -333,7 +333,7 @@ def train(config: TrainConfig, *, params: sim.EnvParams | None = None):
     from stable_baselines3.common.logger import configure
     from stable_baselines3.common.vec_env import VecMonitor
 
-    from stp_env.baselines.learned import export_mlp
+    from stp_env.policies.learned import export_mlp
     from stp_env.rl.vec_env import IntruderVecEnv
 
     torch.set_num_threads(config.torch_threads)
@@ -358,7 +358,7 @@ def train(config: TrainConfig, *, params: sim.EnvParams | None = None):
     callbacks = _callbacks(config, eval_env, out, kbar)
     clone = None
     if config.clone is not None:
-        from stp_env.baselines import INTRUDERS
+        from stp_env.policies import INTRUDERS
         from stp_env.rl.imitation import clone_intruder
 
         clone = clone_intruder(model, IntruderVecEnv(config.n_envs, **env_kwargs), INTRUDERS[config.clone],

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env import sim
-from stp_env.baselines.observations import check_observation, observation_size
+from stp_env.policies.observations import check_observation, observation_size
 from stp_env.rl import functional as F
 from stp_env.rl.gym_env import build_params
 from stp_env.rl.jax_vec_env import JaxVecEnv

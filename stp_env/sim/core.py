@@ -29,7 +29,7 @@ One step of length ``dt`` (intruder paper Sections II and IV):
    (Algorithm 4), which is what the paper's guarantee after the intruder leaves rests on, and carries no guarantee
    of its own. Such collisions still count as collisions. A vehicle that applied ``kappa`` at every inner step of
    its nominal flight (except where its tracking value ``V(e)`` was at most ``tables.tracking_free_level``, the set
-   in which a tube-keeping filter lets another control through: :func:`stp_env.baselines.tube_keeping`) and still
+   in which a tube-keeping filter lets another control through: :func:`stp_env.policies.tube_keeping`) and still
    got farther than ``r_e`` from its nominal position breaks the robust-tracking guarantee (SPP eqs. 24-26): that
    is a guarantee violation too (``tracking_violation``), whatever the intruder does. A vehicle outside what the
    proofs certify (``EnvParams.vehicles.certified`` false: a plan that is not a flight of ``U^p``, or an

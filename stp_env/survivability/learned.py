@@ -1,5 +1,5 @@
 """A learned planning policy for the mission environment (:mod:`stp_env.survivability.gym_env`): an SB3 PPO
-actor exported to numpy weights (:func:`stp_env.baselines.learned.export_mlp`, an ``.npz`` read with
+actor exported to numpy weights (:func:`stp_env.policies.learned.export_mlp`, an ``.npz`` read with
 ``allow_pickle=False``), evaluated with numpy only: the action is the argmax of the actor's logits.
 
 The shipped policy (``stp_env/data/survivability/ppo.npz``) is trained and compared with ``pi_S`` and ``pi_Nf`` by
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stp_env.baselines.learned import MLPIntruder, load_mlp
+from stp_env.policies.learned import MLPIntruder, load_mlp
 
 SHIPPED = "ppo"
 

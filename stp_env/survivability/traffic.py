@@ -2,7 +2,7 @@
 
 Each intruder flies a Bezier curve of degree ``k``: its first control point (where it enters) is uniform in the
 operating area and the other ``k`` are uniform in the disk of radius ``reach_km`` around it (the convention of this
-project's random-Bezier intruder, :func:`stp_env.baselines.intruders.bezier_intruder`). Its time is linear in the
+project's random-Bezier intruder, :func:`stp_env.policies.intruders.bezier_intruder`). Its time is linear in the
 curve parameter (the control points' times are equally spaced), so it flies the
 curve in ``D = L / v`` minutes, ``L`` the curve's length and ``v`` a mean speed uniform in ``speed_range``. Its
 entry time is uniform in ``[-D, T]`` (``T`` = the endurance), so that the traffic is stationary over the mission:

@@ -1,12 +1,12 @@
 """A trained vehicle policy as a jittable vehicle policy ``(key, state, params) -> (N, 2)``, inside the HJ filters.
 
-The file format is the learned intruders' (:func:`stp_env.baselines.learned.export_mlp`: numpy weights, nothing
+The file format is the learned intruders' (:func:`stp_env.policies.learned.export_mlp`: numpy weights, nothing
 unpickled) with ``metadata["role"] == "vehicle"``: one MLP shared by every vehicle (parameter sharing), applied to
 each vehicle's row of :func:`stp_env.sim.observe` (the deterministic action, the Gaussian mean clipped to
-``[-1, 1]``). ``vehicle_policy("learned:NAME")`` wraps it in :func:`stp_env.baselines.vehicles.hj_filter`: ``kappa`` on
+``[-1, 1]``). ``vehicle_policy("learned:NAME")`` wraps it in :func:`stp_env.policies.vehicles.hj_filter`: ``kappa`` on
 the plan wherever the tracking tube leaves no room, ``u^A`` while forced (eq. 38); the learned action elsewhere
 (after an avoidance, where the paper replans: Algorithm 4). ``stp-env evaluate --vehicle-policy learned:NAME`` and
-every runner that takes a vehicle policy by name load it (:func:`stp_env.baselines.vehicles.vehicle_policy`).
+every runner that takes a vehicle policy by name load it (:func:`stp_env.policies.vehicles.vehicle_policy`).
 
 Shipped policies (``stp_env/data/vehicles/``): ``crossing-after-avoidance`` (``docs/learned_vehicles.md``: how it
 was trained, what it improves over ``u*`` and what it does not guarantee).
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import jax.numpy as jnp
 
-from stp_env.baselines.learned import ACTIVATIONS, MLPIntruder, load_mlp
+from stp_env.policies.learned import ACTIVATIONS, MLPIntruder, load_mlp
 
 ROLE = "vehicle"
 

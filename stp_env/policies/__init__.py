@@ -1,12 +1,12 @@
 """Baseline policies: jittable functions ``policy(key, state, params) -> actions`` of the simulation core.
 
-Vehicle policies return ``(N, 2)`` actions in ``[-1, 1]`` (see :mod:`stp_env.baselines.vehicles`); intruder
-policies return ``(2,)`` (see :mod:`stp_env.baselines.intruders`). They read the full
+Vehicle policies return ``(N, 2)`` actions in ``[-1, 1]`` (see :mod:`stp_env.policies.vehicles`); intruder
+policies return ``(2,)`` (see :mod:`stp_env.policies.intruders`). They read the full
 :class:`~stp_env.sim.EnvState` (the papers' controllers assume full state information), so they run inside
 ``lax.scan`` and ``vmap`` with the core (:func:`stp_env.sim.rollout`).
 """
 
-from stp_env.baselines.intruders import (
+from stp_env.policies.intruders import (
     BUFFER_GAME_INTRUDERS,
     INTRUDERS,
     bezier_intruder,
@@ -21,7 +21,7 @@ from stp_env.baselines.intruders import (
     ordered_max_k,
     random_intruder,
 )
-from stp_env.baselines.vehicles import (
+from stp_env.policies.vehicles import (
     BUFFER_GAME_VEHICLE_POLICIES,
     VEHICLE_POLICIES,
     fallback_control,

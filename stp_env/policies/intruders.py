@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from stp_env import catalog
-from stp_env.baselines.record import Intruder
+from stp_env.policies.record import Intruder
 from stp_env.sim import tables
 from stp_env.sim.bounds import OMEGA_MAX, V_MAX, V_MIN
 from stp_env.sim.physics import control_to_action, relative_state, wrap_angle
@@ -246,8 +246,8 @@ def resolve_intruder(spec: str, *, allow_plugins: bool = True) -> Callable:
     """An intruder policy from a name or an import spec.
 
     * a scripted intruder: one of :data:`INTRUDERS` (its :class:`Intruder` record);
-    * ``"learned:NAME_OR_PATH"``: a learned intruder, :func:`stp_env.baselines.learned.load_intruder` (a shipped
-      name or an ``.npz`` exported by :func:`stp_env.baselines.learned.export_mlp`);
+    * ``"learned:NAME_OR_PATH"``: a learned intruder, :func:`stp_env.policies.learned.load_intruder` (a shipped
+      name or an ``.npz`` exported by :func:`stp_env.policies.learned.export_mlp`);
     * ``"package.module:attribute"``: a jittable policy ``(key, state, params) -> (2,)``, or an :class:`Intruder`
       record of one, defined in an importable module (how a learned intruder exported to JAX is evaluated);
     * ``"package.module:factory=ARGUMENT"``: ``factory(ARGUMENT)`` must return such a policy (e.g. a loader
@@ -266,7 +266,7 @@ def resolve_intruder(spec: str, *, allow_plugins: bool = True) -> Callable:
     if spec in INTRUDERS:
         return INTRUDERS[spec]
     if spec.startswith(LEARNED_PREFIX):
-        from stp_env.baselines.learned import load_intruder
+        from stp_env.policies.learned import load_intruder
 
         return load_intruder(spec[len(LEARNED_PREFIX):])
     if ":" not in spec and allow_plugins and spec in catalog.plugins("intruders"):
@@ -274,7 +274,7 @@ def resolve_intruder(spec: str, *, allow_plugins: bool = True) -> Callable:
     if ":" not in spec:
         raise ValueError(f"unknown intruder {spec!r}; allowed: {', '.join(catalog.names('intruders', INTRUDERS))}, "
                          "'learned:NAME_OR_PATH' "
-                         "(stp_env.baselines.learned.load_intruder), or 'package.module:policy' / "
+                         "(stp_env.policies.learned.load_intruder), or 'package.module:policy' / "
                          "'package.module:factory=ARGUMENT' for any jittable intruder policy.")
     if not allow_plugins:
         raise ValueError(f"intruder {spec!r} is a plug-in spec (code to import), which is not accepted here; "

@@ -4,7 +4,7 @@
   appear, ``|N^RP| / F``, then the ``K`` nearest flying vehicles in its body frame with their ``V^A`` and forced
   flags). What every learned intruder before the game features saw.
 * ``"game"``: the core row followed by features of the two games the bound is built from, so that a policy can
-  learn the multi-vehicle hop that the scripted :func:`stp_env.baselines.intruders.optimal_max_k` plays:
+  learn the multi-vehicle hop that the scripted :func:`stp_env.policies.intruders.optimal_max_k` plays:
 
   ======================  ====================================================================================
   1                       ``|N^RP| / k̄`` (progress toward the bound)
@@ -24,7 +24,7 @@
   (:func:`stp_env.assembly.with_buffer`), as for the ``optimal-max-k`` script. Every entry is in ``[-2, 2]``.
 
 The set is recorded in a learned intruder's file (``metadata["observation"]``; absent means ``"core"``), so the
-loader (:func:`stp_env.baselines.learned.load_intruder`) computes exactly what the policy was trained on.
+loader (:func:`stp_env.policies.learned.load_intruder`) computes exactly what the policy was trained on.
 """
 
 from __future__ import annotations

@@ -15,13 +15,13 @@ max-k bezier3 --episodes 1000 --seed 20240601``, vehicles on ``switching`` with 
 ``optimal-max-k``, 0.504 for ``greedy``, 0.489 for ``max-k`` and 0.047 for the random-Bezier ``bezier3`` (95 %
 half-widths 0.031; 0.013 for ``bezier3``); at most 1 vehicle (k̄ = 2), no collision, no guarantee violation.
 ``"crossing-kbar2"`` and ``"pinwheel-kbar3"``: clones of ``optimal-max-k`` on the ``"game"`` observation
-(:mod:`stp_env.baselines.observations`) with PPO after them, as strong as the script on 5,000 held-out episodes each
+(:mod:`stp_env.policies.observations`) with PPO after them, as strong as the script on 5,000 held-out episodes each
 (model cards and the evaluation: ``docs/learned_intruders.md``); ``"crossing-kbar2-scratch"`` and
 ``"pinwheel-kbar3-scratch"``: PPO in JAX from a random network (no clone): as strong as the script on the crossing,
 stronger on the pinwheel. Their files record a small check that ``tests/test_learned_intruders.py`` replays.
 
 A file records the observation set it was trained on (``metadata["observation"]``, ``"core"`` when absent) and the
-spawn mode it was trained with; :func:`load_intruder` returns an :class:`~stp_env.baselines.intruders.Intruder`
+spawn mode it was trained with; :func:`load_intruder` returns an :class:`~stp_env.policies.intruders.Intruder`
 record that says so (``needs_buffer`` for the game observation), so every runner loads ``V^B`` for it.
 """
 
@@ -36,9 +36,9 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from stp_env.baselines.observations import NEEDS_BUFFER, OBSERVATIONS, intruder_observation, observation_size
 from stp_env.files import atomic_open
 from stp_env.loaders import LoadError, parse_json, read_npz
+from stp_env.policies.observations import NEEDS_BUFFER, OBSERVATIONS, intruder_observation, observation_size
 
 ACTIVATIONS = {"tanh": jnp.tanh, "relu": lambda x: jnp.maximum(x, 0.0)}
 FORMAT_VERSION = 1
@@ -57,7 +57,7 @@ class MLPIntruder:
 
     @property
     def observation(self) -> str:
-        """The observation set it was trained on (:mod:`stp_env.baselines.observations`; ``"core"`` if unrecorded)."""
+        """The observation set it was trained on (:mod:`stp_env.policies.observations`; ``"core"`` if unrecorded)."""
         return self.metadata.get("observation", "core")
 
     @property
@@ -239,10 +239,10 @@ def load_intruder(name_or_path: str = "town-kbar2"):
 
 
 def learned_record(mlp: MLPIntruder, name: str = "learned"):
-    """The :class:`~stp_env.baselines.intruders.Intruder` record of a learned intruder: its policy
+    """The :class:`~stp_env.policies.intruders.Intruder` record of a learned intruder: its policy
     (:func:`mlp_intruder`), whether it reads ``V^B`` (its observation set does) and where it appears when the
     configuration leaves it open (where it was trained to: ``metadata["spawn_mode"]``, else outside)."""
-    from stp_env.baselines.record import Intruder
+    from stp_env.policies.record import Intruder
     from stp_env.sim.types import SPAWN_MODES
 
     spawn = mlp.metadata.get("spawn_mode", "outside")

@@ -147,9 +147,9 @@ LEARNED_PREFIX = "learned:"
 
 @functools.cache
 def learned_vehicle_policy(name_or_path: str):
-    """A learned vehicle policy (:mod:`stp_env.baselines.learned_vehicles`: a shipped name or an ``.npz``) inside
+    """A learned vehicle policy (:mod:`stp_env.policies.learned_vehicles`: a shipped name or an ``.npz``) inside
     both HJ filters (:func:`hj_filter`), jittable; cached (one function, one compiled rollout, per file)."""
-    from stp_env.baselines.learned_vehicles import load_vehicle_mlp, mlp_vehicles
+    from stp_env.policies.learned_vehicles import load_vehicle_mlp, mlp_vehicles
 
     name = f"learned:{Path(name_or_path).stem}"
     policy = hj_filter(mlp_vehicles(load_vehicle_mlp(name_or_path), name=name))
