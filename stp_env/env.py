@@ -18,8 +18,9 @@ The manual (agents, actions, observations, rewards, seeds, infos, arguments, ver
 This module is the adapter: PettingZoo's agents, spaces and dicts around the pure JAX core :mod:`stp_env.sim`, one
 jitted call per step (:mod:`stp_env.sim.stepping`). What it accepts is checked in :mod:`stp_env.env_checks`, its
 infos are built by :mod:`stp_env.env_infos` (the evaluator's episode metrics, :mod:`stp_env.sim.metrics`), and
-``replan=True`` runs Algorithm 4 through :mod:`stp_env.replanning`. The tables a run needs (the buffer table ``V^B``
-of a buffer-game policy too) come from :func:`stp_env.assembly.params_for_run`.
+``replan=True`` runs Algorithm 4 through :mod:`stp_env.replanning`. The tables its policies read beyond the
+scenario's (the buffer table ``V^B`` of a buffer-game policy, a plug-in's table) are built by
+:func:`stp_env.requirements.with_required_tables`.
 """
 
 from __future__ import annotations
@@ -100,6 +101,8 @@ class STPParallelEnv(ParallelEnv):
         if intruder_policy is not None and not callable(intruder_policy):
             raise ValueError(f"intruder must be None (the agent acts), an intruder spec or a policy; got {intruder!r}.")
         intruder_caps = None if intruder_policy is None else capabilities(intruder_policy)
+        # every table the policies read (ValueError for an unknown one before anything is loaded)
+        tables = requirements.required_tables(vehicle_policy_fn, intruder_caps)
         config = env_config(config, config_overrides, spawn=None if intruder_caps is None else intruder_caps.spawn,
                             backend=backend)
         if isinstance(scenario, str):
@@ -124,8 +127,8 @@ class STPParallelEnv(ParallelEnv):
         elif backend is not None:
             params = params.replace(vehicles=dict(model=config.vehicle_model))
         check_appear_window(params)
-        params = requirements.with_required_tables(params, scenario, vehicle_policy=vehicle_policy_fn,
-                                                   intruder=intruder_caps, store=store, progress=self._progress)
+        params = requirements.with_required_tables(params, scenario, tables=tables, store=store,
+                                                   progress=self._progress)
         if callable(vehicle_policy):
             check_vehicle_policy(vehicle_policy_fn, params)
         self._vehicle_policy = vehicle_policy_fn

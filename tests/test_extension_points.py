@@ -19,9 +19,9 @@ import pytest
 from stp_env import assembly, scenarios, sim
 from stp_env.env import parallel_env
 from stp_env.evaluation.config import Configuration
-from stp_env.evaluation.runner import needs_buffer
+from stp_env.evaluation.runner import required_tables
 from stp_env.falsify import harness
-from stp_env.falsify.kbar import plays_buffer_game
+from stp_env.falsify.kbar import attack_tables
 from stp_env.falsify.targets import register as register_target
 from stp_env.policies.intruders import (
     BUFFER_GAME_INTRUDERS,
@@ -127,7 +127,7 @@ def test_an_intruder_module_is_found_by_its_import_spec():
 
 
 # A plug-in intruder with its capabilities: a record, not a bare function, in this file only. The environment, the
-# evaluator and the falsifier read where it spawns and whether it needs V^B from the record.
+# evaluator and the falsifier read where it spawns and the tables it reads from the record.
 CIRCLING = Intruder(circling, spawn="boundary", description="full speed in its tightest left turn")
 
 
@@ -135,10 +135,10 @@ def test_an_intruder_record_says_what_running_it_takes():
     spec = f"{__name__}:CIRCLING"
     assert resolve_intruder(spec) is CIRCLING and resolve_intruder(spec) is resolve_intruder(spec)  # once
     assert capabilities(spec) is CIRCLING and capabilities(circling) == Intruder(circling)   # a bare policy: defaults
-    assert capabilities("optimal-max-k").needs_buffer and capabilities("max-k").spawn == "boundary"
+    assert capabilities("optimal-max-k").tables == ("buffer",) and capabilities("max-k").spawn == "boundary"
     assert BUFFER_GAME_INTRUDERS == {"optimal-max-k"}
-    reader = Intruder(circling, needs_buffer=True)
-    assert needs_buffer(Configuration(intruder=spec)) is False
+    reader = Intruder(circling, tables=("buffer",))
+    assert required_tables(Configuration(intruder=spec)) == ()
     assert Configuration(intruder=spec).effective_spawn_mode == "boundary"
     assert Configuration(intruder="hj").effective_spawn_mode == "outside"
     with pytest.raises(ValueError, match="spawn must be one of"):
@@ -147,8 +147,9 @@ def test_an_intruder_record_says_what_running_it_takes():
         Intruder("circling")
     register_intruder("test-circling-reader", reader)
     try:
-        assert needs_buffer(Configuration(intruder="test-circling-reader")) is True
-        assert plays_buffer_game("switching", "test-circling-reader") and not plays_buffer_game("switching", spec)
+        assert required_tables(Configuration(intruder="test-circling-reader")) == ("buffer",)
+        assert attack_tables("switching", "test-circling-reader") == ("buffer",)
+        assert attack_tables("switching", spec) == ()
         with pytest.raises(ValueError, match="already registered"):
             register_intruder("test-circling-reader", Intruder(circling))
     finally:

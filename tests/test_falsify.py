@@ -128,7 +128,7 @@ def test_kbar_attack_vehicle_option_needs_the_buffer_table():
             KbarAttack(base=params, **opts)
     spec = AttackSpec(target="kbar", scenario="town", kbar=2, options=(("vehicles", "worst"),))
     attack = build_attack(spec)
-    assert attack.needs_buffer and attack.base.tables.buffer_values is not None
+    assert attack.required_tables == ("buffer",) and attack.base.tables.buffer_values is not None
 
 
 def test_counterexample_replays_bit_for_bit(tmp_path):

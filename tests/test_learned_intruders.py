@@ -86,7 +86,7 @@ def test_a_tiny_run_from_the_clone_beats_its_untrained_start(params, tmp_path):
     from stp_env.policies.learned import load_intruder
 
     record = load_intruder(str(tmp_path / "run"))
-    assert record.needs_buffer and record.spawn == "boundary"
+    assert record.tables == ("buffer",) and record.spawn == "boundary"
 
 
 def test_the_kbar_reward_pays_once_when_kbar_is_reached(params):

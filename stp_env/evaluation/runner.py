@@ -277,25 +277,28 @@ def avoid_start_order_stats(ep: dict, n: int) -> tuple[list, list]:
     return lows, meds
 
 
-def needs_buffer(config: Configuration) -> bool:
-    """Whether a policy of ``config`` plays the buffer game (reads ``V^B``): the vehicles', or the intruder's by
-    its record (:func:`stp_env.policies.intruders.capabilities`, plug-ins included)."""
-    return requirements.needs_buffer(config.vehicle_policy, config.intruder)
+def required_tables(config: Configuration) -> tuple[str, ...]:
+    """The tables ``config``'s policies read beyond the scenario's (``"buffer"``: ``V^B``): the vehicles', and the
+    intruder's by its record (:func:`stp_env.policies.intruders.capabilities`, plug-ins included); see
+    :func:`stp_env.requirements.required_tables` (``ValueError`` for an unknown table)."""
+    return requirements.required_tables(config.vehicle_policy, config.intruder)
 
 
 def build_params(configs, *, store=None, progress: bool = True) -> list:
     """``EnvParams`` for each configuration (cached reachability artifacts and plans; computed on first use), with
-    the relative buffer table ``V^B`` of its k̄ when a policy needs it (:func:`needs_buffer`)."""
+    every table its policies read built for its k̄ (:func:`required_tables`: the relative buffer table ``V^B`` of a
+    buffer-game policy, a plug-in's table), each once per scenario and configuration. Every configuration's tables
+    are checked before any is built."""
+    needs = [required_tables(config) for config in configs]
     cache = {}
     out = []
-    for config in configs:
+    for config, tables in zip(configs, needs):
         scenario, env_config = config.make_scenario(), config.env_config()
-        key = (scenario, env_config, needs_buffer(config))
+        key = (scenario, env_config, tables)
         if key not in cache:
             params = assembly.params_for(scenario, env_config, store=store, progress=progress)
-            cache[key] = requirements.with_required_tables(params, scenario, vehicle_policy=config.vehicle_policy,
-                                                           intruder=config.intruder, kbar=config.kbar, store=store,
-                                                           progress=progress)
+            cache[key] = requirements.with_required_tables(params, scenario, tables=tables, kbar=config.kbar,
+                                                           store=store, progress=progress)
         out.append(cache[key])
     return out
 

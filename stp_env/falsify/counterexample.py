@@ -119,8 +119,9 @@ class AttackSpec:
 
 
 def environment(spec: AttackSpec, *, progress: bool = False):
-    """The environment the attack runs in (registered scenario, typed config)."""
-    from stp_env import assembly, sim
+    """The environment the attack runs in (registered scenario, typed config), with the tables its target reads
+    (:func:`stp_env.falsify.targets.required_tables`)."""
+    from stp_env import assembly, requirements, sim
     from stp_env.scenarios import factory_parameters, make
 
     overrides = {}
@@ -134,10 +135,9 @@ def environment(spec: AttackSpec, *, progress: bool = False):
         overrides["wind"] = float(spec.wind)
     scenario = make(spec.scenario, **overrides)
     config = sim.EnvConfig(dt=spec.dt, control_dt=spec.control_dt, wind_model=spec.wind_model)
+    tables = targets.required_tables(spec.target, dict(spec.options))  # checked before anything is built
     params = assembly.params_for(scenario, config, progress=progress)
-    if targets.needs_buffer(spec.target, dict(spec.options)) and params.tables.buffer_values is None:
-        params = assembly.with_buffer(params, assembly.load_buffer(scenario, progress=progress))
-    return params
+    return requirements.with_required_tables(params, scenario, tables=tables, progress=progress)
 
 
 def build_attack(spec: AttackSpec, params=None, *, progress: bool = False):

@@ -9,8 +9,9 @@ breaks it does not count), and how it flies: its controls piecewise constant ove
 The wind is the environment's model (``"worst"``: the games' worst case at every inner control step). The vehicles
 fly ``u*`` (eq. 38) through the core (``vehicles="switching"``), or the buffer game's worst control until forced
 (``vehicles="worst"``: the assumption behind ``V^B``, the one under which the bound can be reached); the buffer-game
-policies (``vehicles="worst"``, ``intruder="optimal-max-k"``) need ``V^B`` in the params
-(:func:`stp_env.falsify.counterexample.environment` loads it for them).
+policies (``vehicles="worst"``, ``intruder="optimal-max-k"``) need ``V^B`` in the params, and an intruder whose
+record lists another table needs that one (:func:`attack_tables`; :func:`stp_env.falsify.counterexample.environment`
+loads them through :func:`stp_env.requirements.with_required_tables`).
 
 Objective: ``|N^RP|`` plus a tie-breaker in ``[0, 1)`` that grows as the intruder comes closer to the avoid
 boundary of a vehicle it never forces (:func:`closeness`: ``1 - min V^A / d^A`` over the episode and over the
@@ -61,10 +62,11 @@ def closeness(avoid_start, vmin, detection_range):
 VEHICLES = ("switching", "worst")
 
 
-def plays_buffer_game(vehicles: str = "switching", intruder: str = "search") -> bool:
-    """Whether the attack's vehicles or intruder read ``V^B`` (the buffer-game vehicle policies of
-    :mod:`stp_env.policies`; the intruder by its record, :func:`stp_env.policies.intruders.capabilities`)."""
-    return requirements.needs_buffer(vehicles, None if intruder == "search" else intruder)
+def attack_tables(vehicles: str = "switching", intruder: str = "search") -> tuple[str, ...]:
+    """The tables the attack's vehicles and intruder read beyond the scenario's (``"buffer"``: ``V^B`` of the
+    buffer-game policies; the intruder's by its record, :func:`stp_env.policies.intruders.capabilities`):
+    :func:`stp_env.requirements.required_tables`."""
+    return requirements.required_tables(vehicles, None if intruder == "search" else intruder)
 
 
 @register
@@ -92,9 +94,11 @@ class KbarAttack:
             raise ValueError(f"vehicles must be one of {VEHICLES}; got {self.vehicles!r}.")
         if self.fleet not in FLEETS:
             raise ValueError(f"fleet must be one of {FLEETS}; got {self.fleet!r}.")
-        if self.needs_buffer and self.base.tables.buffer_values is None:
-            raise ValueError(f"vehicles={self.vehicles!r} / intruder={self.intruder!r} play the buffer game: the "
-                             "params need V^B (stp_env.assembly.with_buffer).")
+        missing = requirements.missing_tables(self.base, self.required_tables)
+        if missing:
+            raise ValueError(f"vehicles={self.vehicles!r} / intruder={self.intruder!r} read tables the params lack: "
+                             + "; ".join(f"{name!r} ({requirements.TABLES[name].description})" for name in missing)
+                             + " (stp_env.requirements.with_required_tables loads them).")
         harness.check_durations(float(self.base.episode.dt), segment=self.segment)
         if int(self.base.intruder.kbar) < 1:
             raise ValueError("the scenario has no k̄ (plan it intruder-aware) to attack.")
@@ -119,8 +123,9 @@ class KbarAttack:
         return self.base if ids is None else fleet.select(self.base, ids)
 
     @property
-    def needs_buffer(self) -> bool:
-        return plays_buffer_game(self.vehicles, self.intruder)
+    def required_tables(self) -> tuple[str, ...]:
+        """The tables this attack's policies read (:func:`attack_tables`)."""
+        return attack_tables(self.vehicles, self.intruder)
 
     @property
     def n_present(self) -> int:
@@ -229,9 +234,9 @@ class KbarAttack:
                                  "min_separation": jnp.min(final.min_separation)})
 
     @classmethod
-    def needs_buffer_for(cls, options: dict) -> bool:
-        """Whether the attack with ``options`` plays the buffer game (its environment must carry ``V^B``)."""
-        return plays_buffer_game(str(options.get("vehicles", "switching")), str(options.get("intruder", "search")))
+    def tables_for(cls, options: dict) -> tuple[str, ...]:
+        """The tables the attack with ``options`` reads, which its environment must carry (:func:`attack_tables`)."""
+        return attack_tables(str(options.get("vehicles", "switching")), str(options.get("intruder", "search")))
 
     def details(self, z) -> dict:
         out = self.outcome(z)

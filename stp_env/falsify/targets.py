@@ -9,7 +9,8 @@ runs in) and whose other fields are its options (``stp-env falsify --option NAME
 * ``details(z) -> dict``: what the simulator says about the attack at ``z`` (JSON-ready, for the summary line);
 * ``draw(ax, ax2, z)``: the figure of the attack at ``z`` on two matplotlib axes (paths; a quantity over time);
 * optionally ``seeds() -> (S, dim)``: the game's own worst strategies, where the search starts, and
-  ``needs_buffer_for(options) -> bool`` (a classmethod): the environment must carry ``V^B``.
+  ``tables_for(options) -> tuple[str, ...]`` (a classmethod): the names of the tables beyond the scenario's that
+  the environment must carry (``"buffer"``: ``V^B``; any table of :data:`stp_env.requirements.TABLES`).
 
 A new target is one module with such a class decorated by :func:`register`; the command line, the search, the
 counterexample files (saved, loaded, replayed) and the figure then take it by name. The three targets of the
@@ -70,7 +71,9 @@ def attack_class(name: str) -> type:
                      "stp_env.falsify.targets.register).")
 
 
-def needs_buffer(name: str, options: dict) -> bool:
-    """Whether target ``name`` with ``options`` runs in an environment that carries ``V^B``."""
-    check = getattr(attack_class(name), "needs_buffer_for", None)
-    return bool(check(options)) if check is not None else False
+def required_tables(name: str, options: dict) -> tuple[str, ...]:
+    """The tables beyond the scenario's that target ``name`` with ``options`` reads (its ``tables_for``; none when
+    it defines none), which :func:`stp_env.falsify.counterexample.environment` loads
+    (:func:`stp_env.requirements.with_required_tables`)."""
+    tables_for = getattr(attack_class(name), "tables_for", None)
+    return tuple(tables_for(options)) if tables_for is not None else ()

@@ -203,7 +203,7 @@ INTRUDERS = {
     "max-k": Intruder(max_k, spawn="boundary",
                       description="the papers' Figs. 6-7: from a vehicle's avoid boundary, on to the next unforced "
                                   "vehicle's"),
-    "optimal-max-k": Intruder(optimal_max_k, needs_buffer=True, spawn="boundary",
+    "optimal-max-k": Intruder(optimal_max_k, tables=("buffer",), spawn="boundary",
                               description="max-k with the buffer game's time-optimal hops (reads V^B)"),
 }
 """The scripted intruders by name, each an :class:`Intruder` (its policy and capabilities). A plug-in intruder
@@ -211,9 +211,9 @@ needs no entry (``package.module:attribute``, :func:`resolve_intruder`); :func:`
 name in this process; an installed plug-in joins by the entry-point group ``stp_env.intruders``
 (:mod:`stp_env.catalog`)."""
 
-BUFFER_GAME_INTRUDERS = frozenset(name for name, entry in INTRUDERS.items() if entry.needs_buffer)
-"""The registered intruders that read the buffer table, as names (a view of :data:`INTRUDERS`'
-``needs_buffer``; :func:`capabilities` answers for any intruder, plug-ins included)."""
+BUFFER_GAME_INTRUDERS = frozenset(name for name, entry in INTRUDERS.items() if "buffer" in entry.tables)
+"""The registered intruders that read the buffer table, as names (a view of the ``tables`` of :data:`INTRUDERS`'
+records; :func:`capabilities` answers for any intruder, plug-ins included)."""
 
 LEARNED_PREFIX = "learned:"
 
@@ -312,7 +312,8 @@ def _plugin(spec: str):
 
 def capabilities(intruder) -> Intruder:
     """What running ``intruder`` takes, as an :class:`Intruder` record: of a spec (:func:`resolve_intruder`), of a
-    record, or of a bare policy (a function says nothing: no buffer, spawns outside)."""
+    record, or of a bare policy (a function says nothing: it reads no table beyond the scenario's, spawns
+    outside)."""
     if isinstance(intruder, str):
         intruder = resolve_intruder(intruder)
     return intruder if isinstance(intruder, Intruder) else Intruder(intruder)

@@ -22,7 +22,7 @@ stronger on the pinwheel. Their files record a small check that ``tests/test_lea
 
 A file records the observation set it was trained on (``metadata["observation"]``, ``"core"`` when absent) and the
 spawn mode it was trained with; :func:`load_intruder` returns an :class:`~stp_env.policies.intruders.Intruder`
-record that says so (``needs_buffer`` for the game observation), so every runner loads ``V^B`` for it.
+record that says so (``tables=("buffer",)`` for the game observation), so every runner loads ``V^B`` for it.
 """
 
 from __future__ import annotations
@@ -38,7 +38,12 @@ import numpy as np
 
 from stp_env.files import atomic_open
 from stp_env.loaders import LoadError, parse_json, read_npz
-from stp_env.policies.observations import NEEDS_BUFFER, OBSERVATIONS, intruder_observation, observation_size
+from stp_env.policies.observations import (
+    OBSERVATION_TABLES,
+    OBSERVATIONS,
+    intruder_observation,
+    observation_size,
+)
 
 ACTIVATIONS = {"tanh": jnp.tanh, "relu": lambda x: jnp.maximum(x, 0.0)}
 FORMAT_VERSION = 1
@@ -240,12 +245,13 @@ def load_intruder(name_or_path: str = "town-kbar2"):
 
 def learned_record(mlp: MLPIntruder, name: str = "learned"):
     """The :class:`~stp_env.policies.intruders.Intruder` record of a learned intruder: its policy
-    (:func:`mlp_intruder`), whether it reads ``V^B`` (its observation set does) and where it appears when the
-    configuration leaves it open (where it was trained to: ``metadata["spawn_mode"]``, else outside)."""
+    (:func:`mlp_intruder`), the tables it reads (its observation set's: ``V^B`` for ``"game"``) and where it
+    appears when the configuration leaves it open (where it was trained to: ``metadata["spawn_mode"]``, else
+    outside)."""
     from stp_env.policies.record import Intruder
     from stp_env.sim.types import SPAWN_MODES
 
     spawn = mlp.metadata.get("spawn_mode", "outside")
-    return Intruder(mlp_intruder(mlp, name=name), needs_buffer=mlp.observation in NEEDS_BUFFER,
+    return Intruder(mlp_intruder(mlp, name=name), tables=OBSERVATION_TABLES.get(mlp.observation, ()),
                     spawn=spawn if spawn in SPAWN_MODES else "outside",
                     description=f"learned ({mlp.observation} observation)")

@@ -38,7 +38,10 @@ from stp_env.sim.physics import control_to_action, relative_state, wrap_angle
 from stp_env.sim.types import FLYING
 
 OBSERVATIONS = ("core", "game")
-NEEDS_BUFFER = frozenset({"game"})
+OBSERVATION_TABLES = {"game": ("buffer",)}
+"""The tables each observation set reads beyond the scenario's own, by name (absent: none): a learned intruder's
+record lists them (:func:`stp_env.policies.learned.load_intruder`), and a trainer whose learner sees the set loads
+them (:func:`stp_env.requirements.with_required_tables`)."""
 N_CANDIDATES = 3
 CANDIDATE_FEATURES = 9
 
@@ -105,7 +108,7 @@ def observation_size(params, observation: str = "core") -> int:
     from stp_env.sim.observations import _abstract_state
 
     check_observation(observation)
-    if observation in NEEDS_BUFFER:
+    if "buffer" in OBSERVATION_TABLES.get(observation, ()):
         tables._require_buffer(params)
     return int(jax.eval_shape(lambda s: intruder_observation(s, params, observation),
                               _abstract_state(params)).shape[0])

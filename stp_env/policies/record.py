@@ -17,8 +17,11 @@ class Intruder:
 
     Attributes:
         policy: the jittable ``(key, state, params) -> (2,)`` actions in ``[-1, 1]``.
-        needs_buffer: the policy reads ``V^B`` (``params.tables.buffer_values``): whoever runs it loads the buffer table
-            (:func:`stp_env.assembly.load_buffer`, :func:`stp_env.assembly.with_buffer`).
+        tables: the names of the tables the policy reads beyond the scenario's own (``"buffer"``: ``V^B``,
+            ``params.tables.buffer_values``; any other: a table registered with
+            :func:`stp_env.requirements.register_table`, read with :func:`stp_env.sim.tables.extra_table`):
+            whoever runs it loads them (:func:`stp_env.requirements.with_required_tables`), and an unknown name is
+            refused there, before anything runs.
         spawn: where it appears when the configuration leaves it open (``SPAWN_MODES`` of
             :mod:`stp_env.sim.types`: ``"outside"``, ``"boundary"`` on a vehicle's avoid boundary, ``"mixed"``).
         description: one line, for listings.
@@ -28,7 +31,7 @@ class Intruder:
     """
 
     policy: Callable
-    needs_buffer: bool = False
+    tables: tuple[str, ...] = ()
     spawn: str = "outside"
     description: str = ""
 
@@ -36,8 +39,11 @@ class Intruder:
         if not callable(self.policy) or isinstance(self.policy, Intruder):
             raise ValueError(f"an intruder's policy is a function (key, state, params) -> (2,); got "
                              f"{type(self.policy).__name__}.")
-        if not isinstance(self.needs_buffer, bool):
-            raise ValueError(f"needs_buffer must be a bool; got {self.needs_buffer!r}.")
+        tables = self.tables
+        if isinstance(tables, str) or not isinstance(tables, (tuple, list)) or not all(
+                isinstance(name, str) and name for name in tables):
+            raise ValueError(f"tables must be a tuple of table names (e.g. ('buffer',)); got {tables!r}.")
+        object.__setattr__(self, "tables", tuple(dict.fromkeys(tables)))  # hashable, each name once, in order
         if self.spawn not in SPAWN_MODES:
             raise ValueError(f"spawn must be one of {', '.join(SPAWN_MODES)}; got {self.spawn!r}.")
         if not isinstance(self.description, str):

@@ -138,8 +138,11 @@ worst.__doc__ = ("The buffer game's worst vehicles (see the module docstring): `
                  "is present, else the control that brings the intruder into the avoid region fastest.")
 
 VEHICLE_POLICIES = {"switching": switching, "nominal": nominal_tracking, "worst": worst}
-BUFFER_GAME_VEHICLE_POLICIES = frozenset({"worst"})
-"""The vehicle policies that read the buffer table (the evaluation loads it for them)."""
+VEHICLE_POLICY_TABLES = {"worst": ("buffer",)}
+"""The tables each vehicle policy of :data:`VEHICLE_POLICIES` reads beyond the scenario's own, by name (absent:
+none); :func:`stp_env.requirements.with_required_tables` loads them (the ``worst`` vehicles read ``V^B``)."""
+BUFFER_GAME_VEHICLE_POLICIES = frozenset(name for name, read in VEHICLE_POLICY_TABLES.items() if "buffer" in read)
+"""The vehicle policies that read the buffer table, as names (a view of :data:`VEHICLE_POLICY_TABLES`)."""
 
 
 LEARNED_PREFIX = "learned:"

@@ -5,6 +5,8 @@ time; vmap for many).
 * :func:`avoidance_control`: ``u^A`` (eq. 15), the vehicle's maximising control of the avoid game.
 * :func:`pursuit_input`: the intruder's minimising control and the worst combined wind of the same game.
 * :func:`tracking_control`: the robust tracker ``kappa`` (SPP eq. 26) and its worst-case wind.
+* :func:`buffer_value`, :func:`buffer_hop` and the other buffer-game reads: ``V^B`` (eqs. 46-47), when loaded.
+* :func:`extra_table`, :func:`table_value`: a table a plug-in registered (:mod:`stp_env.requirements`), by name.
 """
 
 from __future__ import annotations
@@ -237,12 +239,34 @@ def tracking_control_and_value(params, error):
     return jnp.where(inside, u, recover), d[2:4], jnp.where(inside, p[3], jnp.inf)
 
 
+# ------------------------------------------------------------------------------------------------ plug-in tables
+def extra_table(params, name: str):
+    """The table ``name`` of ``params.tables.extra`` (a :class:`~stp_env.sim.types.Table`: ``values`` on
+    ``grid``), which :func:`stp_env.requirements.with_required_tables` loads for a policy whose record lists it
+    (its builder registered with :func:`stp_env.requirements.register_table`). Looked up when the policy is traced
+    (the names are static): a missing table is a ``ValueError`` then, never a wrong number."""
+    for table in params.tables.extra:
+        if table.name == name:
+            return table
+    loaded = ", ".join(t.name for t in params.tables.extra) or "none"
+    raise ValueError(f"table {name!r} is not in the params (loaded: {loaded}): list it in the policy's record "
+                     "(Intruder(policy, tables=(...))) so that stp_env.requirements.with_required_tables loads it.")
+
+
+def table_value(params, name: str, x, fill_value: float | None = None):
+    """Table ``name`` (:func:`extra_table`) at ``x`` (its grid's dimension): multilinear, clamped to the grid as
+    :func:`stp_env.hj.interpolation.interpolate`, or ``fill_value`` outside the grid when one is given. Jittable
+    and differentiable in ``x`` (``jax.grad`` gives the gradient of the multilinear interpolant)."""
+    table = extra_table(params, name)
+    return interpolate(table.grid, table.values, jnp.asarray(x), fill_value)
+
+
 # ------------------------------------------------------------------------------------------------ buffer game
 def _require_buffer(params):
     if params.tables.buffer_values is None or params.tables.buffer_grid is None:
-        raise ValueError("this policy plays the buffer game and needs V^B in the params: build them with "
-                         "stp_env.assembly.with_buffer (the evaluation does so for the 'worst' vehicles and the "
-                         "'optimal-max-k' intruder).")
+        raise ValueError("this policy plays the buffer game and needs V^B in the params: the record of a policy "
+                         "that reads it lists the table 'buffer' (Intruder(policy, tables=('buffer',))), and "
+                         "stp_env.requirements.with_required_tables loads it (stp_env.assembly.with_buffer).")
 
 
 def buffer_game(params):

@@ -145,6 +145,21 @@ class TableParams:
     # --- optional: the relative buffer region of the buffer game (stp_env.assembly.with_buffer)
     buffer_values: Any = None     # buffer_grid.shape V^B(0, t_BRD) of the plan's k̄ [m] (eqs. 46-47), or None
     buffer_grid: Grid | None = None
+    # --- optional: the tables a plug-in registers (stp_env.requirements.register_table), loaded for the policies
+    #     that read them; read by name with stp_env.sim.tables.extra_table
+    extra: tuple = ()             # Table, one per name, sorted by name
+
+
+@dataclasses.dataclass(frozen=True)
+class Table:
+    """A grid table beyond the built-in ones (``params.tables.extra``): what a plug-in policy reads by ``name``
+    (:func:`stp_env.sim.tables.extra_table`, :func:`stp_env.sim.tables.table_value`). The name and the grid are
+    static: a table of another shape or grid is another compiled program."""
+
+    values: jax.Array             # grid.shape
+    # --- static
+    name: str
+    grid: Grid
 
 
 @dataclasses.dataclass(frozen=True)
@@ -159,6 +174,7 @@ VehicleParams = _pytree(VehicleParams, meta=("n", "model", "fleet_size"))
 IntruderParams = _pytree(IntruderParams)
 TableParams = _pytree(TableParams, meta=("sdf_grid", "avoid_grid", "tracking_grid", "avoid_dynamics",
                                          "tracking_dynamics", "buffer_grid"))
+Table = _pytree(Table, meta=("name", "grid"))
 WindParams = _pytree(WindParams, meta=("model",))
 
 GROUPS = {"episode": EpisodeParams, "vehicles": VehicleParams, "intruder": IntruderParams, "tables": TableParams,
@@ -180,7 +196,9 @@ class EnvParams:
     * ``intruder`` (:class:`IntruderParams`): its bounds, ``t_IAT``, spawn and appearance, and the k̄ under test;
     * ``tables`` (:class:`TableParams`): the signed distance to the buildings, ``V^A``, the tracking game's
       gradient and ``V^B`` (optional: only the buffer game's policies read it, loaded by
-      :func:`stp_env.assembly.with_buffer`), with the numbers derived from them (``d^A``, the avoid margin, ``r_e``);
+      :func:`stp_env.assembly.with_buffer`), with the numbers derived from them (``d^A``, the avoid margin, ``r_e``),
+      and the tables plug-ins add (``extra``, by name; :mod:`stp_env.requirements` loads every table a run's
+      policies read);
     * ``wind`` (:class:`WindParams`): the wind model.
 
     Static fields (sizes, grids, models, switches) are metadata: changing them recompiles. Change fields with
