@@ -5,7 +5,7 @@ vehicle and whether the two plan the same trajectories.
         [--tracking-bound 5.337635040283203] [--max-slice-dt 3.0] [--horizon H]
 
 for example ``--scenario city-intruder --kbar 4``, or ``--scenario bay-area --tracking-bound 35.391876220703125
---max-slice-dt 5`` (the settings ``scripts/generate_plans.py`` plans these files with).
+--max-slice-dt 5`` (the settings ``stp-env data plans`` plans these files with).
 
 ``REV``'s ``stp_env`` package is exported with ``git archive`` into a temporary directory and imported from there
 (this tree's ``stp_env`` otherwise). Each tree plans the whole scenario (every vehicle counts for the obstacle

@@ -13,7 +13,7 @@ short run is a prefix of the full one. Writes, in ``--out``:
 * ``lanes.png``: all cases side by side, each trajectory coloured by its destination, with the lane measures below;
 
 With ``--shipped`` nothing is planned: the shipped 50-vehicle plans (``stp_env/data/plans/city.npz`` and
-``city-case{c}.npz``, made by ``scripts/generate_plans.py``) are measured and drawn instead.
+``city-case{c}.npz``, made by ``stp-env data plans``) are measured and drawn instead.
 
 It prints one JSON line per case: seconds (when planned), t_LDT range and two lane measures per destination:
 ``spread_m``, the mean over pairs of vehicles with the same destination of the mean distance from one path to the

@@ -12,7 +12,7 @@ spawned outside the avoid regions, a held-out seed) and prints one JSON line per
 or ``|N^RP| > k̄`` is a finding, saved replayable in ``--out/events.json`` with the results and figures.
 
 Reproducibility: a run is deterministic given the seed and the code (same config in two processes: identical
-rollouts and weights). After ``train --ship``, ``python scripts/ship_learned_intruder.py runs/town-kbar2 town-kbar2``
+rollouts and weights). After ``train --ship``, ``stp-env data ship-intruder runs/town-kbar2 town-kbar2``
 records the small check that ``tests/test_learned_intruders.py`` replays (the same weights). The model card and the
 comparison with the earlier shipped policy (PPO from scratch, 4.2 M steps): ``docs/learned_intruders.md``.
 """

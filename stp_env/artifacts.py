@@ -275,7 +275,7 @@ class ArtifactStore:
 
     ``shipped``: a read-only directory of artifacts that came with the package (:data:`SHIPPED_DIR`; ``None``:
     none), consulted when the cache has no file for an artifact. A shipped file is only used if it was computed by
-    the current code (:func:`code_version`) with the same parameters; ``scripts/ship_artifacts.py`` regenerates
+    the current code (:func:`code_version`) with the same parameters; ``stp-env data artifacts`` regenerates
     them and ``tests/test_artifacts.py`` fails while one is stale."""
 
     def __init__(self, root: str | os.PathLike | None = None, *, shipped: str | os.PathLike | None = SHIPPED_DIR):

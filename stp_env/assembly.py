@@ -375,7 +375,8 @@ def load_plan(scenario, *, tracking_bound: float, store=None, progress: bool | N
         import warnings
 
         warnings.warn(f"The shipped plan of {scenario.name!r} does not fit this code ({problem}); planning anew "
-                      "(regenerate it with scripts/generate_plans.py).", RuntimeWarning, stacklevel=2)
+                      "(a source checkout regenerates it with `stp-env data plans --ship`).", RuntimeWarning,
+                      stacklevel=2)
     return cached_plan(scenario, tracking_bound=tracking_bound, store=store, progress=progress)
 
 
@@ -416,7 +417,7 @@ SHIPPED_PLANS: dict[str, tuple[str, dict]] = {
 }
 """The plans ``stp_env/data/plans/<file>.npz`` may hold: file name -> (registered scenario, overrides), the plan
 being for ``make(scenario, **overrides)``. A listed file that is not there is simply not shipped
-(``scripts/generate_plans.py`` makes them; ``fig6-kbar3`` comes from ``examples/fig6_reproduction.py``)."""
+(``stp-env data plans`` makes them; ``fig6-kbar3`` comes from ``examples/fig6_reproduction.py``)."""
 
 
 def _shipped_plan(scenario):

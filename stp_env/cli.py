@@ -19,6 +19,8 @@ Subcommands:
   policies under receding-horizon control): a resumable scenario sweep, results and figures
   (:mod:`stp_env.survivability`).
 * ``coobservation``: attacks on co-observation schedules by a compromised vehicle (:mod:`stp_env.coobservation.cli`).
+* ``data``: make, check and repair plans, convert planning checkpoints, ship reachability artifacts and learned
+  intruders (:mod:`stp_env.data_tools`).
 * ``train-intruder``: train a learned intruder with Stable-Baselines3 (PPO by default) on the native batched
   VecEnv against vehicles running ``u*`` with the HJ safety filter (:mod:`stp_env.rl.train`; needs the ``rl``
   extra); prints the last evaluation as JSON and writes the model, logs and ``intruder.npz`` to ``--out``.
@@ -143,6 +145,9 @@ def _build_parser() -> argparse.ArgumentParser:
     from stp_env.coobservation.cli import add_parser as _add_coobservation_parser
 
     _add_coobservation_parser(sub)
+    from stp_env.data_tools.cli import add_parser as _add_data_parser
+
+    _add_data_parser(sub)
     return parser
 
 

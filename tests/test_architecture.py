@@ -42,7 +42,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("learning", ("stp_env.rl",)),
     ("attacks", ("stp_env.falsify",)),
     ("studies", ("stp_env.survivability", "stp_env.coobservation")),
-    ("entry", ("stp_env.cli", "stp_env")),
+    ("entry", ("stp_env.cli", "stp_env.data_tools", "stp_env")),
 )
 
 ALLOWED_UPWARD: dict[tuple[str, str], str] = {

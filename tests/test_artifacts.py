@@ -239,7 +239,7 @@ def test_a_valid_shipped_copy_is_used_and_an_invalid_one_is_not(tmp_path):
 
 def test_the_shipped_artifacts_are_current_and_serve_the_default_scenario(tmp_path):
     """Every file in ``stp_env/data/artifacts`` was computed by this code (an edit to the numerical code makes it
-    stale: run ``python scripts/ship_artifacts.py``), and the default scenario's tracking bound is read from it by
+    stale: run ``stp-env data artifacts``), and the default scenario's tracking bound is read from it by
     a store with an empty cache, without computing."""
     from stp_env.reach import tracking
     from stp_env.scenarios import make
@@ -251,7 +251,7 @@ def test_the_shipped_artifacts_are_current_and_serve_the_default_scenario(tmp_pa
         current = artifacts.code_version(meta["kind"])
         assert meta["code_version"] == current, (
             f"{path.name} is stale (computed by code {meta['code_version']}, this is {current}): "
-            "run python scripts/ship_artifacts.py")
+            "run stp-env data artifacts")
         assert meta["content_sha256"] == artifacts._file_sha256(path.with_suffix(".npz")), path.name
     town = make("town")
     store = ArtifactStore(tmp_path / "empty-cache")
@@ -265,14 +265,10 @@ def test_the_shipped_artifacts_are_current_and_serve_the_default_scenario(tmp_pa
 
 
 def test_the_recompute_check_of_the_shipped_copies_can_fail(tmp_path):
-    """``scripts/ship_artifacts.py --recompute`` compares freshly computed arrays with the shipped copies: a changed
+    """``stp-env data artifacts --recompute`` compares freshly computed arrays with the shipped copies: a changed
     value, a missing array, another shape or another NaN pattern each make it report a difference."""
-    import importlib.util
+    from stp_env.data_tools import ship_artifacts as ship
 
-    spec = importlib.util.spec_from_file_location("ship_artifacts",
-                                                  Path(__file__).parents[1] / "scripts" / "ship_artifacts.py")
-    ship = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(ship)
     base = {"value": np.linspace(0.0, 1.0, 12).reshape(3, 4), "n_steps": np.array(7)}
 
     def write(name, **arrays):

@@ -1,20 +1,21 @@
-"""``scripts/check_plan.py``: the plan checker passes a shipped plan, fails one whose vehicle flies into another's
+"""``stp-env data check-plan``: the plan checker passes a shipped plan, fails one whose vehicle flies into another's
 disk (naming it), fails plans that the disk check alone would pass vacuously (non-finite samples, an arrival
 recorded early, a jump between samples, a control outside ``U^p``, a moved start), reads a planning checkpoint's
 prefix, and refuses what it cannot check with a clear message. Also ``reconcile_controls`` and
-``scripts/reconcile_controls.py``, which repair a stored control that does not carry its sample to the next."""
+``stp-env data reconcile-controls``, which repair a stored control that does not carry its sample to the next."""
 
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import json
 import math
-from pathlib import Path
+import re
 
 import numpy as np
 import pytest
+from _cli import run_cli
 
+from stp_env.data_tools import check_plan
 from stp_env.planning import checkpoint
 from stp_env.planning.plan import plan_from_arrays, plan_to_arrays
 from stp_env.planning.stp import shipped_plan
@@ -27,24 +28,20 @@ from stp_env.planning.verify import (
 )
 from stp_env.scenarios import make
 
-SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+
+def _run(command, argv):
+    """``(exit status, the JSON line)`` of ``stp-env data command argv``."""
+    status, out, err = run_cli(["data", command, *argv])
+    assert out, err
+    return status, json.loads(out)
 
 
-def _script(name):
-    spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-@pytest.fixture(scope="module")
-def check_plan():
-    return _script("check_plan")
-
-
-def _run(module, argv, capsys):
-    status = module.main(argv)
-    return status, json.loads(capsys.readouterr().out)
+def _refused(command, argv, match):
+    """``stp-env data command argv`` exits with status 2 and one line on standard error that matches ``match``."""
+    status, out, err = run_cli(["data", command, *argv])
+    assert status == 2 and out == "", (status, out, err)
+    assert err.startswith(f"stp-env data {command}: error:") and "\n" not in err.strip(), err
+    assert re.search(match, err), err
 
 
 def _intruding(plan):
@@ -68,45 +65,39 @@ def test_vehicle_clearances_give_obstacle_margins_minimum():
     assert margin == low[1] and where == (low[0], low[2], low[3])
 
 
-def test_a_shipped_plan_passes(check_plan, capsys):
-    status, out = _run(check_plan, ["tiny"], capsys)
+def test_a_shipped_plan_passes():
+    status, out = _run("check-plan", ["tiny"])
     assert status == 0 and out["ok"] and out["kind"] == "shipped"
     assert out["vehicles"] == out["of"] == 2 and out["deeper_than_half_cell"] == 0 and out["late"] == 0
 
 
-def test_a_vehicle_inside_anothers_disk_fails_and_is_named(check_plan, capsys, tmp_path):
+def test_a_vehicle_inside_anothers_disk_fails_and_is_named(tmp_path):
     bad, index = _intruding(shipped_plan("tiny"))
     path = tmp_path / "bad.npz"
     np.savez(path, **plan_to_arrays(bad))
-    status, out = _run(check_plan, [str(path), "--scenario", "tiny"], capsys)
+    status, out = _run("check-plan", [str(path), "--scenario", "tiny"])
     assert status == 1 and not out["ok"]
     assert out["deeper_than_half_cell"] == 1 and out["deepest"][0]["vehicle"] == index
     assert out["worst_clearance"] < -out["half_cell"]
 
 
-def test_a_checkpoint_prefix_is_checked_with_its_runs_bound(check_plan, capsys, tmp_path):
+def test_a_checkpoint_prefix_is_checked_with_its_runs_bound(tmp_path):
     plan = shipped_plan("tiny")
     ordered = sorted(plan.vehicles, key=lambda v: v.priority)
     path = tmp_path / "tiny.ckpt.npz"
     checkpoint.save(path, "some-run", [(ordered[0].index, ordered[0].plan)])
-    with pytest.raises(SystemExit, match="--tracking-bound"):
-        check_plan.main([str(path), "--scenario", "tiny"])
-    status, out = _run(check_plan, [str(path), "--scenario", "tiny", "--tracking-bound", str(plan.tracking_bound)],
-                       capsys)
+    _refused("check-plan", [str(path), "--scenario", "tiny"], "--tracking-bound")
+    status, out = _run("check-plan", [str(path), "--scenario", "tiny", "--tracking-bound", str(plan.tracking_bound)])
     assert status == 0 and out["kind"] == "checkpoint" and out["vehicles"] == 1 and out["of"] == 2
 
 
-def test_what_cannot_be_checked_is_refused(check_plan, tmp_path):
-    with pytest.raises(SystemExit, match="neither a shipped plan"):
-        check_plan.main(["no-such-plan"])
+def test_what_cannot_be_checked_is_refused(tmp_path):
+    _refused("check-plan", ["no-such-plan"], "neither a shipped plan")
     path = tmp_path / "mine.npz"
     np.savez(path, x=np.zeros(3))
-    with pytest.raises(SystemExit, match="--scenario"):
-        check_plan.main([str(path)])
-    with pytest.raises(SystemExit, match="not a plan file"):
-        check_plan.main([str(path), "--scenario", "tiny"])
-    with pytest.raises(SystemExit, match="shipped for scenario 'tiny'"):
-        check_plan.main(["tiny", "--scenario", "town"])
+    _refused("check-plan", [str(path)], "--scenario")
+    _refused("check-plan", [str(path), "--scenario", "tiny"], "not a plan file")
+    _refused("check-plan", ["tiny", "--scenario", "town"], "shipped for scenario 'tiny'")
 
 
 def _with_vehicle(plan, index, **changes):
@@ -143,7 +134,7 @@ MUTANTS = ["non-finite samples", "arrival recorded at the departure", "a jump be
 
 
 @pytest.mark.parametrize("mutant", MUTANTS)
-def test_a_plan_the_disk_check_would_pass_vacuously_fails(check_plan, mutant):
+def test_a_plan_the_disk_check_would_pass_vacuously_fails(mutant):
     scenario = make("tiny")
     plan = _mutants(shipped_plan("tiny"))[mutant]
     faults = trajectory_faults(plan, scenario)
@@ -191,8 +182,7 @@ def test_reconcile_controls_recovers_the_applied_control_and_refuses_a_jump():
         reconcile_controls(dataclasses.replace(single, states=jump), *args)
 
 
-def test_reconcile_script_rewrites_only_the_broken_control(tmp_path, capsys):
-    reconcile = _script("reconcile_controls")
+def test_reconcile_command_rewrites_only_the_broken_control(tmp_path):
     scenario, plan = make("tiny"), shipped_plan("tiny")
     index, single = next((v.index, v.plan) for v in plan.vehicles if len(np.unique(v.plan.controls[:, 0])) == 2)
     k = int(np.nonzero(single.controls[1:-1, 0] == single.controls[:-2, 0])[0][0]) + 1
@@ -203,9 +193,11 @@ def test_reconcile_script_rewrites_only_the_broken_control(tmp_path, capsys):
     arrays["extra"] = np.arange(3)  # arrays the script does not know are kept
     np.savez(path, **arrays)
     before = path.read_bytes()
-    assert reconcile.main([str(path), "--check"]) == 1 and path.read_bytes() == before  # --check writes nothing
-    assert reconcile.main([str(path)]) == 0
-    capsys.readouterr()
+    status, out = _run("reconcile-controls", [str(path), "--check"])
+    assert status == 1 and out["samples_fixed"] == 1 and not out["written"]
+    assert path.read_bytes() == before  # --check writes nothing
+    status, out = _run("reconcile-controls", [str(path)])
+    assert status == 0 and out["written"] and out["fixed"] == {str(index): [k]}
     with np.load(path, allow_pickle=False) as data:
         after = {key: data[key] for key in data.files}
     assert np.array_equal(after["extra"], np.arange(3))
@@ -213,6 +205,5 @@ def test_reconcile_script_rewrites_only_the_broken_control(tmp_path, capsys):
     for key in expected:
         assert np.array_equal(after[key], expected[key], equal_nan=True), key
     assert trajectory_faults(plan_from_arrays(after), scenario) == {}
-    assert reconcile.main([str(path), "--check"]) == 0
-    with pytest.raises(SystemExit, match="neither a shipped plan nor a file"):
-        reconcile.main(["no-such-plan"])
+    assert _run("reconcile-controls", [str(path), "--check"])[0] == 0
+    _refused("reconcile-controls", ["no-such-plan"], "neither a shipped plan nor a file")

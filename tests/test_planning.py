@@ -128,17 +128,21 @@ def test_intruder_aware_plan_keeps_the_buffer(tmp_path):
         assert v.plan.arrival_time <= spec.sta + scenario.time_step
 
 
-def test_shipped_tiny_plan_regenerates_bit_for_bit():
-    import importlib.util
-    from pathlib import Path
+def test_shipped_tiny_plan_regenerates_bit_for_bit(tmp_path):
+    import contextlib
+    import io
+    import json
 
+    from stp_env.cli import main
+    from stp_env.loaders import read_npz
     from stp_env.planning.stp import plan_to_arrays, shipped_plan
 
-    spec = importlib.util.spec_from_file_location(
-        "generate_plans", Path(__file__).resolve().parents[1] / "scripts" / "generate_plans.py")
-    gen = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(gen)
-    fresh = gen.generate("tiny")
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert main(["data", "plans", "--names", "tiny", "--out", str(tmp_path / "plans"), "--no-progress"]) == 0
+    line = json.loads(out.getvalue())
+    assert line["scenario"] == "tiny" and line["file"] == str(tmp_path / "plans" / "tiny.npz")
+    fresh = read_npz(tmp_path / "plans" / "tiny.npz", "plan-checkpoint")
     shipped = plan_to_arrays(shipped_plan("tiny"))
     assert sorted(fresh) == sorted(shipped)
     for key in fresh:

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
+import json
 import math
-from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _cli import run_cli
 
 from stp_env import hj
 from stp_env.dynamics import DubinsWind
@@ -175,14 +175,11 @@ def test_a_converted_checkpoint_keeps_its_key_and_bits_and_the_compact_one_is_sm
         assert i == j and x.states.tobytes() == y.states.tobytes() and x.times.tobytes() == y.times.tobytes()
     with pytest.raises(checkpoint.CheckpointMismatchError):
         checkpoint.load(two, "another-key")
-    script = importlib.util.spec_from_file_location(
-        "convert_checkpoint", Path(__file__).resolve().parents[1] / "scripts" / "convert_checkpoint.py")
-    module = importlib.util.module_from_spec(script)
-    script.loader.exec_module(module)
-    assert module.main([str(two), str(tmp_path / "again.npz"), "--format", "1"]) == 0
+    code, out, _ = run_cli(["data", "convert-checkpoint", str(two), str(tmp_path / "again.npz"), "--format", "1"])
+    assert code == 0 and json.loads(out)["vehicles"] == 3
     assert (tmp_path / "again.npz").read_bytes() != b"" and checkpoint.load(tmp_path / "again.npz", "the-key")
-    with pytest.raises(SystemExit, match="no such file"):
-        module.main([str(tmp_path / "absent.npz"), str(tmp_path / "x.npz")])
+    code, out, err = run_cli(["data", "convert-checkpoint", str(tmp_path / "absent.npz"), str(tmp_path / "x.npz")])
+    assert code == 2 and out == "" and "stp-env data convert-checkpoint: error:" in err and "no such file" in err
 
 
 @pytest.mark.slow

@@ -128,7 +128,7 @@ def test_default_bound_matches_the_beacls_figure_and_a_coarser_solve(tmp_path):
     # gives "about 5 m". The bound is read after the game's transient (see the module docstring), which adds a few
     # tenths of a metre of grid-dependent creep. Accept 5 m +/- 1.5 m on both grids.
     # The default grid (1/3 m cells) is a 5-minute solve on 2 cores: it ships (stp_env/data/artifacts, read by every
-    # other test and a first `stp-env evaluate`), and `python scripts/ship_artifacts.py --recompute` checks that the
+    # other test and a first `stp-env evaluate`), and `stp-env data artifacts --recompute` checks that the
     # shipped copy is what this code computes. Here the same game is solved from scratch on 2/3 m cells (measured:
     # 6.08 m against 5.34 m shipped; 6.30 m on 1/2 m cells, whose solve creeps on to 88 s) and the shipped bound
     # must agree with it to within two of its cells: a shipped bound of another game (the tracking bound was once
@@ -139,7 +139,7 @@ def test_default_bound_matches_the_beacls_figure_and_a_coarser_solve(tmp_path):
 
     default = TrackingConfig()
     shipped = ArtifactStore(tmp_path / "empty", shipped=SHIPPED_DIR).load("tracking_bound", default)
-    assert shipped is not None, "the default tracking bound does not ship: run python scripts/ship_artifacts.py"
+    assert shipped is not None, "the default tracking bound does not ship: run stp-env data artifacts"
     shipped_bound = compute_tracking_bound(default, store=ArtifactStore(tmp_path / "empty", shipped=SHIPPED_DIR),
                                            progress=False)
     assert shipped_bound.converged and 3.5 <= shipped_bound.bound <= 6.5, shipped_bound.bound

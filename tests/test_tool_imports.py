@@ -1,7 +1,7 @@
-"""The benchmarks and scripts use only names the package has: every ``from stp_env... import name`` and every
+"""The benchmarks and examples use only names the package has: every ``from stp_env... import name`` and every
 ``module.attribute`` read through a name bound to an ``stp_env`` module resolves, without a deprecation warning.
 
-Benchmarks and scripts are not run by the suite (they are full-size measurements), so a refactor that renames or
+Benchmarks and examples are not run by the suite (they are full-size measurements), so a refactor that renames or
 moves something they use would otherwise only be noticed by the next person who runs them. Checked statically
 (the files are parsed, never executed); the package's modules are imported, which computes nothing."""
 
@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-FILES = sorted([*(ROOT / "benchmarks").glob("*.py"), *(ROOT / "scripts").glob("*.py"),
-                *(ROOT / "examples").glob("*.py")])
+FILES = sorted([*(ROOT / "benchmarks").glob("*.py"), *(ROOT / "examples").glob("*.py")])
+# (the data-maintenance scripts that were beside them are ``stp-env data`` subcommands: stp_env/data_tools)
 
 
 def _module(name: str):
@@ -77,7 +77,7 @@ def missing_names(path: Path) -> list[str]:
 
 
 @pytest.mark.parametrize("path", FILES, ids=[str(p.relative_to(ROOT)) for p in FILES])
-def test_benchmarks_and_scripts_use_names_the_package_has(path):
+def test_benchmarks_and_examples_use_names_the_package_has(path):
     assert not missing_names(path), f"{path.relative_to(ROOT)} uses names stp_env does not have (or deprecated ones)"
 
 

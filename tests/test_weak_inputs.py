@@ -6,7 +6,7 @@ argument or file (``docs/threat-model.md``).
 * Booleans (and strings) in actions (``True`` was the number 1): refused, naming the agent.
 * A wind that is a string, a boolean or beyond 1000 m/s (``make("town", wind="6")``, an events record with
   ``wind: 1e300``): refused, naming ``wind`` (and the file).
-* ``scripts/check_plan.py`` on what is not a plan: one line on standard error naming it, exit status 2.
+* ``stp-env data check-plan`` on what is not a plan: one line on standard error naming it, exit status 2.
 
 Nothing here compiles a JAX program: the adapters' checks run before their first computation.
 """
@@ -201,16 +201,6 @@ def test_an_events_record_with_a_wind_beyond_range_is_refused_naming_the_file(tm
 
 
 # ------------------------------------------------------------------------------------------------ check_plan
-@pytest.fixture(scope="module")
-def check_plan():
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("check_plan", ROOT / "scripts" / "check_plan.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def _bad_plans(root: Path) -> dict[str, Path]:
     from stp_env.planning.plan import plan_to_arrays
     from stp_env.planning.stp import shipped_plan
@@ -233,30 +223,28 @@ def _bad_plans(root: Path) -> dict[str, Path]:
     return out
 
 
-def test_check_plan_refuses_what_is_not_a_plan_in_one_line_with_status_2(check_plan, tmp_path, capsys):
+def test_check_plan_refuses_what_is_not_a_plan_in_one_line_with_status_2(tmp_path):
     """An empty file was an ``EOFError`` traceback, a truncated archive a ``BadZipFile`` one, an archive with a
     string where times belong an ``IndexError`` one, a foreign checkpoint a ``ValueError`` one."""
     for name, path in _bad_plans(tmp_path).items():
-        with pytest.raises(SystemExit) as exit_:
-            check_plan.main([str(path), "--scenario", "tiny", "--tracking-bound", "30"])
-        assert exit_.value.code == 2, name
-        stderr = capsys.readouterr().err
-        one_line(stderr, "check_plan.py: error:", path.name)
+        code, out, err = run_cli(["data", "check-plan", str(path), "--scenario", "tiny", "--tracking-bound", "30"])
+        assert code == 2 and out == "", name
+        one_line(err, "stp-env data check-plan: error:", path.name)
 
 
-def test_check_plan_refuses_a_bad_tracking_bound(check_plan, capsys):
-    with pytest.raises(SystemExit) as exit_:
-        check_plan.main(["tiny", "--tracking-bound", "nan"])
-    assert exit_.value.code == 2 and "--tracking-bound" in capsys.readouterr().err
+def test_check_plan_refuses_a_bad_tracking_bound():
+    code, _, err = run_cli(["data", "check-plan", "tiny", "--tracking-bound", "nan"])
+    assert code == 2 and "--tracking-bound" in err
 
 
 def test_check_plan_as_a_program_exits_2_with_one_line(tmp_path):
     path = tmp_path / "truncated.npz"
     path.write_bytes(b"PK\x03\x04 not really")
-    run = subprocess.run([sys.executable, str(ROOT / "scripts" / "check_plan.py"), str(path), "--scenario", "tiny"],
-                         capture_output=True, text=True, timeout=120)
+    run = subprocess.run([sys.executable, "-m", "stp_env.cli", "data", "check-plan", str(path), "--scenario", "tiny"],
+                         capture_output=True, text=True, timeout=120, cwd=ROOT,
+                         env={**os.environ, "STP_ENV_PROGRESS": "0"})  # no "started" line: the error alone
     assert run.returncode == 2 and run.stdout == ""
-    one_line(run.stderr, f"check_plan.py: error: {path}: not a readable plan file or planning checkpoint")
+    one_line(run.stderr, f"stp-env data check-plan: error: {path}: not a readable plan file or planning checkpoint")
 
 
 @pytest.mark.parametrize("setting", [{"gamma": 2}, {"gamma": 0.0}, {"gae_lambda": 1.5}, {"learning_rate": 0},

@@ -434,13 +434,13 @@ def shipped_plan_for(scenario: str, kbar: int | None = None) -> Plan:
     """The shipped plan of a registered scenario at its default parameters, for one ``k̄`` (``None``: the
     intruder-unaware plan): ``shipped_plan_for("town", 2)`` loads ``town-kbar2.npz`` (``k̄ = 1, 2, 3`` are
     shipped for ``town``), ``shipped_plan_for("tiny")`` loads ``tiny.npz``. The plan is for
-    ``make(scenario, kbar=kbar)``; ``scripts/generate_plans.py`` lists what is shipped."""
+    ``make(scenario, kbar=kbar)``; :data:`stp_env.assembly.SHIPPED_PLANS` lists what is shipped."""
     name = scenario if kbar is None else f"{scenario}-kbar{int(kbar)}"
     return shipped_plan(name)
 
 
 def shipped_plan(name: str) -> Plan:
-    """A plan shipped with the package (``stp_env/data/plans``, made by ``scripts/generate_plans.py``)."""
+    """A plan shipped with the package (``stp_env/data/plans``, made by ``stp-env data plans``)."""
     from importlib import resources
 
     ref = resources.files("stp_env") / "data" / "plans" / f"{name}.npz"

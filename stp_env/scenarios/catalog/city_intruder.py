@@ -47,7 +47,7 @@ def city_intruder(*, kbar: int = 3, n_vehicles: int = 50, wind: float = 6.0, slo
     leaves earlier, in the first gap of two buffer spacings. With 90 s slots such gaps were rare, the held-back
     departures cascaded, and the 10th vehicle had no departure within the 676 s planning horizon. With 150 s the
     deepest holds in the shipped plans are 249 s before the slot at ``k̄ = 3`` and 382 s at ``k̄ = 2``, which
-    needs a 1200 s planning horizon (``scripts/generate_plans.py``: at 676 s its 46th vehicle had no departure).
+    needs a 1200 s planning horizon (``stp-env data plans``: at 676 s its 46th vehicle had no departure).
 
     The BEACLS paper's Section VII plans its intruder-aware city for ``k̄ = 3`` (its Fig. 13) and reports two
     vehicles forced by its intruder.

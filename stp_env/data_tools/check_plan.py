@@ -1,54 +1,52 @@
-"""Checks a plan against the constraints the sequential planner imposes, from its nominal trajectories alone: a
-shipped plan, a plan file, or the planned prefix of a planning checkpoint (a long run in progress).
+"""``stp-env data check-plan``: checks a plan against the constraints the sequential planner imposes, from its
+nominal trajectories alone: a shipped plan, a plan file, or the planned prefix of a planning checkpoint (a long run
+in progress).
+
+    stp-env data check-plan city                                 # a shipped plan (a name of SHIPPED_PLANS)
+    stp-env data check-plan my-plan.npz --scenario bay-area      # a plan file of a registered scenario
+    stp-env data check-plan DIR/bay-area.ckpt.npz --scenario bay-area --tracking-bound 35.391876220703125
+    stp-env data check-plan bay-area.npz --scenario bay-area --figure bay_area.png
 
 For every vehicle, that its samples are a flight of the planning dynamics from its start with its recorded arrival
-(``stp_env.planning.verify.trajectory_faults``: without it the checks below would read non-finite or truncated
+(:func:`stp_env.planning.verify.trajectory_faults`: without it the checks below would read non-finite or truncated
 flights and pass vacuously); its clearance from the disks of every higher-priority vehicle (exact, at its samples:
-``stp_env.planning.verify.vehicle_clearances``); the plan's fit to its scenario (vehicles, STAs, bound); each
+:func:`stp_env.planning.verify.vehicle_clearances`); the plan's fit to its scenario (vehicles, STAs, bound); each
 vehicle's arrival against its STA; the tracking bubble's distance from the domain's edge. Prints one JSON line and
 exits with status 1 if a vehicle's trajectory is faulty, comes deeper than half a planning cell into a disk (the
 tolerance the shipped plans are tested to), arrives late or never, or its bubble leaves the domain. What it cannot
 read or check (a missing path, a directory, an empty, truncated or foreign file, an archive without a plan's arrays,
 an unknown scenario) is one line on standard error naming it, and exit status 2.
-
-    python scripts/check_plan.py city                                 # a shipped plan (a name of SHIPPED_PLANS)
-    python scripts/check_plan.py my-plan.npz --scenario bay-area      # a plan file of a registered scenario
-    python scripts/check_plan.py DIR/bay-area.ckpt.npz --scenario bay-area --tracking-bound 35.391876220703125
-    python scripts/check_plan.py bay-area.npz --scenario bay-area --figure bay_area.png
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
-import sys
 from pathlib import Path
 
-import numpy as np
-
-from stp_env import cli_kit
-from stp_env.assembly import SHIPPED_PLANS, plan_mismatch
-from stp_env.loaders import LoadError, read_npz
-from stp_env.planning.plan import Plan, VehiclePlan, plan_from_arrays
-from stp_env.planning.verify import domain_margin, planner_disks, trajectory_faults, vehicle_clearances
-from stp_env.scenarios import make
+from stp_env import cli_kit as kit
+from stp_env.data_tools import description
 
 SHOW = 10  # the deepest vehicles listed
-PROG = "check_plan.py"
 
 
-class Refused(SystemExit):
-    """A plan that cannot be read or checked: its message is one line naming the plan, its exit status 2 (1 is a
-    plan that was checked and fails)."""
+class Refused(ValueError):
+    """A plan that cannot be read or checked: one line naming the plan (``stp-env`` exits with status 2; 1 is a plan
+    that was checked and fails)."""
 
     def __init__(self, message: str):
         super().__init__(" ".join(str(message).split()))
-        self.code = 2
 
 
 def read(source: str, scenario_name: str | None, tracking_bound: float | None):
     """``(plan, scenario, kind, bytes)`` for a shipped name, a plan file or a checkpoint file."""
+    import numpy as np
+
+    from stp_env.assembly import SHIPPED_PLANS
+    from stp_env.loaders import LoadError, read_npz
+    from stp_env.planning.plan import Plan, VehiclePlan, plan_from_arrays
+    from stp_env.scenarios import make
+
     if source in SHIPPED_PLANS and not Path(source).exists():
         from stp_env.planning.stp import shipped_plan
 
@@ -91,8 +89,13 @@ def read(source: str, scenario_name: str | None, tracking_bound: float | None):
     return plan, scenario, "file", path.stat().st_size
 
 
-def check(plan: Plan, scenario, kind: str) -> dict:
+def check(plan, scenario, kind: str) -> dict:
     """The checks of the module docstring, as a dict (``ok``: all of them pass)."""
+    import numpy as np
+
+    from stp_env.assembly import plan_mismatch
+    from stp_env.planning.verify import domain_margin, planner_disks, trajectory_faults, vehicle_clearances
+
     half_cell = 0.5 * float(max(scenario.grid().spacing[:2]))
     faults = trajectory_faults(plan, scenario)
     disks = planner_disks(scenario, plan.tracking_bound, progress=False)
@@ -122,30 +125,32 @@ def check(plan: Plan, scenario, kind: str) -> dict:
     }
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("plan", help="a shipped plan's name, a plan file (.npz) or a planning checkpoint")
-    parser.add_argument("--scenario", help="the registered scenario it was planned for (default: from its name)")
-    parser.add_argument("--tracking-bound", type=cli_kit.positive, help="r_e [m] of a checkpoint's run (> 0)")
-    parser.add_argument("--figure", type=Path, help="draw the plan here (PNG)")
-    args = parser.parse_args(argv)
-    try:
-        try:
-            plan, scenario, kind, size = read(args.plan, args.scenario, args.tracking_bound)
-            result = {"plan": args.plan, "kind": kind, "scenario": scenario.name, "bytes": size,
-                      **check(plan, scenario, kind)}
-            if args.figure is not None:
-                from stp_env.planning.plots import plot_plan
+def add_parser(sub) -> None:
+    """Add ``check-plan`` to the ``stp-env data`` subcommands (building it imports no JAX)."""
+    p = sub.add_parser("check-plan", help="check a shipped plan, a plan file or a planning checkpoint (exit 1: it "
+                                          "fails; 2: it cannot be read)",
+                       formatter_class=kit.HelpFormatter, description=description(__doc__))
+    p.add_argument("plan", help="a shipped plan's name, a plan file (.npz) or a planning checkpoint")
+    p.add_argument("--scenario", help="the registered scenario it was planned for (default: from its name)")
+    p.add_argument("--tracking-bound", type=kit.positive, help="r_e [m] of a checkpoint's run (> 0)")
+    p.add_argument("--figure", type=Path, help="draw the plan here (PNG)")
+    p.set_defaults(run=run, command="data check-plan")
 
-                result["figure"] = plot_plan(plan, scenario, str(args.figure))
-        except (ValueError, OSError) as err:  # an unknown scenario, a foreign checkpoint, an unwritable figure
-            raise Refused(f"{args.plan}: {err}" if args.plan not in str(err) else str(err)) from err
-    except Refused as err:
-        print(f"{PROG}: error: {err}", file=sys.stderr)
+
+def run(args) -> int:
+    """Run ``stp-env data check-plan``: one JSON line; 0 if the plan passes, 1 if it fails (a :class:`Refused`, a
+    ``ValueError``, is status 2)."""
+    try:
+        plan, scenario, kind, size = read(args.plan, args.scenario, args.tracking_bound)
+        result = {"plan": args.plan, "kind": kind, "scenario": scenario.name, "bytes": size,
+                  **check(plan, scenario, kind)}
+        if args.figure is not None:
+            from stp_env.planning.plots import plot_plan
+
+            result["figure"] = plot_plan(plan, scenario, str(args.figure))
+    except Refused:
         raise
+    except (ValueError, OSError) as err:  # an unknown scenario, a foreign checkpoint, an unwritable figure
+        raise Refused(f"{args.plan}: {err}" if args.plan not in str(err) else str(err)) from err
     print(json.dumps(result))
     return 0 if result["ok"] else 1
-
-
-if __name__ == "__main__":
-    sys.exit(main())
