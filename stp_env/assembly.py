@@ -13,18 +13,25 @@ artifact: it reads the arrays of ``EnvParams``.
 from __future__ import annotations
 
 import math
-import warnings
 
 import jax.numpy as jnp
 import numpy as np
 
 from stp_env import hj
+from stp_env.params_checks import (
+    PERIOD_DECIMALS,
+    CheckedInputs,
+    check_inputs,
+    faults_message,
+    plan_faults,
+    plan_period,
+    sample_period,
+)
 from stp_env.progress import enabled as progress_enabled
-from stp_env.reach.fall_rate import FALL_RATE_BAND
 from stp_env.scenarios.catalog.city import CITY_CASES
 from stp_env.sim.bounds import bounds_row
 from stp_env.sim.config import EnvConfig
-from stp_env.sim.margins import default_avoid_margin, tube_free_level
+from stp_env.sim.margins import tube_free_level
 from stp_env.sim.tables import pad_components, pad_periodic
 from stp_env.sim.types import EnvParams, EpisodeParams, IntruderParams, TableParams, VehicleParams, WindParams
 
@@ -35,15 +42,6 @@ def flying_counts(plan, times: np.ndarray) -> np.ndarray:
     arr = np.asarray([v.plan.arrival_time if math.isfinite(v.plan.arrival_time) else v.plan.times[-1]
                       for v in plan.vehicles])
     return ((times[:, None] >= dep[None, :]) & (times[:, None] < arr[None, :])).sum(axis=1)
-
-
-PERIOD_DECIMALS = 6
-"""Sample periods are compared to the microsecond: sample times are sums of float32 and float64 offsets (a replanned
-vehicle's times differ from ``k * dt`` in the ninth digit)."""
-
-
-def _period(times) -> float:
-    return round(float(times[1] - times[0]), PERIOD_DECIMALS)
 
 
 def busiest_window(plan, step: float = 0.5) -> tuple[float, float]:
@@ -68,10 +66,7 @@ def busiest_window(plan, step: float = 0.5) -> tuple[float, float]:
 
 def _plan_arrays(plan):
     vehicles = plan.vehicles
-    steps = {_period(v.plan.times) for v in vehicles if len(v.plan.times) > 1}
-    if len(steps) > 1:
-        raise ValueError(f"The plan's vehicles use different sample periods {sorted(steps)}; the simulator needs one.")
-    dt = steps.pop() if steps else 1.0
+    dt = plan_period(plan)
     k = max(len(v.plan.times) for v in vehicles)
     n = len(vehicles)
     states = np.zeros((n, k, 3), np.float32)
@@ -91,43 +86,6 @@ def _plan_arrays(plan):
         "arrival": np.asarray([v.plan.arrival_time for v in vehicles], np.float32),
         "starts": states[:, 0].copy(),
     }
-
-
-def plan_faults(plan, *, dt: float, planning_v, planning_omega_max: float, targets=None, target_radii=None,
-                scenario=None) -> dict[int, list[str]]:
-    """What keeps each vehicle's trajectory in ``plan`` from being a flight of the planning dynamics (``{index:
-    [reasons]}``, empty when none): with ``scenario``, every check of
-    :func:`stp_env.planning.verify.trajectory_faults` (its start, its arrival, its priority); without it the
-    dynamics-only checks of :func:`stp_env.planning.verify.flight_faults` (finite samples ``dt`` apart, controls in
-    ``U^p``, exact steps), each flight up to its first sample in its target (``targets``, ``target_radii``)
-    shrunk by the plan's tracking bound: for a plan made in the air (replanning), whose starts are not the
-    scenario's."""
-    from stp_env.planning import verify
-
-    if scenario is not None:
-        return verify.trajectory_faults(plan, scenario)
-    faults = {}
-    for i, veh in enumerate(plan.vehicles):
-        p = veh.plan
-        end = None
-        if targets is not None:
-            states = np.asarray(p.states, np.float64)
-            if states.ndim == 2 and states.shape[1:] == (3,) and len(states) and np.all(np.isfinite(states)):
-                end = verify.flight_end(states, np.asarray(targets[i], np.float64), float(target_radii[i]),
-                                        float(plan.tracking_bound))
-        why = verify.flight_faults(p.times, p.states, p.controls, p.t_ldt, dt=dt, planning_v=planning_v,
-                                   planning_omega_max=planning_omega_max, end=end)
-        if why:
-            faults[veh.index] = why
-    return faults
-
-
-def _faults_message(faults: dict[int, list[str]], what: str) -> str:
-    first = min(faults)
-    more = f" (and {len(faults) - 1} more vehicles)" if len(faults) > 1 else ""
-    return (f"{what} is not a flight of the planning dynamics U^p, which the tracking-error bound assumes of every "
-            f"reference: vehicle {first}: {'; '.join(faults[first])}{more}. Pass allow_uncertified=True to simulate "
-            "it anyway, those vehicles' violations counting as assumption failures.")
 
 
 def with_plan(params: EnvParams, plan, *, pad_to: int = 256, allow_uncertified: bool = False) -> EnvParams:
@@ -152,7 +110,7 @@ def with_plan(params: EnvParams, plan, *, pad_to: int = 256, allow_uncertified: 
                          planning_omega_max=dyn.other_omega_max, targets=np.asarray(params.vehicles.targets),
                          target_radii=np.asarray(params.vehicles.target_radii))
     if faults and not allow_uncertified:
-        raise ValueError(_faults_message(faults, "the new plan"))
+        raise ValueError(faults_message(faults, "the new plan"))
     faulty = np.asarray([v.index in faults for v in plan.vehicles])
     k_old, k_new = params.vehicles.nominal_states.shape[1], arrays["nominal_states"].shape[1]
     k = k_old if k_new <= k_old else pad_to * math.ceil(k_new / pad_to)
@@ -182,82 +140,36 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
     must be certified in closed loop; the avoid margin must be at least the certified one; every trajectory of the
     plan must be a flight of the planning dynamics (:func:`plan_faults`); the decision step ``dt`` may not be longer
     than ``t_IAT`` (the intruder stays a whole step: Assumption 1). The last four are refused with one line unless
-    ``config.allow_uncertified``; the vehicles concerned then have ``certified`` false.
+    ``config.allow_uncertified``; the vehicles concerned then have ``certified`` false. The checks are
+    :func:`stp_env.params_checks.check_inputs`; each group of ``EnvParams`` is then built by its own function.
     """
     config = EnvConfig() if config is None else config
-    n = scenario.n_vehicles
-    if len(plan.vehicles) != n:
-        raise ValueError(f"The plan has {len(plan.vehicles)} vehicles but scenario {scenario.name!r} has {n}.")
-    acfg, tcfg = avoid.config, tracking.config
-    mismatch = [f"{name}: scenario {a!r}, {what} {b!r}" for what, name, a, b in (
-        ("avoid region", "collision_radius", scenario.collision_radius, acfg.collision_radius),
-        ("avoid region", "t_iat", scenario.t_iat, acfg.t_iat),
-        *[(f"{what}", f"{who} {field}", getattr(scenario.vehicle, field), getattr(model, field))
-          for what, who, model in (("avoid region", "vehicle", acfg.vehicle), ("avoid region", "intruder",
-                                                                                 acfg.intruder),
-                                   ("tracking bound", "vehicle", tcfg.vehicle))
-          for field in ("v_min", "v_max", "omega_max", "wind", "heading_disturbance")],
-        ("tracking bound", "planning v_min", scenario.planning_v[0], tcfg.planning_v[0]),
-        ("tracking bound", "planning v_max", scenario.planning_v[1], tcfg.planning_v[1]),
-        ("tracking bound", "planning omega_max", scenario.planning_omega_max, tcfg.planning_omega_max),
-    ) if not math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-9)]
-    if mismatch:
-        raise ValueError("The reachability tables were computed for another scenario: " + "; ".join(mismatch) + ".")
-    uncertified = []  # settings of the simulator outside the proofs, accepted with allow_uncertified
-    if not config.control_dt_certified:
-        uncertified.append(f"control_dt {config.control_dt} s")
-    if not tracking.certified:
-        uncertified.append(f"the tracking-error bound {tracking.bound:.3f} m is not certified in closed loop")
-    faults = plan_faults(plan, dt=float(scenario.time_step), planning_v=scenario.planning_v,
-                         planning_omega_max=scenario.planning_omega_max, scenario=scenario)
-    if faults and not config.allow_uncertified:
-        raise ValueError(_faults_message(faults, f"the plan of scenario {scenario.name!r}"))
-    if faults:
-        first = min(faults)
-        warnings.warn(f"{len(faults)} vehicle(s) of scenario {scenario.name!r} fly trajectories that are not "
-                      f"flights of U^p (vehicle {first}: {'; '.join(faults[first])}): their violations count as "
-                      "assumption failures.", stacklevel=2)
+    checked = check_inputs(scenario, plan, avoid, tracking, config)
     arrays = _plan_arrays(plan)
-    d_a = float(avoid.detection_range())
-    d_sense = 1.5 * d_a if config.d_sense is None else config.d_sense
-    if d_sense < d_a:
-        raise ValueError(f"d_sense ({d_sense} m) must be at least the detection range d^A = {d_a:.1f} m (eq. 16): "
-                         "a vehicle must see the intruder before it has to avoid it.")
-    veh, intr = acfg.vehicle, acfg.intruder
-    if math.isfinite(avoid.table_error):
-        certified_margin = default_avoid_margin(config.control_dt, avoid.fall_rate, avoid.table_error)
-    else:  # a table without a closed-loop certificate: the sampling part of the margin, and no certified one
-        uncertified.append("the avoid region is not certified in closed loop")
-        certified_margin = default_avoid_margin(config.control_dt, avoid.fall_rate)
-    margin = certified_margin if config.avoid_margin is None else config.avoid_margin
-    step_fall = config.control_dt * avoid.fall_rate
-    if step_fall > FALL_RATE_BAND:
-        raise ValueError(f"One inner step ({config.control_dt} s) of the avoid value's fastest fall is "
-                         f"{step_fall:.1f} m, beyond the {FALL_RATE_BAND} m band in which that rate was bounded; use a "
-                         "smaller control_dt.")
-    if margin < certified_margin - 1e-6 and math.isfinite(avoid.table_error):
-        uncertified.append(f"avoid_margin {margin:.3f} m, below the certified {certified_margin:.3f} m (one inner step "
-                           f"of the value's fastest fall, {step_fall:.3f} m, plus the table's closed-loop error "
-                           f"{avoid.table_error:.3f} m and rounding)")
-    if config.dt > float(scenario.t_iat) * (1 + 1e-6):
-        # the intruder leaves at the first decision step at least t_IAT after it appeared: one step of dt > t_IAT
-        # keeps it dt seconds, longer than Assumption 1's t_IAT, for which the avoid tables and k̄ are computed
-        uncertified.append(f"dt {config.dt:g} s is longer than t_IAT {float(scenario.t_iat):g} s (the intruder "
-                           "would stay a whole step, past Assumption 1's t_IAT)")
-    if uncertified and not config.allow_uncertified:
-        raise ValueError("Outside what the guarantees certify: " + "; ".join(uncertified) + ". Pass "
-                         "allow_uncertified=True to simulate it anyway (violations then count as assumption "
-                         "failures).")
-    if uncertified:
-        warnings.warn("Simulating outside what the guarantees certify (" + "; ".join(uncertified) + "): every "
-                      "vehicle's violations count as assumption failures.", stacklevel=2)
-    certified = np.asarray([not uncertified and v.index not in faults for v in plan.vehicles], bool)
-    t_iat = float(scenario.t_iat)
+    window = _appear_window(plan, arrays, config)
+    return EnvParams(episode=_episode_params(scenario, plan, arrays, window, config),
+                     vehicles=_vehicle_params(scenario, plan, avoid, arrays, checked, config),
+                     intruder=_intruder_params(scenario, plan, avoid, window, checked, config),
+                     tables=_table_params(scenario, avoid, tracking, checked, config),
+                     wind=_wind_params(config))
+
+
+def _appear_window(plan, arrays, config: EnvConfig) -> tuple[float, float]:
+    """``(lo, hi)`` [s], the window in which the intruder appears: ``config.appear_window`` after the first
+    departure, else the plan's :func:`busiest_window` (``arrays``: :func:`_plan_arrays` of ``plan``)."""
     if config.appear_window is None:
-        lo, hi = busiest_window(plan)
-    else:
-        first = float(arrays["departure"].min())
-        lo, hi = first + config.appear_window[0], first + config.appear_window[1]
+        return busiest_window(plan)
+    first = float(arrays["departure"].min())
+    return first + config.appear_window[0], first + config.appear_window[1]
+
+
+def _episode_params(scenario, plan, arrays, window, config: EnvConfig) -> EpisodeParams:
+    """When and where the episode runs: a ``"window"`` episode from ``lead`` before the appear ``window`` to
+    ``tail`` after the intruder leaves (``t_IAT`` after its latest appearance, Assumption 1); a ``"full"`` one from
+    the first departure to the last STA or plan sample (or the intruder's leaving) plus ``tail``; never starting more
+    than a step before the first departure. The safety filter replaces actions by ``u^A`` (eq. 38)."""
+    lo, hi = window
+    t_iat = float(scenario.t_iat)
     if config.episode == "window":
         t_start, t_end = lo - config.lead, hi + t_iat + config.tail
     else:
@@ -265,7 +177,73 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
         last = max(float(arrays["sta"].max()), max(float(v.plan.times[-1]) for v in plan.vehicles))
         t_end = max(last, hi + t_iat) + config.tail
     t_start = max(t_start, float(arrays["departure"].min()) - config.dt)
+    f32 = np.float32
+    return EpisodeParams(
+        dt=jnp.asarray(config.dt, f32),
+        t_start=jnp.asarray(t_start, f32),
+        t_end=jnp.asarray(t_end, f32),
+        domain_lo=jnp.asarray(scenario.domain_lo, f32),
+        domain_hi=jnp.asarray(scenario.domain_hi, f32),
+        collision_radius=jnp.asarray(scenario.collision_radius, f32),
+        reward_weights=config.rewards.weights(),
+        safety_filter=config.safety_filter,
+        n_nearest=config.n_nearest,
+        control_substeps=config.control_substeps,
+    )
 
+
+def _vehicle_params(scenario, plan, avoid, arrays, checked: CheckedInputs, config: EnvConfig) -> VehicleParams:
+    """The vehicles: the HJ model's bounds (those of the avoid region's vehicle), the plan's nominal tables, the
+    scenario's targets, and ``certified`` false for every vehicle under an uncertified setting and for those whose
+    trajectories are not flights of ``U^p`` (``checked``)."""
+    certified = np.asarray([not checked.uncertified and v.index not in checked.faults for v in plan.vehicles], bool)
+    f32 = np.float32
+    return VehicleParams(
+        bounds=jnp.asarray(bounds_row(avoid.config.vehicle), f32),
+        departure=jnp.asarray(arrays["departure"]),
+        sta=jnp.asarray(arrays["sta"]),
+        nominal_arrival=jnp.asarray(arrays["arrival"]),
+        starts=jnp.asarray(arrays["starts"]),
+        targets=jnp.asarray(scenario.targets(), f32),
+        target_radii=jnp.asarray(scenario.target_radii(), f32),
+        nominal_t0=jnp.asarray(arrays["nominal_t0"]),
+        nominal_dt=jnp.asarray(arrays["nominal_dt"]),
+        nominal_states=jnp.asarray(arrays["nominal_states"]),
+        nominal_controls=jnp.asarray(arrays["nominal_controls"]),
+        nominal_len=jnp.asarray(arrays["nominal_len"]),
+        certified=jnp.asarray(certified),
+        planning_v_max=jnp.asarray(scenario.planning_v[1], f32),
+        n=scenario.n_vehicles,
+        model=config.vehicle_model,
+    )
+
+
+def _intruder_params(scenario, plan, avoid, window, checked: CheckedInputs, config: EnvConfig) -> IntruderParams:
+    """The intruder (Assumption 1): its bounds, ``t_IAT``, the appear ``window``, its spawns (``"outside"`` within
+    ``spawn_radius``, 1.5 d^A by default (eq. 16), Assumption 3; ``"boundary"``, Observation 1), the k̄ under test
+    (the plan's, else the scenario's, else -1) and the sensing range ``d_sense`` (``checked``)."""
+    kbar = plan.kbar if plan.kbar is not None else (scenario.kbar if scenario.kbar is not None else -1)
+    f32 = np.float32
+    return IntruderParams(
+        bounds=jnp.asarray(bounds_row(avoid.config.intruder), f32),
+        t_iat=jnp.asarray(float(scenario.t_iat), f32),
+        appear_window=jnp.asarray(list(window), f32),
+        spawn_radius=jnp.asarray(1.5 * checked.detection_range if config.spawn_radius is None else
+                                 config.spawn_radius, f32),
+        spawn_boundary_probability=jnp.asarray({"outside": 0.0, "boundary": 1.0, "mixed": 0.5}[config.spawn_mode],
+                                               f32),
+        kbar=jnp.asarray(kbar, jnp.int32),
+        d_sense=jnp.asarray(checked.d_sense, f32),
+    )
+
+
+def _table_params(scenario, avoid, tracking, checked: CheckedInputs, config: EnvConfig) -> TableParams:
+    """The grid tables: the buildings' signed distance (a far-away constant without buildings); the avoid value
+    ``V^A`` of the relative dynamics (eq. 44), with d^A (eq. 16) and the avoid margin (``checked``); the tracking
+    table, the gradient of ``W = -V`` of the tracking-error game (3) on the SPP error dynamics (eqs. 24-25), which
+    the tracker ``kappa`` reads (SPP eq. 26), and ``V`` itself, with ``r_e`` and the tube's free level
+    (:func:`stp_env.sim.margins.tube_free_level`)."""
+    acfg, tcfg = avoid.config, tracking.config
     if scenario.buildings:
         gx, gy = scenario.grid_points[:2]
         sdf_grid = hj.Grid.from_bounds(scenario.domain_lo, scenario.domain_hi, (gx, gy))
@@ -273,74 +251,34 @@ def make_params(scenario, plan, avoid, tracking, config: EnvConfig | None = None
     else:
         sdf_grid = hj.Grid.from_bounds(scenario.domain_lo, scenario.domain_hi, (5, 5))
         sdf = np.full((5, 5), 1.0e6, np.float32)
-
     grads = hj.interpolation.gradient_field(tcfg.grid, jnp.asarray(-np.asarray(tracking.value), jnp.float32))
     tracking_value = np.asarray(tracking.value, np.float32)
     box = tcfg.error_dynamics.control_space.blocks[0]
     error_states = np.stack([np.broadcast_to(np.asarray(x), tcfg.grid.shape) for x in tcfg.grid.broadcast_states()])
     free_level = tube_free_level(tracking_value, -np.stack([np.asarray(g) for g in grads]), error_states, box.lo,
                                  box.hi, config.control_dt, tracking.bound - tracking.raised)
-    kbar = plan.kbar if plan.kbar is not None else (scenario.kbar if scenario.kbar is not None else -1)
     f32 = np.float32
-    return EnvParams(
-        episode=EpisodeParams(
-            dt=jnp.asarray(config.dt, f32),
-            t_start=jnp.asarray(t_start, f32),
-            t_end=jnp.asarray(t_end, f32),
-            domain_lo=jnp.asarray(scenario.domain_lo, f32),
-            domain_hi=jnp.asarray(scenario.domain_hi, f32),
-            collision_radius=jnp.asarray(scenario.collision_radius, f32),
-            reward_weights=config.rewards.weights(),
-            safety_filter=config.safety_filter,
-            n_nearest=config.n_nearest,
-            control_substeps=config.control_substeps,
-        ),
-        vehicles=VehicleParams(
-            bounds=jnp.asarray(bounds_row(veh), f32),
-            departure=jnp.asarray(arrays["departure"]),
-            sta=jnp.asarray(arrays["sta"]),
-            nominal_arrival=jnp.asarray(arrays["arrival"]),
-            starts=jnp.asarray(arrays["starts"]),
-            targets=jnp.asarray(scenario.targets(), f32),
-            target_radii=jnp.asarray(scenario.target_radii(), f32),
-            nominal_t0=jnp.asarray(arrays["nominal_t0"]),
-            nominal_dt=jnp.asarray(arrays["nominal_dt"]),
-            nominal_states=jnp.asarray(arrays["nominal_states"]),
-            nominal_controls=jnp.asarray(arrays["nominal_controls"]),
-            nominal_len=jnp.asarray(arrays["nominal_len"]),
-            certified=jnp.asarray(certified),
-            planning_v_max=jnp.asarray(scenario.planning_v[1], f32),
-            n=n,
-            model=config.vehicle_model,
-        ),
-        intruder=IntruderParams(
-            bounds=jnp.asarray(bounds_row(intr), f32),
-            t_iat=jnp.asarray(t_iat, f32),
-            appear_window=jnp.asarray([lo, hi], f32),
-            spawn_radius=jnp.asarray(1.5 * d_a if config.spawn_radius is None else config.spawn_radius, f32),
-            spawn_boundary_probability=jnp.asarray(
-                {"outside": 0.0, "boundary": 1.0, "mixed": 0.5}[config.spawn_mode], f32),
-            kbar=jnp.asarray(kbar, jnp.int32),
-            d_sense=jnp.asarray(d_sense, f32),
-        ),
-        tables=TableParams(
-            sdf=jnp.asarray(sdf),
-            avoid_taus=jnp.asarray(avoid.taus, f32),
-            avoid_values=jnp.asarray(pad_periodic(avoid.values, acfg.grid, lead=1), f32),
-            detection_range=jnp.asarray(d_a, f32),
-            avoid_margin=jnp.asarray(margin, f32),
-            avoid_fall_rate=jnp.asarray(avoid.fall_rate, f32),
-            tracking_table=jnp.asarray(pad_components([*grads, tracking_value], tcfg.grid), f32),
-            tracking_bound=jnp.asarray(tracking.bound, f32),
-            tracking_free_level=jnp.asarray(free_level, f32),
-            sdf_grid=sdf_grid,
-            avoid_grid=acfg.grid,
-            tracking_grid=tcfg.grid,
-            avoid_dynamics=acfg.relative_dynamics,
-            tracking_dynamics=tcfg.error_dynamics,
-        ),
-        wind=WindParams(model=config.wind_model),
+    return TableParams(
+        sdf=jnp.asarray(sdf),
+        avoid_taus=jnp.asarray(avoid.taus, f32),
+        avoid_values=jnp.asarray(pad_periodic(avoid.values, acfg.grid, lead=1), f32),
+        detection_range=jnp.asarray(checked.detection_range, f32),
+        avoid_margin=jnp.asarray(checked.avoid_margin, f32),
+        avoid_fall_rate=jnp.asarray(avoid.fall_rate, f32),
+        tracking_table=jnp.asarray(pad_components([*grads, tracking_value], tcfg.grid), f32),
+        tracking_bound=jnp.asarray(tracking.bound, f32),
+        tracking_free_level=jnp.asarray(free_level, f32),
+        sdf_grid=sdf_grid,
+        avoid_grid=acfg.grid,
+        tracking_grid=tcfg.grid,
+        avoid_dynamics=acfg.relative_dynamics,
+        tracking_dynamics=tcfg.error_dynamics,
     )
+
+
+def _wind_params(config: EnvConfig) -> WindParams:
+    """The wind: the configured model (:mod:`stp_env.sim.winds`), bounded by the vehicles' wind bound."""
+    return WindParams(model=config.wind_model)
 
 
 def load_artifacts(scenario, *, store=None, progress: bool | None = None):
@@ -398,7 +336,7 @@ def plan_mismatch(plan, scenario, tracking_bound: float) -> str | None:
     if plan.tracking_bound < tracking_bound - BOUND_TOLERANCE:
         return (f"it was made with the tracking-error bound r_e = {plan.tracking_bound:.3f} m, smaller than the "
                 f"current {tracking_bound:.3f} m")
-    periods = {_period(v.plan.times) for v in plan.vehicles if len(v.plan.times) > 1}
+    periods = {sample_period(v.plan.times) for v in plan.vehicles if len(v.plan.times) > 1}
     if periods and periods != {round(float(scenario.time_step), PERIOD_DECIMALS)}:
         return f"its sample period is {sorted(periods)} s, the scenario's {scenario.time_step} s"
     return None

@@ -36,7 +36,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("policies", ("stp_env.policies",)),
     ("planning", ("stp_env.planning",)),
     ("scenarios", ("stp_env.scenarios",)),
-    ("assembly", ("stp_env.assembly", "stp_env.requirements")),
+    ("assembly", ("stp_env.assembly", "stp_env.params_checks", "stp_env.requirements")),
     ("adapters", ("stp_env.render", "stp_env.env", "stp_env.env_checks", "stp_env.env_infos", "stp_env.replanning",
                   "stp_env.registration", "stp_env.evaluation")),
     ("learning", ("stp_env.rl",)),
