@@ -88,7 +88,11 @@ def case_worst_case(d: Digest, episodes: int) -> dict:
     """The intruder paper's Fig. 6 (buffer game's worst vehicles against ``optimal-max-k``) and Fig. 7 (``u*``
     against ``max-k``) on the core from the fixed spawn: trajectories and final states."""
     from stp_env.evaluation import worst_case
-    from stp_env.policies import INTRUDERS, VEHICLE_POLICIES
+
+    try:
+        from stp_env.policies import INTRUDERS, VEHICLE_POLICIES
+    except ImportError:  # revisions before the rename: stp_env.baselines
+        from stp_env.baselines import INTRUDERS, VEHICLE_POLICIES
 
     params = worst_case.fig6_params()
     out = {}

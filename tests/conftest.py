@@ -48,14 +48,19 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "stp"))
 # The README's command runs `-n 2 --dist loadfile`: every test file runs whole on one of two workers, handed out in
 # collection order (`--no-loadscope-reorder` in pyproject.toml keeps that order; xdist would otherwise sort the files
 # by their number of tests). A long file handed out last leaves the other worker idle at the end, so the longest
-# files go first (longest-processing-time-first). Measured per file from an empty cache with
-# `benchmarks/suite_compile_share.py` (BENCHMARKS.md, "The test suite from an empty cache"); the order only affects
-# the wall time, never what runs.
-SLOWEST_FILES = ("test_sim.py", "test_falsify.py", "test_planning.py", "test_planning_methods.py", "test_fleet.py",
-                 "test_four_vehicle.py", "test_fig6.py", "test_pinwheel.py", "test_coobservation_env.py",
-                 "test_reach_tracking.py", "test_pymunk_backend.py", "test_planning_resume.py", "test_rl.py",
-                 "test_replan_env.py", "test_extension_points.py", "test_survivability.py", "test_env.py",
-                 "test_oracle_hj_reachability.py", "test_reach_avoid.py", "test_coobservation_planning.py")
+# files go first (longest-processing-time-first). Ranked by the per-test durations of a whole run (`--durations`,
+# which pyproject.toml's addopts print; the files with the longest tests first, then the files measured per file with
+# `benchmarks/suite_compile_share.py`); a file not listed runs after these, in collection order, so a long new file
+# belongs here. The order only affects the wall time, never what runs.
+SLOWEST_FILES = ("test_jax_rl.py", "test_sim.py", "test_gates.py", "test_falsify.py", "test_learned_intruders.py",
+                 "test_planning.py", "test_certification.py", "test_cpu_devices.py", "test_ray.py",
+                 "test_planning_methods.py", "test_vehicle_filter.py", "test_fleet.py",
+                 "test_coobservation_attempts.py",
+                 "test_extension_points.py", "test_docs.py", "test_clients.py", "test_four_vehicle.py", "test_fig6.py",
+                 "test_pinwheel.py", "test_coobservation_env.py", "test_reach_tracking.py", "test_pymunk_backend.py",
+                 "test_planning_resume.py", "test_rl.py", "test_replan_env.py", "test_survivability.py",
+                 "test_env.py", "test_oracle_hj_reachability.py", "test_reach_avoid.py",
+                 "test_coobservation_planning.py", "test_survivability_batch.py", "test_table_registry.py")
 
 
 def pytest_collection_modifyitems(config, items):
