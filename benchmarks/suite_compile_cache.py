@@ -5,6 +5,12 @@ cache off (``STP_ENV_COMPILATION_CACHE=0``: every worker compiles every program 
 folder (``warm``: a rerun on the same machine).
 
     python benchmarks/suite_compile_cache.py tests/test_fleet.py tests/test_falsify.py [--artifacts DIR]
+    python benchmarks/suite_compile_cache.py tests/test_env.py tests/test_sim.py --crowded 3000
+
+With ``--crowded N`` two more runs start from a folder that already holds N entries (small dummy programs, dated as
+JAX dates them), as the shared folder does half-way through a suite run: one with the package's size limit (JAX
+locks the folder and, before each write, reads the size and access date of every entry), one with JAX's own ``-1``
+(no limit: no lock, no reading of the folder). Their ratio is the price of that reading at N entries.
 
 The reachability artifacts come from ``--artifacts`` (default: the usual artifact cache), computed before the timed
 runs by an untimed run with the cache off, so that no timed run computes one. Prints one JSON line: per run the
@@ -50,10 +56,22 @@ def run(files: list[str], env: dict, profile: Path) -> dict:
             "result": lines[-1] if lines else out.stderr[-300:]}
 
 
+def crowd(folder: Path, n: int, dated: bool) -> None:
+    """``n`` dummy entries of 2 kB in ``folder`` (with JAX's access-date files when ``dated``)."""
+    folder.mkdir(parents=True)
+    now = time.time_ns().to_bytes(8, "little")
+    for i in range(n):
+        (folder / f"crowd{i:06d}-cache").write_bytes(b"x" * 2000)
+        if dated:
+            (folder / f"crowd{i:06d}-atime").write_bytes(now)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("files", nargs="+")
     parser.add_argument("--artifacts", default=None, help="artifact cache directory (default: the usual one)")
+    parser.add_argument("--crowded", type=int, default=0, metavar="N",
+                        help="also run from a folder holding N entries, with the size limit and without one")
     args = parser.parse_args()
     base = {k: v for k, v in os.environ.items()
             if not k.startswith(("JAX_COMPILATION_CACHE", "JAX_PERSISTENT", "STP_ENV_COMPILATION"))}
@@ -69,6 +87,16 @@ def main() -> None:
                    "cold": run(args.files, on, tmp / "cold.jsonl"),
                    "warm": run(args.files, on, tmp / "warm.jsonl")}
         size = sum(p.stat().st_size for p in (tmp / "xla").rglob("*") if p.is_file())
+        if args.crowded:
+            for name, limits in (("crowded_limit", {}),
+                                 ("crowded_no_limit", {"STP_ENV_COMPILATION_CACHE_MAX_GB": "",
+                                                       "JAX_COMPILATION_CACHE_MAX_SIZE": "-1"})):
+                folder = tmp / name
+                crowd(folder, args.crowded, dated=not limits)
+                results[name] = run(args.files, {**on, "STP_ENV_COMPILATION_CACHE_DIR": str(folder), **limits},
+                                    tmp / f"{name}.jsonl")
+            results["crowded_limit_over_no_limit"] = round(results["crowded_limit"]["wall_s"]
+                                                           / results["crowded_no_limit"]["wall_s"], 2)
     print(json.dumps({"case": "suite_compile_cache", "files": args.files, **results,
                       "cache_mb": round(size / 2**20, 1),
                       "cpu_off_over_cold": round(results["off"]["cpu_s"] / results["cold"]["cpu_s"], 2),
