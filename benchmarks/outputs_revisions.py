@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import importlib
 import json
 import os
 import subprocess
@@ -90,9 +91,10 @@ def case_worst_case(d: Digest, episodes: int) -> dict:
     from stp_env.evaluation import worst_case
 
     try:
-        from stp_env.policies import INTRUDERS, VEHICLE_POLICIES
-    except ImportError:  # revisions before the rename: stp_env.baselines
-        from stp_env.baselines import INTRUDERS, VEHICLE_POLICIES
+        policies = importlib.import_module("stp_env.policies")
+    except ImportError:  # a revision from before the package's policies were renamed (its name then: "baselines")
+        policies = importlib.import_module("stp_env.baselines")
+    INTRUDERS, VEHICLE_POLICIES = policies.INTRUDERS, policies.VEHICLE_POLICIES
 
     params = worst_case.fig6_params()
     out = {}
