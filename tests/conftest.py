@@ -45,22 +45,29 @@ settings.register_profile(
 settings.register_profile("thorough", deadline=None, max_examples=400)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "stp"))
 
-# The README's command runs `-n 2 --dist loadfile`: every test file runs whole on one of two workers, handed out in
-# collection order (`--no-loadscope-reorder` in pyproject.toml keeps that order; xdist would otherwise sort the files
-# by their number of tests). A long file handed out last leaves the other worker idle at the end, so the longest
-# files go first (longest-processing-time-first). Ranked by the per-test durations of a whole run (`--durations`,
-# which pyproject.toml's addopts print; the files with the longest tests first, then the files measured per file with
-# `benchmarks/suite_compile_share.py`); a file not listed runs after these, in collection order, so a long new file
-# belongs here. The order only affects the wall time, never what runs.
-SLOWEST_FILES = ("test_jax_rl.py", "test_sim.py", "test_gates.py", "test_falsify.py", "test_learned_intruders.py",
-                 "test_planning.py", "test_certification.py", "test_cpu_devices.py", "test_ray.py",
-                 "test_planning_methods.py", "test_vehicle_filter.py", "test_fleet.py",
-                 "test_coobservation_attempts.py",
-                 "test_extension_points.py", "test_docs.py", "test_clients.py", "test_four_vehicle.py", "test_fig6.py",
-                 "test_pinwheel.py", "test_coobservation_env.py", "test_reach_tracking.py", "test_pymunk_backend.py",
-                 "test_planning_resume.py", "test_rl.py", "test_replan_env.py", "test_survivability.py",
-                 "test_env.py", "test_oracle_hj_reachability.py", "test_reach_avoid.py",
-                 "test_coobservation_planning.py", "test_survivability_batch.py", "test_table_registry.py")
+# The README's command runs `-n 2 --dist loadfile -m "not slow"` and CI's slow step `-m slow`: every test file runs
+# whole on one of two workers, handed out in collection order (`--no-loadscope-reorder` in pyproject.toml keeps that
+# order; xdist would otherwise sort the files by their number of tests). A long file handed out last leaves the other
+# worker idle at the end, so the longest files go first (longest-processing-time-first), ranked by the larger of a
+# file's times in the two steps (a whole run's JUnit report, as benchmarks/suite_split.py reads it); a file not listed
+# (under 15 s in both) runs after these, in collection order, so a long new file belongs here. The order only affects
+# the wall time, never what runs.
+SLOWEST_FILES = ("test_certification.py", "test_gates.py", "test_jax_rl.py", "test_planning.py",
+                 "test_planning_methods.py", "test_learned_intruders.py", "test_fleet.py", "test_cpu_devices.py",
+                 "test_falsify.py", "test_ray.py", "test_sim.py", "test_vehicle_filter.py", "test_docs.py",
+                 "test_coobservation_env.py", "test_four_vehicle.py", "test_coobservation_planning.py",
+                 "test_pymunk_backend.py", "test_clients.py", "test_extension_points.py", "test_pinwheel.py",
+                 "test_survivability.py", "test_coobservation_attempts.py", "test_planning_resume.py",
+                 "test_reach_avoid.py", "test_interpolation.py", "test_replan_env.py", "test_fig6.py", "test_env.py",
+                 "test_closed_forms.py", "test_block_reads.py", "test_coobservation_geometry.py",
+                 "test_reach_buffer.py", "test_oracle_hj_reachability.py", "test_reach_tracking.py",
+                 "test_survivability_batch.py", "test_rl.py", "test_dense.py", "test_solver_api.py",
+                 "test_public_jax_api.py", "test_table_registry.py", "test_coobservation_layouts.py",
+                 "test_survivability_paper.py", "test_reach_obstacles.py", "test_dynamics.py",
+                 "test_piece_provenance.py", "test_feedback_dynamics.py", "test_evaluation.py",
+                 "test_coobservation_exact.py", "test_cpu_threads.py", "test_planning_obstacles.py",
+                 "test_loader_contract.py", "test_compilation_cache.py", "test_fail_closed.py",
+                 "test_plan_disk_check.py", "test_plan_domain.py", "test_progress.py")
 
 
 def pytest_collection_modifyitems(config, items):

@@ -343,6 +343,7 @@ def test_the_scan_finder_finds_every_spelling(tmp_path):
     assert scan_sites(pkg, "pkg") == {"pkg.a": [4], "pkg.b": [4], "pkg.c": [4]}
 
 
+@pytest.mark.slow
 def test_one_scan_runs_the_episodes():
     """Every loop over the core's step is :mod:`stp_env.sim.engine`'s (docs/architecture.md): a new ``lax.scan``
     fails here until it is classified in :data:`SCANS` (a loop over the core's step belongs on the engine)."""

@@ -196,6 +196,7 @@ def _slow_compute_in_child(root, marker_dir, params):
     ArtifactStore(root).load_or_compute("lock_probe", params, compute)
 
 
+@pytest.mark.slow
 def test_concurrent_processes_compute_an_artifact_once(tmp_path):
     """Two processes asking for the same missing artifact at once (parallel test workers, two CLI runs): one
     computes it, the other waits for the lock and loads it. Without the lock both would compute."""

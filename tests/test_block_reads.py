@@ -64,6 +64,7 @@ def _reference(table):
                                           hj.interpolation.gradient_slices(GRID, TAUS, raw, t, x))))
 
 
+@pytest.mark.slow
 def test_block_read_is_the_reference_reader_up_to_rounding():
     table = _table()
     x, t = _queries()
@@ -76,6 +77,7 @@ def test_block_read_is_the_reference_reader_up_to_rounding():
     assert np.all(err < 4e-6 * g_scale), (err, g_scale)
 
 
+@pytest.mark.slow
 def test_the_comparison_catches_a_wrong_table():
     """One node off by 1 m is seen by the reads around it: the test above can fail."""
     table = _table()
@@ -87,6 +89,7 @@ def test_the_comparison_catches_a_wrong_table():
     assert float(jnp.max(jnp.abs(v - v_ref))) > 0.05
 
 
+@pytest.mark.slow
 def test_avoidance_control_matches_the_reference_input():
     """``u^A`` (eq. 15) and the intruder's input from the block-read gradient: the reference's, except where a
     switching function is within rounding of zero."""
@@ -117,6 +120,7 @@ def test_pad_periodic_checks_its_input():
     np.testing.assert_array_equal(padded[..., -2:], table[..., :2])
 
 
+@pytest.mark.slow
 def test_tracking_gradient_read_is_the_reference_up_to_rounding():
     """The stacked, padded tracking gradients read as one cell block: ``interpolate_gradient`` of the fields."""
     fields = tuple(np.asarray(f) for f in _table(5)[:3])
@@ -131,6 +135,7 @@ def test_tracking_gradient_read_is_the_reference_up_to_rounding():
     assert float(jnp.max(jnp.abs(wrong - ref))) > 1.0  # components swapped: caught
 
 
+@pytest.mark.slow
 def test_block_reads_run_with_x64_enabled():
     """With ``JAX_ENABLE_X64`` (``examples/pymunk_agreement.py`` compares in float64) indices are int64: the reads
     still trace, and agree with the float32 ones."""

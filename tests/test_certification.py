@@ -53,7 +53,8 @@ def _max_error(dynamics, grid, tracker_value, x0=(0.0, 0.0, 0.0), *, h=0.02, hol
     return float(jnp.max(jnp.hypot(xs[:, 0], xs[:, 1])))
 
 
-@pytest.mark.parametrize("wind, horizon", [(None, 20.0), (11.0, 40.0)])
+@pytest.mark.slow
+@pytest.mark.parametrize("wind, horizon", [(None, 20.0), pytest.param(11.0, 40.0, marks=pytest.mark.slow)])
 def test_the_closed_loop_of_the_certification_is_the_simulators(wind, horizon):
     """The tracking attack's game seed (the worst reference of the tracking value, chosen in feedback on the core's
     own error) gives the largest error of :func:`stp_env.reach.closed_loop.rollout`, the loop the certification
@@ -136,6 +137,7 @@ def test_the_certified_tracking_bounds_are_those_shipped():
     assert six.bound == pytest.approx(5.337635, abs=1e-5)
 
 
+@pytest.mark.slow
 def test_the_avoid_margin_covers_the_tables_closed_loop_error():
     """From the lowest level at which the check can fire, the game's optimal pursuit and worst wind stay outside
     R_c against u^A (the band attack's seed: the worst start of the game on the band's floor, found by the
@@ -184,6 +186,7 @@ def test_the_finest_inner_period_keeps_the_tables_error_in_its_margin():
         assert avoid.table_error > control_dt * avoid.fall_rate or control_dt > 0.005
 
 
+@pytest.mark.slow
 def test_uncertified_settings_are_booked_as_assumption_failures():
     scenario = make("tiny")
     avoid, tracking = load_artifacts(scenario, progress=False)
@@ -255,6 +258,7 @@ def test_reachability_tables_of_another_scenario_are_refused():
 
 
 
+@pytest.mark.slow
 def test_winds_beyond_the_tables_bound_are_scaled_back_into_their_disks():
     """A plug-in wind model cannot exceed the wind bound the tables and the tracking bound were computed for: the
     core scales any longer vector back onto its agent's disk, and leaves winds inside (or on) it bit for bit."""

@@ -62,6 +62,7 @@ SCENARIOS = pytest.mark.parametrize("scenario", ["town", "crossing"])
 """The default scenario (3 vehicles of 7 fly in its episode, 925 steps) and the crossing (4 of 20, 260 steps)."""
 
 
+@pytest.mark.slow
 @SCENARIOS
 @KEEP_FINISHED
 def test_pettingzoo_api_test(scenario, options):
@@ -98,6 +99,7 @@ def test_pettingzoo_max_cycles_test_on_the_default_episode(scenario):
         max_cycles_test(module)
 
 
+@pytest.mark.slow
 @SCENARIOS
 def test_pettingzoo_render_test(scenario):
     with no_api_warnings():
@@ -114,6 +116,7 @@ FLYING = {"town": ["vehicle_0", "vehicle_1", "vehicle_6"],
 FIRST_ARRIVAL = {"town": "vehicle_0", "crossing": "vehicle_16"}
 
 
+@pytest.mark.slow
 @SCENARIOS
 def test_supersuit_vector_env_trains_sb3_ppo_for_the_vehicles(scenario):
     """The vehicles as one vector env, the intruder scripted (not an agent, so every agent is a vehicle with the
@@ -175,6 +178,7 @@ def test_supersuit_vector_env_with_the_intruder_as_an_agent_needs_padding(scenar
     assert sorted(finished) == ["intruder", "vehicle"] and max(finished.values()) < end, finished
 
 
+@pytest.mark.slow
 def test_the_intruder_alone_through_its_gymnasium_id_trains_sb3_ppo():
     """The intruder's single-agent view by its Gymnasium id, as SB3's ``make_vec_env`` builds it (Monitor and
     DummyVecEnv; tests/test_rl.py trains PPO on the native IntruderVecEnv): its reset observation is an array of
@@ -201,6 +205,7 @@ def test_the_intruder_alone_through_its_gymnasium_id_trains_sb3_ppo():
 # ------------------------------------------------------------------------------------------ TorchRL
 
 
+@pytest.mark.slow
 @SCENARIOS
 def test_torchrl_rolls_across_an_agents_finish_and_the_episode_end(scenario):
     """TorchRL's wrapper (groups by name: the vehicles, the intruder) over ``keep_finished``: the infos are
@@ -292,6 +297,7 @@ def local_ray():
         ray.shutdown()
 
 
+@pytest.mark.slow
 @SCENARIOS
 def test_rllib_multi_agent_ppo_with_a_vehicles_and_an_intruder_policy(scenario, request):
     """Two PPO iterations, a policy for the vehicles and one for the intruder, in episodes that end in the step the

@@ -68,6 +68,7 @@ def _radius(grid, center):
     return np.broadcast_to(np.hypot(x - center[0], y - center[1]), grid.shape)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("accuracy", "tube", "tube_mode", "front_tol", "band_tol"),
     [
@@ -102,6 +103,7 @@ def test_holonomic_backward_tube_is_expanded_disk(accuracy, tube, tube_mode, fro
     assert GRID2.boundary_faces_min(V) > 0
 
 
+@pytest.mark.slow
 def test_holonomic_forward_reachable_set_is_expanded_disk():
     """(d) FRS from an initial disk: every control is to be covered, so the control maximises."""
     r, s, T = 0.4, 0.75, 1.0
@@ -126,6 +128,7 @@ def test_holonomic_forward_reachable_set_is_expanded_disk():
 
 
 # --------------------------------------------------------------------------- (b) pure translation
+@pytest.mark.slow
 @pytest.mark.parametrize("direction", [-1.0, 1.0])
 def test_drift_translates_level_set(direction):
     """Speed 0 and a constant drift c: backward, V(-T, x) = l(x + cT) (the set moves upstream by cT);
@@ -167,6 +170,7 @@ def dubins_ttr():
     return res, v, w, 0.75
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("distance", [1.5, 2.0, 3.0])
 def test_dubins_straight_path_against_wind_time_to_reach(dubins_ttr, distance):
     """Pointing at the target from ``distance``, the best the vehicle can guarantee is full speed straight
@@ -232,6 +236,7 @@ def test_convergence_linear_advection(accuracy, min_order):
     assert errors[-1] > 1e-5  # still far above float32 round-off: the orders are meaningful
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("accuracy", "min_order"), [("low", 0.8), ("very_high", 2.5)])
 def test_convergence_nonlinear_hamiltonian(accuracy, min_order):
     """dV/dt - s |dV/dx| = 0 backward (reach with |u| <= s): Hopf-Lax, V(-T, x) = min_{|y - x| <= sT} l(y).

@@ -141,6 +141,7 @@ def _hand_made():
     return final, params, tp
 
 
+@pytest.mark.slow
 def test_attempt_counting_on_a_hand_made_rollout_equals_a_hand_count():
     final, params, tp = _hand_made()
     a = threat.attempts(final, params, tp)

@@ -40,6 +40,7 @@ def _setup():
     return params, threats, times
 
 
+@pytest.mark.slow
 def test_secured_schedule_ellipses_miss_the_zones_and_the_unsecured_do_not():
     secure = checkpoints.ellipse_test(SCENARIO.forbidden, SCENARIO.attacker_speed, SCENARIO.ellipse_radius)
     times = {"secured": SCENARIO.secured_times(secure), "unsecured": SCENARIO.uniform_times(90.0)}
@@ -80,6 +81,7 @@ def test_the_ellipses_worst_case_attacker_beats_only_schedules_that_leave_someth
         assert o["max_track_error"].max() < SCENARIO.tracking_margin
 
 
+@pytest.mark.slow
 def test_the_tailwind_blows_along_each_heading_at_full_strength():
     from stp_env.sim import winds
 
@@ -91,6 +93,7 @@ def test_the_tailwind_blows_along_each_heading_at_full_strength():
                                rtol=1e-6, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_the_optimistic_attacker_returns_where_every_observer_still_sees_it():
     centres = jnp.asarray([[0.0, 0.0], [100.0, 0.0], [1e4, 1e4]])
     mask = jnp.asarray([True, True, False])  # the third disk is not due: ignored
@@ -115,6 +118,7 @@ def test_parallel_env_api_and_infos():
         env.step({"attacker": np.array([np.nan, 0.0])})
 
 
+@pytest.mark.slow
 def test_the_packed_step_is_the_unpacked_one_bit_for_bit():
     """The env keeps its key and threat state packed on the device and fetches each step's outputs and infos'
     fields as one array (stp_env.sim.packing): the same observations, rewards and states as the unpacked step."""
@@ -168,6 +172,7 @@ def _zero_mlp(path, **meta):
     return path
 
 
+@pytest.mark.slow
 def test_a_residual_attacker_with_zero_output_flies_the_plan(tmp_path):
     from stp_env.coobservation.learned import RESIDUAL_SCALE, mlp_attacker
 
@@ -185,6 +190,7 @@ def test_a_residual_attacker_with_zero_output_flies_the_plan(tmp_path):
         mlp_attacker(_zero_mlp(tmp_path / "bad2.npz", residual="yes"))
 
 
+@pytest.mark.slow
 def test_teacher_residuals_reproduce_the_teachers_commands_and_cloning_fits_them():
     import gymnasium as gym
     import torch
@@ -282,6 +288,7 @@ def test_the_attackers_vec_env_keeps_the_batched_vec_env_contract():
         venv.step_wait()
 
 
+@pytest.mark.slow
 def test_the_margin_reward_grows_with_the_attempts_time_margin():
     """An attacker that must try is paid by its attempt's time margin: on reckless episodes, the bonus is 0 without an
     entry and ``m (1 + clip(margin, -60, 3) / 60)`` with one, the margin being the evaluation's (``threat.attempts``);

@@ -35,6 +35,7 @@ def _boundary(q1, q2, a, n):
     return 0.5 * (q1 + q2) + a * np.cos(phi) * u + b * np.sin(phi) * v
 
 
+@pytest.mark.slow
 def test_householder_is_a_rotation_onto_e1():
     for _ in range(20):
         v = RNG.normal(size=3)
@@ -48,6 +49,7 @@ def test_householder_is_a_rotation_onto_e1():
     assert np.linalg.det(h) == pytest.approx(1.0)
 
 
+@pytest.mark.slow
 def test_householder_differential_matches_autodiff():
     """Proposition 2 (eqs. 6-7) against forward-mode autodiff of the frame."""
     for _ in range(10):
@@ -56,6 +58,7 @@ def test_householder_differential_matches_autodiff():
         np.testing.assert_allclose(E.householder_differential(q1, q2, d1, d2), jv, atol=2e-5)
 
 
+@pytest.mark.slow
 def test_point_projection_against_dense_boundary():
     n = 60
     q1, q2, a = _random_ellipses(RNG, n)
@@ -95,6 +98,7 @@ def test_plane_constraint_zero_exactly_when_the_line_misses():
     assert 10 < hits < 70  # both cases exercised
 
 
+@pytest.mark.slow
 def test_segment_and_polygon_constraints_against_sampling():
     n = 60
     q1, q2, a = _random_ellipses(RNG, n)
@@ -123,6 +127,7 @@ def test_segment_and_polygon_constraints_against_sampling():
     np.testing.assert_array_equal(edges | (centre & truth), truth)
 
 
+@pytest.mark.slow
 def test_constraint_differentials_match_finite_differences():
     """Autodiff through the projection's root (implicit differentiation, Appendix C) and the plane constraint
     (Appendix D) against central differences, where both constraints are active."""

@@ -8,6 +8,7 @@ import pytest
 from stp_env.coobservation import checkpoints, layouts, paper
 
 
+@pytest.mark.slow
 def test_generated_layouts_are_reproducible_securable_and_keep_walls_off_the_routes():
     for seed in range(4):
         task, rejected = layouts.random_survey(seed)

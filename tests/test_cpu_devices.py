@@ -75,6 +75,7 @@ def _run(code: str, *args, env_vars: dict | None = None) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_episodes_shared_among_three_devices_are_each_computed_once_in_order():
     got = _run(_TOY, 3)
     assert got["n_devices"] == 3
@@ -110,6 +111,7 @@ print(json.dumps({"devices": len(final.x.sharding.device_set), "status": np.asar
 """
 
 
+@pytest.mark.slow
 def test_a_rollout_on_two_cpu_devices_keeps_every_episodes_outcome():
     one, two = _run(_ROLLOUT, 1), _run(_ROLLOUT, 2)
     assert (one["devices"], two["devices"]) == (1, 2)
@@ -152,6 +154,7 @@ print(json.dumps({"devices": len(jax.tree.leaves(env._states)[0].sharding.device
 """
 
 
+@pytest.mark.slow
 def test_the_training_vec_env_shares_its_batch_and_keeps_every_episode():
     """The vectorised training environment's step (with its auto-reset) on two devices: the states stay spread over
     both between calls, and every env's episode is the one it flies on one device (dones the same, observations and
@@ -187,6 +190,7 @@ print(json.dumps({"devices": len(jax.tree.leaves(venv._states)[0].sharding.devic
 """
 
 
+@pytest.mark.slow
 def test_the_co_observation_attackers_vec_env_shares_its_batch():
     """The learned attacker's VecEnv takes the environment and the threat whole on every device (copied there once):
     on two devices its states stay spread over both and its observations are those of one device."""
@@ -240,6 +244,7 @@ print(json.dumps({"started": _backend_started()}))
 """
 
 
+@pytest.mark.slow
 def test_importing_any_module_leaves_the_backend_unstarted():
     """The device count and the thread pools are fixed by JAX's first computation: no module may compute at import
     (a JAX constant made at module level did), or they could not be set after ``import stp_env.evaluation``. The
@@ -275,6 +280,7 @@ print(json.dumps({"code": code, "devices": summary["devices"], "event_devices": 
 """
 
 
+@pytest.mark.slow
 def test_an_evaluation_on_two_devices_records_them_and_replays_bit_for_bit(tmp_path):
     got = _run(_EVALUATE, tmp_path)
     assert got["code"] == 0 and got["devices"] == 2

@@ -47,6 +47,7 @@ def _probe(want):
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="counts threads through /proc")
 def test_one_thread_reaches_xla_is_refused_after_start_and_changes_nothing():
     one, default = _probe(1), _probe("unset")

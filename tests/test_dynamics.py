@@ -233,6 +233,7 @@ def test_mode_flip_symmetry_and_single_integrator():
     assert u0 == [0.0, 0.0, 0.0]
 
 
+@pytest.mark.slow
 def test_grid_evaluation_matches_pointwise():
     """Structure-of-arrays evaluation on broadcast grid states equals evaluation at single states."""
     grid = hj.Grid.from_bounds((-20.0, -10.0, -math.pi), (20.0, 10.0, math.pi), (5, 4, 6), periodic=2)

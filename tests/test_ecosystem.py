@@ -14,6 +14,7 @@ import stp_env  # noqa: F401  (registers the environments)
 from stp_env.registration import ENVIRONMENTS
 
 
+@pytest.mark.slow
 def test_the_intruder_view_is_made_by_its_gymnasium_id():
     from stp_env.rl.gym_env import IntruderEnv
 

@@ -41,6 +41,7 @@ def par():
     return parallel_env()
 
 
+@pytest.mark.slow
 def test_the_agents_of_an_episode_are_its_possible_agents_all_present_at_reset():
     """Vehicles that arrived before the episode's first instant are not possible agents (the same for every seed),
     every possible agent is an agent at reset, and a scripted intruder is not an agent."""
@@ -111,6 +112,7 @@ def _run(e, seed, n_steps, rng_seed=3):
     return np.stack(xs), np.stack(xi)
 
 
+@pytest.mark.slow
 def test_same_seed_same_trajectories_for_500_steps():
     one, other = parallel_env(), parallel_env()
     a = _run(one, 11, 500)
@@ -122,6 +124,7 @@ def test_same_seed_same_trajectories_for_500_steps():
     assert not np.array_equal(a[1], c[1])  # another seed: another intruder
 
 
+@pytest.mark.slow
 def test_adapter_matches_the_pure_core(par):
     """Same keys and actions through ``sim.reset`` / ``sim.step`` give the adapter's states, to float32 rounding
     (the adapter's step is compiled together with the observations, so XLA may fuse differently: last-bit
@@ -180,6 +183,7 @@ def test_wrong_shapes_are_rejected(par, shape):
     assert _same(before, _snapshot(par))
 
 
+@pytest.mark.slow
 @settings(max_examples=20)
 @given(name=st.text(min_size=1, max_size=12).filter(lambda s: s not in {f"vehicle_{i}" for i in range(7)}
                                                    and s != "intruder"))
@@ -267,6 +271,7 @@ def _hold_still(key, state, params):
     return jnp.zeros((params.vehicles.n, params.vehicles.model.action_dim), state.x.dtype)
 
 
+@pytest.mark.slow
 def test_a_function_as_vehicle_policy_flies_inside_the_step():
     """``vehicle_policy=`` a function: the same episode, bit for bit, as its actions passed from outside (zero
     actions: held over the step or evaluated at every inner step, they are the same), the safety filter included."""
@@ -343,6 +348,7 @@ def test_appear_time_option_and_infos(par):
     assert infos2["intruder"] is not first  # fresh dicts every step
 
 
+@pytest.mark.slow
 def test_long_run_without_recompiling_or_growing_memory(par):
     """20,000 adapter steps over many episodes: one trace of the step function and flat memory (the 100,000-step
     run is in benchmarks/env_throughput.py)."""
@@ -365,6 +371,7 @@ def test_long_run_without_recompiling_or_growing_memory(par):
     assert rss[-1] - rss[0] < 50_000, rss  # KiB: less than 50 MB growth after warm-up
 
 
+@pytest.mark.slow
 def test_packed_step_is_the_unpacked_one_bit_for_bit():
     """The adapter keeps the key and state packed on the device (the carry) and fetches a step's outputs as one
     packed array: unpacked, the next key and state and the outputs are exactly those of the unpacked step, over
@@ -445,6 +452,7 @@ def test_a_loop_reading_env_state_gets_it_from_the_step_with_the_same_episode(pa
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
+@pytest.mark.slow
 def test_pack_round_trips_every_dtype():
     tree = {"f32": jnp.asarray([1.5, -np.inf, np.nan], jnp.float32), "i32": jnp.asarray([[-7, 2 ** 31 - 1]]),
             "b": jnp.asarray([True, False, True, True, False]), "u8": jnp.asarray([0, 255, 7], jnp.uint8),

@@ -167,6 +167,7 @@ def tiny_run(tmp_path_factory):
     return out, stdout
 
 
+@pytest.mark.slow
 def test_evaluate_writes_results(tiny_run):
     out, stdout = tiny_run
     assert "| scenario | intruder | vehicles | k̄ |" in stdout
@@ -240,6 +241,7 @@ def test_replay_of_any_episode_matches_the_batch(tiny_run):
     assert not same_outcome(other, final)          # and the comparison can tell episodes apart
 
 
+@pytest.mark.slow
 def test_render_writes_a_small_gif(tiny_run, tmp_path):
     out, _ = tiny_run
     gif = tmp_path / "episode.gif"

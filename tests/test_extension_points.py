@@ -239,7 +239,6 @@ class SteadyWindAttack:
         ax2.plot(np.asarray(t), np.full(len(t), float(final.max_tracking_error[0])), label="largest error")
 
 
-@pytest.mark.slow  # compiles a search over the core step
 def test_a_falsifier_target_from_one_file_searches_saves_draws_and_replays(tmp_path):
     from stp_env.falsify import targets
     from stp_env.falsify.cli import add_parser

@@ -32,6 +32,7 @@ class Broken(WindModel):
         return w, state.wind
 
 
+@pytest.mark.slow
 def test_a_wind_model_that_returns_nan_or_inf_makes_the_episode_an_assumption_failure(monkeypatch):
     """Before: the states went NaN, every comparison with them was false, and the episode was booked clean (no
     collision, no violation, no assumption failure)."""

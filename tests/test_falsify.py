@@ -55,6 +55,7 @@ def _zigzag(attack: TrackingAttack) -> np.ndarray:
     return z.ravel()
 
 
+@pytest.mark.slow
 def test_zigzag_reference_in_worst_wind_stays_within_r_e():
     """At the default inner control rate the tracker holds the zig-zag reference in the tracking game's worst wind
     (the boundary-layer tracker held for a whole step lost it: > 100 m within 40 s)."""
@@ -131,6 +132,7 @@ def test_kbar_attack_vehicle_option_needs_the_buffer_table():
     assert attack.required_tables == ("buffer",) and attack.base.tables.buffer_values is not None
 
 
+@pytest.mark.slow
 def test_counterexample_replays_bit_for_bit(tmp_path):
     params = _params()
     # A short tracking attack: replay does not depend on the target, and this one compiles fastest.

@@ -85,6 +85,7 @@ def _front_radius(values, center):
     return np.asarray(out)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("mode", "sign"), [("max", 1.0), ("min", -1.0)])
 def test_rotating_feedback_frs_is_rotated_grown_disk(mode, sign):
     c0, r, a, T = np.array([0.8, 0.0]), 0.35, 0.2, 1.0

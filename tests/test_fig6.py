@@ -31,6 +31,7 @@ def _synthetic_params():
     return params, value, dyn
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("state", [(250.0, 120.0, 2.0), (-200.0, 150.0, -1.0), (90.0, -260.0, 0.5),
                                    (-150.0, -180.0, 3.0)])
 def test_worst_control_is_the_steepest_descent_by_brute_force(state):
@@ -114,7 +115,6 @@ def test_fig6_placement_is_derived_from_the_tables(fig6_setup):
     assert float(tables.buffer_value(params, jnp.asarray([x2 + 2 * cell, 0.0, -math.pi], jnp.float32))) > 0
 
 
-@pytest.mark.slow
 def test_fig6_worst_vehicles_reach_kbar(fig6_setup):
     """Fig. 6: the worst vehicles against the optimal max-k intruder: Q1-Q3 forced at 0, t_BRD, 2 t_BRD (within one
     step), Q4 untouched; never more than k̄."""

@@ -34,6 +34,7 @@ def crossing():
     return config, build_params([config], progress=False)[0]
 
 
+@pytest.mark.slow
 def test_vehicle_fields_are_exactly_the_state_fields_with_a_row_per_vehicle(crossing):
     _, params = crossing
     full = jax.eval_shape(sim.reset, jax.random.key(0), params)
@@ -45,6 +46,7 @@ def test_vehicle_fields_are_exactly_the_state_fields_with_a_row_per_vehicle(cros
     assert part.wind.shape == full.wind.shape == (params.vehicles.n + 1, 2)   # the wind state is the fleet's
 
 
+@pytest.mark.slow
 def test_random_draws_are_the_whole_fleets(crossing):
     _, params = crossing
     ids = np.array([0, 3, 4, 11, 19])
@@ -63,6 +65,7 @@ def test_random_draws_are_the_whole_fleets(crossing):
         assert bool(any_part) and ids[int(j_part)] == int(j_full)
 
 
+@pytest.mark.slow
 def test_select_refuses_bad_ids(crossing):
     _, params = crossing
     for bad in ([], [3, 1], [1, 1], [-1, 2], [0, 20], [[1, 2]]):
@@ -125,6 +128,7 @@ def test_part_of_the_fleet_plays_the_same_episodes(crossing):
     assert np.all(np.any(moved, axis=0))
 
 
+@pytest.mark.slow
 def test_wind_models_may_answer_for_the_whole_fleet(crossing):
     """A model that sizes its winds like the wind state (the whole fleet) still gives each simulated agent its own
     row; one whose state is not the fleet's is refused."""
@@ -157,6 +161,7 @@ def test_wind_models_may_answer_for_the_whole_fleet(crossing):
                                                               ids))
 
 
+@pytest.mark.slow
 def test_part_of_a_fleet_ends_when_the_whole_fleet_would(crossing):
     """The episode of part of a fleet ends early (every vehicle done, the intruder gone) only if no vehicle left
     out still waits to take off, as for the whole fleet."""
@@ -176,6 +181,7 @@ def test_part_of_a_fleet_ends_when_the_whole_fleet_would(crossing):
         assert bool(terminated) is not waits
 
 
+@pytest.mark.slow
 def test_a_vehicle_whose_trajectory_flies_on_past_its_target_has_arrived(crossing):
     """A vehicle leaves the airspace when its nominal trajectory reaches the target, even where the trajectory then
     flies on out of the target disk (the city planner's do, by up to 1 km): at the episode's start it is ARRIVED,
@@ -215,6 +221,7 @@ def test_select_slices_every_per_vehicle_parameter(crossing):
     assert per_vehicle == set(fleet.PARAM_VEHICLE_FIELDS)
 
 
+@pytest.mark.slow
 def test_the_kbar_attack_on_the_airborne_vehicles_scores_as_on_the_whole_fleet(crossing):
     """The falsifier's k̄ attack (default ``fleet="airborne"``) gives every attack the objective the whole fleet
     gives it (forced counts equal, tie-breakers within float rounding), from fewer vehicles."""

@@ -11,6 +11,7 @@ import unittest.mock
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from stp_env import assembly, sim
 from stp_env.planning.stp import shipped_plan_for
@@ -78,6 +79,7 @@ def _branches(fn, *args):
     return found
 
 
+@pytest.mark.slow
 def test_where_needed_computes_only_the_needed_elements_of_the_whole_batch_and_equals_computing_every_one():
     rng = np.random.default_rng(0)
     d = np.float32(2.0)
@@ -122,6 +124,7 @@ def test_where_needed_computes_only_the_needed_elements_of_the_whole_batch_and_e
         np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_batch_any_reduces_over_every_vmapped_axis():
     def f(x, p):
         return gates.when_any(p, lambda x: jnp.sin(x) * jnp.where(p, 1.0, 0.0), lambda x: jnp.zeros_like(x), x)
@@ -221,6 +224,7 @@ def _assert_same_episodes(params, gated, full):
     _assert_same(gated[1], full[1])
 
 
+@pytest.mark.slow
 def test_avoid_reads_are_skipped_only_where_they_cannot_matter():
     """At the avoid table's box edge: the vehicle 1 cm inside is read, the one 1 cm outside is not (its ``V^A`` is
     ``FAR`` either way; its unused ``u^A`` zero), the avoiding one outside is read (its ``u^A`` is applied)."""
@@ -242,6 +246,7 @@ def test_avoid_reads_are_skipped_only_where_they_cannot_matter():
     np.testing.assert_array_equal(action[needed], every_action[needed])
 
 
+@pytest.mark.slow
 def test_gated_steps_are_the_ungated_steps_in_every_episode():
     params = _params()
     states, i, _ = _batch(params)
@@ -269,6 +274,7 @@ def test_gated_steps_are_the_ungated_steps_in_every_episode():
     _assert_same_episodes(params, gated, full)
 
 
+@pytest.mark.slow
 def test_an_episode_is_the_same_whichever_gathered_size_its_batch_mates_make_the_reads_take():
     """300 town episodes (2,100 vehicles; reads gathered into 1,024, or all computed): the first 20 episodes, their
     intruders near their vehicles, step the same bit for bit whether the other episodes need no reads, need
@@ -301,6 +307,7 @@ def test_an_episode_is_the_same_whichever_gathered_size_its_batch_mates_make_the
         _assert_same(outs[0], other)
 
 
+@pytest.mark.slow
 def test_a_rollout_with_gathered_reads_is_the_rollout_with_every_read():
     """200 steps of 300 town episodes (``sim.rollout``), the reads gathered against every vehicle's read computed
     and masked: the same episodes bit for bit (a smaller gathered size than ``gates.MIN_GATHER`` fails here)."""
@@ -321,6 +328,7 @@ def test_a_rollout_with_gathered_reads_is_the_rollout_with_every_read():
     assert (gathered[1]["intruder_status"] == PRESENT).any()
 
 
+@pytest.mark.slow
 def test_the_evaluator_batches_episodes_by_their_intruders_appearance():
     from stp_env.evaluation.runner import batch_indices, episode_order
     from stp_env.seeds import prng_key
@@ -335,6 +343,7 @@ def test_the_evaluator_batches_episodes_by_their_intruders_appearance():
     np.testing.assert_array_equal(batch_indices(order, 32, 16), np.concatenate([order[32:], np.arange(40, 48)]))
 
 
+@pytest.mark.slow
 def test_boundary_spawns_are_computed_only_when_an_episode_of_the_batch_spawns_on_a_boundary():
     """The intruder's boundary candidates (a bisection of table reads each) are gated: in a batch mixing boundary
     and outside spawns, and in one with outside spawns only, every episode's spawn is the ungated one, and the same

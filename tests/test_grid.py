@@ -69,6 +69,7 @@ def test_from_bounds_periodic_forms_and_hashability():
         a.shape = (5, 5)  # type: ignore[misc]
 
 
+@pytest.mark.slow
 def test_states_and_broadcast_states_agree():
     g = hj.Grid.from_bounds((-1.0, 2.0, 0.0), (1.0, 3.0, 1.0), (3, 4, 5), periodic=2)
     full = np.asarray(g.states())
@@ -133,6 +134,7 @@ def test_index_to_state_matches_coordinate_vectors(gi):
     np.testing.assert_allclose(state, expected, rtol=0, atol=1e-5 * max(1.0, np.abs(expected).max()))
 
 
+@pytest.mark.slow
 @given(grid_and_index())
 def test_index_coordinate_round_trip(gi):
     grid, idx = gi

@@ -100,6 +100,7 @@ def _next_outputs(par, steps=3):
 
 
 # ---- case 2: a failed reset leaves the random stream (key, state, agents) as it was
+@pytest.mark.slow
 def test_failed_reset_keeps_the_key_state_and_next_episode(par):
     par.reset(seed=3)
     par.step(_zeros(par))

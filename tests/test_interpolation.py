@@ -35,6 +35,7 @@ def random_values(grid: hj.Grid, seed: int) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------------ properties
+@pytest.mark.slow
 @given(grids(max_n=9), st.integers(0, 2**31 - 1), st.data())
 def test_exact_on_nodes(grid, seed, data):
     values = random_values(grid, seed)
@@ -46,6 +47,7 @@ def test_exact_on_nodes(grid, seed, data):
     assert abs(got - float(values[idx])) <= tol, (got, values[idx], tol)
 
 
+@pytest.mark.slow
 @given(grids(max_n=9), st.integers(0, 2**31 - 1), st.integers(-2, 2), st.data())
 def test_periodic_shift_gives_same_value(grid, seed, k, data):
     values = jnp.asarray(random_values(grid, seed))
@@ -60,6 +62,7 @@ def test_periodic_shift_gives_same_value(grid, seed, k, data):
     assert abs(a - b) <= tol, (a, b, tol)
 
 
+@pytest.mark.slow
 @given(grids(max_n=9), st.data())
 def test_reproduces_affine_functions_inside(grid, data):
     coef = np.array([data.draw(st.floats(-3.0, 3.0)) for _ in range(grid.ndim)])
@@ -80,6 +83,7 @@ def test_reproduces_affine_functions_inside(grid, data):
     assert abs(got - exact) <= tol, (got, exact, tol)
 
 
+@pytest.mark.slow
 @given(grids(max_dim=2, max_n=9), st.integers(0, 2**31 - 1), st.data())
 def test_value_is_between_corner_values(grid, seed, data):
     """Multilinear weights are a convex combination: no overshoot anywhere, including outside (clamped)."""
@@ -113,6 +117,7 @@ def test_vector_valued_fields_jit_and_vmap():
     np.testing.assert_allclose(got, np.stack([2 * p[:, 0] + 1, -p[:, 0]], -1), atol=1e-5)
 
 
+@pytest.mark.slow
 def test_gradient_field_exact_for_quadratics():
     """Central differences are exact for quadratics at interior nodes; the linear extrapolation at faces makes
     them exact for affine functions everywhere."""
@@ -135,6 +140,7 @@ def test_gradient_field_exact_for_quadratics():
         interp.gradient_field(g, jnp.zeros((3, 3)))
 
 
+@pytest.mark.slow
 def test_gradient_field_periodic_dimension_wraps():
     g = hj.Grid.from_bounds((0.0,), (2 * math.pi,), (64,), periodic=0)
     th = g.coordinate_vector(0)
@@ -144,6 +150,7 @@ def test_gradient_field_periodic_dimension_wraps():
     np.testing.assert_allclose(np.asarray(d), np.cos(th) * math.sin(dx) / dx, atol=1e-5)
 
 
+@pytest.mark.slow
 def test_optimal_inputs_from_interpolated_gradient():
     g = hj.Grid.from_bounds((-2.0, -2.0), (2.0, 2.0), (41, 41))
     values = hj.shapes.ball(g, (0.0, 0.0), 0.5)
@@ -165,6 +172,7 @@ def test_optimal_inputs_from_interpolated_gradient():
     np.testing.assert_allclose(d, [0.3, 0.0], atol=0.01)
 
 
+@pytest.mark.slow
 def test_interpolate_in_time_both_directions_and_clamping():
     stack = jnp.stack([jnp.full((2,), 0.0), jnp.full((2,), 10.0), jnp.full((2,), 30.0)])
     for times, sign in ((jnp.array([0.0, 1.0, 3.0]), 1.0), (jnp.array([0.0, -1.0, -3.0]), -1.0)):

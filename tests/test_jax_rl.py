@@ -61,6 +61,7 @@ def _assert_trees_close(a, b, atol=1e-6):
             np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
 
+@pytest.mark.slow
 def test_gymnax_wrappers_run_the_intruder_env_and_batch_step_is_their_step(params):
     """gymnax's ``LogWrapper(FlattenObservationWrapper(env))`` runs the intruder's view under ``vmap`` (gymnax's own
     ``step``, auto-resets included) for 40 steps of 30-step episodes; the trainer's :meth:`batch_step`, fed the same
@@ -97,6 +98,7 @@ def test_gymnax_wrappers_run_the_intruder_env_and_batch_step_is_their_step(param
     assert np.all(np.asarray(info["returned_episode_lengths"]) > 0)
 
 
+@pytest.mark.slow
 def test_gymnax_rollout_is_the_core_episode_bit_for_bit(params):
     """Episodes of an evaluator run (seed 5, the ``greedy`` intruder), each keyed as the evaluator keys it: the gymnax
     view (horizon "episode"), reset with the episode's reset key and stepped with its step keys (the script's action
@@ -182,6 +184,7 @@ def _tiny(out_dir, **over) -> TrainConfig:
     return TrainConfig(**{**fields, **over})
 
 
+@pytest.mark.slow
 def test_tiny_training_on_the_command_line_improves_on_its_start_and_exports_what_it_flew(tmp_path):
     """``stp-env train-intruder --trainer jax``: 24 PPO iterations of 64 x 64 steps on the default ``town`` (the
     intruder's 10 s) write the run's files, print the last evaluation, and on its 256 held-out episodes the trained
@@ -294,6 +297,7 @@ def test_resume_continues_the_run_and_refuses_foreign_checkpoints(params, tmp_pa
 
 
 
+@pytest.mark.slow
 def test_vehicle_gymnax_env_steps_the_ego_episode():
     """The ego vehicle's gymnax view (town, the whole episode, the ``greedy`` intruder on a vehicle's avoid boundary):
     a reset hands over the vehicle forced first (flying, after its avoidance) and a step flies it, with the ego
@@ -333,6 +337,7 @@ print(json.dumps({"devices": len(jax.devices()), "shares": jax_ppo.data_shares(s
 """
 
 
+@pytest.mark.slow
 def test_the_update_shared_among_two_devices_is_the_update_on_one():
     """PPO on gymnax's own Pendulum (the trainer takes any gymnax env) with one minibatch per epoch, on one CPU device
     and split into two (each device its envs' share of the rollout and of the gradient, summed): the same

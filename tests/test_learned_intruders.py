@@ -34,6 +34,7 @@ def _venv(params, n=64, **kw):
     return IntruderVecEnv(n, params=params, horizon="intruder", vehicle_policy="switching", observation="game", **kw)
 
 
+@pytest.mark.slow
 def test_game_features_encode_the_buffer_games_hop(params):
     """Wherever an unforced vehicle is flying, ``optimal-max-k`` turns toward the first candidate's hop heading with
     its proportional law at full speed: the features hold its decision (an independent check of the ranking and of
@@ -54,6 +55,7 @@ def test_game_features_encode_the_buffer_games_hop(params):
     assert np.all(np.abs(obs) <= 2.0)
 
 
+@pytest.mark.slow
 def test_clone_reproduces_the_teacher_on_held_out_states(params):
     """Behaviour cloning with one DAgger round: on states of other seeds the clone's action is within 0.1 of the
     teacher's in both components at 90 % of the states or more at this small budget (measured: 94 %; the
@@ -89,6 +91,7 @@ def test_a_tiny_run_from_the_clone_beats_its_untrained_start(params, tmp_path):
     assert record.tables == ("buffer",) and record.spawn == "boundary"
 
 
+@pytest.mark.slow
 def test_the_kbar_reward_pays_once_when_kbar_is_reached(params):
     """``kbar_reward``: the rewards of two runs on the same keys differ by exactly the bonus, at the steps where the
     count of forced vehicles reaches k̄ and nowhere else (k̄ = 1 here, so that the teacher reaches it often)."""
@@ -114,6 +117,7 @@ def test_the_kbar_reward_pays_once_when_kbar_is_reached(params):
     np.testing.assert_allclose(r1 - r0, np.where(reached, 7.0, 0.0), atol=1e-5)
 
 
+@pytest.mark.slow
 def test_shipped_learned_intruders_play_as_recorded():
     """Every shipped learned intruder that records a check (its scenario, settings and the forced counts of a small
     batch of held-out episodes) forces the same counts today. Intruders trained on the same settings fly in one

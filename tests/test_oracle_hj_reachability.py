@@ -142,6 +142,7 @@ def _check_steps(r: dict) -> None:
 
 
 # --------------------------------------------------------------------------------------------- float32
+@pytest.mark.slow
 @pytest.mark.parametrize("tube_mode", ["freeze", "min_with_target"])
 @pytest.mark.parametrize(("case", "accuracy", "region"), [
     ("air3d", "very_high", "band"),
@@ -194,6 +195,7 @@ def x64_results():
     return {(r["case"], r["accuracy"], r["tube_mode"]): r for r in _run_x64(X64_CASES)}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("case", "accuracy", "tube_mode"), X64_CASES)
 def test_float64_matches_hj_reachability_everywhere(x64_results, case, accuracy, tube_mode):
     r = x64_results[(case, accuracy, tube_mode)]

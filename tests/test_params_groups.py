@@ -49,6 +49,7 @@ def _params(n=2, k=4) -> EnvParams:
     )
 
 
+@pytest.mark.slow
 def test_replace_changes_only_the_named_fields_and_refuses_unknown_groups_and_fields():
     params = _params()
     new = params.replace(episode=dict(t_end=jnp.asarray(20.0, f32)), vehicles=dict(sta=jnp.ones(2, f32)))

@@ -149,6 +149,7 @@ def _same_summary(a, b) -> None:
         assert np.asarray(a.episodes[k]).tobytes() == np.asarray(b.episodes[k]).tobytes(), k
 
 
+@pytest.mark.slow
 def test_an_evaluation_never_merges_a_forged_foreign_or_short_piece(tmp_path):
     """The evaluation's own pieces: a forged value (a separation that never happened), a batch of another seed's
     run and the last batch of a shorter run, each in batch 1's place, are computed again: the summary is that of
@@ -177,6 +178,7 @@ def test_an_evaluation_never_merges_a_forged_foreign_or_short_piece(tmp_path):
 
 
 # ------------------------------------------------------------------------------------------------ the falsifier
+@pytest.mark.slow
 def test_a_search_never_merges_a_forged_restart(tmp_path):
     import jax
 

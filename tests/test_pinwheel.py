@@ -23,6 +23,7 @@ def wave3():
     return pinwheel_params(3)
 
 
+@pytest.mark.slow
 def test_converging_winds_blow_the_unforced_vehicles_and_the_intruder_toward_each_other(wave3):
     from stp_env.sim.winds.converging import converging_winds
     from stp_env.sim.winds.worst import worst_winds

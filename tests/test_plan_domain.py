@@ -116,6 +116,7 @@ def test_plan_mismatch_names_kbar_stas_and_vehicle_count():
 STUDIES = [s for s in SHIPPED if s[1] in ("city", "city-intruder", "bay-area")]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("file,name,overrides", STUDIES, ids=[s[0] for s in STUDIES])
 def test_the_shipped_city_and_bay_area_plans_hold_the_planners_constraints(file, name, overrides):
     from stp_env.assembly import _shipped_plan, plan_mismatch

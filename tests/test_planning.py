@@ -19,6 +19,7 @@ PLANNER = DubinsWind(v_min=0.5, v_max=0.6, omega_max=0.5, wind=0.0)
 GRID = hj.Grid.from_bounds((-1.5, -1.5, -np.pi), (1.5, 1.5, np.pi), (61, 61, 40), periodic=2)
 
 
+@pytest.mark.slow
 def test_straight_path_latest_departure_time():
     # Pointing at the target: the time to reach is (distance - r) / v_max (docs/numerics.md), so t_LDT = -that.
     start, target, r = (-1.0, 0.0, 0.0), (1.0, 0.0), 0.2
@@ -86,6 +87,7 @@ def test_bad_inputs():
                                horizon=5.0, kbar=2)
 
 
+@pytest.mark.slow
 def test_plan_scenario_tiny_arrives_and_separates():
     from stp_env.planning.stp import plan_scenario
     from stp_env.scenarios import make
@@ -151,6 +153,7 @@ def test_shipped_tiny_plan_regenerates_bit_for_bit(tmp_path):
         shipped_plan("nope")
 
 
+@pytest.mark.slow
 def test_replanning_changes_only_the_affected_vehicle():
     from stp_env.planning.replan import replan
     from stp_env.planning.stp import plan_scenario
@@ -180,6 +183,7 @@ def test_replanning_changes_only_the_affected_vehicle():
         replan(plan, scenario, {5: displaced}, t_bar)
 
 
+@pytest.mark.slow
 def test_early_stop_gives_the_full_solve_t_ldt_with_fewer_steps():
     # The time-to-reach of a node never changes once finite, so stopping the backward solve once the start is
     # inside the tube gives the same t_LDT (up to float32 rounding of the segment offsets) and the same trajectory.
@@ -198,6 +202,7 @@ def test_early_stop_gives_the_full_solve_t_ldt_with_fewer_steps():
 AGILE = DubinsWind(v_min=0.5, v_max=0.6, omega_max=2.0, wind=0.0)
 
 
+@pytest.mark.slow
 def test_a_vehicle_with_time_to_spare_flies_to_its_target():
     # Departing 10 s before its latest departure time, the vehicle is deep inside the tube, where V is flat (the
     # target's depth): the controller of V(t) alone wandered and arrived 0.63 s after the STA (13.95 s of flight
@@ -208,6 +213,7 @@ def test_a_vehicle_with_time_to_spare_flies_to_its_target():
     assert early.arrival_time - early.t_ldt <= direct.arrival_time - direct.t_ldt + 0.1
 
 
+@pytest.mark.slow
 def test_the_goal_directed_control_is_filtered_by_the_tube_of_its_own_time():
     # A disk sweeps across the straight route, centred on it 1.7 s after an early departure: the goal-directed
     # control (from a later slice, where the disk has gone) would fly into it. The filter keeps each sample in the
@@ -224,6 +230,7 @@ def test_the_goal_directed_control_is_filtered_by_the_tube_of_its_own_time():
     assert np.hypot(x[:, 0], x[:, 1] - 0.3 * (t + 13.3)).min() >= 0.3 - 0.5 * GRID.spacing[0]
 
 
+@pytest.mark.slow
 def test_a_trajectory_that_leaves_the_tube_is_reported():
     # A disk appears on the target 3 s after an early departure, just before the direct trip would arrive: the
     # trajectory enters the target as the disk appears (the tube's values are sampled in time), i.e. inside an
@@ -280,6 +287,7 @@ def _shared_origin_departure(solver, monkeypatch=None):
     return float(gap.min()), plan
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("solver", ["split", "hj"])
 def test_a_start_that_another_vehicle_has_just_left_departs_outside_its_disk(solver, monkeypatch):
     # The nodes around the start enter the tube (first entry, going backward) on either side of the disk's stay
@@ -296,6 +304,7 @@ def test_a_start_that_another_vehicle_has_just_left_departs_outside_its_disk(sol
     assert plan.t_ldt > -4.5
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("solver", ["split", "hj"])
 def test_the_backward_solve_stops_only_at_a_slice_with_the_start_inside(solver):
     # A disk sits on the start over [-3.6, -3.1] s; unobstructed, the start enters the tube at -3.0 s, between
@@ -317,6 +326,7 @@ def test_the_backward_solve_stops_only_at_a_slice_with_the_start_inside(solver):
     assert np.hypot(x[on, 0] + 1.0, x[on, 1]).min() >= 0.2
 
 
+@pytest.mark.slow
 def test_folded_lag_disks_are_a_superset_of_the_lag_profiles():
     # fold_contained_disks drops the lag disks inside the lag-0 disk and widens the flight window instead: the
     # obstacle g (sub-zero set) must contain the original union at every time, before, during and after the flight.
@@ -400,6 +410,7 @@ def test_shipped_town_buffer_radii_shrink_with_kbar(town_plans):
     assert radii[0] > radii[1] > radii[2] > 2 * 245.0  # beyond the separation region (d^A ~ 246 m, eq. 20)
 
 
+@pytest.mark.slow
 def test_late_extraction_departs_earlier(monkeypatch):
     """A nominal trajectory that comes out later than its STA (the sampled controller can lose time in a narrow
     channel; seen on a city case) is extracted again from an earlier departure."""

@@ -162,6 +162,7 @@ def test_obstacle_table_is_a_distance_lower_bound():
     assert float(jnp.min(tabulated_obstacles(1.5, params))) > 1e3
 
 
+@pytest.mark.slow
 def test_slice_feedback_matches_the_planning_controller():
     # The FRS's grid feedback (SliceFeedback) is the controller the vehicles fly (planning_control) at nodes.
     dyn = make("four-vehicle").vehicle

@@ -39,6 +39,7 @@ def _query_times(span, buckets):
                            [span[0] - 1e4, span[1] + 1e4]])
 
 
+@pytest.mark.slow
 def test_bucketed_disks_equal_the_whole_fleet_bit_for_bit():
     fleet, span = _fleet(), (-400.0, 300.0)
     whole = disk_params(GRID, fleet, LAGS, RADII, n_slots=16)
@@ -86,6 +87,7 @@ def test_time_buckets_rejects_an_empty_span():
         time_buckets(np.zeros(1), np.ones(1), np.zeros((1, 1)), (5.0, 5.0))
 
 
+@pytest.mark.slow
 def test_moving_disks_are_the_per_disk_signed_distance():
     """Against the definition, disk by disk in float64: ``min_{j, l present} ||p - p_j(t + lambda_l)|| - r_l``."""
     fleet = _fleet()
@@ -131,6 +133,7 @@ def _windows_seen_by_the_second_vehicle(monkeypatch, hold_slices):
     return seen[0], first[0]
 
 
+@pytest.mark.slow
 def test_held_disks_stay_whole_slices_longer_on_both_sides(monkeypatch):
     (start0, end0), (t_ldt, arrival) = _windows_seen_by_the_second_vehicle(monkeypatch, 0)
     assert (start0, end0) == pytest.approx((t_ldt, arrival))  # lag-0 disks only: the flight itself

@@ -115,6 +115,7 @@ def _problem(model, **fields):
     return PlanningProblem(**{**base, **fields})
 
 
+@pytest.mark.slow
 def test_a_second_planning_model_is_planned_by_the_sequential_planner(tmp_path):
     model = _current_model()
     assert isinstance(model, PlanningModel) and as_planning_model(model) is model

@@ -57,6 +57,7 @@ def test_split_solver_matches_the_straight_path_and_the_unsplit_solver():
     assert np.all(np.abs(split.flight()[1][:, 1]) < dx)
 
 
+@pytest.mark.slow
 def test_split_step_is_set_by_the_position_axes_on_the_city_grid():
     # City grid and U^p: the unsplit CFL step is limited by the turn rate (w_max / dth = 4.6 /s); the split one by
     # the position (0.55 /s) and the cap of MAX_TURN_PER_STEP rad of turn per step.
@@ -209,6 +210,7 @@ def test_max_slice_dt_must_be_a_positive_number(bad):
         _problem(max_slice_dt=bad)
 
 
+@pytest.mark.slow
 def test_the_slice_spacing_is_part_of_the_checkpoint_key(tmp_path):
     def plan(cap, on_vehicle):
         # horizon / 200 = 0.04 s above the 0.02 s time step: a cap of 0.03 s changes the slices, one of 0.05 s does not

@@ -11,6 +11,8 @@ import sys
 import textwrap
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 PLUGIN = textwrap.dedent('''
@@ -98,6 +100,7 @@ def test_help_lists_installed_plugins_without_importing_them_or_jax(tmp_path):
     assert "breeze: a plug-in" in evaluate
 
 
+@pytest.mark.slow
 def test_named_plugins_run(tmp_path):
     """Each plug-in by its name: the scenario is made, the intruder and vehicle policy fly an episode of the env, the
     wind model is made; a name read from a data file does not load one."""

@@ -151,6 +151,7 @@ def test_the_environment_announces_its_artifact_builds(recorder):
     assert recorder.events[0][0] == "progress" and "tiny-intruder" in recorder.events[0][1], recorder.events
 
 
+@pytest.mark.slow
 def test_the_environment_announces_the_compilation_of_reset_and_step(monkeypatch):
     """Each of the first ``reset`` and ``step`` is announced before JAX compiles (or loads) its program."""
     from stp_env.env import parallel_env

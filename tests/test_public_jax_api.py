@@ -43,6 +43,7 @@ def test_weak_gives_the_weak_type_and_keeps_everything_else(shape, dtype):
     assert weak.committed == value.committed and weak.sharding == value.sharding
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scalar", [1.5, -0.0, 7, 2 + 1j])
 def test_weak_types_as_jax_types_a_python_scalar(scalar):
     """The same array as JAX makes of a Python scalar (weak, default dtype), and it promotes as one: a weak float

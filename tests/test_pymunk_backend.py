@@ -37,6 +37,7 @@ def _inputs(n=9, seed=0):
             jnp.asarray(rng.normal(size=(n, 2)).astype(f)), jnp.asarray((0.1 * rng.normal(size=n)).astype(f)))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("substeps", [1, 4])
 def test_kinematic_step_is_the_exact_dubins_step(substeps):
     x, v, w, wind, head = _inputs()
@@ -109,6 +110,7 @@ def _drive(model, commands, wind, dt=0.02, x0=(0.0, 0.0, 0.0)):
     return np.asarray(out)
 
 
+@pytest.mark.slow
 def test_dynamic_speed_step_response_is_two_cascaded_lags():
     """A speed step from 8 to 12 m/s: actuator lag tau_a, then the body's m / c_lin: the closed form of two
     first-order lags in series."""
@@ -123,6 +125,7 @@ def test_dynamic_speed_step_response_is_two_cascaded_lags():
     np.testing.assert_allclose(x[1:, 6], 12.0 - 4.0 * np.exp(-t / t1), atol=1e-4)   # the actuator's own state
 
 
+@pytest.mark.slow
 def test_dynamic_body_approaches_dubins_as_lags_vanish_and_drifts_with_lag():
     """Open loop through a turning manoeuvre in wind: as the body time constants shrink (no actuator lag) the rigid
     body converges to the Dubins path at first order (a heading lag of ``omega I / c_ang`` per turn-rate change);
@@ -145,7 +148,6 @@ def test_dynamic_body_approaches_dubins_as_lags_vanish_and_drifts_with_lag():
     assert lag_1 > 10 * fine and lag_3 > 1.5 * lag_1, (fine, lag_1, lag_3)
 
 
-@pytest.mark.slow  # builds town params and compiles the table lookup
 def test_sensor_shapes_agree_with_the_signed_distance_events():
     """pymunk sensor shapes and collision callbacks (buildings as static polygons, R_c / 2 circles) against the
     core's collision tests (the buildings' signed-distance table, pairwise distances) at random points of town."""

@@ -116,6 +116,7 @@ def _objects(context, i):
     return {"x": np.asarray([None])}
 
 
+@pytest.mark.slow
 def test_params_travel_to_workers_exactly():
     """``EnvParams`` as host arrays (what the object store holds) and back: the same tree, dtypes, shapes, weak
     types and bits; a weakly typed leaf stays weak (a program would otherwise compile again)."""
@@ -147,6 +148,7 @@ def _interrupted_at_the_third(piece, calls: list):
     return interrupted
 
 
+@pytest.mark.slow
 def test_a_killed_job_resumes_from_the_pieces_it_wrote(tmp_path, monkeypatch, local_evaluation):
     """An evaluation interrupted in its third batch wrote the first two; run again, it computes only the third and
     gives what an uninterrupted run gives. Another seed is another job: nothing is reused."""
@@ -198,6 +200,7 @@ def ray_executor():
         ray.shutdown()
 
 
+@pytest.mark.slow
 def test_pieces_run_on_two_worker_processes(ray_executor):
     job = execution.Job(name="squares", function=_slow_square, context=None, arguments=tuple(range(6)))
     results = ray_executor.run(job)
@@ -230,12 +233,14 @@ def _cube(context, i):
     return {"x": np.asarray([i ** 3]), "pid": np.asarray(os.getpid())}
 
 
+@pytest.mark.slow
 def test_an_evaluation_on_ray_is_the_in_process_one_bit_for_bit(ray_executor, local_evaluation):
     on_ray = runner.evaluate([TINY], executor=ray_executor, **EVALUATION)
     _same_results(local_evaluation, on_ray)
     assert on_ray[0].summary["episodes"] == EVALUATION["episodes"]
 
 
+@pytest.mark.slow
 def test_a_search_on_ray_is_the_in_process_one_bit_for_bit(ray_executor):
     from stp_env import assembly, sim
     from stp_env.falsify.search import SearchConfig, search
@@ -260,6 +265,7 @@ def _dies_once(context, argument):
     return runner.evaluation_piece(inner, argument)
 
 
+@pytest.mark.slow
 def test_a_dead_workers_piece_runs_again_with_the_same_result(ray_executor, tmp_path):
     params = runner.build_params([TINY], progress=False)
     n_steps = max(runner.sim.steps_for(p) for p in params)
@@ -303,6 +309,7 @@ def _missions(out):
             for r in read_study(out)}
 
 
+@pytest.mark.slow
 def test_a_survivability_study_on_ray_is_the_in_process_one(ray_executor, tmp_path):
     """The study's groups (instance i of the scenarios with the same N_p) as Ray tasks: the same missions as in
     this process, and the same report (but for its timing)."""
@@ -364,6 +371,7 @@ def _coobservation_inputs():
     return params, threats, resolve_attackers(["reckless"]), (0.0, scenario.duration - 10.0)
 
 
+@pytest.mark.slow
 def test_a_coobservation_evaluation_on_ray_is_the_in_process_one(ray_executor, tmp_path):
     """Two schedules x one attacker x two batches as Ray tasks: the same rows, margins included; a killed local run
     resumes from the batches it wrote."""
@@ -385,6 +393,7 @@ def test_a_coobservation_evaluation_on_ray_is_the_in_process_one(ray_executor, t
         evaluation.run(params, threats, attackers, 6, pieces_dir=tmp_path, **run)
 
 
+@pytest.mark.slow
 def test_a_training_sweep_on_ray_is_the_in_process_one(ray_executor, tmp_path):
     """Two seeds of a tiny PPO run as Ray tasks: each run's evaluations equal the in-process run's, and each run wrote
     its own folder; the environment's params are built once, by the driver."""
@@ -450,6 +459,7 @@ def test_the_sweep_options_are_checked_before_anything_runs(tmp_path):
     assert not (tmp_path / "sweep").exists() or not any((tmp_path / "sweep").iterdir())
 
 
+@pytest.mark.slow
 def test_a_study_past_its_time_limit_stops_after_the_group_that_passed_it(tmp_path):
     """``max_seconds``: the group that finishes past the limit is written, nothing after it; the same call without
     the limit flies the rest, and the missions are those of an uninterrupted study."""

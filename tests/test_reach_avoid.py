@@ -40,6 +40,7 @@ def region():
     return compute_avoid_region(small_config(), progress=False)
 
 
+@pytest.mark.slow
 def test_contains_danger_zone_and_not_touching_boundary(region):
     grid = region.grid
     x = grid.states()
@@ -48,6 +49,7 @@ def test_contains_danger_zone_and_not_touching_boundary(region):
     assert region.boundary_margin > 0
 
 
+@pytest.mark.slow
 def test_behind_extent_matches_closed_form(region):
     # Straight behind at equal heading the intruder closes at v_I + winds - v_i (docs/numerics.md).
     value = make_value_function(region)
@@ -58,6 +60,7 @@ def test_behind_extent_matches_closed_form(region):
     assert inside <= 0 < outside
 
 
+@pytest.mark.slow
 def test_grows_with_t_iat(region):
     longer = compute_avoid_region(small_config(t_iat=2.5), progress=False)
     # Same grid: every node inside the shorter-horizon set is inside the longer one.
@@ -172,6 +175,7 @@ def test_closed_loop_outside_is_safe_inside_is_captured(region):
     assert dmin_in.max() <= rc + 0.5 * dx, f"not captured from inside: max min-distance {dmin_in.max():.3f}"
 
 
+@pytest.mark.slow
 def test_nominal_vehicle_is_caught_from_outside(region):
     # A vehicle that ignores the intruder (flies straight at full speed) is caught from states where u^A would
     # have saved it: the check above can fail.
@@ -198,6 +202,7 @@ def test_bad_parameters_rejected():
         small_config(accuracy="ultra")
 
 
+@pytest.mark.slow
 def test_controller_outputs_within_bounds(region):
     u_avoid = jax.jit(make_avoidance_controller(region))
     u_pursue = jax.jit(make_pursuit_controller(region))
@@ -225,6 +230,7 @@ def _world_step(rel, controls, winds, h):
     return np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], thi + w_i * h - th_v])
 
 
+@pytest.mark.slow
 def test_fall_rate_bounds_the_value_along_any_motion_and_exceeds_the_closing_speed():
     """The avoid region's fall-rate bound (the simulator's sampled-data avoid margin per second) against finite
     differences of the interpolated value along random extreme inputs at states near its zero level. The largest

@@ -43,6 +43,7 @@ def test_brd_time():
             brd_time(10.0, bad)
 
 
+@pytest.mark.slow
 def test_buffer_shrinks_as_kbar_grows(buffers):
     radii = [buffers[k].radius for k in (1, 2, 4)]
     assert radii[0] > radii[1] > radii[2]
@@ -93,6 +94,7 @@ def test_bad_buffer_config():
         buffer_radii(2, -1.0, 1.0, 1.0, 2.0)
 
 
+@pytest.mark.slow
 def test_other_priority_frame_is_an_involution_with_the_same_radius(buffers):
     from stp_env.reach.buffer import swap_relative_frame
 

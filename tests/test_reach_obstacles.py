@@ -45,6 +45,7 @@ def test_signed_distance_of_profile():
     assert float(prof.signed_distance(centres, jnp.array([10.0, 3.0]))) == pytest.approx(-0.2, abs=1e-5)
 
 
+@pytest.mark.slow
 def test_disk_frs_is_bounded_by_the_radius_rule():
     grid = hj.Grid.from_bounds((-4.0, -4.0, -np.pi), (4.0, 4.0, np.pi), (41, 41, 40), periodic=2)
     duration = 2.0
@@ -56,6 +57,7 @@ def test_disk_frs_is_bounded_by_the_radius_rule():
     assert bound - 2 * dx <= r <= bound + dx
 
 
+@pytest.mark.slow
 def test_static_augmentation_within_inflation_radius():
     grid = hj.Grid.from_bounds((-6.0, -6.0, -np.pi), (6.0, 6.0, np.pi), (49, 49, 40), periodic=2)
     building = hj.shapes.rectangle(grid, (-1.0, -0.5), (1.0, 0.5), dims=(0, 1))

@@ -33,6 +33,7 @@ def bound():
     return compute_tracking_bound(config(), progress=False)
 
 
+@pytest.mark.slow
 def test_bound_positive_below_cap_and_grows_with_wind(bound):
     assert 0 < bound.bound < 0.5 * bound.config.cap
     assert bound.min_value <= bound.bound + 1e-6

@@ -63,6 +63,7 @@ def planted(monkeypatch):
     return calls
 
 
+@pytest.mark.slow
 def test_rgb_array_frame_has_the_figure_shape_and_shows_the_scene(episode):
     e, _, _ = episode
     frame = e.render()

@@ -34,6 +34,7 @@ def params():
                         episode=dict(t_end=lo + 5.0))
 
 
+@pytest.mark.slow
 def test_gym_env_passes_gymnasium_and_sb3_checks(params):
     gym_check_env(IntruderEnv(params=params), skip_render_check=True)
     sb3_check_env(IntruderEnv(params=params), warn=True)
@@ -45,6 +46,7 @@ def test_gym_env_passes_gymnasium_and_sb3_checks(params):
         env.step(np.zeros(3, np.float32))
 
 
+@pytest.mark.slow
 def test_gym_env_packed_step_is_the_functional_step_bit_for_bit(params):
     """The env keeps its key and state packed on the device and fetches each step's outputs as one array
     (stp_env.sim.packing): the same observations, rewards, ends, stats and states as the functional step."""
@@ -70,6 +72,7 @@ def test_gym_env_packed_step_is_the_functional_step_bit_for_bit(params):
             break
 
 
+@pytest.mark.slow
 def test_vec_env_matches_dummy_vec_env_over_the_gym_env(params):
     dummy = DummyVecEnv([lambda: IntruderEnv(params=params) for _ in range(N_ENVS)])
     native = IntruderVecEnv(N_ENVS, params=params)
@@ -141,6 +144,7 @@ def _short_ppo(params, seed: int, steps: int):
     return model
 
 
+@pytest.mark.slow
 def test_short_ppo_run_is_seeded_and_exports_a_jittable_intruder(params, tmp_path):
     model_a = _short_ppo(params, seed=3, steps=3072)
     model_b = _short_ppo(params, seed=3, steps=3072)
@@ -173,6 +177,7 @@ def test_short_ppo_run_is_seeded_and_exports_a_jittable_intruder(params, tmp_pat
     assert row["mean_return"] == pytest.approx(result["returns"].mean())
 
 
+@pytest.mark.slow
 def test_shipped_intruder_matches_its_sb3_model(params):
     from importlib import resources
 

@@ -204,6 +204,7 @@ def test_bad_vehicle_and_building_specs():
 
 
 # ------------------------------------------------------------------------------------------ geometry
+@pytest.mark.slow
 def test_polygon_signed_distance_unit_square_closed_forms():
     pts = np.array([
         (0.5, 0.5),    # centre: -0.5

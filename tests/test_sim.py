@@ -122,6 +122,7 @@ def test_without_avoidance_the_hj_intruder_collides():
     assert not (np.asarray(final.complied) & forced & np.asarray(final.collided_with_intruder)).any()
 
 
+@pytest.mark.slow
 def test_rollout_is_deterministic_and_episodes_replay():
     params = _params("outside")
     n_steps = 60
@@ -134,6 +135,7 @@ def test_rollout_is_deterministic_and_episodes_replay():
     assert (heading >= -np.pi).all() and (heading < np.pi).all()
 
 
+@pytest.mark.slow
 def test_wind_models_respect_their_bounds():
     import dataclasses
 
@@ -225,6 +227,7 @@ def test_squared_closest_approaches_give_the_distances_of_one_root_per_inner_ste
     assert not np.array_equal(perturbed, old)
 
 
+@pytest.mark.slow
 def test_a_plan_without_kbar_promises_nothing_to_vehicles_that_left_it():
     """A collision between two vehicles is a guarantee violation when both fly their plans (any plan), or when
     the plan is intruder-aware (k̄: buffer regions); with a plan that is not (no k̄), a vehicle avoiding the

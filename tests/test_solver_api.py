@@ -41,6 +41,7 @@ def shifted_interval(t, p):
 
 
 # ------------------------------------------------------------------------------------ result structure
+@pytest.mark.slow
 def test_result_structure_and_cfl_step():
     times = [0.0, -0.3, -0.5]
     res = hj.solve(VERY_HIGH, HOLO, GRID, times, TARGET, progress=False)
@@ -61,6 +62,7 @@ def test_result_structure_and_cfl_step():
     assert sets[2].sum() > sets[1].sum() > sets[0].sum()
 
 
+@pytest.mark.slow
 def test_cfl_time_step_local_and_global_for_dubins():
     grid = hj.Grid.from_bounds((-1.0, -1.0, -math.pi), (1.0, 1.0, math.pi), (11, 11, 16), periodic=2)
     dyn = DubinsWind(v_min=0.2, v_max=1.0, omega_max=0.5, wind=0.25)
@@ -84,6 +86,7 @@ def test_cfl_time_step_local_and_global_for_dubins():
 
 
 # ------------------------------------------------------------------------------------ restarts
+@pytest.mark.slow
 @pytest.mark.parametrize("obstacle", [False, True], ids=["free", "moving_obstacle"])
 @pytest.mark.parametrize("tube", [False, True], ids=["set", "tube"])
 def test_solve_in_one_go_equals_restarted_solve(tube, obstacle):
@@ -120,6 +123,7 @@ def test_steps_per_chunk_does_not_change_results():
 
 
 # ------------------------------------------------------------------------------------ obstacles
+@pytest.mark.slow
 def test_static_obstacle_blocks_the_way_in_1d():
     """Target around x = 0.8, a wall on [0.2, 0.4]: in 1-D nothing to the left of the wall can reach the
     target, although everything reaches it without the wall."""
@@ -137,6 +141,7 @@ def test_static_obstacle_blocks_the_way_in_1d():
     assert np.all(np.asarray(res.values[0]) == np.maximum(np.asarray(target), -np.asarray(wall)))
 
 
+@pytest.mark.slow
 def test_obstacle_fn_uses_absolute_time():
     """The obstacle ``|x - (c0 + t)| <= 0.1`` is applied at the requested times, not at times since the start."""
     params = {"x": jnp.asarray(X1, jnp.float32), "c0": jnp.float32(0.0)}
@@ -160,6 +165,7 @@ def test_obstacle_fn_uses_absolute_time():
 
 
 # ------------------------------------------------------------------------------------ time to reach
+@pytest.mark.slow
 def test_time_to_reach_output():
     res = hj.solve(VERY_HIGH, HOLO, GRID, [0.0, -1.0], TARGET, tube=True, time_to_reach=True, progress=False)
     ttr = np.asarray(res.time_to_reach)
@@ -176,6 +182,7 @@ def test_time_to_reach_output():
 
 
 # ------------------------------------------------------------------------------------ convergence loop
+@pytest.mark.slow
 def test_solve_until_converged_with_walls():
     """Target |x| <= 0.2 between walls |x| >= 0.6: the tube stops growing at the walls (after 0.4 s).
 
@@ -262,6 +269,7 @@ def test_progress_bar_runs():
     assert res.values.shape == (2, 41)
 
 
+@pytest.mark.slow
 def test_float64_solve_in_subprocess_matches_float32():
     """float64 needs x64 at start-up, so it runs in a fresh interpreter."""
     code = textwrap.dedent("""

@@ -66,6 +66,7 @@ def test_paper_network_and_zero_traffic_feasibility():
     assert 55 < math.hypot(gx - ox, gy - oy) < 60
 
 
+@pytest.mark.slow
 def test_corridor_counts_motzkin_and_by_area():
     """In the 1-D corridor a trajectory of n windows is a speed path 0 -> 0 with steps in {-1, 0, 1} (speeds 0..3
     cells per window). From a start L cells before the goal, the trajectories are the paths of area L (enumerated
@@ -139,6 +140,7 @@ def _hit_probability_radial(c, square_lo, r, n=400_001):
     return float(np.mean(np.where(hit, np.clip(1.0 - (2.0 * e / r) ** 2, 0.0, 1.0), 0.0)))
 
 
+@pytest.mark.slow
 def test_segment_robustness_against_analytic_blocking_probability():
     """A partially known intruder hovering at c (degree-2 curve, all control points at c) actually flies out and
     back along c + 2 s (1 - s) d, d uniform in the disk of radius r: it blocks a hovering ownship's cell with a
@@ -554,6 +556,7 @@ def test_goal_loss_counts_when_the_goal_was_lost_and_what_followed():
         goal_loss([*rows, row(5, "Nf", "G", 4, 9)], ("S", "Nf"))
 
 
+@pytest.mark.slow
 def test_goal_corridor_against_enumerated_trajectories():
     """The share of goal trajectories whose state at each window could reach an alternative site instead
     (``analysis.goal_corridor``, forward and backward counts) equals the share found by listing every trajectory
@@ -596,6 +599,7 @@ def test_goal_corridor_against_enumerated_trajectories():
         assert shares[0] == 1.0 and shares[max(shares)] == 0.0 and any(0 < v < 1 for v in shares.values())
 
 
+@pytest.mark.slow
 def test_shipped_policy_is_masked_and_flies_only_valid_primitives():
     """The shipped learned policy (MaskablePPO, ``docs/survivability.md``) loads with numpy, declares its masking,
     and on the paper's mission picks a valid primitive at every decision of a few missions."""

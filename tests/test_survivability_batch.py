@@ -23,6 +23,7 @@ from stp_env.survivability.study import run_instance, run_study, study_groups, s
 KEYS = ("n_partial", "n_unknown", "instance", "policy", "outcome", "reveals", "omega_switch", "n_dp", "windows")
 
 
+@pytest.mark.slow
 def test_tie_streams_repeat_numpy_s_choice():
     """``Generator.choice`` of ``n`` items, call after call, equals Lemire's method on the pre-drawn 32-bit
     outputs (``tie_streams``, ``lemire``), for every ``n`` a state can have ties among."""

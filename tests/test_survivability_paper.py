@@ -164,6 +164,7 @@ def test_paper_realisations_use_the_whole_tube():
     assert np.array_equal(t.actual[5:], t.nominal[5:])
 
 
+@pytest.mark.slow
 def test_paper_robustness_matches_the_blocking_frequency_of_drawn_realisations():
     """The Monte Carlo robustness with ``model="paper"`` (realisations drawn inside the jitted program) against the
     blocking frequency of realisations drawn by :func:`tube_offsets` and rasterised by :func:`occupancy`: the same
@@ -251,6 +252,7 @@ def _cell_values(g, values):
     return {k: {x: v for x, v in cells.items()} for k, cells in out.items()}
 
 
+@pytest.mark.slow
 def test_nf_goal_count_is_the_hand_count_of_trajectories_to_the_goal_per_cell():
     for alternate in (False, True):
         g = build_graph(build_network(corridor_with_alternate(alternate)))
@@ -274,6 +276,7 @@ def test_nf_goal_count_is_the_hand_count_of_trajectories_to_the_goal_per_cell():
     assert np.array_equal(np.asarray(both.value), dp.cell_sums(g, np.asarray(dp.counts(g, feasible, "all"))))
 
 
+@pytest.mark.slow
 def test_nf_goal_count_equals_cell_sums_with_blocked_cells_and_flies_missions():
     """On the 12 x 12 km mission with random blocked cells: the sweep's per-cell count equals the numpy cell sums
     of the per-state counts to Omega, and pi_Nf's future term sums those values; missions fly with it."""
@@ -310,6 +313,7 @@ def _slice(config):
     return rows, inst
 
 
+@pytest.mark.slow
 def test_defaults_are_the_papers_and_the_earlier_model_is_a_named_variant():
     """The default configuration flies the same missions, with the same robustness, as ``model="paper"``,
     ``nf_count="goal"`` named explicitly; the earlier model (``local``, ``landing``) changes them. A study of the

@@ -130,6 +130,7 @@ def _old_mission(g, inst, policy, plan, seed):
     return outcome, tuple(path), tuple(know.revealed), switch, n_dp
 
 
+@pytest.mark.slow
 def test_default_is_the_segment_model_bit_for_bit(graph):
     """(a) The default flies the same missions as ``reveal="segment"`` named explicitly, and both the same as the
     loop before the option existed; ``step`` changes some; the study fingerprint leaves the default out (a study

@@ -55,6 +55,7 @@ def _fly(params, policy, steps):
     return state
 
 
+@pytest.mark.slow
 def test_tube_keeping_holds_the_tube_and_a_tube_exit_from_the_free_set_is_a_violation(town):
     """With the crossing's (and town's) tables the free set is empty (the tracking value is flat below ``V(0)``), so
     the filter around a policy that runs away flies ``kappa``: every vehicle tracks within ``r_e``. With the free
@@ -81,6 +82,7 @@ def test_tube_keeping_holds_the_tube_and_a_tube_exit_from_the_free_set_is_a_viol
     assert not np.any(np.asarray(unfiltered.tracking_violation))
 
 
+@pytest.mark.slow
 def test_tracking_value_read_matches_the_table(town):
     """The value the core reads with kappa (the table's fourth component) is the tracking value interpolated."""
     from stp_env import hj
@@ -132,6 +134,7 @@ def crossing():
     return params, resolve_intruder("max-k")
 
 
+@pytest.mark.slow
 def test_ego_env_starts_after_the_avoidance_and_steps(crossing):
     """Every non-empty reset hands the agent a vehicle that was forced and is now after its avoidance, flying; the
     VecEnv steps with SB3's conventions; a window-only episode is refused (the ego could not reach its target)."""
@@ -157,6 +160,7 @@ def test_ego_env_starts_after_the_avoidance_and_steps(crossing):
         EgoVehicleVecEnv(2, window, intruder)
 
 
+@pytest.mark.slow
 def test_flying_faster_after_the_avoidance_arrives_earlier_on_the_same_episodes(crossing):
     """An independent check of the ego evaluation: on the same held-out episodes (same egos), the fallback at
     ``U``'s top speed arrives no later than ``u*``'s fallback at the planning speed, ego by ego, and is on time at
@@ -177,6 +181,7 @@ def test_flying_faster_after_the_avoidance_arrives_earlier_on_the_same_episodes(
 
 
 
+@pytest.mark.slow
 def test_shipped_vehicle_policies_fly_as_recorded():
     """Every shipped learned vehicle policy replays the small batch its file records (the ego's on-time arrivals
     and delays against ``max-k`` on the crossing): the same outcomes today."""
