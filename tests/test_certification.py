@@ -106,6 +106,7 @@ def test_the_certified_tracking_bound_holds_the_games_worst_reference(tmp_path):
     assert certify(config, bound.value).certified
 
 
+@pytest.mark.slow
 def test_the_shipped_11_ms_bound_was_solved_past_the_rules_stop():
     """The shipped 11 m/s bound records the finding that made certification necessary: where the stopping rule
     fired (40 s, V(0) = 35.39 m, the bound once shipped) the tracker's closed loop against the game's worst

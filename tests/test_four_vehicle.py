@@ -123,6 +123,7 @@ def test_closed_loop_reaches_targets_on_time_and_keeps_apart(setup, mode, seed):
     assert dmin > scenario.collision_radius, (mode, dmin)
 
 
+@pytest.mark.slow
 def test_plan_numbers(setup):
     scenario, _, bound, plan = setup
     # The highest-priority vehicle flies straight: its t_LDT is the straight-line time at the top planning speed

@@ -327,6 +327,7 @@ def test_a_survivability_study_on_ray_is_the_in_process_one(ray_executor, tmp_pa
     _same(json.loads(json.dumps(reports[0], default=str)), json.loads(json.dumps(reports[1], default=str)), "report")
 
 
+@pytest.mark.slow
 def test_a_killed_study_resumes_from_the_groups_it_wrote(tmp_path, monkeypatch):
     """A study interrupted in its third group wrote the first two groups' missions; run again, it flies only the
     groups that had not finished, and its missions are those of an uninterrupted study."""

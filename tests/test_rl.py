@@ -107,6 +107,7 @@ def test_vec_env_matches_dummy_vec_env_over_the_gym_env(params):
     assert kinds == {True, False}, "expected both time-limit and terminal episode ends"
 
 
+@pytest.mark.slow
 def test_vec_env_sb3_api_and_seeding(params):
     venv = IntruderVecEnv(N_ENVS, params=params)
     venv.seed(7)
