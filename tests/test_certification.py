@@ -124,18 +124,18 @@ def test_the_shipped_11_ms_bound_was_solved_past_the_rules_stop():
     assert tracking.bound == pytest.approx(checks[-1, 1]) and tracking.raised == 0.0
 
 
-def test_the_certified_tracking_bounds_are_those_shipped():
+@pytest.mark.parametrize("wind", [6.0, pytest.param(11.0, marks=pytest.mark.slow)])
+def test_the_certified_tracking_bounds_are_those_shipped(wind):
     """The shipped bounds are certified: 6 m/s keeps the bound the stopping rule gave (5.338 m; its closed loop stays
-    0.29 m below it) and 11 m/s was solved on until its closed loop held."""
-    for wind in (6.0, 11.0):
-        vehicle = DubinsWind(v_min=0.0, v_max=25.0, omega_max=2.0, wind=wind)
-        tracking = default_tracking_bound(vehicle, store=ArtifactStore(), progress=False)
-        assert tracking.converged, wind
-        assert tracking.closed_loop_excess <= -tracking.config.certify_allowance, wind
-        assert tracking.closed_loop_worst < tracking.bound, wind
-    six = default_tracking_bound(DubinsWind(v_min=0.0, v_max=25.0, omega_max=2.0, wind=6.0), store=ArtifactStore(),
-                                 progress=False)
-    assert six.bound == pytest.approx(5.337635, abs=1e-5)
+    0.29 m below it) and 11 m/s was solved on until its closed loop held (a slow check: solved from an empty cache,
+    about 300 s)."""
+    vehicle = DubinsWind(v_min=0.0, v_max=25.0, omega_max=2.0, wind=wind)
+    tracking = default_tracking_bound(vehicle, store=ArtifactStore(), progress=False)
+    assert tracking.converged, wind
+    assert tracking.closed_loop_excess <= -tracking.config.certify_allowance, wind
+    assert tracking.closed_loop_worst < tracking.bound, wind
+    if wind == 6.0:
+        assert tracking.bound == pytest.approx(5.337635, abs=1e-5)
 
 
 @pytest.mark.slow
