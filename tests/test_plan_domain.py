@@ -137,15 +137,16 @@ def test_the_shipped_city_and_bay_area_plans_hold_the_planners_constraints(file,
     assert math.isfinite(margin)
 
 
-SLOW_PLANS = ("bay-area", "city-case1")
+SHIPPED_TABLES_WIND = 6.0  # m/s: the default scenarios' wind, whose avoid and tracking tables ship
 STALE: dict[str, str] = {}  # shipped plans known to predate their scenario's certified bound (none): name -> why
 
 
 def _shipped_case(case):
     """A shipped plan as a test case: expected to fail while it is known stale; the plans whose scenario's tables
-    take long to solve from an empty cache (the bay area, the 11 m/s city) among the slow checks."""
+    do not ship and take minutes to solve from an empty cache (the bay area, the city's 11 m/s cases) among the
+    slow checks."""
     marks = [pytest.mark.xfail(strict=True, reason=STALE[case[0]])] if case[0] in STALE else []
-    if case[0] in SLOW_PLANS:
+    if case[0] == "bay-area" or make(case[1], **case[2]).vehicle.wind > SHIPPED_TABLES_WIND:
         marks.append(pytest.mark.slow)
     return pytest.param(*case, marks=marks, id=case[0])
 
