@@ -363,3 +363,93 @@ def test_cli_traffic_and_nf_count_options(tmp_path):
     assert code == 2 and err.count("\n") == 1 and "hover_share applies" in err
     code, _, err = run_cli([*out, "--traffic", "bezier"])
     assert code == 2 and "invalid choice" in err
+
+
+def test_max_speed_is_the_paper_draw_conditioned_on_the_bound():
+    """``TrafficConfig(max_speed=v)``: every nominal path is flown at a mean speed of at most ``v`` inside
+    ``(t_0, t_fu)``, and the exact conditional construction (acceptance by curve length, the time triangle scaled)
+    has the distribution of brute-force rejection of the unbounded draw (means and spread of the length, the
+    duration and the entry time within 4.5 standard errors); a smaller scenario's intruders are a larger one's."""
+    from stp_env.survivability.traffic import KM_PER_MIN_PER_MS, curve_length
+
+    mission, v, n = MissionConfig(), 40.0, 4000
+    t_fu = mission.rta_min[1]
+    t = sample_traffic(5, mission, TrafficConfig(n_partial=n, n_unknown=0, hover_share=0.0, max_speed=v))
+    length = curve_length(t.nominal)
+    assert (length / t.duration <= v * KM_PER_MIN_PER_MS * (1 + 1e-9)).all()
+    assert (t.t_in >= 0).all() and (t.t_in + t.duration <= t_fu + 1e-9).all()
+    # Brute force: the unbounded model's draw (control points anywhere, sorted times), kept when slow enough.
+    rng = np.random.default_rng(6)
+    kept = []
+    while sum(len(k[0]) for k in kept) < n:
+        ctrl = rng.uniform(0.0, mission.area_km, size=(20_000, 4, 2))
+        times = np.sort(rng.uniform(0.0, t_fu, size=(20_000, 2)), axis=1)
+        ln, dur = curve_length(ctrl), times[:, 1] - times[:, 0]
+        ok = ln <= v * KM_PER_MIN_PER_MS * dur
+        kept.append((ln[ok], dur[ok], times[ok, 0]))
+    ref = [np.concatenate([k[i] for k in kept])[:n] for i in range(3)]
+    for got, want in zip((length, t.duration, t.t_in), ref):
+        se = np.sqrt(got.var() / n + want.var() / n)
+        assert abs(got.mean() - want.mean()) < 4.5 * se
+        assert abs(got.std() - want.std()) < 0.05 * want.std()
+    # The bound lengthens the flights (the unbounded model's median speed is far above 40 m/s).
+    free = sample_traffic(5, mission, TrafficConfig(n_partial=n, n_unknown=0, hover_share=0.0))
+    assert np.median(curve_length(free.nominal) / free.duration) > 1.5 * v * KM_PER_MIN_PER_MS
+    assert t.duration.mean() > 1.5 * free.duration.mean()
+    # Common random numbers: the intruders of (50, 50) are those of (300, 300).
+    small_t = sample_traffic(3, mission, TrafficConfig(n_partial=50, n_unknown=50, max_speed=v))
+    big_t = sample_traffic(3, mission, TrafficConfig(n_partial=300, n_unknown=300, max_speed=v))
+    for a, b in zip(small_t[:4], big_t[:4]):
+        assert np.array_equal(a[:50], b[:50]) and np.array_equal(a[50:], b[300:350])
+    # Hovering intruders keep the unbounded model's times (they do not move).
+    hov = sample_traffic(7, mission, TrafficConfig(n_partial=500, n_unknown=0, max_speed=v))
+    free_hov = sample_traffic(7, mission, TrafficConfig(n_partial=500, n_unknown=0))
+    assert np.array_equal(hov.hovering, free_hov.hovering) and hov.hovering.any()
+    assert np.array_equal(hov.t_in[hov.hovering], free_hov.t_in[hov.hovering])
+    assert np.array_equal(hov.nominal[hov.hovering], free_hov.nominal[hov.hovering])
+
+
+def test_max_speed_option_checks_and_fingerprint(tmp_path):
+    import argparse
+
+    from _cli import run_cli
+
+    from stp_env.survivability.cli import add_parser, config_from_args
+    from stp_env.survivability.config import StudyConfig
+
+    with pytest.raises(ValueError, match="max_speed applies to the 'paper' traffic model only"):
+        TrafficConfig(model="local", max_speed=40.0)
+    with pytest.raises(ValueError, match="max_speed must be > 0"):
+        TrafficConfig(max_speed=0.0)
+    parser = argparse.ArgumentParser()
+    add_parser(parser.add_subparsers(dest="command"))
+    out = ["survivability", "--out", str(tmp_path)]
+    assert config_from_args(parser.parse_args(out)).traffic.max_speed is None
+    bounded = config_from_args(parser.parse_args([*out, "--max-speed", "40"]))
+    assert bounded.traffic.max_speed == 40.0
+    # Studies written before the option resume (it is left out at its default); a bounded study is another one.
+    assert "max_speed" not in StudyConfig().fingerprint()["traffic"]
+    assert bounded.fingerprint()["traffic"]["max_speed"] == 40.0
+    code, _, err = run_cli([*out, "--traffic", "local", "--max-speed", "40"])
+    assert code == 2 and err.count("\n") == 1 and "max_speed applies" in err
+
+
+def test_traffic_statistics_by_hand():
+    """One intruder flying 10 km east in 10 minutes (a straight cubic with equally spaced control points): 1 km per
+    minute = 16.7 m/s, airborne 10 of the mission's 60 minutes, and 2 cells blocked per minute (the path crosses
+    from x in [m + 0.5, m + 1.5) in minute m), 20 in all; a hovering intruder is left out of the path figures."""
+    from stp_env.survivability.traffic import traffic_statistics
+
+    mission = MissionConfig()
+    line = np.array([[[0.5 + 10.0 * i / 3, 0.5] for i in range(4)]])
+    one = Traffic(line, line, np.array([0.0]), np.array([10.0]), 1)
+    stats = traffic_statistics(one, mission, 6)
+    assert stats["moving"] == 1 and stats["length_km"] == pytest.approx(10.0)
+    assert stats["duration_min"] == 10.0 and stats["speed_ms_p50_p90_p99"] == pytest.approx([1000 / 60] * 3)
+    assert stats["airborne_fraction"] == pytest.approx(10 / 60) and stats["cells_per_intruder"] == 20
+    hover = np.full((1, 4, 2), 40.5)
+    two = Traffic(np.concatenate([line, hover]), np.concatenate([line, hover]), np.array([0.0, 0.0]),
+                  np.array([10.0, 30.0]), 2, np.array([False, True]))
+    stats = traffic_statistics(two, mission, 6)
+    assert stats["moving"] == 1 and stats["length_km"] == pytest.approx(10.0)
+    assert stats["cells_per_intruder"] == (20 + 30) / 2

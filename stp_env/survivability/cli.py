@@ -47,6 +47,9 @@ def add_parser(sub) -> None:
     sp.add_argument("--hover-share", type=kit.real(0.0, 1.0), default=None,
                     help="with --traffic paper: probability that an intruder hovers (default 0.1, the project's "
                          "choice: the paper gives none)")
+    sp.add_argument("--max-speed", type=kit.positive, default=None,
+                    help="with --traffic paper: condition each intruder's nominal path on a mean ground speed of at "
+                         "most this [m/s] (default: unbounded; 40 is the top of the paper's cruise speeds)")
     sp.add_argument("--nf-count", choices=nf_counts, default=nf_counts[0],
                     help="what pi_Nf counts: goal (default; the paper's Algorithm 1: trajectories to the terminal "
                          "set Omega, summed over the successor's cell) or landing (the earlier default: trajectories "
@@ -77,7 +80,8 @@ def config_from_args(args):
 
     return StudyConfig(n_partial=tuple(args.partial), n_unknown=tuple(args.unknown), n_instances=args.instances,
                        seed=args.seed, policies=tuple(args.policies),
-                       traffic=TrafficConfig(model=args.traffic, hover_share=args.hover_share),
+                       traffic=TrafficConfig(model=args.traffic, hover_share=args.hover_share,
+                                             max_speed=args.max_speed),
                        planner=PlannerConfig(beta=args.beta, n_mc=args.n_mc, nf_count=args.nf_count,
                                              reveal=args.reveal, sense_km=args.sense_km))
 

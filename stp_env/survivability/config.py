@@ -271,6 +271,12 @@ class TrafficConfig(_Overrides):
             each intruder, so a larger scenario keeps a smaller one's intruders): a degree-1 curve at a fixed
             location (``None``: :data:`PAPER_HOVER_SHARE`, the project's choice; the
             paper gives none). Must be ``None`` with ``model="local"``, which has no hovering intruders.
+        max_speed: [m/s] with ``model="paper"``, the fastest mean ground speed of an intruder's nominal path
+            (``None``, the default: unbounded, as the text says nothing of intruder speeds). Given, the paper's
+            draw (control points anywhere, entry and exit times in ``(t_0, t_fu)``) is conditioned on the
+            curve being flown no faster than this (:func:`stp_env.survivability.traffic.sample_traffic`); the
+            cruise speeds of the paper's network end at ``MissionConfig.v_max`` = 40 m/s. Must be ``None`` with
+            ``model="local"``, whose speeds are ``speed_range``.
     """
 
     n_partial: int = 100
@@ -282,10 +288,16 @@ class TrafficConfig(_Overrides):
     samples_per_min: int = 6
     model: str = "paper"
     hover_share: float | None = None
+    max_speed: float | None = None
 
     def __post_init__(self) -> None:
         if self.model not in TRAFFIC_MODELS:
             raise ValueError(f"traffic model must be one of {', '.join(TRAFFIC_MODELS)}; got {self.model!r}.")
+        if self.max_speed is not None:
+            if self.model != "paper":
+                raise ValueError(f"max_speed applies to the 'paper' traffic model only (model={self.model!r} draws "
+                                 f"its speeds from speed_range); got max_speed={self.max_speed!r}.")
+            object.__setattr__(self, "max_speed", float(_number("max_speed", self.max_speed, positive=True)))
         if self.hover_share is not None:
             if self.model != "paper":
                 raise ValueError(f"hover_share applies to the 'paper' traffic model only (model={self.model!r} has "
@@ -365,8 +377,8 @@ class PlannerConfig(_Overrides):
                              f"{self.n_survival}.")
 
 
-_ADDED_OPTIONS = (("traffic", "model", "local"), ("traffic", "hover_share", None), ("planner", "nf_count", "landing"),
-                  ("planner", "reveal", "segment"), ("planner", "sense_km", None))
+_ADDED_OPTIONS = (("traffic", "model", "local"), ("traffic", "hover_share", None), ("traffic", "max_speed", None),
+                  ("planner", "nf_count", "landing"), ("planner", "reveal", "segment"), ("planner", "sense_km", None))
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

@@ -302,18 +302,29 @@ def scores(policy: str, beta: float, tables: Tables, succ, first_robustness):
     return first_robustness + beta * (val + fut)
 
 
-def cone(graph: Graph, root: int) -> list[np.ndarray]:
+def cone(graph: Graph, root: int, limit: int | None = None) -> list[np.ndarray] | None:
     """The states reachable from state ``root``, window by window: ``layers[j]`` (sorted global indices) at window
     ``window_of(root) + j``. A mission at ``root`` only ever visits these, and their DP entries depend only on
-    each other."""
+    each other. ``limit``: ``None`` as soon as the layers found so far hold more than this many states (the
+    caller then sweeps every state instead; the windows are visited in order, so a large cone is abandoned after
+    its first large layer)."""
     layers = [np.array([root], np.int64)]
+    total = 1
     ws = graph.window_start
     for k in range(graph.window_of(root) + 1, graph.net.n_windows + 1):
         nxt = graph.succ[layers[-1]].ravel()
         mark = np.zeros(ws[k + 1] - ws[k], bool)
         mark[nxt[nxt >= 0] - ws[k]] = True
         layers.append(np.flatnonzero(mark) + ws[k])
+        total += len(layers[-1])
+        if limit is not None and total > limit:
+            return None
     return layers
+
+
+def cone_applies(policy: str, blocked_bits, nf_count: str) -> bool:
+    """Whether :func:`cone_tables` can give ``policy``'s tables (see its ``None`` cases)."""
+    return not ((policy == "S" and blocked_bits is None) or (policy == "Nf" and nf_count == "goal"))
 
 
 def cone_tables(graph: Graph, feasible, robustness, policy: str, omega: str, root: int,
@@ -332,7 +343,7 @@ def cone_tables(graph: Graph, feasible, robustness, policy: str, omega: str, roo
         raise ValueError(f"omega must be 'goal' or 'all'; got {omega!r}.")
     if nf_count not in NF_COUNTS:
         raise ValueError(f"nf_count must be one of {', '.join(NF_COUNTS)}; got {nf_count!r}.")
-    if (policy == "S" and blocked_bits is None) or (policy == "Nf" and nf_count == "goal"):
+    if not cone_applies(policy, blocked_bits, nf_count):
         return None
     feasible = np.asarray(feasible, bool)
     robustness = np.asarray(robustness, np.float32)

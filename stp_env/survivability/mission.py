@@ -208,13 +208,11 @@ def run_mission(graph: Graph, instance: Instance, policy: str, planner: PlannerC
         n_dp += 1
         # Only the states reachable from here matter from now on: from the third window on they are a few percent
         # of the graph, and a numpy sweep over them gives the same entries as the compiled sweep over all states.
-        if graph.window_of(g) > 0:
-            layers = dp.cone(graph, g)
-            if sum(len(x) for x in layers) <= CONE_STATES_MAX:
-                out = dp.cone_tables(graph, know.feasible, instance.robustness, policy, omega, g,
-                                     instance.blocked_bits, layers, planner.nf_count)
-                if out is not None:
-                    return out
+        if graph.window_of(g) > 0 and dp.cone_applies(policy, instance.blocked_bits, planner.nf_count):
+            layers = dp.cone(graph, g, limit=CONE_STATES_MAX)
+            if layers is not None:
+                return dp.cone_tables(graph, know.feasible, instance.robustness, policy, omega, g,
+                                      instance.blocked_bits, layers, planner.nf_count)
         # Windows before the current one do not matter; on small graphs a full sweep is cheaper than compiling
         # one program per starting window.
         start = graph.window_of(g) if graph.n_states > SWEEP_FROM_CURRENT_ABOVE else 0

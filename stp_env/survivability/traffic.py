@@ -138,24 +138,72 @@ def _sample_paper(seq: np.random.SeedSequence, mission: MissionConfig, config: T
     ``(t_0, t_fu) = (0, rta_min[1])``; with probability ``config.hover_fraction`` a hovering intruder instead, a
     degree-1 curve whose two control points share one uniform location (stored degree-elevated: all ``k + 1``
     control points equal); a partially known intruder's actual path from :func:`tube_offsets`. The streams are
-    per class and per quantity, as in the ``local`` model, so a larger scenario keeps a smaller one's intruders."""
+    per class and per quantity, as in the ``local`` model, so a larger scenario keeps a smaller one's intruders.
+
+    ``config.max_speed``: that draw conditioned on the nominal curve's mean speed ``L / D`` being at most
+    ``max_speed`` (``L`` its length, ``D`` its duration), exactly and with no loop over intruders: the draw is
+    uniform over (control points, sorted time pair), so the condition keeps a curve of length ``L`` with the
+    probability that the two times are at least ``d = L / max_speed`` apart, ``((t_fu - d) / t_fu)^2`` (0 when
+    ``d >= t_fu``); a rejected curve is replaced by the next of :data:`SPEED_CANDIDATES` more curves of its own
+    stream; and given the curve, the times are uniform on the part of the triangle ``0 < t_in < t_out < t_fu``
+    with ``t_out - t_in >= d``, which is the whole triangle scaled by ``c = (t_fu - d) / t_fu`` and shifted:
+    ``t_in = c t_min``, ``D = d + c (t_max - t_min)``. Hovering intruders (``L = 0``) are unchanged; without
+    ``max_speed`` nothing is drawn beyond the unbounded model's streams, so its instances stay bit for bit."""
     k = config.degree
     t_fu = mission.rta_min[1]
     parts = []
     for cls, (n, child) in enumerate(zip((config.n_partial, config.n_unknown), seq.spawn(2))):
-        ctrl_rng, hover_rng, time_rng, actual_rng = (np.random.default_rng(s) for s in child.spawn(4))
+        *streams, speed_seq = child.spawn(5)
+        ctrl_rng, hover_rng, time_rng, actual_rng = (np.random.default_rng(s) for s in streams)
         nominal = ctrl_rng.uniform(0.0, mission.area_km, size=(n, k + 1, 2))
         hovering = hover_rng.uniform(size=n) < config.hover_fraction
-        nominal[hovering] = nominal[hovering, :1]
         t = time_rng.uniform(0.0, t_fu, size=(n, 2))
         t_in = t.min(axis=1)
-        duration = np.maximum(t.max(axis=1) - t_in, 1e-6)
+        gap = t.max(axis=1) - t_in
+        if config.max_speed is not None:
+            bounded, min_duration = _speed_bounded(speed_seq, nominal, config.max_speed, t_fu, mission.area_km)
+            nominal = np.where(hovering[:, None, None], nominal, bounded)        # a hovering intruder stays put
+            min_duration = np.where(hovering, 0.0, min_duration)
+            scale = (t_fu - min_duration) / t_fu
+            t_in, gap = scale * t_in, min_duration + scale * gap
+        nominal[hovering] = nominal[hovering, :1]
+        duration = np.maximum(gap, 1e-6)
         actual = nominal.copy()
         if cls == 0 and k >= 2:
             actual[:, 1:k] += tube_offsets(actual_rng, n, k, config.uncertainty_km)
         parts.append((nominal, actual, t_in, duration, hovering))
     nominal, actual, t_in, duration, hovering = (np.concatenate([a[i] for a in parts]) for i in range(5))
     return Traffic(nominal, actual, t_in, duration, config.n_partial, hovering)
+
+
+SPEED_CANDIDATES = 256
+"""Curves drawn per intruder for ``TrafficConfig.max_speed`` beyond its first (:func:`_speed_bounded`)."""
+
+
+def _speed_bounded(seq: np.random.SeedSequence, nominal: np.ndarray, max_speed: float, t_fu: float, area_km: float):
+    """``(nominal, d)``: each intruder's curve conditioned on fitting in ``(0, t_fu)`` at ``max_speed`` [m/s], and
+    the shortest duration ``d`` [min] of it (see :func:`_sample_paper`). Curve ``i`` is the first of
+    ``nominal[i]``, then ``SPEED_CANDIDATES`` more uniform curves, that an acceptance uniform keeps (all drawn in
+    blocks, one stream each, whose first rows do not depend on the number of intruders). If none is kept (on the
+    paper's area at 40 m/s a curve is kept with probability 0.22, so about 1e-28), the shortest one is used."""
+    n, m = nominal.shape[0], SPEED_CANDIDATES
+    curve_rng, accept_rng = (np.random.default_rng(s) for s in seq.spawn(2))
+    extra = curve_rng.uniform(0.0, area_km, size=(n, m, *nominal.shape[1:]))
+    accept = accept_rng.uniform(size=(n, m + 1))
+    out = nominal.copy()
+    d_out = np.full(n, np.inf)
+    todo = np.arange(n)
+    for j in range(m + 1):
+        if not todo.size:
+            break
+        cand = nominal[todo] if j == 0 else extra[todo, j - 1]
+        d = curve_length(cand) / (max_speed * KM_PER_MIN_PER_MS)
+        shorter = d < d_out[todo]                     # the fallback: the shortest candidate so far
+        out[todo[shorter]], d_out[todo[shorter]] = cand[shorter], d[shorter]
+        keep = accept[todo, j] < np.clip((t_fu - d) / t_fu, 0.0, 1.0) ** 2
+        out[todo[keep]], d_out[todo[keep]] = cand[keep], d[keep]
+        todo = todo[~keep]
+    return out, np.minimum(d_out, t_fu)
 
 
 def airborne_fraction(traffic: Traffic, mission: MissionConfig) -> float:
@@ -167,6 +215,29 @@ def airborne_fraction(traffic: Traffic, mission: MissionConfig) -> float:
         return 0.0
     who, _, _ = present_samples(traffic.t_in, traffic.duration, mission, 1)
     return float(len(who) / (traffic.n * mission.n_minutes))
+
+
+def traffic_statistics(traffic: Traffic, mission: MissionConfig, samples_per_min: int) -> dict:
+    """What one reading of the traffic model puts in the air: over the intruders that move (hovering ones left
+    out), the mean length [km] and duration [min] of the nominal path and the percentiles (50, 90, 99) of its mean
+    speed [m/s]; over all intruders, :func:`airborne_fraction` and the mean number of (x, y, minute) cells of the
+    whole area that an intruder's actual path blocks during the mission (Assumption II.1, as rasterised here at
+    ``samples_per_min``), the volume of space-time it takes from the ownship."""
+    moving = np.ones(traffic.n, bool) if traffic.hovering is None else ~traffic.hovering
+    length = curve_length(traffic.nominal[moving])
+    speed = length / traffic.duration[moving] / KM_PER_MIN_PER_MS
+    who, t, s = present_samples(traffic.t_in, traffic.duration, mission, samples_per_min)
+    pts, _ = curve_points(traffic.actual, who, s)
+    _, minute = sample_times(mission, samples_per_min)
+    c = np.floor(pts / mission.cell_km).astype(np.int64)
+    n = mission.n_cells
+    inside = ((c >= 0) & (c < n)).all(axis=1)
+    cells = np.unique(((who[inside] * mission.n_minutes + minute[t[inside]]) * n + c[inside, 0]) * n + c[inside, 1])
+    return {"moving": int(moving.sum()), "length_km": float(length.mean()),
+            "duration_min": float(traffic.duration[moving].mean()),
+            "speed_ms_p50_p90_p99": [float(v) for v in np.percentile(speed, [50, 90, 99])],
+            "airborne_fraction": airborne_fraction(traffic, mission),
+            "cells_per_intruder": len(cells) / max(traffic.n, 1)}
 
 
 def sample_times(mission: MissionConfig, samples_per_min: int) -> tuple[np.ndarray, np.ndarray]:
