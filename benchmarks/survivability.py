@@ -1,6 +1,6 @@
 """Survivability study throughput, one JSON line per case, each with a peer measured in the same run.
 
-    python benchmarks/survivability.py [--instances 12] [--segments 300] [--cases counts robustness instance study]
+    python benchmarks/survivability.py [--instances 12] [--segments 300] [--cases counts robustness instance study sweeps]
 
 * ``counts``: trajectory counts to any landing site with no traffic, on the compact mission graph
   (:func:`stp_env.survivability.dp.counts`) against the dense network of every cell, heading and speed
@@ -13,6 +13,11 @@
   peers: the same instances with every recomputation over all states from the current window (``no_cone``: no
   numpy sweep over the states reachable from the current one) and from the first window (``full``); the
   missions (outcomes, reveals, sweeps, windows) must be the same in all three.
+* ``sweeps``: one recomputation of a policy's tables (``R``, ``S``, ``AvgR``) from a state of cruise window 0, 1
+  or 2, where the paper's traffic causes most of them: the compiled sweep over every state from the window
+  (:func:`stp_env.survivability.dp.tables`) against the numpy sweep over the states reachable from that one
+  (:func:`stp_env.survivability.dp.cone_tables`; the same entries, checked), and the search for those states with
+  the 4,000-state limit a mission uses against the whole search.
 * ``study``: a group of scenarios with one N_p and all six N_u (the study's unit of work), instances sharing
   their robustness and first tables (``run_instance(..., shared)``) against the same instances computed alone.
 
@@ -169,7 +174,37 @@ def case_study(graph, n_instances: int, n_partial: int = 175) -> dict:
             "same_missions": out["alone"][2] == out["shared"][2], "loadavg": load}
 
 
-CASES = ("counts", "robustness", "instance", "study")
+def case_sweeps(graph, window: int) -> dict:
+    from stp_env.survivability import dp, mission
+    from stp_env.survivability.config import StudyConfig
+
+    load = os.getloadavg()[0]
+    config = StudyConfig()
+    inst = mission.make_instance(graph, config.traffic, config.planner, (config.seed, 40_000))
+    feasible = np.ones(graph.n_segments, bool)
+    feasible[::50] = False                                               # some known conflicts
+    root = graph.origin if window == 0 else int(graph.window_start[window]) + 7
+    layers = dp.cone(graph, root)
+    out = {"case": "sweeps", "window": window, "reachable_states": int(sum(len(x) for x in layers)),
+           "graph_states": graph.n_states}
+    for policy in ("R", "S", "AvgR"):
+        a, t_a, _ = timed(lambda p=policy: mission._numpy(dp.tables(
+            graph, feasible, inst.robustness, p, "goal", window, inst.blocked_bits)), repeats=10)
+        b, t_b, _ = timed(lambda p=policy: dp.cone_tables(graph, feasible, inst.robustness, p, "goal", root,
+                                                            inst.blocked_bits, layers), repeats=10)
+        cone = np.concatenate(layers)
+        assert all(np.array_equal(x[cone], y[cone]) for x, y in zip(a, b))     # the same entries, bit for bit
+        out[policy] = {"compiled_ms": round(1e3 * t_a, 2), "peer_numpy_cone_ms": round(1e3 * t_b, 2),
+                       "ratio": round(t_b / t_a, 2)}
+    _, t_all, _ = timed(lambda: dp.cone(graph, root), repeats=10)
+    _, t_lim, _ = timed(lambda: dp.cone(graph, root, limit=mission.CONE_STATES_MAX), repeats=10)
+    out["cone_search_ms"] = {"limited": round(1e3 * t_lim, 3), "peer_whole": round(1e3 * t_all, 3),
+                             "ratio": round(t_all / t_lim, 1)}
+    out["loadavg"] = load
+    return out
+
+
+CASES = ("counts", "robustness", "instance", "study", "sweeps")
 
 
 def main() -> None:
@@ -190,6 +225,9 @@ def main() -> None:
             print(json.dumps(case_instance(graph, args.instances, scenario)), flush=True)
     if "study" in args.cases:
         print(json.dumps(case_study(graph, max(1, args.instances // 4))), flush=True)
+    if "sweeps" in args.cases:
+        for window in (0, 1, 2):
+            print(json.dumps(case_sweeps(graph, window)), flush=True)
 
 
 if __name__ == "__main__":

@@ -27,7 +27,8 @@ intruder as well as its flight duration") uniform in the mission window ``(t_0, 
 of the RTA), time still linear in the curve parameter between them; a share of the intruders hovers, "a Bezier
 curve with degree number 1 - a straight line that occupies a fixed location for a time interval"; and a partially
 known intruder's realisation may use the whole tube: "the intruder may fly a trajectory that deviates at most r
-from the planned trajectory" (:func:`tube_offsets`).
+from the planned trajectory" (:func:`tube_offsets`). The paper bounds no intruder speed; ``max_speed`` conditions its
+draw on one (:func:`_sample_paper`), and :func:`traffic_statistics` says what each reading puts in the air.
 """
 
 from __future__ import annotations
