@@ -1,6 +1,7 @@
 """Survivability study throughput, one JSON line per case, each with a peer measured in the same run.
 
-    python benchmarks/survivability.py [--instances 12] [--segments 300] [--cases counts robustness instance study sweeps]
+    python benchmarks/survivability.py [--instances 12] [--segments 300]
+        [--cases counts robustness instance study sweeps changed]
 
 * ``counts``: trajectory counts to any landing site with no traffic, on the compact mission graph
   (:func:`stp_env.survivability.dp.counts`) against the dense network of every cell, heading and speed
@@ -18,6 +19,12 @@
   (:func:`stp_env.survivability.dp.tables`) against the numpy sweep over the states reachable from that one
   (:func:`stp_env.survivability.dp.cone_tables`; the same entries, checked), and the search for those states with
   the 4,000-state limit a mission uses against the whole search.
+* ``changed``: what an incremental sweep could save: every policy's missions through ``--instances`` instances of
+  (100, 100) and (200, 200) are replayed reveal by reveal (the reveals of one decision point as one; a widening of
+  ``Omega``, which changes every ``future`` entry, is not counted and is replayed after its window's reveals), and
+  each recomputation's tables are
+  compared with the previous ones: the share of the states from the current window whose entries changed, per
+  window (a sweep that recomputed only those would do at most ``1 / share`` times less work).
 * ``study``: a group of scenarios with one N_p and all six N_u (the study's unit of work), instances sharing
   their robustness and first tables (``run_instance(..., shared)``) against the same instances computed alone.
 
@@ -204,7 +211,54 @@ def case_sweeps(graph, window: int) -> dict:
     return out
 
 
-CASES = ("counts", "robustness", "instance", "study", "sweeps")
+def case_changed(graph, n_instances: int) -> dict:
+    from stp_env.survivability import dp, mission
+    from stp_env.survivability.config import StudyConfig
+
+    config = StudyConfig()
+    planner = config.planner
+    shares: dict = {}
+    n_missions = n_widened = 0
+
+    def tables(policy, know, omega, window, inst):
+        return mission._numpy(dp.tables(graph, know.feasible, inst.robustness, policy, omega, window,
+                                        inst.blocked_bits, planner.nf_count))
+
+    minutes = [graph.net.window_start_minute(k) for k in range(graph.net.n_windows + 1)]
+    for i in range(n_instances):
+        for scenario in ((100, 100), (200, 200)):
+            traffic = config.traffic.with_overrides(n_partial=scenario[0], n_unknown=scenario[1])
+            inst = mission.make_instance(graph, traffic, planner, (config.seed, 50_000 + i))
+            for policy in config.policies:
+                res = mission.run_mission(graph, inst, policy, planner, seed=(config.seed, 50_000 + i))
+                n_missions += 1
+                n_widened += res.omega_switch is not None
+                know = mission.Knowledge(graph, inst)
+                omega, prev = "goal", tables(policy, know, "goal", 0, inst)
+                switch = res.omega_switch
+                for minute in sorted(set(res.reveal_minutes)):
+                    window = minutes.index(minute)
+                    if switch is not None and window > switch and omega == "goal":
+                        omega, prev = "all", tables(policy, know, "all", window, inst)
+                    know.reveal([r for r, m in zip(res.revealed, res.reveal_minutes) if m == minute], minute)
+                    new = tables(policy, know, omega, window, inst)
+                    lo = graph.window_start[window]
+                    changed = np.zeros(graph.n_states - lo, bool)
+                    for a, b in zip(prev, new):
+                        changed |= a[lo:] != b[lo:]
+                    shares.setdefault(window, []).append(float(changed.mean()))
+                    prev = new
+                    if window == switch and omega == "goal":    # widened after this window's reveals
+                        omega, prev = "all", tables(policy, know, "all", window, inst)
+    return {"case": "changed", "missions": n_missions, "widened": n_widened,
+            "scenarios": [[100, 100], [200, 200]],
+            "per_window": {str(k): {"recomputations": len(v), "changed_share_mean": round(float(np.mean(v)), 3),
+                                    "changed_share_median": round(float(np.median(v)), 3),
+                                    "incremental_ceiling": round(1.0 / max(float(np.mean(v)), 1e-9), 1)}
+                           for k, v in sorted(shares.items())}}
+
+
+CASES = ("counts", "robustness", "instance", "study", "sweeps", "changed")
 
 
 def main() -> None:
@@ -225,6 +279,8 @@ def main() -> None:
             print(json.dumps(case_instance(graph, args.instances, scenario)), flush=True)
     if "study" in args.cases:
         print(json.dumps(case_study(graph, max(1, args.instances // 4))), flush=True)
+    if "changed" in args.cases:
+        print(json.dumps(case_changed(graph, args.instances)), flush=True)
     if "sweeps" in args.cases:
         for window in (0, 1, 2):
             print(json.dumps(case_sweeps(graph, window)), flush=True)
