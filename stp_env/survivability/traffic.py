@@ -227,13 +227,9 @@ def traffic_statistics(traffic: Traffic, mission: MissionConfig, samples_per_min
     moving = np.ones(traffic.n, bool) if traffic.hovering is None else ~traffic.hovering
     length = curve_length(traffic.nominal[moving])
     speed = length / traffic.duration[moving] / KM_PER_MIN_PER_MS
-    who, t, s = present_samples(traffic.t_in, traffic.duration, mission, samples_per_min)
-    pts, _ = curve_points(traffic.actual, who, s)
-    _, minute = sample_times(mission, samples_per_min)
-    c = np.floor(pts / mission.cell_km).astype(np.int64)
+    who, minute, c = actual_cells(traffic, mission, samples_per_min)
     n = mission.n_cells
-    inside = ((c >= 0) & (c < n)).all(axis=1)
-    cells = np.unique(((who[inside] * mission.n_minutes + minute[t[inside]]) * n + c[inside, 0]) * n + c[inside, 1])
+    cells = np.unique(((who * mission.n_minutes + minute) * n + c[:, 0]) * n + c[:, 1])
     return {"moving": int(moving.sum()), "length_km": float(length.mean()),
             "duration_min": float(traffic.duration[moving].mean()),
             "speed_ms_p50_p90_p99": [float(v) for v in np.percentile(speed, [50, 90, 99])],
@@ -277,13 +273,20 @@ def occupancy(traffic: Traffic, mission: MissionConfig, samples_per_min: int, ce
               n_cells: int) -> np.ndarray:
     """``(n_cells, N)`` bool: which intruder's *actual* path occupies each tracked cell (``cell_id``: dense
     ``(minute, x, y) -> id``, ``-1`` = not tracked)."""
+    who, minute, c = actual_cells(traffic, mission, samples_per_min)
+    ids = cell_id[minute, c[:, 0], c[:, 1]]
+    occ = np.zeros((n_cells + 1, traffic.n), bool)
+    occ[np.where(ids >= 0, ids, n_cells), who] = True
+    return occ[:n_cells]
+
+
+def actual_cells(traffic: Traffic, mission: MissionConfig, samples_per_min: int):
+    """The cells the intruders' *actual* paths are in at the rasterisation instants, inside the area: intruder
+    index, time cell (minute since departure) and ``(P, 2)`` cell indices (x, y)."""
     who, t, s = present_samples(traffic.t_in, traffic.duration, mission, samples_per_min)
     pts, _ = curve_points(traffic.actual, who, s)
     _, minute = sample_times(mission, samples_per_min)
     c = np.floor(pts / mission.cell_km).astype(np.int64)
     n = mission.n_cells
     inside = (c[:, 0] >= 0) & (c[:, 0] < n) & (c[:, 1] >= 0) & (c[:, 1] < n)
-    ids = cell_id[minute[t[inside]], c[inside, 0], c[inside, 1]]
-    occ = np.zeros((n_cells + 1, traffic.n), bool)
-    occ[np.where(ids >= 0, ids, n_cells), who[inside]] = True
-    return occ[:n_cells]
+    return who[inside], minute[t[inside]], c[inside]
