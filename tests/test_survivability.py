@@ -295,6 +295,53 @@ def test_cone_tables_equal_the_compiled_sweep_on_the_reachable_states():
     assert dp.cone_tables(g, feasible, p, "S", "goal", root) is None        # the tree recursion: compiled only
 
 
+def test_packed_successor_groups_keep_every_state_s_successors_in_order_and_the_sweep_s_bits(monkeypatch):
+    """The sweep's packed layout (dp._buckets): each state's valid primitives moved left in their order, states
+    grouped by how many they have; the tables equal the layout without groups (one group per window) bit for bit
+    for every policy, terminal set and pi_Nf count, pi_S both exact and by the tree recursion."""
+    g = build_graph(build_network(small(n_increments=5)))
+    monkeypatch.setattr(dp, "BUCKET_MIN_STATES", 0)                     # groups in every window of this network
+    dp._consts.cache_clear()
+    c = dp._consts(g)[1]
+    ws = g.window_start
+    widths = set()
+    for k in range(g.net.n_windows):
+        valid = g.succ[ws[k]:ws[k + 1]] >= 0
+        seen = np.zeros(len(valid), int)
+        for rows, succ, seg in c["buckets"][k]:
+            rows, succ, seg = np.asarray(rows), np.asarray(succ), np.asarray(seg)
+            widths.add(succ.shape[1])
+            for r, a, b in zip(rows, succ, seg):
+                keep = valid[r]
+                n_next = ws[k + 2] - ws[k + 1]
+                want = np.r_[g.succ[ws[k] + r][keep] - ws[k + 1], np.full(len(a) - keep.sum(), n_next)]
+                assert np.array_equal(a, want) and np.array_equal(b[:keep.sum()], g.seg[ws[k] + r][keep])
+                assert np.all(b[keep.sum():] == g.n_segments)
+                seen[r] += 1
+        assert np.all(seen == 1)
+        order = np.asarray(c["order"][k])
+        assert np.array_equal(np.concatenate([np.asarray(r) for r, _, _ in c["buckets"][k]])[order],
+                              np.arange(len(valid)))
+    assert len(widths) >= 3                                               # several groups on this network
+    rng = np.random.default_rng(11)
+    p = rng.uniform(0.2, 1.0, g.n_segments).astype(np.float32)
+    bits = rng.integers(0, 2**32, (g.n_segments, 2), dtype=np.uint32)
+    feasible = rng.random(g.n_segments) < 0.9
+    cases = [(POLICIES, "goal", "goal", bits), (("S", "Nf"), "all", "landing", None)]
+    packed = [dp.tables_many(g, feasible, p, q, omega, 1, b, nf) for q, omega, nf, b in cases]
+    monkeypatch.setattr(dp, "BUCKET_WIDTHS", ())
+    dp._consts.cache_clear()
+    try:
+        assert len(dp._consts(g)[1]["buckets"][3]) == 1
+        for (q, omega, nf, b), want in zip(cases, packed):
+            got = dp.tables_many(g, feasible, p, q, omega, 1, b, nf)
+            for policy in q:
+                for name, x, y in zip(dp.Tables._fields, got[policy], want[policy]):
+                    assert np.array_equal(np.asarray(x), np.asarray(y)), (policy, omega, nf, name)
+    finally:
+        dp._consts.cache_clear()
+
+
 def test_knowledge_reveal_blocks_exactly_the_segments_through_revealed_cells():
     """Feasibility after successive reveals (updated through the cells' segment lists) equals its definition: no
     cell of the segment is on a revealed intruder's actual path."""

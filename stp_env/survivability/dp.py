@@ -73,15 +73,23 @@ class _Meta(NamedTuple):
     n_cell_groups: tuple     # per window: distinct (x, y) cells of its states
 
 
+BUCKET_WIDTHS = (4, 8, 16)
+"""Widths of the successor tables a window's states are grouped by (plus the window's largest number of
+successors): see :func:`_buckets`."""
+BUCKET_MIN_STATES = 1024
+"""Windows with fewer states keep one group (the compilation grows with the groups; small windows gain little)."""
+
+
 @functools.lru_cache(maxsize=4)
 def _consts(graph: Graph):
     """``(meta, arrays)``: the graph's per-window tables as device arrays, passed to the sweeps as arguments (as
     constants, XLA would spend seconds folding them at every compilation). ``succ[k]``: ``(n_k, A)`` local index
     of the successor in window ``k + 1`` (sentinel ``n_{k+1}``); ``seg[k]``: segment id (sentinel ``n_seg``);
-    ``cell_group[k]``: ``(n_k,)`` id of the state's (x, y) cell among the window's cells."""
+    ``cell_group[k]``: ``(n_k,)`` id of the state's (x, y) cell among the window's cells; ``buckets[k]`` and
+    ``order[k]``: the same successors packed by :func:`_buckets`."""
     ws = graph.window_start
     K = graph.net.n_windows
-    succ, seg, tg, ta, groups, n_groups = [], [], [], [], [], []
+    succ, seg, tg, ta, groups, n_groups, buckets, order = [], [], [], [], [], [], [], []
     for k in range(K + 1):
         sl = slice(ws[k], ws[k + 1])
         tg.append(jnp.asarray(graph.term_goal[sl]))
@@ -92,11 +100,47 @@ def _consts(graph: Graph):
         if k < K:
             s = graph.succ[sl]
             n_next = ws[k + 2] - ws[k + 1]
-            succ.append(jnp.asarray(np.where(s >= 0, s - ws[k + 1], n_next), jnp.int32))
-            seg.append(jnp.asarray(np.where(s >= 0, graph.seg[sl], graph.n_segments), jnp.int32))
+            local = np.where(s >= 0, s - ws[k + 1], n_next)
+            segs = np.where(s >= 0, graph.seg[sl], graph.n_segments)
+            succ.append(jnp.asarray(local, jnp.int32))
+            seg.append(jnp.asarray(segs, jnp.int32))
+            parts, inv = _buckets(s >= 0, local, segs, BUCKET_WIDTHS if len(s) >= BUCKET_MIN_STATES else ())
+            buckets.append(tuple((jnp.asarray(rows, jnp.int32), jnp.asarray(a, jnp.int32), jnp.asarray(b, jnp.int32))
+                                 for rows, a, b in parts))
+            order.append(jnp.asarray(inv, jnp.int32))
     arrays = {"succ": tuple(succ), "seg": tuple(seg), "term_goal": tuple(tg), "term_alt": tuple(ta),
-              "cell_group": tuple(groups)}
+              "cell_group": tuple(groups), "buckets": tuple(buckets), "order": tuple(order)}
     return _Meta(K, tuple(int(v) for v in ws), tuple(n_groups)), arrays
+
+
+def _buckets(valid, succ, seg, bucket_widths=BUCKET_WIDTHS):
+    """A window's successor tables packed for the sweep: most states have far fewer successors than primitives
+    (7 of 25 on average on the Bay-Area mission), so each state's valid primitives are moved to the left, in
+    their order, and the states are grouped by how many they have, each group padded only to its width
+    (``bucket_widths``, then the largest). Returns ``[(rows, succ, seg)]``, one per non-empty group (``rows``:
+    the group's states, local indices; ``succ``, ``seg``: ``(len(rows), width)`` with the tables' sentinels), and
+    ``inv``: the position of each state in the groups' concatenation.
+
+    The sweep gives the same bits as on the full tables: a dropped entry is a primitive with no successor, which
+    adds ``+0.0`` to a sum of non-negative terms taken left to right (:func:`_total`), ``-inf`` to a maximum and
+    no bit to an OR; the entries kept are added in the same order."""
+    n = len(valid)
+    deg = valid.sum(axis=1)
+    # Stable sort of each row: valid entries first, in their order.
+    pos = np.argsort(~valid, axis=1, kind="stable")
+    succ = np.take_along_axis(succ, pos, axis=1)
+    seg = np.take_along_axis(seg, pos, axis=1)
+    top = int(deg.max()) if n else 0
+    widths = sorted({min(w, top) for w in bucket_widths} | {top})
+    parts, lo = [], -1
+    for w in widths:
+        rows = np.flatnonzero((deg > lo) & (deg <= w))
+        lo = w
+        if rows.size or (w == widths[-1] and not parts):          # an empty window keeps one empty group
+            parts.append((rows, succ[rows, :max(w, 1)], seg[rows, :max(w, 1)]))
+    inv = np.empty(n, np.int64)
+    inv[np.concatenate([r for r, _, _ in parts])] = np.arange(n)
+    return parts, inv
 
 
 def cell_groups(graph: Graph, k: int) -> tuple[np.ndarray, int]:
@@ -212,37 +256,61 @@ def tables_jit(meta: _Meta, c, feasible, robustness, start, bits, policies, omeg
 
     def step(k, carry):
         n_goal1, n_all1, w1, r1, vs1, js1, reach1 = carry
-        succ, seg = c["succ"][k], c["seg"][k]
-        f, p = f_all[seg], p_all[seg]
-
-        def at(x, fill=0.0):
-            return _pad(x, fill)[succ]
-
-        tg, ta = c["term_goal"][k], c["term_goal"][k] | c["term_alt"][k]
-        n_goal = jnp.where(tg, 1.0, _total(jnp.where(f, at(n_goal1), 0.0)))
-        n_all = jnp.where(ta, 1.0, _total(jnp.where(f, at(n_all1), 0.0)))
-        w = r = jnp.zeros_like(n_all)
-        reach = words(n_all.shape[0])
-        if need_w:
-            w = jnp.where(ta, 1.0, _total(jnp.where(f, p * at(w1), 0.0)))
+        tg_k, ta_k = c["term_goal"][k], c["term_goal"][k] | c["term_alt"][k]
+        order = c["order"][k]
+        padded = {"n_goal": _pad(n_goal1, 0.0), "n_all": _pad(n_all1, 0.0), "w": _pad(w1, 0.0)}
         if need_r and exact:
-            # Realisations in which some trajectory from the state stays free: OR over the primitives of
-            # (segment free AND continuation free).
-            nxt = jnp.concatenate([reach1, jnp.zeros((1, n_words), jnp.uint32)])[succ]     # (n_k, A, W)
-            both = jnp.where(f[..., None], free_bits[seg] & nxt, jnp.uint32(0))
-            reach = jax.lax.reduce(both, np.uint32(0), jax.lax.bitwise_or, (1,))
-            reach = jnp.where(ta[:, None], ones, reach)
+            padded["reach"] = jnp.concatenate([reach1, jnp.zeros((1, n_words), jnp.uint32)])
+        elif need_r:
+            padded["r"] = _pad(r1, 0.0)
+
+        def assemble(parts):
+            return jnp.concatenate(parts)[order]
+
+        # The counts, W and R of every group of states (see _buckets), then the window's values.
+        groups = []
+        for rows, succ, seg in c["buckets"][k]:
+            f, p = f_all[seg], p_all[seg]
+            tg, ta = tg_k[rows], ta_k[rows]
+            g = {"f": f, "p": p, "succ": succ, "tg": tg, "ta": ta}
+            g["n_goal"] = jnp.where(tg, 1.0, _total(jnp.where(f, padded["n_goal"][succ], 0.0)))
+            g["n_all"] = jnp.where(ta, 1.0, _total(jnp.where(f, padded["n_all"][succ], 0.0)))
+            if need_w:
+                g["w"] = jnp.where(ta, 1.0, _total(jnp.where(f, p * padded["w"][succ], 0.0)))
+            if need_r and exact:
+                # Realisations in which some trajectory from the state stays free: OR over the primitives of
+                # (segment free AND continuation free).
+                both = jnp.where(f[..., None], free_bits[seg] & padded["reach"][succ], jnp.uint32(0))
+                reach = jax.lax.reduce(both, np.uint32(0), jax.lax.bitwise_or, (1,))
+                g["reach"] = jnp.where(ta[:, None], ones, reach)
+            elif need_r:
+                log_fail = _total(jnp.where(f, jnp.log(jnp.maximum(1.0 - p * padded["r"][succ], 1e-30)), 0.0))
+                g["r"] = jnp.where(ta, 1.0, -jnp.expm1(log_fail))
+            groups.append(g)
+        n_goal = assemble([g["n_goal"] for g in groups])
+        n_all = assemble([g["n_all"] for g in groups])
+        w = assemble([g["w"] for g in groups]) if need_w else jnp.zeros_like(n_all)
+        reach = words(n_all.shape[0])
+        r = jnp.zeros_like(n_all)
+        if need_r and exact:
+            reach = assemble([g["reach"] for g in groups])
             r = jnp.sum(jax.lax.population_count(reach), axis=1).astype(jnp.float32) / (32.0 * n_words)
         elif need_r:
-            log_fail = _total(jnp.where(f, jnp.log(jnp.maximum(1.0 - p * at(r1), 1e-30)), 0.0))
-            r = jnp.where(ta, 1.0, -jnp.expm1(log_fail))
-        n_om, t_om = (n_goal, tg) if omega == "goal" else (n_all, ta)
+            r = assemble([g["r"] for g in groups])
+        n_om = n_goal if omega == "goal" else n_all
         vs, js = {}, {}
         for q in policies:
             vs[q] = value(q, n_all, w, r, k, n_om)
-            reward = p if q == "R" else 0.0
-            cand = jnp.where(f, reward + at(vs1[q]) + at(js1[q], NEG), NEG)
-            js[q] = jnp.where(n_om > 0, jnp.where(t_om, 0.0, jnp.max(cand, axis=1)), NEG)
+            v1, j1 = _pad(vs1[q], 0.0), _pad(js1[q], NEG)
+            parts = []
+            for g in groups:
+                f, succ = g["f"], g["succ"]
+                reward = g["p"] if q == "R" else 0.0
+                cand = jnp.where(f, reward + v1[succ] + j1[succ], NEG)
+                n_om_g = g["n_goal"] if omega == "goal" else g["n_all"]
+                t_om = g["tg"] if omega == "goal" else g["ta"]
+                parts.append(jnp.where(n_om_g > 0, jnp.where(t_om, 0.0, jnp.max(cand, axis=1)), NEG))
+            js[q] = assemble(parts)
         return n_goal, n_all, w, r, vs, js, reach
 
     def words(n, ta=None):
