@@ -144,29 +144,43 @@ def segment_robustness(rng: np.random.Generator, graph: Graph, traffic: Traffic,
 def blocked_counts(graph: Graph, bits: np.ndarray, keep: int = 0):
     """``(n_seg,)`` number of realisations blocking each segment, from ``bits`` ``(n_cells, n_bytes)`` uint8, bit
     ``j`` set when realisation ``j`` blocks the cell: the popcount of the OR over the segment's cells; and the
-    OR's first ``keep`` bits per segment as ``(n_seg, keep / 32)`` uint32."""
-    seg_all, cell_all = _segment_cell_pairs(graph)
-    ever = bits.any(axis=1)
-    hit = ever[cell_all]
-    seg, cell = seg_all[hit], cell_all[hit]
-    out = np.zeros(graph.n_segments, np.int64)
-    first = np.zeros((graph.n_segments, keep // 32), np.uint32)
-    if seg.size == 0:
-        return out, first
+    OR's first ``keep`` bits per segment as ``(n_seg, keep / 32)`` uint32.
+
+    The OR runs slot by slot of the segments' cell lists (a segment has 13 cells on average, at most 29, on the
+    Bay-Area mission), over the segments sorted by their number of cells, so each pass reads only the segments
+    that have that slot: 4 times faster than gathering every (segment, cell) pair's words at once (0.06 s against
+    0.25 s on the Bay-Area graph with 2,500 realisations)."""
+    order, count, cells = _segments_by_cells(graph)
     pad = -bits.shape[1] % 8
     words = np.pad(bits, ((0, 0), (0, pad))).view(np.uint64)
-    starts = np.flatnonzero(np.r_[True, seg[1:] != seg[:-1]])
-    ored = np.bitwise_or.reduceat(words[cell], starts, axis=0)
-    out[seg[starts]] = np.bitwise_count(ored).sum(axis=1)
+    out = np.zeros(graph.n_segments, np.int64)
+    first = np.zeros((graph.n_segments, keep // 32), np.uint32)
+    n = int(np.count_nonzero(count))
+    if n == 0 or not words.any():
+        return out, first
+    acc = words[cells[:n, 0]]
+    for j in range(1, cells.shape[1]):
+        m = int(np.count_nonzero(count > j))
+        if m == 0:
+            break
+        acc[:m] |= words[cells[:m, j]]
+    out[order[:n]] = np.bitwise_count(acc).sum(axis=1, dtype=np.int64)
     if keep:
-        first[seg[starts]] = np.ascontiguousarray(ored[:, :keep // 64]).view(np.uint32)
+        first[order[:n]] = np.ascontiguousarray(acc[:, :keep // 64]).view(np.uint32)
     return out, first
 
 
 @functools.lru_cache(maxsize=4)
-def _segment_cell_pairs(graph: Graph):
-    seg, slot = np.nonzero(graph.seg_cells >= 0)                                # sorted by segment
-    return seg, graph.seg_cells[seg, slot]
+def _segments_by_cells(graph: Graph):
+    """The segments sorted by their number of cells, most first: ``(order, count, cells)``, ``count`` and the
+    cell lists ``cells`` (left-packed, ``-1`` padding) in that order."""
+    valid = graph.seg_cells >= 0
+    count = valid.sum(axis=1)
+    order = np.argsort(-count, kind="stable")
+    # Left-pack each list (the graph's lists are; this keeps the loop right if they were not).
+    pos = np.argsort(~valid, axis=1, kind="stable")
+    cells = np.take_along_axis(graph.seg_cells, pos, axis=1)[order]
+    return order, count[order], cells
 
 
 def _bucket(n: int) -> int:
