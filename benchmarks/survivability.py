@@ -17,8 +17,10 @@
 * ``sweeps``: one recomputation of a policy's tables (``R``, ``S``, ``AvgR``) from a state of cruise window 0, 1
   or 2, where the paper's traffic causes most of them: the compiled sweep over every state from the window
   (:func:`stp_env.survivability.dp.tables`) against the numpy sweep over the states reachable from that one
-  (:func:`stp_env.survivability.dp.cone_tables`; the same entries, checked), and the search for those states with
-  the 4,000-state limit a mission uses against the whole search.
+  (:func:`stp_env.survivability.dp.cone_tables`; the same entries, checked), and against the compiled sweep
+  with one group of states per window (``peer_one_group``: each state's successors packed left but every state
+  padded to the window's largest count, ``dp.BUCKET_WIDTHS = ()``; the same tables, checked); and the search for
+  the reachable states with the 4,000-state limit a mission uses against the whole search.
 * ``changed``: what an incremental sweep could save: every policy's missions through ``--instances`` instances of
   (100, 100) and (200, 200) are replayed reveal by reveal (the reveals of one decision point as one; a widening of
   ``Omega``, which changes every ``future`` entry, is not counted and is replayed after its window's reveals), and
@@ -201,8 +203,20 @@ def case_sweeps(graph, window: int) -> dict:
                                                             inst.blocked_bits, layers), repeats=10)
         cone = np.concatenate(layers)
         assert all(np.array_equal(x[cone], y[cone]) for x, y in zip(a, b))     # the same entries, bit for bit
+        # Peer 2: the same compiled sweep with one group of states per window (no grouping by successor count).
+        widths = dp.BUCKET_WIDTHS
+        dp.BUCKET_WIDTHS = ()
+        dp._consts.cache_clear()
+        try:
+            c, t_c, _ = timed(lambda p=policy: mission._numpy(dp.tables(
+                graph, feasible, inst.robustness, p, "goal", window, inst.blocked_bits)), repeats=10)
+        finally:
+            dp.BUCKET_WIDTHS = widths
+            dp._consts.cache_clear()
+        assert all(np.array_equal(x, y) for x, y in zip(a, c))                 # the same tables, bit for bit
         out[policy] = {"compiled_ms": round(1e3 * t_a, 2), "peer_numpy_cone_ms": round(1e3 * t_b, 2),
-                       "ratio": round(t_b / t_a, 2)}
+                       "ratio": round(t_b / t_a, 2), "peer_one_group_ms": round(1e3 * t_c, 2),
+                       "ratio_one_group": round(t_c / t_a, 2)}
     _, t_all, _ = timed(lambda: dp.cone(graph, root), repeats=10)
     _, t_lim, _ = timed(lambda: dp.cone(graph, root, limit=mission.CONE_STATES_MAX), repeats=10)
     out["cone_search_ms"] = {"limited": round(1e3 * t_lim, 3), "peer_whole": round(1e3 * t_all, 3),
