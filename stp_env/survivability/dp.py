@@ -122,8 +122,9 @@ def _buckets(valid, succ, seg, bucket_widths=BUCKET_WIDTHS):
     ``inv``: the position of each state in the groups' concatenation.
 
     The sweep gives the same bits as on the full tables: a dropped entry is a primitive with no successor, which
-    adds ``+0.0`` to a sum of non-negative terms taken left to right (:func:`_total`), ``-inf`` to a maximum and
-    no bit to an OR; the entries kept are added in the same order."""
+    adds ``+0.0`` to a sum taken left to right (:func:`_total`; ``x + 0.0 == x`` for every ``x`` but ``-0.0``,
+    and no term of these sums is ``-0.0``: counts, products of non-negative numbers, logarithms of numbers in
+    ``(0, 1]``), ``-inf`` to a maximum and no bit to an OR; the entries kept are added in the same order."""
     n = len(valid)
     deg = valid.sum(axis=1)
     # Stable sort of each row: valid entries first, in their order.
