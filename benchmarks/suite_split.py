@@ -1,9 +1,9 @@
-"""What the README's test command leaves to CI's slow step: its share of the suite's time, and what every module
+"""What the README's test command leaves to the slow tests: its share of the suite's time, and what every module
 of the package keeps covered without it.
 
-The README's test command runs every test but those marked ``slow`` (``-m "not slow"``); ``.ci/run`` runs the
-``slow`` ones as a step of their own. This reads one whole-suite run, made with per-test coverage and a JUnit
-report:
+The README's test command runs every test but those marked ``slow`` (``-m "not slow"``); CI runs that command
+only, and the ``slow`` ones are run by hand (docs/development.md). This reads one whole-suite run, made with
+per-test coverage and a JUnit report:
 
     STP_ENV_CACHE_DIR=$(mktemp -d) python -m pytest -q -n 2 --dist loadfile --junitxml=suite.xml \\
         --cov=stp_env --cov-context=test --cov-report=

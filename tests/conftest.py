@@ -45,7 +45,7 @@ settings.register_profile(
 settings.register_profile("thorough", deadline=None, max_examples=400)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "stp"))
 
-# The README's command runs `-n 2 --dist loadfile -m "not slow"` and CI's slow step `-m slow`: every test file runs
+# The README's command runs `-n 2 --dist loadfile -m "not slow"` and the slow tests `-m slow`: every test file runs
 # whole on one of two workers, handed out in collection order (`--no-loadscope-reorder` in pyproject.toml keeps that
 # order; xdist would otherwise sort the files by their number of tests). A long file handed out last leaves the other
 # worker idle at the end, so the longest files go first (longest-processing-time-first), ranked by the larger of a
