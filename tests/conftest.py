@@ -49,7 +49,7 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "stp"))
 # whole on one of two workers, handed out in collection order (`--no-loadscope-reorder` in pyproject.toml keeps that
 # order; xdist would otherwise sort the files by their number of tests). A long file handed out last leaves the other
 # worker idle at the end, so the longest files go first (longest-processing-time-first), ranked by the larger of a
-# file's times in the two steps (a whole run's JUnit report, as benchmarks/suite_split.py reads it); a file not listed
+# file's times in the two runs (a whole run's JUnit report, as benchmarks/suite_split.py reads it); a file not listed
 # (under 15 s in both) runs after these, in collection order, so a long new file belongs here. The order only affects
 # the wall time, never what runs.
 SLOWEST_FILES = ("test_certification.py", "test_gates.py", "test_jax_rl.py", "test_planning.py",
